@@ -1,0 +1,114 @@
+"""Input validation at the library boundary.
+
+Every check raises ``ValueError`` with a message that names what is wrong (which argument,
+which item of a batch, and the offending value), so that bad data never travels further.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "check_position",
+    "check_quaternion",
+    "check_covariance",
+    "UNIT_TOLERANCE",
+]
+
+#: Largest accepted deviation of ``|q|`` from 1 when normalisation was not requested.
+UNIT_TOLERANCE = 1e-6
+
+
+def _where(bad: np.ndarray) -> str:
+    """Describe the first offending batch index (empty for a single item)."""
+    if bad.ndim == 0:
+        return ""
+    idx = tuple(int(i) for i in np.argwhere(bad)[0])
+    return f" at index {idx[0] if len(idx) == 1 else idx}"
+
+
+def _as_float_array(x, name: str, last: tuple[int, ...]) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numeric, got {type(x).__name__}") from exc
+    if a.shape[a.ndim - len(last) :] != last or a.ndim < len(last):
+        want = "(..., " + ", ".join(str(n) for n in last) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+    if not np.isfinite(a.sum()):  # one reduction decides the common, all-finite case
+        finite = np.isfinite(a).all(axis=tuple(range(-len(last), 0)))
+        if not np.all(finite):
+            raise ValueError(f"{name} contains NaN or inf{_where(~finite)}")
+    return a
+
+
+def check_position(position, name: str = "position") -> np.ndarray:
+    """Return ``position`` as a float array of shape (..., 3), all finite."""
+    return _as_float_array(position, name, (3,))
+
+
+def check_quaternion(quaternion, normalize: bool = False, name: str = "quaternion") -> np.ndarray:
+    """Return a unit quaternion array (..., 4) in ``(x, y, z, w)`` order.
+
+    Parameters
+    ----------
+    quaternion : array_like, shape (..., 4)
+    normalize : bool
+        If true, any non-zero finite quaternion is scaled to unit length. Otherwise a norm
+        farther than ``UNIT_TOLERANCE`` from 1 is an error (it usually means a wrong order,
+        such as ``(w, x, y, z)``, or corrupted data); smaller deviations are renormalised.
+    """
+    q = _as_float_array(quaternion, name, (4,))
+    if q.ndim == 1:  # single quaternion: scalar arithmetic is much cheaper than ufuncs
+        n1 = math.sqrt(float(q @ q))
+        if n1 != 0.0 and (normalize or abs(n1 - 1.0) <= UNIT_TOLERANCE):
+            return q / n1
+    n = np.linalg.norm(q, axis=-1)
+    if np.any(n == 0.0):
+        raise ValueError(f"{name} is zero{_where(n == 0.0)}")
+    off = np.abs(n - 1.0) > UNIT_TOLERANCE
+    if not normalize and np.any(off):
+        bad = np.abs(n - 1.0)
+        where = _where(off)
+        worst = float(np.max(bad))
+        raise ValueError(
+            f"{name} is not unit length{where}: |q| - 1 = {worst:.3g} "
+            f"(tolerance {UNIT_TOLERANCE:g}; pass normalize=True to accept it)"
+        )
+    return q / n[..., None]
+
+
+def check_covariance(covariance, name: str = "covariance", size: int = 6) -> np.ndarray:
+    """Return ``covariance`` as a float array (..., size, size): symmetric and PSD.
+
+    Symmetry is required to a relative tolerance of ``1e-9`` of the largest entry and the
+    smallest eigenvalue may not be below ``-1e-12`` times the largest; the returned matrix is
+    exactly symmetrised.
+    """
+    c = _as_float_array(covariance, name, (size, size))
+    ct = np.swapaxes(c, -1, -2)
+    if not np.array_equal(c, ct):
+        scale = np.max(np.abs(c), axis=(-2, -1))
+        asym = np.max(np.abs(c - ct), axis=(-2, -1))
+        bad = asym > 1e-9 * np.maximum(scale, 1e-300)
+        if np.any(bad):
+            raise ValueError(
+                f"{name} is not symmetric{_where(bad)}: max |C - C^T| = {float(np.max(asym)):.3g}"
+            )
+        c = 0.5 * (c + ct)
+    ok = True
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        ok = False
+    if not ok:  # positive semi-definite but singular matrices are allowed
+        eig = np.linalg.eigvalsh(c)
+        low = eig[..., 0] < -1e-12 * np.maximum(eig[..., -1], 1e-300)
+        if np.any(low):
+            raise ValueError(
+                f"{name} is not positive semi-definite{_where(low)}: smallest eigenvalue "
+                f"{float(np.min(eig[..., 0])):.3g}"
+            )
+    return c

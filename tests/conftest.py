@@ -1,0 +1,36 @@
+"""Shared test fixtures.
+
+Real recordings live outside the repository (``../shared/data`` relative to the repository
+root, or ``$TRACKFLOW_DATA``). Tests that need them take the ``shared_data`` fixture, which skips
+with the reason when the folder is absent.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """Folder with the shared real recordings (may not exist)."""
+    env = os.environ.get("TRACKFLOW_DATA")
+    return Path(env) if env else (REPO_ROOT.parent / "shared" / "data")
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    d = shared_data_dir()
+    if not (d / "README.md").is_file():
+        pytest.skip(f"shared recordings not found at {d} (set TRACKFLOW_DATA to their folder)")
+    return d
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A fresh, seeded generator per test: no shared hidden RNG state between tests."""
+    return np.random.default_rng(20261121)
