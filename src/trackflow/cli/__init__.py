@@ -1,0 +1,1 @@
+"""Command line: ``trackflow <command>``; see ``trackflow.cli.main``."""
