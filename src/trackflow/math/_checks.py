@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from ._kernels import covariance_is_plainly_valid
+
 __all__ = [
     "check_position",
     "check_quaternion",
@@ -87,6 +89,9 @@ def check_covariance(covariance, name: str = "covariance", size: int = 6) -> np.
     smallest eigenvalue may not be below ``-1e-12`` times the largest; the returned matrix is
     exactly symmetrised.
     """
+    if type(covariance) is np.ndarray and covariance.dtype == np.float64:
+        if covariance.shape == (size, size) and covariance_is_plainly_valid(covariance):
+            return covariance
     c = _as_float_array(covariance, name, (size, size))
     ct = np.swapaxes(c, -1, -2)
     if not np.array_equal(c, ct):

@@ -22,7 +22,14 @@ import numpy as np
 from ._jacobians import jacobians_compose, propagate_covariance
 from ._quaternion import quat_multiply, quat_rotate
 
-__all__ = ["get_backend", "set_backend", "use_backend", "numba_available", "compose"]
+__all__ = [
+    "get_backend",
+    "set_backend",
+    "use_backend",
+    "numba_available",
+    "compose",
+    "covariance_is_plainly_valid",
+]
 
 
 def _cache_dir() -> str:
@@ -198,6 +205,64 @@ if _nb is not None:
         Jb = np.empty((6, 6))
         _compose_one(ta, qa, Ca, tb, qb, Cb, Ca, False, t, q, C, Ja, Jb)
         return t, q, C, Ja, Jb
+
+
+def _covariance_code(c):
+    """0: finite, exactly symmetric and PSD; 1: not finite; 2: not symmetric; 3: maybe not PSD.
+
+    The PSD test is a Cholesky factorisation that treats pivots below a relative tolerance as
+    zero (allowed when the rest of their column vanishes too), so singular PSD matrices pass.
+    Code 3 is confirmed by the caller with an eigenvalue computation.
+    """
+    n = c.shape[0]
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            v = c[i, j]
+            if not np.isfinite(v):
+                return 1
+            if v != c[j, i]:
+                return 2
+            if abs(v) > scale:
+                scale = abs(v)
+    tol = 1e-12 * scale
+    low = np.zeros((n, n))
+    for j in range(n):
+        d = c[j, j]
+        for k in range(j):
+            d -= low[j, k] * low[j, k]
+        if d < -tol:
+            return 3
+        if d <= tol:
+            for i in range(j + 1, n):
+                s = c[i, j]
+                for k in range(j):
+                    s -= low[i, k] * low[j, k]
+                if abs(s) > 1e-6 * scale:
+                    return 3
+            continue
+        r = np.sqrt(d)
+        low[j, j] = r
+        for i in range(j + 1, n):
+            s = c[i, j]
+            for k in range(j):
+                s -= low[i, k] * low[j, k]
+            low[i, j] = s / r
+    return 0
+
+
+if _nb is not None:
+    _covariance_code_jit = _nb.njit(cache=True)(_covariance_code)
+
+
+def covariance_is_plainly_valid(c: np.ndarray) -> bool:
+    """Fast check of one (n, n) float matrix: finite, exactly symmetric and PSD.
+
+    ``False`` means "look closer" (the caller runs the detailed checks that name the problem).
+    """
+    if _backend == "numba" and c.ndim == 2:
+        return _covariance_code_jit(c) == 0
+    return False
 
 
 _ZERO66 = np.zeros((1, 6, 6))

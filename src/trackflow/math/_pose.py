@@ -54,6 +54,11 @@ class Pose:
     def __init__(self, position, quaternion, normalize: bool = False):
         p = check_position(position)
         q = check_quaternion(quaternion, normalize=normalize)
+        if p is position:  # never alias the caller's array: a Pose does not change under it
+            p = p.copy()
+        if p.ndim == 1 and q.ndim == 1:
+            self._p, self._q = p, q
+            return
         shape = np.broadcast_shapes(p.shape[:-1], q.shape[:-1])
         self._p = np.broadcast_to(p, shape + (3,)).copy() if p.shape[:-1] != shape else p
         self._q = np.broadcast_to(q, shape + (4,)).copy() if q.shape[:-1] != shape else q

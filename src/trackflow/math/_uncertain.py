@@ -71,6 +71,8 @@ class UncertainPose:
         if not isinstance(pose, Pose):
             raise ValueError(f"pose must be a trackflow Pose, got {type(pose).__name__}")
         c = check_covariance(covariance)
+        if c is covariance:  # never alias the caller's array
+            c = c.copy()
         if c.shape[:-2] != pose.shape:
             try:
                 c = np.broadcast_to(c, pose.shape + (6, 6)).copy()
@@ -156,19 +158,19 @@ class UncertainPose:
             ``C_c = J_c_a C_a J_c_a^T + J_c_b C_b J_c_b^T (+ cross terms)`` with
             ``J_c_a = [[I, -R_a [t_b]x], [0, R_b^T]]``, ``J_c_b = [[R_a, 0], [0, I]]``.
         """
-        if isinstance(other, Pose):
-            other = UncertainPose.exact(other)
         if not isinstance(other, UncertainPose):
-            raise ValueError(f"cannot compose with {type(other).__name__}")
-        cross = _as_cross(cross_covariance, self.shape)
+            if not isinstance(other, Pose):
+                raise ValueError(f"cannot compose with {type(other).__name__}")
+            other = UncertainPose.exact(other)
+        pa, pb = self._pose, other._pose
         t, q, c, J_c_a, J_c_b = _kernels.compose(
-            self.position,
-            self.quaternion,
+            pa._p,
+            pa._q,
             self._cov,
-            other.position,
-            other.quaternion,
+            pb._p,
+            pb._q,
             other._cov,
-            cross,
+            None if cross_covariance is None else _as_cross(cross_covariance, self.shape),
         )
         out = UncertainPose._trusted(t, q, c)
         return (out, J_c_a, J_c_b) if jacobians else out
