@@ -1,0 +1,80 @@
+"""Queries: which relationship an application wants, how it is judged and delivered."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ._evaluation import EvaluationFunction, resolve_evaluation
+from ._paths import Path, find_paths
+from ._srg import SpatialRelationshipGraph
+
+__all__ = ["Query", "select_paths"]
+
+
+@dataclass(frozen=True)
+class Query:
+    """An application's request for ``T_source_target``.
+
+    Parameters
+    ----------
+    source, target : str
+        Frames of the wanted relationship.
+    evaluation : callable, str or None
+        Path evaluation (lower is better); see :func:`resolve_evaluation`.
+    mode : {"pull", "push"}
+        ``pull``: the application calls ``get(t)`` at any time. ``push``: results are sent at
+        ``rate_hz``, each valid at the tick time plus ``time_offset_s`` (negative values
+        interpolate in the past, positive ones predict; thesis 7.3.4).
+    rate_hz : float or None
+        Push rate [1/s] (required for push).
+    time_offset_s : float
+        Prediction distance [s] added to each sample time.
+    fuse : bool
+        Fuse all independent paths (paths that share no sensor) instead of using the best.
+    name : str
+    """
+
+    source: str
+    target: str
+    evaluation: object = None
+    mode: str = "pull"
+    rate_hz: float | None = None
+    time_offset_s: float = 0.0
+    fuse: bool = False
+    name: str = "query"
+    evaluate: EvaluationFunction = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        if self.mode not in ("pull", "push"):
+            raise ValueError(f"query {self.name!r}: mode must be 'pull' or 'push'")
+        if self.mode == "push":
+            if self.rate_hz is None or not (0 < self.rate_hz < math.inf):
+                raise ValueError(f"query {self.name!r}: push delivery needs a rate_hz > 0")
+        if not math.isfinite(self.time_offset_s):
+            raise ValueError(f"query {self.name!r}: time_offset_s must be finite")
+        object.__setattr__(self, "evaluate", resolve_evaluation(self.evaluation))
+
+
+def select_paths(graph: SpatialRelationshipGraph, query: Query) -> list[Path]:
+    """The path(s) answering a query, best first.
+
+    Without ``fuse`` the single best path under the query's evaluation function; with
+    ``fuse`` greedily every path (best first) sharing no sensor with an already chosen one.
+    Ties are broken by path length and then by the path's text, so the choice is
+    deterministic.
+    """
+    paths = find_paths(graph, query.source, query.target)
+    scored = sorted(paths, key=lambda p: (query.evaluate(p), len(p), str(p)))
+    if not query.fuse:
+        return scored[:1]
+    chosen: list[Path] = []
+    used: set[str] = set()
+    for p in scored:
+        if p.sensors & used:
+            continue
+        if not p.sensors and chosen:
+            continue  # a purely static path adds no independent information twice
+        chosen.append(p)
+        used |= p.sensors
+    return chosen
