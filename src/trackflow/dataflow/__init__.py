@@ -1,0 +1,33 @@
+"""Dataflow runtime: components with push/pull ports, a scheduler, a planner and setups.
+
+Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
+``(dt, dtheta)`` (``t_true = t + dt``, ``R_true = R Exp(dtheta)``), see
+``docs/conventions.md``.
+"""
+
+from ._component import Component
+from ._events import ComponentStats, Measurement
+from ._network import Network
+from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler, make_filter
+from ._sinks import CallbackSink, PullSink, Recorder
+from ._sources import NO_ORIGIN, RecordingPlayer, SimulatedSensor, StaticPose
+
+__all__ = [
+    "NO_ORIGIN",
+    "CallbackSink",
+    "Component",
+    "ComponentStats",
+    "Inference",
+    "Inversion",
+    "KalmanFilter",
+    "LatestValue",
+    "Measurement",
+    "Network",
+    "PullSink",
+    "RecordingPlayer",
+    "Recorder",
+    "Sampler",
+    "SimulatedSensor",
+    "StaticPose",
+    "make_filter",
+]

@@ -32,6 +32,12 @@ class Query:
         Prediction distance [s] added to each sample time.
     fuse : bool
         Fuse all independent paths (paths that share no sensor) instead of using the best.
+    static : bool
+        The wanted relationship is known to be rigid (for example a calibration to estimate
+        from data, thesis 7.4.1): the result is a static estimate over all measurements.
+        Relationships whose paths consist of static edges only are static anyway.
+    exclude : tuple of str
+        Edge names the path search must not use (such as the very edge being estimated).
     name : str
     """
 
@@ -42,6 +48,8 @@ class Query:
     rate_hz: float | None = None
     time_offset_s: float = 0.0
     fuse: bool = False
+    static: bool = False
+    exclude: tuple[str, ...] = ()
     name: str = "query"
     evaluate: EvaluationFunction = field(init=False, repr=False, compare=False)
 
@@ -53,6 +61,7 @@ class Query:
                 raise ValueError(f"query {self.name!r}: push delivery needs a rate_hz > 0")
         if not math.isfinite(self.time_offset_s):
             raise ValueError(f"query {self.name!r}: time_offset_s must be finite")
+        object.__setattr__(self, "exclude", tuple(self.exclude))
         object.__setattr__(self, "evaluate", resolve_evaluation(self.evaluation))
 
 
@@ -64,7 +73,16 @@ def select_paths(graph: SpatialRelationshipGraph, query: Query) -> list[Path]:
     Ties are broken by path length and then by the path's text, so the choice is
     deterministic.
     """
-    paths = find_paths(graph, query.source, query.target)
+    paths = [
+        p
+        for p in find_paths(graph, query.source, query.target)
+        if not any(s.edge.name in query.exclude for s in p.steps)
+    ]
+    if not paths:
+        raise ValueError(
+            f"no path from frame {query.source!r} to frame {query.target!r} without the "
+            f"excluded edges {list(query.exclude)}"
+        )
     scored = sorted(paths, key=lambda p: (query.evaluate(p), len(p), str(p)))
     if not query.fuse:
         return scored[:1]

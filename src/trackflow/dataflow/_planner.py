@@ -1,0 +1,463 @@
+"""The query planner: a path (or independent paths) of the SRG -> a dataflow network.
+
+Construction rules (thesis 7.4, figures 7.2-7.4):
+
+1. Every measured edge gets a source and, directly behind it, a pose Kalman filter, so that all
+   inputs of an inference can be asked for one common time (prediction or interpolation;
+   section 9.2.2). ``align=False`` uses a latest-value buffer instead (the naive chain).
+2. Consecutive static edges are chained once at planning time into one static node (two static
+   edges infer a static relationship); an inverted static edge is inverted there too.
+3. An edge walked against its direction is inverted once, at the cheapest place: a run of
+   consecutive inverted edges is chained in forward order and the product inverted once
+   (``B^-1 A^-1 = (A B)^-1``); an inverted sensor edge is inverted behind its filter.
+4. The terms of a path are chained by one inference component.
+5. With ``fuse`` and several independent paths, each path's inference is triggered by its
+   slowest sensor and pushes into one fusion filter.
+6. If the queried relationship is static but measured through moving edges, the path
+   inference pushes into a Kalman filter with a static motion model: a static estimator.
+7. Push delivery appends a sampler at the query's rate and time offset; pull delivery a
+   ``get(t)`` sink.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
+from ._network import Network
+from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
+from ._sinks import PullSink, Recorder
+from ._sources import RecordingPlayer, StaticPose
+
+__all__ = ["Plan", "PlanNode", "plan_query"]
+
+
+@dataclass
+class PlanNode:
+    """One component of a plan: ``kind`` in {source, kalman, latest, static, inversion,
+    inference, sampler, recorder, pull sink}; ``inputs`` are ``(node_id, "push"|"pull")``."""
+
+    id: str
+    kind: str
+    params: dict = field(default_factory=dict)
+    inputs: list[tuple[str, str]] = field(default_factory=list)
+    why: str = ""
+
+    def label(self) -> str:
+        p = self.params
+        if self.kind == "kalman":
+            m = p["motion"]
+            model = "static" if m.static else f"n_dp={m.n_dp}, n_do={m.n_do}"
+            return f"kalman ({p['role']}; {model})"
+        if self.kind == "sampler":
+            return f"sampler ({p['rate_hz']:g} Hz, offset {p['offset_ns'] * 1e-6:+g} ms)"
+        if self.kind == "source":
+            return f"source ({p['edge']})"
+        return self.kind
+
+
+@dataclass
+class Plan:
+    """A query's dataflow plan: nodes in data order, the chosen paths and the reasons."""
+
+    query: Query
+    paths: list[Path]
+    scores: list[float]
+    nodes: list[PlanNode]
+    output: str
+    relationship_static: bool
+
+    def node(self, node_id: str) -> PlanNode:
+        for n in self.nodes:
+            if n.id == node_id:
+                return n
+        raise ValueError(f"no node {node_id!r} in the plan")
+
+    def count(self, kind: str) -> int:
+        """Number of nodes of a kind."""
+        return sum(1 for n in self.nodes if n.kind == kind)
+
+    def explain(self) -> str:
+        """Human-readable plan: chosen path(s) with their evaluation, then every node, its
+        inputs and the construction rule that put it there."""
+        q = self.query
+        lines = [
+            f"query {q.name}: T_{q.source}_{q.target}, {q.mode} delivery"
+            + (f" at {q.rate_hz:g} Hz, offset {q.time_offset_s * 1e3:+g} ms" if q.rate_hz else "")
+            + f", evaluation {q.evaluate.__name__}"
+            + (", relationship static" if self.relationship_static else ""),
+        ]
+        for i, (p, s) in enumerate(zip(self.paths, self.scores), 1):
+            lines.append(f"path {i} (score {s:.6g}): {p}")
+        lines.append("dataflow:")
+        for n in self.nodes:
+            src = ", ".join(f"{i} ({m})" for i, m in n.inputs)
+            lines.append(f"  {n.id}: {n.label()}" + (f" <- {src}" if src else ""))
+            if n.why:
+                lines.append(f"      because {n.why}")
+        return "\n".join(lines)
+
+    def to_dot(self) -> str:
+        """Graphviz dot of the dataflow (pull connections dashed)."""
+        out = [f'digraph "{self.query.name}" {{', "  rankdir=LR;", "  node [shape=box];"]
+        for n in self.nodes:
+            shape = ", shape=ellipse" if n.kind in ("source", "static") else ""
+            out.append(f'  "{n.id}" [label="{n.id}\\n{n.label()}"{shape}];')
+        for n in self.nodes:
+            for i, mode in n.inputs:
+                style = " [style=dashed]" if mode == "pull" else ""
+                out.append(f'  "{i}" -> "{n.id}"{style};')
+        out.append("}")
+        return "\n".join(out) + "\n"
+
+    def build(
+        self,
+        sources: Mapping[str, RecordingPlayer],
+        *,
+        callback: Callable | None = None,
+        filter_factory: Callable | None = None,
+        history_s: float = 1.0,
+        network: Network | None = None,
+        prefix: str = "",
+    ) -> tuple[Network, Recorder | PullSink]:
+        """Instantiate the plan.
+
+        Parameters
+        ----------
+        sources : mapping edge name -> RecordingPlayer (or SimulatedSensor)
+            One player per measured edge of the plan.
+        callback : callable, optional
+            Called with every pushed result (push delivery).
+        network : Network, optional
+            Add to an existing network (component names get ``prefix``).
+
+        Returns
+        -------
+        (network, sink)
+            ``sink`` is a :class:`Recorder` (push) or :class:`PullSink` (pull).
+        """
+        net = network if network is not None else Network()
+        made: dict[str, object] = {}
+        for n in self.nodes:
+            name = prefix + n.id
+            p = n.params
+            if n.kind == "source":
+                edge = p["edge"]
+                if edge not in sources:
+                    raise ValueError(f"no recording or sensor given for measured edge {edge!r}")
+                c = sources[edge]
+                if c.name in net.components:
+                    c = net.components[c.name]
+                else:
+                    net.add(c)
+            elif n.kind == "kalman":
+                c = net.add(
+                    KalmanFilter(
+                        name,
+                        p["motion"],
+                        role=p["role"],
+                        history_s=history_s,
+                        stamp_offset_ns=p.get("stamp_offset_ns", 0),
+                        filter_factory=filter_factory,
+                        prior=p.get("prior"),
+                    )
+                )
+            elif n.kind == "latest":
+                c = net.add(LatestValue(name))
+            elif n.kind == "static":
+                c = net.add(StaticPose(name, p["value"]))
+            elif n.kind == "inversion":
+                c = net.add(Inversion(name))
+            elif n.kind == "inference":
+                c = net.add(Inference(name))
+            elif n.kind == "sampler":
+                c = net.add(Sampler(name, p["rate_hz"], p["offset_ns"]))
+            elif n.kind == "recorder":
+                c = net.add(Recorder(name, callback))
+            elif n.kind == "pull sink":
+                c = net.add(PullSink(name))
+            else:  # pragma: no cover - plan nodes are made by plan_query only
+                raise ValueError(f"unknown plan node kind {n.kind!r}")
+            made[n.id] = c
+            for i, mode in n.inputs:
+                net.connect(made[i], c, mode=mode)
+        return net, made[self.output]
+
+
+def _stamp_offset_ns(edge) -> int:
+    return int(round(edge.stamp_offset_s * 1e9))
+
+
+def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = True) -> Plan:
+    """Plan the dataflow answering ``query`` (rules in the module docstring).
+
+    Parameters
+    ----------
+    align : bool
+        True: a Kalman filter behind every sensor (time-aligned chain). False: latest-value
+        buffers (the naive chain that ignores measurement times), for comparison.
+
+    Raises
+    ------
+    ValueError
+        Unknown frames, no path, bad query.
+    """
+    paths = select_paths(graph, query)
+    scores = [query.evaluate(p) for p in paths]
+    motions = [infer_motion(p) for p in paths]
+    # A relationship is static if the query says so or if any path consists of static edges
+    # only (a rigid chain pins it down).
+    rel_static = query.static or any(m.static for m in motions)
+    nodes: list[PlanNode] = []
+    ids: set[str] = set()
+
+    def add(node: PlanNode) -> str:
+        base, k = node.id, 1
+        while node.id in ids:
+            k += 1
+            node.id = f"{base}_{k}"
+        ids.add(node.id)
+        nodes.append(node)
+        return node.id
+
+    offset = query.time_offset_s
+    sensor_term: dict[str, str] = {}
+
+    def sensor(edge) -> str:
+        """Source + filter (or naive buffer) of one measured edge, created once."""
+        if edge.name in sensor_term:
+            return sensor_term[edge.name]
+        src = add(
+            PlanNode(
+                f"src_{edge.name}",
+                "source",
+                {"edge": edge.name},
+                why=f"measured edge {edge.source}->{edge.target}",
+            )
+        )
+        if not align:
+            node = add(
+                PlanNode(
+                    f"latest_{edge.name}",
+                    "latest",
+                    {},
+                    [(src, "push")],
+                    why="naive chain: newest value, no time alignment",
+                )
+            )
+        else:
+            if edge.motion.static:
+                role = "buffer"
+            elif rel_static or offset < 0:
+                role = "interpolator"
+            else:
+                role = "predictor"
+            why = (
+                f"a dynamic sensor must be valid at any requested time (7.4, rule 1); "
+                f"{edge.latency_s * 1e3:g} ms latency"
+            )
+            if edge.motion.static:
+                why = "buffer for a sensor measuring a static relationship"
+            if edge.stamp_offset_s:
+                why += f"; corrects the {edge.stamp_offset_s * 1e3:+g} ms timestamp offset"
+            node = add(
+                PlanNode(
+                    f"kf_{edge.name}",
+                    "kalman",
+                    {
+                        "motion": edge.motion,
+                        "role": role,
+                        "stamp_offset_ns": _stamp_offset_ns(edge),
+                    },
+                    [(src, "push")],
+                    why=why,
+                )
+            )
+        sensor_term[edge.name] = node
+        return node
+
+    def chain(steps, tag: str) -> tuple[str, str]:
+        """Terms of forward (non-inverted) steps, statics folded; returns (node, text)."""
+        terms: list[str] = []
+        static_run: list = []
+
+        def flush():
+            if not static_run:
+                return
+            value = None
+            for e in static_run:
+                value = e.value() if value is None else value.compose(e.value())
+            names = "+".join(e.name for e in static_run)
+            why = (
+                "static edge"
+                if len(static_run) == 1
+                else ("static edges chained once at planning time (static . static = static)")
+            )
+            terms.append(add(PlanNode(f"static_{names}", "static", {"value": value}, why=why)))
+            static_run.clear()
+
+        for e in steps:
+            if e.kind == "static":
+                static_run.append(e)
+            else:
+                flush()
+                terms.append(sensor(e))
+        flush()
+        if len(terms) == 1:
+            return terms[0], ""
+        node = add(
+            PlanNode(
+                f"inference_{tag}",
+                "inference",
+                {},
+                [(t, "pull") for t in terms],
+                why="chains the terms of the path at one common time (rule 4)",
+            )
+        )
+        return node, ""
+
+    def plan_path(path: Path, tag: str) -> str:
+        # Split the path into runs of equal direction.
+        runs: list[tuple[bool, list]] = []
+        for s in path.steps:
+            if runs and runs[-1][0] == s.inverted:
+                runs[-1][1].append(s.edge)
+            else:
+                runs.append((s.inverted, [s.edge]))
+        terms: list[str] = []
+        for k, (inverted, edges) in enumerate(runs):
+            if not inverted:
+                if len(runs) == 1:
+                    return chain(edges, tag)[0]
+                terms.append(chain(edges, f"{tag}_{k}")[0])
+                continue
+            forward = list(reversed(edges))
+            if all(e.kind == "static" for e in forward):
+                value = None
+                for e in forward:
+                    value = e.value() if value is None else value.compose(e.value())
+                names = "+".join(e.name for e in forward)
+                terms.append(
+                    add(
+                        PlanNode(
+                            f"static_{names}_inv",
+                            "static",
+                            {"value": value.inverse()},
+                            why="inverted static edge(s): inverted once at planning time (rule 3)",
+                        )
+                    )
+                )
+                continue
+            inner, _ = chain(forward, f"{tag}_{k}" if len(runs) > 1 else tag)
+            what = (
+                "the product of a run of inverted edges"
+                if len(forward) > 1
+                else (f"edge {forward[0].name} walked against its direction")
+            )
+            inv = add(
+                PlanNode(
+                    f"inv_{inner}",
+                    "inversion",
+                    {},
+                    [(inner, "pull")],
+                    why=f"{what}: one inversion at the cheapest place (rule 3)",
+                )
+            )
+            terms.append(inv)
+        if len(terms) == 1:
+            return terms[0]
+        return add(
+            PlanNode(
+                f"inference_{tag}",
+                "inference",
+                {},
+                [(t, "pull") for t in terms],
+                why="chains the terms of the path at one common time (rule 4)",
+            )
+        )
+
+    path_nodes = [
+        plan_path(p, f"p{i + 1}" if len(paths) > 1 else "path") for i, p in enumerate(paths)
+    ]
+    dynamic_paths = [(p, n) for p, n in zip(paths, path_nodes) if p.sensors]
+    end = path_nodes[0]
+    if rel_static and dynamic_paths:
+        end = _estimator(
+            add,
+            nodes,
+            sensor_term,
+            dynamic_paths,
+            MotionSpec.make_static(),
+            "static_estimator",
+            "static estimator",
+            "the queried relationship is static: a Kalman filter with a static "
+            "motion model averages all inferred measurements (rule 6, 7.4.1)",
+        )
+        static_paths = [p for p in paths if not p.sensors]
+        if static_paths:
+            est = nodes[-1]
+            est.params["prior"] = static_paths[0].value()
+            est.why += f"; the static path {static_paths[0]} enters as its prior"
+
+    elif len(dynamic_paths) > 1:
+        end = _estimator(
+            add,
+            nodes,
+            sensor_term,
+            dynamic_paths,
+            infer_motion(dynamic_paths[0][0]),
+            "fusion",
+            "fusion",
+            f"{len(paths)} independent paths meet: one fusion filter (rule 5)",
+        )
+    if query.mode == "push":
+        offset_ns = int(round(query.time_offset_s * 1e9))
+        s = add(
+            PlanNode(
+                "sampler",
+                "sampler",
+                {"rate_hz": float(query.rate_hz), "offset_ns": offset_ns},
+                [(end, "pull")],
+                why="push delivery at a fixed rate (rule 7)",
+            )
+        )
+        out = add(PlanNode("app", "recorder", {}, [(s, "push")], why="the application"))
+    else:
+        out = add(
+            PlanNode(
+                "app", "pull sink", {}, [(end, "pull")], why="the application pulls get(t) (rule 7)"
+            )
+        )
+    return Plan(query, paths, scores, nodes, out, rel_static)
+
+
+def _estimator(add, nodes, sensor_term, dynamic_paths, motion, node_id, role, why) -> str:
+    """A filter fed by push-triggered path inferences (fusion or static estimation)."""
+    inputs = []
+    by_id = {n.id: n for n in nodes}
+    for p, n in dynamic_paths:
+        slowest = min(
+            (s.edge for s in p.steps if s.edge.kind == "measured"),
+            key=lambda e: (e.rate_hz, e.name),
+        )
+        term = sensor_term[slowest.name]
+        trig = term if by_id[term].kind == "kalman" else by_id[term].inputs[0][0]
+        node = by_id[n]
+        note = f"; triggered whenever its slowest sensor {slowest.name} delivers"
+        if node.kind == "inference":
+            node.inputs.append((trig, "push"))
+            node.why += note
+            trigger = n
+        else:
+            trigger = add(
+                PlanNode(
+                    f"trigger_{n}",
+                    "inference",
+                    {},
+                    [(n, "pull"), (trig, "push")],
+                    why="evaluates the path" + note,
+                )
+            )
+        inputs.append((trigger, "push"))
+    return add(PlanNode(node_id, "kalman", {"motion": motion, "role": role}, inputs, why=why))

@@ -1,0 +1,260 @@
+"""Processing components: inversion, inference, Kalman filter, latest-value buffer, sampler."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ..graph import MotionSpec
+from ..math import UncertainPose
+from ._component import Component
+from ._events import Measurement
+from ._sources import NO_ORIGIN
+
+__all__ = ["Inference", "Inversion", "KalmanFilter", "LatestValue", "Sampler", "make_filter"]
+
+
+class Inversion(Component):
+    """``T_b_a = T_a_b^-1`` with ``C' = J C J^T`` (push in -> push out, or pull -> pull).
+
+    The error convention is ``t_true = t + dt``, ``R_true = R Exp(dtheta)`` on both sides.
+    """
+
+    push_in = 1
+    pull_in = 1
+    push_out = True
+    pull_out = True
+    kind = "inversion"
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        self.stats.events_in += 1
+        self.emit(Measurement(m.t_ns, m.pose.inverse(), m.origin_ns))
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        m = self.inputs[0].pull(t_ns)
+        if m is None:
+            self.stats.reject("no input")
+            return None
+        self.stats.events_out += 1
+        return Measurement(m.t_ns, m.pose.inverse(), m.origin_ns)
+
+
+class Inference(Component):
+    """Chain ``T_0 @ T_1 @ ... @ T_n`` of its pull inputs, all requested at one time.
+
+    ``pull(t)`` asks every input for ``t``; a push on the trigger input (any event at time
+    ``t``) evaluates the chain at ``t`` and pushes the result. The covariance is propagated to
+    first order with the compose Jacobians (inputs treated as independent). The result is
+    stamped with the latest input time (all equal when the inputs are time-aligned filters).
+    """
+
+    push_in = 1
+    pull_in = -1
+    push_out = True
+    pull_out = True
+    kind = "inference"
+
+    def _evaluate(self, t_ns: int) -> Measurement | None:
+        out: UncertainPose | None = None
+        t_out, origin = None, NO_ORIGIN
+        for src in self.inputs:
+            m = src.pull(t_ns)
+            if m is None:
+                self.stats.reject("missing input")
+                return None
+            out = m.pose if out is None else out.compose(m.pose)
+            t_out = m.t_ns if t_out is None else max(t_out, m.t_ns)
+            origin = max(origin, m.origin_ns)
+        return Measurement(t_out, out, origin)
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        m = self._evaluate(t_ns)
+        if m is not None:
+            self.stats.events_out += 1
+        return m
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        self.stats.events_in += 1
+        out = self._evaluate(m.t_ns)
+        if out is not None:
+            self.emit(out)
+
+
+def make_filter(motion: MotionSpec, history_s: float):
+    """A :class:`trackflow.filters.PoseKalmanFilter` for a relationship's motion model."""
+    try:
+        from ..filters import MotionModel, PoseKalmanFilter
+    except ImportError as exc:  # the filter package is a hard requirement of this component
+        raise RuntimeError(f"the pose Kalman filter is unavailable: {exc}") from exc
+    if motion.static:
+        model = MotionModel.static()
+    else:
+        model = MotionModel(motion.n_dp, motion.n_do, noise=motion.noise)
+    return PoseKalmanFilter(model, history=history_s)
+
+
+class KalmanFilter(Component):
+    """A pose Kalman filter turning pushed measurements into a pull output valid at any time.
+
+    Depending on where the planner puts it, it acts as a buffer, predictor (future times),
+    interpolator (past times, within ``history_s``), fusion filter (several push inputs) or
+    static estimator (a static motion model: a recursive least-squares average).
+
+    Measurement timestamps are corrected by the edge's known ``stamp_offset_ns`` (``true =
+    stamp - offset``). Rejected updates (filter gating, out-of-order, invalid) are counted;
+    requests more than ``max_extrapolation_ns`` past the last accepted measurement, or before
+    the history, return ``None`` and are counted ("stale"), so a sensor that stops produces
+    counted rejections instead of a drifting answer. Accepted, time-corrected measurements are
+    pushed on (a trigger for push-mode inference).
+
+    Parameters
+    ----------
+    motion : MotionSpec
+    role : str
+        Label used by plans ("predictor", "interpolator", "fusion", "static estimator").
+    prior : UncertainPose, optional
+        A measurement applied before the first pushed one (at that one's time), for example
+        a static path's value entering a static estimator.
+    filter_factory : callable, optional
+        ``filter_factory(motion, history_s)`` building an object with ``update_pose(t_s,
+        UncertainPose) -> bool`` and ``predict(t_s) -> UncertainPose``; default
+        :func:`make_filter`.
+    """
+
+    push_in = -1
+    push_out = True
+    pull_out = True
+    kind = "kalman"
+
+    def __init__(
+        self,
+        name: str,
+        motion: MotionSpec,
+        *,
+        role: str = "predictor",
+        history_s: float = 1.0,
+        stamp_offset_ns: int = 0,
+        max_extrapolation_ns: int | None = 500_000_000,
+        filter_factory: Callable | None = None,
+        prior: UncertainPose | None = None,
+    ):
+        super().__init__(name)
+        self.prior = prior
+        self.motion = motion
+        self.role = role
+        self.history_s = float(history_s)
+        self.stamp_offset_ns = int(stamp_offset_ns)
+        self.max_extrapolation_ns = None if motion.static else max_extrapolation_ns
+        self.filter_factory = filter_factory or make_filter
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self.filter = self.filter_factory(self.motion, self.history_s)
+        self.first_t: int | None = None
+        self.last_t: int | None = None
+        self.last_origin = NO_ORIGIN
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        self.stats.events_in += 1
+        t = m.t_ns - self.stamp_offset_ns
+        if self.prior is not None and self.first_t is None and self.stats.events_in == 1:
+            if not self.filter.update_pose(t * 1e-9, self.prior):
+                self.stats.reject("filter rejected prior")
+        try:
+            ok = self.filter.update_pose(t * 1e-9, m.pose)
+        except ValueError:
+            ok = False
+        if not ok:
+            self.stats.reject("filter rejected update")
+            return
+        if self.first_t is None:
+            self.first_t = t
+        self.last_t = t if self.last_t is None else max(self.last_t, t)
+        self.last_origin = max(self.last_origin, m.origin_ns)
+        self.emit(Measurement(t, m.pose, m.origin_ns))
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        if self.last_t is None:
+            self.stats.reject("no data yet")
+            return None
+        if self.max_extrapolation_ns is not None and t_ns - self.last_t > self.max_extrapolation_ns:
+            self.stats.reject("stale")
+            return None
+        if not self.motion.static and self.last_t - t_ns > int(self.history_s * 1e9):
+            self.stats.reject("before history")
+            return None
+        try:
+            pose = self.filter.predict(t_ns * 1e-9)
+        except ValueError:
+            self.stats.reject("prediction failed")
+            return None
+        self.stats.events_out += 1
+        return Measurement(int(t_ns), pose, self.last_origin)
+
+    def describe(self) -> str:
+        m = self.motion
+        model = "static" if m.static else f"n_dp={m.n_dp}, n_do={m.n_do}"
+        extra = f", stamp offset {self.stamp_offset_ns * 1e-6:g} ms" if self.stamp_offset_ns else ""
+        return f"kalman {self.name} ({self.role}; {model}{extra})"
+
+
+class LatestValue(Component):
+    """Naive buffer: ``pull(t)`` returns the newest pushed measurement unchanged, whatever
+    ``t`` (no time alignment; the event-based behaviour of section 9.2.2)."""
+
+    push_in = 1
+    pull_out = True
+    kind = "latest"
+
+    def reset(self) -> None:
+        super().reset()
+        self.last: Measurement | None = None
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.reset()
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        self.stats.events_in += 1
+        self.last = m
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        if self.last is None:
+            self.stats.reject("no data yet")
+            return None
+        self.stats.events_out += 1
+        return self.last
+
+
+class Sampler(Component):
+    """Pushes ``input.pull(tick + offset)`` at a fixed rate (thesis 7.3.4).
+
+    Ticks fall at ``start_ns + k * period`` on the network clock; ``offset_ns`` > 0 predicts,
+    < 0 interpolates in the past. Unanswered requests are counted ("no result").
+    """
+
+    pull_in = 1
+    push_out = True
+    kind = "sampler"
+
+    def __init__(self, name: str, rate_hz: float, offset_ns: int = 0, start_ns: int = 0):
+        super().__init__(name)
+        if not 0 < rate_hz < 1e9:
+            raise ValueError(f"sampler {name!r}: rate_hz must be > 0")
+        self.period_ns = int(round(1e9 / rate_hz))
+        self.offset_ns = int(offset_ns)
+        self.start_ns = int(start_ns)
+
+    def tick(self, t_ns: int) -> None:
+        self.stats.events_in += 1
+        m = self.inputs[0].pull(t_ns + self.offset_ns)
+        if m is None:
+            self.stats.reject("no result")
+            return
+        self.emit(m)
+
+    def describe(self) -> str:
+        return (
+            f"sampler {self.name} ({1e9 / self.period_ns:g} Hz, "
+            f"offset {self.offset_ns * 1e-6:+g} ms)"
+        )

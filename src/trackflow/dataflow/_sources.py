@@ -1,0 +1,196 @@
+"""Source components: recording player, simulated sensor and static pose."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from ..math import Pose, UncertainPose, quat_exp, quat_multiply
+from ._component import Component
+from ._events import Measurement
+
+__all__ = ["RecordingPlayer", "SimulatedSensor", "StaticPose", "NO_ORIGIN"]
+
+#: ``origin_ns`` of data that never came from a sensor (static calibrations).
+NO_ORIGIN = -(2**62)
+
+
+class RecordingPlayer(Component):
+    """Plays recorded measurements of one edge into the network (push output).
+
+    Each sample is delivered at its arrival time ``t_ns + latency_ns`` on the network clock.
+    Samples are checked one by one as they are played: a non-finite or non-unit pose or
+    covariance, and a timestamp not after the previous accepted one ("timestamp backwards"),
+    are counted rejections and never reach the network.
+
+    Parameters
+    ----------
+    name : str
+    t_ns : array_like of int (N,)
+        Sensor timestamps [ns] (as the sensor stamped them, offset included).
+    position : array_like (N, 3)
+        ``t_a_b`` [m].
+    quaternion : array_like (N, 4)
+        ``R_a_b`` as ``(x, y, z, w)``.
+    covariance : array_like (N, 6, 6) or (6, 6)
+        Measurement covariance over ``(dt, dtheta)``, ``t_true = t + dt``,
+        ``R_true = R Exp(dtheta)``.
+    latency_ns : int
+        Delay from sensor timestamp to availability in the network [ns].
+    """
+
+    push_out = True
+    kind = "player"
+
+    def __init__(self, name, t_ns, position, quaternion, covariance, latency_ns: int = 0):
+        super().__init__(name)
+        self.t_ns = np.asarray(t_ns)
+        if self.t_ns.ndim != 1 or not np.issubdtype(self.t_ns.dtype, np.integer):
+            raise ValueError(f"player {name!r}: t_ns must be a 1-D integer array [ns]")
+        n = len(self.t_ns)
+        self.position = np.asarray(position, dtype=float).reshape(n, 3)
+        self.quaternion = np.asarray(quaternion, dtype=float).reshape(n, 4)
+        cov = np.asarray(covariance, dtype=float)
+        self.covariance = np.broadcast_to(cov, (n, 6, 6)) if cov.shape == (6, 6) else cov
+        if self.covariance.shape != (n, 6, 6):
+            raise ValueError(f"player {name!r}: covariance must be (6, 6) or ({n}, 6, 6)")
+        self.latency_ns = int(latency_ns)
+        if self.latency_ns < 0:
+            raise ValueError(f"player {name!r}: latency must be >= 0")
+        self.reset()
+
+    @classmethod
+    def from_stream(cls, name: str, stream, latency_ns: int = 0, covariance=None):
+        """Play a :class:`trackflow.io.PoseStream`; ``covariance`` (6x6) replaces a missing
+        one."""
+        cov = stream.covariance
+        if cov is None:
+            if covariance is None:
+                raise ValueError(f"player {name!r}: the stream has no covariance; pass one")
+            cov = covariance
+        return cls(name, stream.t_ns, stream.position, stream.quaternion, cov, latency_ns)
+
+    def events(self) -> Iterator[tuple[int, int]]:
+        """``(arrival_ns, index)`` of every sample in arrival order."""
+        arrival = self.t_ns + self.latency_ns
+        order = np.argsort(arrival, kind="stable")
+        for i in order:
+            yield int(arrival[i]), int(i)
+
+    def reset(self) -> None:
+        super().reset()
+        self._last_t: int | None = None
+
+    def deliver(self, index: int) -> None:
+        """Validate sample ``index`` and push it (or count why not)."""
+        self.stats.events_in += 1
+        t = int(self.t_ns[index])
+        p, q, c = self.position[index], self.quaternion[index], self.covariance[index]
+        last = self._last_t
+        if not (np.isfinite(p).all() and np.isfinite(q).all() and np.isfinite(c).all()):
+            self.stats.reject("non-finite pose")
+            return
+        if abs(float(q @ q) - 1.0) > 1e-5:
+            self.stats.reject("non-unit quaternion")
+            return
+        if last is not None and t <= last:
+            self.stats.reject("timestamp backwards")
+            return
+        try:
+            pose = UncertainPose(Pose(p, q, normalize=True), c)
+        except ValueError:
+            self.stats.reject("invalid covariance")
+            return
+        self._last_t = t
+        self.emit(Measurement(t, pose, t))
+
+
+class SimulatedSensor(RecordingPlayer):
+    """A sensor simulated from a ground-truth motion, played like a recording.
+
+    Samples are taken every ``1 / rate_hz`` seconds from ``start_s`` to ``end_s``; each is the
+    truth at its time with Gaussian noise ``dt ~ N(0, sigma_p^2 I)``,
+    ``dtheta ~ N(0, diag(sigma_o^2))`` applied as ``t + dt``, ``R Exp(dtheta)`` (the library's
+    error convention, so the reported covariance ``diag(sigma_p^2, sigma_o^2)`` is exact).
+    With probability ``outlier_rate`` a sample is a wrong detection: a pose off by
+    ``outlier_pos_m`` and ``outlier_ori_rad`` in random directions, reported with the usual
+    covariance. The timestamp written is ``true time + stamp_offset_s``; the sample becomes
+    available at ``true time + latency_s``.
+
+    Parameters
+    ----------
+    truth : callable
+        ``truth(t_s: ndarray (N,)) -> Pose`` of batch shape (N,), the true ``T_a_b``.
+    rng : numpy.random.Generator
+        Source of all noise (no global RNG).
+    sigma_ori : float or array_like (3,)
+        Per-axis rotation noise [rad] (in frame b).
+    """
+
+    kind = "sensor"
+
+    def __init__(
+        self,
+        name: str,
+        truth: Callable[[np.ndarray], Pose],
+        *,
+        rate_hz: float,
+        latency_s: float,
+        sigma_pos: float,
+        sigma_ori,
+        rng: np.random.Generator,
+        start_s: float,
+        end_s: float,
+        stamp_offset_s: float = 0.0,
+        outlier_rate: float = 0.0,
+        outlier_pos_m: float = 0.1,
+        outlier_ori_rad: float = 0.3,
+    ):
+        if not rate_hz > 0 or not end_s > start_s:
+            raise ValueError(f"sensor {name!r}: need rate_hz > 0 and end_s > start_s")
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"sensor {name!r}: rng must be a numpy Generator")
+        n = int(np.floor((end_s - start_s) * rate_hz)) + 1
+        t_true = start_s + np.arange(n) / rate_hz
+        true = truth(t_true)
+        so = np.broadcast_to(np.asarray(sigma_ori, dtype=float), (3,))
+        dp = rng.normal(0.0, sigma_pos, (n, 3))
+        dth = rng.normal(0.0, 1.0, (n, 3)) * so
+        pos = true.position + dp
+        quat = quat_multiply(true.quaternion, quat_exp(dth))
+        self.outliers = rng.random(n) < outlier_rate
+        k = int(self.outliers.sum())
+        if k:
+            dirs = rng.normal(size=(k, 3))
+            dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+            axes = rng.normal(size=(k, 3))
+            axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+            pos[self.outliers] = true.position[self.outliers] + outlier_pos_m * dirs
+            quat[self.outliers] = quat_multiply(
+                true.quaternion[self.outliers], quat_exp(outlier_ori_rad * axes)
+            )
+        cov = np.diag(np.concatenate([np.full(3, sigma_pos**2), so**2]))
+        stamps = np.round((t_true + stamp_offset_s) * 1e9).astype(np.int64)
+        latency_ns = int(round((latency_s - stamp_offset_s) * 1e9))
+        if latency_ns < 0:
+            raise ValueError(f"sensor {name!r}: the stamp offset exceeds the latency")
+        super().__init__(name, stamps, pos, quat, cov, latency_ns)
+        self.t_true_s = t_true
+
+
+class StaticPose(Component):
+    """A calibrated static relationship: ``pull(t)`` returns it for any ``t``."""
+
+    pull_out = True
+    kind = "static"
+
+    def __init__(self, name: str, value: UncertainPose):
+        super().__init__(name)
+        if not isinstance(value, UncertainPose) or value.shape != ():
+            raise ValueError(f"static {name!r}: value must be one UncertainPose")
+        self.value = value
+
+    def pull(self, t_ns: int) -> Measurement:
+        self.stats.events_out += 1
+        return Measurement(int(t_ns), self.value, NO_ORIGIN)
