@@ -138,21 +138,26 @@ def random_covariance(
     sigma_position: float = 1e-3,
     sigma_rotation: float = np.radians(1.0),
     size: int = 6,
-    coupling: float = 0.6,
+    spread: float = 0.5,
 ) -> np.ndarray:
     """A correlated covariance with standard deviations of roughly the given sizes.
 
-    The first three coordinates get ``sigma_position``, the rest ``sigma_rotation`` (times a
-    random factor in [0.5, 1.5]); the correlation matrix is a normalised ``A A^T`` with
-    ``A = I + coupling * N(0, 1)``, so every entry is typically correlated with every other.
+    The first three coordinates have standard deviation ``sigma_position``, the rest
+    ``sigma_rotation``. The correlation matrix is ``Q diag(l) Q^T`` (uniformly random
+    rotation ``Q``, eigenvalues ``l`` uniform in ``[1 - spread, 1 + spread]``) scaled to a unit
+    diagonal, so every coordinate is correlated with every other one (typically |rho| ~ 0.1-0.4)
+    while no direction is much thinner than the sigmas say (condition number <= 3 for the default
+    spread). ``spread`` close to 1 gives nearly degenerate, strongly correlated covariances.
     """
-    a = np.eye(size) + coupling * rng.standard_normal((size, size))
-    k = a @ a.T
+    if not 0.0 <= spread < 1.0:
+        raise ValueError(f"spread must be in [0, 1), got {spread}")
+    q, r = np.linalg.qr(rng.standard_normal((size, size)))
+    q = q * np.sign(np.diag(r))
+    k = (q * rng.uniform(1.0 - spread, 1.0 + spread, size)) @ q.T
     d = np.sqrt(np.diag(k))
     corr = k / np.outer(d, d)
     sig = np.full(size, sigma_rotation)
     sig[: min(3, size)] = sigma_position
-    sig = sig * rng.uniform(0.5, 1.5, size)
     c = corr * np.outer(sig, sig)
     return 0.5 * (c + c.T)
 
