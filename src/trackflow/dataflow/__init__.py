@@ -6,9 +6,12 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 """
 
 from ._component import Component
+from ._demo import DemoConfig, demo_json, run_demo
 from ._events import ComponentStats, Measurement
 from ._network import Network
+from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler, make_filter
+from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
 from ._sources import NO_ORIGIN, RecordingPlayer, SimulatedSensor, StaticPose
 
@@ -17,17 +20,26 @@ __all__ = [
     "CallbackSink",
     "Component",
     "ComponentStats",
+    "DemoConfig",
     "Inference",
     "Inversion",
     "KalmanFilter",
     "LatestValue",
     "Measurement",
     "Network",
+    "Plan",
+    "PlanNode",
     "PullSink",
     "RecordingPlayer",
     "Recorder",
     "Sampler",
+    "Setup",
     "SimulatedSensor",
     "StaticPose",
+    "demo_json",
+    "load_setup",
     "make_filter",
+    "parse_setup",
+    "plan_query",
+    "run_demo",
 ]
