@@ -1,0 +1,162 @@
+"""``read_stream`` / ``write_stream``: one entry point for every recording format."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+from ._devices import read_broad, read_quest, write_broad, write_quest
+from ._native import MAGIC, read_native, write_native
+from ._report import ReadReport
+from ._rosbag import read_rosbag, write_rosbag
+from ._stream import PoseStream
+from ._text import read_csv, read_euroc, read_tum, write_csv, write_euroc, write_tum
+
+__all__ = ["FORMATS", "guess_format", "read_stream", "write_stream"]
+
+_READERS = {
+    "native": read_native,
+    "tum": read_tum,
+    "euroc": read_euroc,
+    "csv": read_csv,
+    "rosbag": read_rosbag,
+    "quest": read_quest,
+    "broad": read_broad,
+}
+_WRITERS = {
+    "native": write_native,
+    "tum": write_tum,
+    "euroc": write_euroc,
+    "csv": write_csv,
+    "rosbag": write_rosbag,
+    "quest": write_quest,
+    "broad": write_broad,
+}
+#: Names accepted by ``format=``.
+FORMATS = tuple(_READERS)
+
+
+def _first_data_line(path: Path) -> str | None:
+    with open(path, "rb") as f:
+        chunk = f.read(65536)
+    for raw in chunk.split(b"\n")[:50]:
+        line = raw.decode("utf-8", errors="replace").strip()
+        if line and not line.startswith("#"):
+            return line
+    return None
+
+
+def _is_quest_line(line: str) -> bool:
+    toks = line.split(",")
+    if len(toks) < 16:
+        return False
+    try:
+        return int(toks[1]) > 600_000_000_000_000_000  # .NET ticks (year > 1902)
+    except ValueError:
+        return False
+
+
+def guess_format(path, for_writing: bool = False) -> str:
+    """Format name from content (when reading an existing file) and extension.
+
+    Rules: native magic bytes; ``.bag`` or a directory with ``metadata.yaml`` -> ``rosbag``;
+    ``.mat`` -> ``broad``; ``.tfrec`` -> ``native``; a text file whose first line starts
+    ``#timestamp`` with commas -> ``euroc``; 16 comma-separated columns with .NET ticks ->
+    ``quest``; other comma-separated text -> ``csv``; whitespace-separated -> ``tum``.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not for_writing and path.is_file():
+        with open(path, "rb") as f:
+            if f.read(len(MAGIC)) == MAGIC:
+                return "native"
+    if suffix == ".bag" or (path.is_dir() and (path / "metadata.yaml").exists()):
+        return "rosbag"
+    if suffix == ".mat":
+        return "broad"
+    if suffix == ".tfrec":
+        return "native"
+    if for_writing or not path.is_file():
+        if suffix == ".csv":
+            return "csv"
+        if suffix in (".txt", ".tum"):
+            return "tum"
+        if for_writing and suffix in ("", ".db3", ".mcap"):
+            return "rosbag"
+        raise ValueError(f"{path}: cannot tell the format from the name; pass format=")
+    with open(path, "rb") as f:
+        first = f.readline().decode("utf-8", errors="replace").strip()
+    line = _first_data_line(path)
+    if first.lower().startswith("#timestamp") and "," in first:
+        return "euroc"
+    if line is None:
+        raise ValueError(f"{path}: no data lines; pass format=")
+    if "," in line:
+        return "quest" if _is_quest_line(line) else "csv"
+    return "tum"
+
+
+def _call(func, path, fmt: str, kwargs: dict):
+    params = inspect.signature(func).parameters
+    unknown = [k for k in kwargs if k not in params or k in ("path", "stream")]
+    if unknown:
+        accepted = [k for k in params if k not in ("path", "stream", "clean")]
+        raise ValueError(
+            f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
+        )
+    return func(path, **kwargs)
+
+
+def read_stream(
+    path, format: str | None = None, clean: bool = False, **options
+) -> tuple[PoseStream, ReadReport]:
+    """Read a pose recording into a :class:`PoseStream` and a :class:`ReadReport`.
+
+    Parameters
+    ----------
+    path : str or Path
+    format : {"native", "tum", "euroc", "csv", "rosbag", "quest", "broad"}, optional
+        Guessed from the content and extension when omitted (see :func:`guess_format`).
+    clean : bool
+        Without it, malformed rows (short, unparsable, NaN, non-unit quaternion, duplicated or
+        non-increasing timestamps) raise ``ValueError`` naming file and line. With it they are
+        dropped or repaired and listed in the report; quaternion signs are made continuous.
+    **options
+        Format-specific options, e.g. ``source=``/``target=`` frame names for most formats,
+        ``columns=``/``time_unit=``/``delimiter=`` for ``csv``, ``topic=``/``stamp=`` for
+        ``rosbag``, ``rate_hz=`` for ``broad``. Unknown options raise ``ValueError``.
+
+    Returns
+    -------
+    stream : PoseStream
+    report : ReadReport
+        Counts of every row read, kept, dropped (with reasons and lines) or changed.
+    """
+    fmt = format or guess_format(path)
+    if fmt not in _READERS:
+        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    return _call(_READERS[fmt], Path(path), fmt, {"clean": bool(clean), **options})
+
+
+def write_stream(path, stream: PoseStream, format: str | None = None, **options) -> None:
+    """Write ``stream`` in ``format`` (guessed from the extension when omitted).
+
+    Extensions: ``.tfrec`` native, ``.txt``/``.tum`` TUM, ``.csv`` generic CSV, ``.bag`` ROS 1,
+    no extension ROS 2 bag directory, ``.mat`` BROAD. Options: ``msgtype=``/``topic=`` for
+    ``rosbag``, ``delimiter=``/``time_unit=`` for ``csv``, ``rate_hz=`` for ``broad``. What each
+    format can hold is listed in ``docs/formats.md``; fields it cannot hold are not written.
+    """
+    if not isinstance(stream, PoseStream):
+        raise ValueError(f"stream must be a PoseStream, got {type(stream).__name__}")
+    fmt = format or guess_format(path, for_writing=True)
+    if fmt not in _WRITERS:
+        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    func = _WRITERS[fmt]
+    params = inspect.signature(func).parameters
+    unknown = [k for k in options if k not in params or k in ("path", "stream")]
+    if unknown:
+        accepted = [k for k in params if k not in ("path", "stream")]
+        raise ValueError(
+            f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
+        )
+    func(Path(path), stream, **options)

@@ -1,0 +1,270 @@
+"""Validation shared by every reader: reject malformed rows with file and line, or clean them.
+
+Checks, in order, on the parsed rows of a recording:
+
+1. non-finite values (NaN, inf) in any field;
+2. zero quaternions;
+3. quaternions off unit length by more than the file's printed precision allows
+   (for text: ``max(1e-4, 5 units of the last printed digit)``; for binary data ``1e-6``);
+4. covariances that are not symmetric or not positive semi-definite;
+5. timestamps that do not strictly increase (duplicates or steps back in time);
+6. quaternion sign flips between consecutive samples (never an error: ``q`` and ``-q`` are the
+   same rotation, see ``docs/conventions.md``; counted always, removed with ``clean=True``).
+
+Without ``clean`` the first problem of kinds 1-5 raises ``ValueError`` naming the file and row.
+With ``clean`` offending rows are dropped (1, 2, 4, 5) or repaired (3: normalised; 6: signs made
+continuous), and every change is listed in the ``ReadReport``. For 5 the fewest rows are dropped
+that leave a strictly increasing sequence (a longest increasing subsequence), so one wild stamp
+costs one row, not all rows after it.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+from collections.abc import Callable
+
+import numpy as np
+
+from ..math import UNIT_TOLERANCE
+from ._report import ReadReport
+from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
+
+__all__ = ["finish_stream", "locate", "fmt_ns"]
+
+TRUNCATED = "truncated tail"
+
+
+def locate(report: ReadReport, where: int) -> str:
+    """``file:line`` (or ``file: record i`` ...) for messages."""
+    if report.unit == "line":
+        return f"{report.path}:{where}"
+    return f"{report.path}: {report.unit} {where}"
+
+
+def fmt_ns(t: int) -> str:
+    """Integer nanoseconds as exact decimal seconds."""
+    t = int(t)
+    sign = "-" if t < 0 else ""
+    s, ns = divmod(abs(t), 1_000_000_000)
+    return f"{sign}{s}.{ns:09d} s"
+
+
+def _longest_increasing(t: np.ndarray) -> np.ndarray:
+    """Indices of a longest strictly increasing subsequence of ``t`` (earliest-ending ties)."""
+    tails: list[int] = []  # tails[k]: value ending the best subsequence of length k + 1
+    tail_idx: list[int] = []
+    prev = np.full(len(t), -1, dtype=np.int64)
+    for i, v in enumerate(t.tolist()):
+        k = bisect_left(tails, v)
+        if k == len(tails):
+            tails.append(v)
+            tail_idx.append(i)
+        else:
+            tails[k] = v
+            tail_idx[k] = i
+        prev[i] = tail_idx[k - 1] if k else -1
+    out = []
+    i = tail_idx[-1] if tail_idx else -1
+    while i >= 0:
+        out.append(i)
+        i = int(prev[i])
+    return np.array(out[::-1], dtype=np.int64)
+
+
+def finish_stream(
+    report: ReadReport,
+    *,
+    where: np.ndarray,
+    t_ns: np.ndarray,
+    position: np.ndarray,
+    quaternion: np.ndarray,
+    source: str,
+    target: str,
+    clean: bool,
+    covariance: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
+    flags: np.ndarray | None = None,
+    quat_tolerance: Callable[[np.ndarray], np.ndarray] | None = None,
+    tail_unterminated: bool = False,
+    check_covariance_psd: bool = True,
+) -> PoseStream:
+    """Validate parsed rows, clean them if asked, and build the stream (see module docstring).
+
+    Parameters
+    ----------
+    report : ReadReport
+        Updated in place (``rows_kept``, ``dropped``, ``normalized``, ``sign_flips``); its
+        ``rows_read`` must already count every data row, including ones dropped before this.
+    where : ndarray of int, shape (N,)
+        Location of each row for messages and the report (line number, record index, ...).
+    t_ns, position, quaternion, covariance, confidence, flags
+        Parsed fields, shapes (N,), (N, 3), (N, 4), (N, 6, 6) or None, (N,) or None, (N,) or None.
+    quat_tolerance : callable, optional
+        Given row indices, the accepted ``| |q| - 1 |`` of each (from the printed precision);
+        default ``UNIT_TOLERANCE``.
+    tail_unterminated : bool
+        The last row is an unterminated last line: if it fails a value check it is dropped as a
+        truncated tail (a writer cut off mid-line) instead of raising.
+    check_covariance_psd : bool
+        Check symmetry and positive semi-definiteness (readers of trusted binary data skip it).
+    """
+    n = len(t_ns)
+    where = np.asarray(where, dtype=np.int64)
+    keep = np.ones(n, dtype=bool)
+
+    def drop_tail() -> None:
+        keep[n - 1] = False
+        report.drop(TRUNCATED, int(where[n - 1]))
+        report.notes.append(f"last line ({locate(report, int(where[n - 1]))}) is incomplete")
+
+    def reject(reason: str, bad: np.ndarray, detail: Callable[[int], str]) -> None:
+        bad = bad & keep
+        if not np.any(bad):
+            return
+        idx = np.flatnonzero(bad)
+        if tail_unterminated and idx[-1] == n - 1:
+            drop_tail()
+            idx = idx[:-1]
+            if not idx.size:
+                return
+        if not clean:
+            i = int(idx[0])
+            raise ValueError(
+                f"{locate(report, int(where[i]))}: {detail(i)} "
+                f"({len(idx)} such rows; read with clean=True to drop them)"
+            )
+        keep[idx] = False
+        report.drop(reason, where[idx])
+
+    # 1. non-finite values
+    finite = np.isfinite(position).all(axis=1) & np.isfinite(quaternion).all(axis=1)
+    if covariance is not None:
+        finite &= np.isfinite(covariance).all(axis=(1, 2))
+    if confidence is not None:
+        finite &= np.isfinite(confidence)
+    reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
+    if confidence is not None:
+        conf_ok = (confidence >= 0.0) & (confidence <= 1.0)
+        reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")
+
+    # 2./3. quaternion length
+    with np.errstate(invalid="ignore"):
+        norm = np.linalg.norm(quaternion, axis=1)
+    reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
+    off = np.abs(norm - 1.0)
+    cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
+    if cand.size:
+        tol = quat_tolerance(cand) if quat_tolerance is not None else UNIT_TOLERANCE
+        over = off[cand] > tol
+        bad_idx = cand[over]
+        if np.any(~over):
+            report.notes.append(
+                f"{int(np.sum(~over))} quaternion(s) off unit length by up to "
+                f"{float(np.max(off[cand[~over]])):.2g} (within the rounding tolerance of the "
+                "printed digits) were normalised"
+            )
+        if bad_idx.size:
+            bad = np.zeros(n, dtype=bool)
+            bad[bad_idx] = True
+            if not clean:
+                reject(
+                    "non-unit quaternion",
+                    bad,
+                    lambda i: (
+                        f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
+                        f"{norm[i]:.9g}, not unit (allowed deviation "
+                        f"{float(np.max(np.atleast_1d(tol))):.2g})"
+                    ),
+                )
+            else:
+                if tail_unterminated and bad[n - 1]:
+                    drop_tail()
+                report.normalized.extend(int(w) for w in where[bad & keep])
+    # rescale only rows visibly off unit length, so exact values survive write/read round trips
+    rescale = np.abs(norm - 1.0) > 1e-12
+    if np.any(rescale):
+        quaternion = quaternion.copy()
+        quaternion[rescale] /= np.where(norm[rescale] > 1e-12, norm[rescale], 1.0)[:, None]
+
+    # 4. covariance
+    if covariance is not None and check_covariance_psd and n:
+        c = covariance
+        ct = np.swapaxes(c, 1, 2)
+        scale = np.max(np.abs(c), axis=(1, 2))
+        asym = np.max(np.abs(c - ct), axis=(1, 2))
+        sym_ok = asym <= 1e-9 * np.maximum(scale, 1e-300)
+        reject(
+            "asymmetric covariance", ~sym_ok, lambda i: f"covariance not symmetric ({asym[i]:.3g})"
+        )
+        c = 0.5 * (c + ct)
+        c_fin = np.where(np.isfinite(c), c, 0.0)
+        eig = np.linalg.eigvalsh(c_fin)
+        psd = eig[:, 0] >= -1e-9 * np.maximum(eig[:, -1], 1e-300)
+        reject(
+            "covariance not positive semi-definite",
+            ~psd,
+            lambda i: f"covariance not positive semi-definite (eigenvalue {eig[i, 0]:.3g})",
+        )
+        covariance = c
+
+    # 5. timestamps
+    kidx = np.flatnonzero(keep)
+    tk = t_ns[kidx]
+    if tk.size > 1 and np.any(np.diff(tk) <= 0):
+        d = np.diff(tk)
+        if not clean:
+            j = int(np.argmax(d <= 0)) + 1
+            i, p = int(kidx[j]), int(kidx[j - 1])
+            what = "duplicated timestamp" if d[j - 1] == 0 else "timestamp goes back in time"
+            raise ValueError(
+                f"{locate(report, int(where[i]))}: {what}: {fmt_ns(t_ns[i])} after "
+                f"{fmt_ns(t_ns[p])} ({locate(report, int(where[p]))}); "
+                "read with clean=True to drop such rows"
+            )
+        # drop exact repeats of the previous row's stamp first (keeps the first of a run)
+        dup = np.concatenate([[False], d == 0])
+        rest = kidx[~dup]
+        lis = rest[_longest_increasing(t_ns[rest])]
+        dropped = np.setdiff1d(kidx, lis)
+        kept_times = set(t_ns[lis].tolist())
+        is_dup = np.array([t in kept_times for t in t_ns[dropped].tolist()], dtype=bool)
+        report.drop("duplicated timestamp", where[dropped[is_dup]])
+        report.drop("non-increasing timestamp", where[dropped[~is_dup]])
+        keep[dropped] = False
+        kidx = lis
+
+    # 6. sign flips (never an error)
+    q = quaternion[kidx]
+    if len(kidx) > 1:
+        flip = np.sum(q[1:] * q[:-1], axis=1) < 0.0
+        if np.any(flip):
+            report.sign_flips.extend(int(w) for w in where[kidx[1:][flip]])
+            if clean:
+                sign = np.where(np.cumsum(np.concatenate([[False], flip])) % 2 == 1, -1.0, 1.0)
+                q = q * sign[:, None]
+                report.signs_fixed = True
+
+    m = len(kidx)
+    if m == n:  # nothing dropped: keep the arrays, avoid gathering copies of large batches
+        kidx = slice(None)
+    if flags is None:
+        f = FLAG_POSITION | FLAG_ORIENTATION
+        if covariance is not None:
+            f |= FLAG_COVARIANCE
+        if confidence is not None:
+            f |= FLAG_CONFIDENCE
+        fl = np.full(m, f, dtype=np.uint32)
+    else:
+        fl = np.asarray(flags, dtype=np.uint32)[kidx]
+    conf = np.ones(m) if confidence is None else np.asarray(confidence, dtype=float)[kidx]
+    report.rows_kept = m
+    return PoseStream._trusted(
+        source,
+        target,
+        np.asarray(t_ns[kidx], dtype=np.int64),
+        position[kidx],
+        q,
+        None if covariance is None else covariance[kidx],
+        conf,
+        fl,
+    )

@@ -1,0 +1,418 @@
+"""The native recording format (``.tfrec``): a small header, then fixed-size binary records.
+
+Layout (all little-endian; see ``docs/formats.md`` for the byte table):
+
+* header: magic ``b"\\x89TFREC\\r\\n"`` (8 bytes), version (u16), layout (u16: 0 = no covariance,
+  1 = covariance), record size (u32), header size (u32), source and target name lengths (u16
+  each), the two UTF-8 names, zero padding, and a CRC-32 of everything before it (u32) plus 4
+  zero bytes, so that the header size is a multiple of 8;
+* records: ``t_ns`` (i8), position (3 f8), quaternion xyzw (4 f8), [covariance upper triangle,
+  21 f8, row-major], confidence (f8), flags (u4), check (u4): 80 bytes, or 248 with covariance.
+
+``check`` is a multiplicative hash of the other bytes of the record, computed vectorised, so a
+reader can tell a complete record from garbage (for example zero-filled blocks after a power
+failure) at memory speed.
+
+Crash safety: the header is written to a temporary file and renamed into place, so a file
+either does not exist or has a complete header. Every :meth:`RecordingWriter.append` hands the
+complete records to the operating system in one ``os.write`` before returning, so killing the
+writing process loses at most the records of the call in progress; a reader reports an
+incomplete last record as a truncated tail instead of failing, and reopening with ``mode="a"``
+cuts such a tail off before appending.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..math import check_covariance, check_quaternion
+from ._clean import TRUNCATED, finish_stream
+from ._report import ReadReport
+from ._stream import FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
+
+__all__ = ["MAGIC", "VERSION", "RecordingWriter", "read_native", "write_native"]
+
+MAGIC = b"\x89TFREC\r\n"
+VERSION = 1
+_FIXED = struct.Struct("<8sHHIIHH")  # magic, version, layout, record size, header size, names
+
+_IU = np.triu_indices(6)
+
+
+def record_dtype(covariance: bool) -> np.dtype:
+    """The numpy structured dtype of one record."""
+    fields = [("t_ns", "<i8"), ("position", "<f8", (3,)), ("quaternion", "<f8", (4,))]
+    if covariance:
+        fields.append(("covariance", "<f8", (21,)))
+    fields += [("confidence", "<f8"), ("flags", "<u4"), ("check", "<u4")]
+    return np.dtype(fields)
+
+
+def _hash_constants(n: int) -> np.ndarray:
+    ks = [((0x9E3779B97F4A7C15 * (2 * j + 1)) ^ (0xC2B2AE3D27D4EB4F >> j)) | 1 for j in range(n)]
+    return np.array([k & 0xFFFFFFFFFFFFFFFF for k in ks], dtype=np.uint64)
+
+
+_K = {False: _hash_constants(10), True: _hash_constants(31)}
+_SEED = np.uint64(0x5EED_7F1C_0DE5_A11E)
+
+
+def _checks(records: np.ndarray, covariance: bool) -> np.ndarray:
+    """Check values (u4) of records: hash of every 64-bit word except the check itself."""
+    words = records.view("<u8").reshape(len(records), -1)
+    last = words.shape[1] - 1
+    k = _K[covariance][:last]
+    k_last = _K[covariance][last]
+    out = np.empty(len(records), dtype=np.uint32)
+    step = 1 << 14  # rows per block: keeps the temporaries in cache
+    with np.errstate(over="ignore"):
+        for i in range(0, len(records), step):
+            w = words[i : i + step]
+            h = np.bitwise_xor.reduce(w[:, :last] * k, axis=1)
+            h ^= (w[:, last] & np.uint64(0xFFFFFFFF)) * k_last  # the flags half of the last word
+            h ^= _SEED
+            h ^= h >> np.uint64(29)
+            h *= np.uint64(0xBF58476D1CE4E5B9)
+            h ^= h >> np.uint64(32)
+            out[i : i + step] = h & np.uint64(0xFFFFFFFF)
+    return out
+
+
+def _header(source: str, target: str, covariance: bool) -> bytes:
+    s, t = source.encode(), target.encode()
+    if len(s) > 0xFFFF or len(t) > 0xFFFF:
+        raise ValueError("frame names longer than 65535 bytes")
+    body_len = _FIXED.size + len(s) + len(t)
+    size = (body_len + 8 + 7) // 8 * 8
+    rec = record_dtype(covariance).itemsize
+    body = _FIXED.pack(MAGIC, VERSION, int(covariance), rec, size, len(s), len(t)) + s + t
+    body += b"\0" * (size - 8 - body_len)
+    return body + struct.pack("<II", zlib.crc32(body), 0)
+
+
+def _parse_header(path, raw: bytes) -> tuple[str, str, bool, int]:
+    """Return (source, target, has_covariance, header_size) or raise ValueError."""
+    if len(raw) < 8 or raw[:8] != MAGIC:
+        raise ValueError(f"{path}: not a trackflow recording (magic bytes do not match)")
+    if len(raw) < _FIXED.size:
+        raise ValueError(f"{path}: header is incomplete ({len(raw)} bytes)")
+    _, version, layout, rec, size, ls, lt = _FIXED.unpack_from(raw)
+    if version != VERSION:
+        raise ValueError(f"{path}: recording format version {version} is not supported (1 is)")
+    if layout not in (0, 1) or rec != record_dtype(bool(layout)).itemsize:
+        raise ValueError(f"{path}: header has unknown layout {layout} / record size {rec}")
+    if len(raw) < size or size < _FIXED.size + ls + lt + 8:
+        raise ValueError(f"{path}: header is incomplete or inconsistent ({size} bytes declared)")
+    (crc,) = struct.unpack_from("<I", raw, size - 8)
+    if crc != zlib.crc32(raw[: size - 8]):
+        raise ValueError(f"{path}: header checksum mismatch (corrupt header)")
+    o = _FIXED.size
+    try:
+        source = raw[o : o + ls].decode()
+        target = raw[o + ls : o + ls + lt].decode()
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: frame names are not UTF-8") from exc
+    return source, target, bool(layout), size
+
+
+def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
+    """Read a ``.tfrec`` recording into a :class:`PoseStream`.
+
+    An incomplete last record (a killed writer) and trailing records whose check value does not
+    match (zero-filled or torn blocks after a crash) are dropped as ``"truncated tail"`` and
+    reported, never an error. A bad record before valid ones is corruption: ``ValueError``
+    naming the file and record, or dropped with ``clean=True``. Locations in the report are
+    0-based record indices.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(4096)
+        source, target, has_cov, hsize = _parse_header(path, head)
+        if hsize > len(head):
+            head += f.read(hsize - len(head))
+        f.seek(0, os.SEEK_END)
+        size = f.tell()
+        dt = record_dtype(has_cov)
+        n_full, tail = divmod(size - hsize, dt.itemsize)
+        f.seek(hsize)
+        rec = np.fromfile(f, dtype=dt, count=n_full)
+    report = ReadReport(str(path), "native", unit="record", rows_read=n_full + (tail > 0))
+    valid = rec["check"] == _checks(rec, has_cov)
+    n_ok = n_full
+    if not valid.all():
+        last_good = np.flatnonzero(valid)
+        n_ok = int(last_good[-1]) + 1 if last_good.size else 0
+        if n_ok < n_full:  # trailing run of bad records: a crash tail
+            report.drop(TRUNCATED, range(n_ok, n_full))
+            report.truncated_bytes += (n_full - n_ok) * dt.itemsize
+            report.notes.append(f"{n_full - n_ok} trailing record(s) with bad check values")
+        bad = np.flatnonzero(~valid[:n_ok])
+        if bad.size:
+            if not clean:
+                i = int(bad[0])
+                raise ValueError(
+                    f"{path}: record {i} (byte offset {hsize + i * dt.itemsize}): check value "
+                    f"mismatch, the record is corrupt ({bad.size} such records; read with "
+                    "clean=True to drop them)"
+                )
+            report.drop("corrupt record (check mismatch)", bad)
+    if tail:
+        report.drop(TRUNCATED, n_full)
+        report.truncated_bytes += tail
+    good = valid.copy()
+    good[n_ok:] = False
+    idx = slice(0, n_ok) if good[:n_ok].all() else np.flatnonzero(good)
+    r = rec[idx]
+    cov = None
+    if has_cov:
+        tri = r["covariance"]
+        cov = np.empty((len(r), 6, 6))
+        cov[:, _IU[0], _IU[1]] = tri
+        cov[:, _IU[1], _IU[0]] = tri
+    report_rows = report.rows_read
+    where = np.arange(n_full)[idx]
+    stream = finish_stream(
+        report,
+        where=where,
+        t_ns=r["t_ns"],
+        position=np.ascontiguousarray(r["position"]),
+        quaternion=np.ascontiguousarray(r["quaternion"]),
+        covariance=cov,
+        confidence=np.ascontiguousarray(r["confidence"]),
+        flags=r["flags"],
+        source=source,
+        target=target,
+        clean=clean,
+        check_covariance_psd=False,
+    )
+    assert report.rows_read == report_rows
+    return stream, report
+
+
+def _pack(t_ns, position, quaternion, covariance, confidence, flags, has_cov: bool) -> np.ndarray:
+    n = len(t_ns)
+    rec = np.zeros(n, dtype=record_dtype(has_cov))
+    rec["t_ns"] = t_ns
+    rec["position"] = position
+    rec["quaternion"] = quaternion
+    if has_cov:
+        rec["covariance"] = np.asarray(covariance)[:, _IU[0], _IU[1]]
+    rec["confidence"] = confidence
+    rec["flags"] = flags
+    rec["check"] = _checks(rec, has_cov)
+    return rec
+
+
+class RecordingWriter:
+    """Append-only, crash-safe writer of a ``.tfrec`` recording of ``T_source_target``.
+
+    Parameters
+    ----------
+    path : str or Path
+    source, target : str
+        Frames of the recorded relationship.
+    covariance : bool
+        Whether records carry a 6x6 covariance (fixed for the file).
+    mode : {"w", "x", "a"}
+        ``"w"`` create or replace, ``"x"`` create and fail if the file exists, ``"a"`` append to
+        an existing recording (created if missing); its frames and layout must match, and an
+        incomplete or corrupt tail left by a crash is cut off first (``recovered_bytes``).
+
+    Notes
+    -----
+    Each :meth:`append` writes complete records with a single ``os.write`` (nothing is
+    buffered in the process), so a killed writer loses at most the call in progress.
+    :meth:`flush` additionally asks the OS to put the data on disk (``fsync``), which only
+    matters for power loss. Timestamps must strictly increase across appends.
+
+    Examples
+    --------
+    >>> with RecordingWriter("run.tfrec", "world", "head", covariance=False) as w:  # doctest: +SKIP
+    ...     w.append(stream)
+    """
+
+    def __init__(self, path, source: str, target: str, *, covariance: bool, mode: str = "w"):
+        if mode not in ("w", "x", "a"):
+            raise ValueError(f"mode must be 'w', 'x' or 'a', got {mode!r}")
+        self.path = Path(path)
+        self.source = source
+        self.target = target
+        self.has_covariance = bool(covariance)
+        self.recovered_bytes = 0
+        self.count = 0
+        self._last_t: int | None = None
+        self._dtype = record_dtype(self.has_covariance)
+        PoseStream(source, target, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+        if mode == "a" and self.path.exists():
+            self._open_existing()
+        else:
+            if mode == "x" and self.path.exists():
+                raise ValueError(f"{self.path}: exists already (mode 'x')")
+            tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            try:
+                _write_all(fd, _header(source, target, self.has_covariance))
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(tmp, self.path)
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+
+    def _open_existing(self) -> None:
+        with open(self.path, "rb") as f:
+            raw = f.read(4096)
+            source, target, has_cov, hsize = _parse_header(self.path, raw)
+        if (source, target, has_cov) != (self.source, self.target, self.has_covariance):
+            raise ValueError(
+                f"{self.path}: recording holds T_{source}_{target} "
+                f"({'with' if has_cov else 'without'} covariance); cannot append "
+                f"T_{self.source}_{self.target} "
+                f"({'with' if self.has_covariance else 'without'} covariance)"
+            )
+        size = self.path.stat().st_size
+        rs = self._dtype.itemsize
+        n = (size - hsize) // rs
+        fd = os.open(self.path, os.O_RDWR)
+        try:
+            # walk back over a crash tail: records whose check value does not match
+            good = n
+            while good > 0:
+                b = os.pread(fd, rs, hsize + (good - 1) * rs)
+                rec = np.frombuffer(b, dtype=self._dtype)
+                if rec["check"][0] == _checks(rec, self.has_covariance)[0]:
+                    self._last_t = int(rec["t_ns"][0])
+                    break
+                good -= 1
+            end = hsize + good * rs
+            if end != size:
+                self.recovered_bytes = size - end
+                os.ftruncate(fd, end)
+                os.fsync(fd)
+            self.count = good
+        finally:
+            os.close(fd)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+
+    def append(self, stream: PoseStream) -> None:
+        """Append every sample of ``stream`` (same frames; covariance iff the file has one)."""
+        if self._fd is None:
+            raise ValueError(f"{self.path}: writer is closed")
+        if (stream.source, stream.target) != (self.source, self.target):
+            raise ValueError(
+                f"{self.path}: cannot append T_{stream.source}_{stream.target} to a recording "
+                f"of T_{self.source}_{self.target}"
+            )
+        if (stream.covariance is not None) != self.has_covariance:
+            need = "needs" if self.has_covariance else "does not take"
+            raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
+        if not len(stream):
+            return
+        if self._last_t is not None and stream.t_ns[0] <= self._last_t:
+            raise ValueError(
+                f"{self.path}: timestamp {int(stream.t_ns[0])} ns is not after the last recorded "
+                f"{self._last_t} ns"
+            )
+        rec = _pack(
+            stream.t_ns,
+            stream.position,
+            stream.quaternion,
+            stream.covariance,
+            stream.confidence,
+            stream.flags,
+            self.has_covariance,
+        )
+        _write_all(self._fd, rec.tobytes())
+        self._last_t = int(stream.t_ns[-1])
+        self.count += len(stream)
+
+    def append_sample(
+        self, t_ns: int, position, quaternion, covariance=None, confidence=None, flags=None
+    ) -> None:
+        """Append one sample; arguments as one row of :class:`PoseStream`'s fields.
+
+        ``flags`` defaults to position and orientation valid (plus covariance when given).
+        """
+        t = int(t_ns)
+        p = np.asarray(position, dtype=float).reshape(3)
+        if not np.all(np.isfinite(p)):
+            raise ValueError(f"{self.path}: position contains NaN or inf")
+        q = check_quaternion(np.asarray(quaternion, dtype=float).reshape(4))
+        if (covariance is not None) != self.has_covariance:
+            need = "needs" if self.has_covariance else "does not take"
+            raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
+        c = None if covariance is None else check_covariance(np.reshape(covariance, (6, 6)))
+        conf = 1.0 if confidence is None else float(confidence)
+        if not 0.0 <= conf <= 1.0:
+            raise ValueError(f"{self.path}: confidence {conf} not in [0, 1]")
+        if flags is None:
+            flags = FLAG_POSITION | FLAG_ORIENTATION | (FLAG_COVARIANCE if c is not None else 0)
+        if self._last_t is not None and t <= self._last_t:
+            raise ValueError(
+                f"{self.path}: timestamp {t} ns is not after the last recorded {self._last_t} ns"
+            )
+        if self._fd is None:
+            raise ValueError(f"{self.path}: writer is closed")
+        rec = _pack(
+            [t],
+            p[None],
+            q[None],
+            None if c is None else c[None],
+            [conf],
+            [flags],
+            self.has_covariance,
+        )
+        _write_all(self._fd, rec.tobytes())
+        self._last_t = t
+        self.count += 1
+
+    def flush(self) -> None:
+        """Make appended records durable on disk (``fsync``); they already survive a kill."""
+        if self._fd is not None:
+            os.fsync(self._fd)
+
+    def close(self) -> None:
+        """Flush and close; further appends raise ``ValueError``. Safe to call twice."""
+        if self._fd is not None:
+            try:
+                os.fsync(self._fd)
+            finally:
+                os.close(self._fd)
+                self._fd = None
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        fd = getattr(self, "_fd", None)
+        if fd is not None:
+            os.close(fd)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        k = os.write(fd, view)
+        view = view[k:]
+
+
+def write_native(path, stream: PoseStream) -> None:
+    """Write ``stream`` as a new ``.tfrec`` file, replacing ``path`` atomically."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
+    try:
+        with RecordingWriter(
+            tmp, stream.source, stream.target, covariance=stream.covariance is not None
+        ) as w:
+            w.append(stream)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()

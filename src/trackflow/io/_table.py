@@ -1,0 +1,228 @@
+"""Line-oriented parsing of text recordings with file:line diagnostics (shared by text formats)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
+from pathlib import Path
+
+import numpy as np
+
+from ._clean import TRUNCATED
+from ._report import ReadReport
+
+__all__ = [
+    "TEXT_UNIT_TOLERANCE",
+    "Table",
+    "FRAMES_PREFIX",
+    "TIME_EXPONENTS",
+    "format_ns",
+    "parse_frames_comment",
+    "parse_time_ns",
+    "read_lines",
+    "parse_rows",
+    "quat_tolerance_from_tokens",
+]
+
+#: Smallest accepted ``| |q| - 1 |`` for quaternions printed as decimal text.
+TEXT_UNIT_TOLERANCE = 1e-4
+#: Comment that trackflow writers put into text files to keep the frame names.
+FRAMES_PREFIX = "# trackflow:"
+#: Power of ten from a time unit to nanoseconds.
+TIME_EXPONENTS = {"s": 9, "ms": 6, "us": 3, "ns": 0}
+
+
+def parse_time_ns(token: str, exponent: int) -> int:
+    """Exact integer nanoseconds from a decimal token in units of ``10**-exponent`` ... seconds.
+
+    ``exponent`` is 9 for seconds, 0 for nanoseconds (see ``TIME_EXPONENTS``). Raises
+    ``ValueError`` for anything that is not a finite number.
+    """
+    try:
+        d = Decimal(token)
+        if not d.is_finite():
+            raise ValueError(f"timestamp {token!r} is not finite")
+        return int(d.scaleb(exponent).to_integral_value(ROUND_HALF_EVEN))
+    except InvalidOperation as exc:
+        raise ValueError(f"timestamp {token!r} is not a number") from exc
+
+
+def format_ns(t_ns: int, exponent: int = 9) -> str:
+    """Exact decimal text of integer nanoseconds in units of ``10**(exponent - 9)`` s."""
+    t = int(t_ns)
+    if exponent == 0:
+        return str(t)
+    sign = "-" if t < 0 else ""
+    whole, frac = divmod(abs(t), 10**exponent)
+    return f"{sign}{whole}.{frac:0{exponent}d}"
+
+
+def read_lines(path: Path) -> tuple[list[str], bool, int]:
+    """Lines of a text file, whether the last one is unterminated, and its byte length."""
+    raw = Path(path).read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
+    unterminated = bool(raw) and not raw.endswith(b"\n")
+    lines = text.split("\n")
+    if not unterminated and lines and lines[-1] == "":
+        lines.pop()
+    tail_bytes = len(lines[-1].encode()) if unterminated and lines else 0
+    return lines, unterminated, tail_bytes
+
+
+def parse_frames_comment(line: str) -> dict[str, str]:
+    """``{"source": .., "target": ..}`` from a ``# trackflow: source=a target=b`` comment."""
+    out = {}
+    for item in line[len(FRAMES_PREFIX) :].split():
+        key, sep, value = item.partition("=")
+        if sep:
+            out[key] = value
+    return out
+
+
+@dataclass
+class Table:
+    """Parsed numeric rows of a text recording."""
+
+    where: np.ndarray  # (N,) 1-based line numbers
+    t_ns: np.ndarray  # (N,) int64
+    values: np.ndarray  # (N, K) float
+    tokens: list[list[str]]  # raw tokens of each kept row (for precision-aware checks)
+    tail_unterminated: bool  # the last row is an unterminated last line
+    meta: dict[str, str] = field(default_factory=dict)  # from a "# trackflow:" comment
+
+
+def parse_rows(
+    path: Path,
+    report: ReadReport,
+    *,
+    delimiter: str | None,
+    ncols: int,
+    time_col: int,
+    time_exponent: int,
+    value_cols: Sequence[int],
+    clean: bool,
+    header: Callable[[list[str]], bool] | None = None,
+    time_offset_ns: int = 0,
+) -> tuple[Table, list[str] | None]:
+    """Parse a delimited text file into timestamps and float columns.
+
+    Blank lines and lines starting with ``#`` are skipped (a ``# trackflow:`` comment supplies
+    frame names). If ``header`` is given, it is called with the tokens of the first
+    non-comment line and returns whether that line is a header. Rows with fewer than ``ncols``
+    columns or unparsable numbers raise ``ValueError`` with ``file:line`` (or are dropped with
+    ``clean``), except an unterminated last line, which is dropped as a truncated tail.
+    ``report.rows_read`` is set. ``time_offset_ns`` is subtracted from every timestamp (exact
+    integers, before conversion to int64).
+    """
+    lines, unterminated, tail_bytes = read_lines(path)
+    where: list[int] = []
+    times: list[int] = []
+    vals: list[list[float]] = []
+    toks_kept: list[list[str]] = []
+    meta: dict[str, str] = {}
+    head: list[str] | None = None
+    first = True
+    rows = 0
+    extra = 0
+    last_index = len(lines) - 1
+
+    def split(line: str) -> list[str]:
+        if delimiter is None:
+            return line.split()
+        return [x.strip() for x in line.split(delimiter)]
+
+    for i, raw in enumerate(lines):
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            if line.startswith(FRAMES_PREFIX):
+                meta.update(parse_frames_comment(line))
+            continue
+        toks = split(line)
+        if first:
+            first = False
+            if header is not None and header(toks):
+                head = toks
+                continue
+        rows += 1
+        lineno = i + 1
+        problem = None
+        reason = None
+        if len(toks) < ncols:
+            problem = f"short row: {len(toks)} columns, expected {ncols}"
+            reason = "short row"
+        else:
+            try:
+                t = parse_time_ns(toks[time_col], time_exponent) - time_offset_ns
+                if not -(2**63) <= t < 2**63:
+                    raise ValueError(f"timestamp {toks[time_col]!r} out of the int64 ns range")
+                v = [float(toks[j]) for j in value_cols]
+            except ValueError as exc:
+                problem = f"unparsable value ({exc})"
+                reason = "unparsable value"
+        if problem is not None:
+            if unterminated and i == last_index:
+                report.drop(TRUNCATED, lineno)
+                report.truncated_bytes = tail_bytes
+                report.notes.append(f"last line ({path}:{lineno}) is incomplete: {problem}")
+                continue
+            if not clean:
+                raise ValueError(f"{path}:{lineno}: {problem}")
+            report.drop(reason, lineno)
+            continue
+        extra = max(extra, len(toks) - ncols)
+        where.append(lineno)
+        times.append(t)
+        vals.append(v)
+        toks_kept.append(toks)
+    report.rows_read = rows
+    if extra:
+        report.notes.append(f"ignored up to {extra} extra column(s) per row")
+    tail = bool(unterminated and where and where[-1] == last_index + 1)
+    table = Table(
+        where=np.array(where, dtype=np.int64),
+        t_ns=np.array(times, dtype=np.int64),
+        values=np.array(vals, dtype=float).reshape(len(vals), len(value_cols)),
+        tokens=toks_kept,
+        tail_unterminated=tail,
+        meta=meta,
+    )
+    return table, head
+
+
+def _place(token: str) -> float:
+    """Value of one unit in the last printed digit of a decimal token (``"0.25"`` -> 0.01)."""
+    mant, _, exp = token.strip().lower().partition("e")
+    decimals = len(mant.partition(".")[2])
+    try:
+        e = int(exp) if exp else 0
+    except ValueError:
+        e = 0
+    return 10.0 ** (e - decimals)
+
+
+def quat_tolerance_from_tokens(
+    tokens: list[list[str]], cols: Sequence[int]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Allowed ``| |q| - 1 |`` per row given the printed digits of its quaternion columns.
+
+    Rounding each component to half a unit of its last digit changes the norm by at most one
+    such unit, and real files are often normalised before an offline fusion or smoothing step
+    (EuRoC ground truth is off by up to 2e-5, TUM RGB-D by 8e-5), so the tolerance is
+    ``max(TEXT_UNIT_TOLERANCE = 1e-4, 5 units of the coarsest printed digit)``. A wrong
+    component order or corrupted digits are off by far more.
+    """
+
+    def tol(rows: np.ndarray) -> np.ndarray:
+        out = np.empty(len(rows))
+        for k, r in enumerate(rows):
+            out[k] = max(TEXT_UNIT_TOLERANCE, 5.0 * max(_place(tokens[r][c]) for c in cols))
+        return out
+
+    return tol
