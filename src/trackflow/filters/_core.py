@@ -1,0 +1,785 @@
+"""Kernels of the pose Kalman filter, written once for both backends.
+
+This module is plain Python on NumPy arrays. ``_backend.py`` loads it a second time and
+compiles every function listed in ``KERNELS`` with ``numba.njit(cache=True)``; the plain copy is
+the NumPy reference path. Keep the code numba-compatible: explicit loops, contiguous float64
+arrays, no Python objects.
+
+State layout (``n_dp`` position and ``n_do`` orientation derivatives, ``-1`` = not estimated):
+
+* nominal vector ``x``: ``t, t', ..., t^(n_dp)`` (3 each, frame a), then ``q`` (4, ``(x, y, z, w)``)
+  and ``w, w', ..., w^(n_do - 1)`` (3 each, body frame b, rad/s^k); length
+  ``3 (n_dp + 1) + 4 + 3 n_do`` = the thesis's ``7 + 3 (n_dp + n_do)``.
+* error-state covariance (``additive = 0``): over ``dt^(i)`` (additive) and ``dtheta`` with
+  ``R_true = R Exp(dtheta)`` (right perturbation, ``docs/conventions.md``) then the additive
+  angular-derivative errors; size ``3 (n_dp + 1) + 3 (n_do + 1)``.
+* additive formulation (``additive = 1``, thesis 6.2): covariance over the nominal vector itself,
+  ``q_true = q + dq``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+KERNELS = (
+    "sym",
+    "fact",
+    "dims",
+    "qmul",
+    "qexp",
+    "qlog",
+    "rotmat",
+    "right_jac",
+    "left_mult",
+    "right_mult",
+    "exp_jac",
+    "level_noise",
+    "transition",
+    "process_noise",
+    "predict",
+    "residual",
+    "meas_cov",
+    "chol",
+    "chol_solve",
+    "update",
+    "inject",
+    "local",
+    "initialize",
+    "pose_of",
+    "smooth",
+    "step",
+    "run",
+)
+
+SMALL = 1e-4
+UNKNOWN_VARIANCE = 1e12  # reported for a pose part the model does not estimate
+
+# status codes of an update
+ACCEPTED = 0
+GATED = 1
+DIVERGED = 2
+INVALID = 3
+INITIALIZED = 4
+RESET = 5
+
+
+def sym(a):
+    """``(A + A^T) / 2`` as a new C-contiguous array."""
+    n = a.shape[0]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.5 * (a[i, j] + a[j, i])
+    return out
+
+
+def fact(k):
+    r = 1.0
+    for i in range(2, k + 1):
+        r *= i
+    return r
+
+
+def dims(n_dp, n_do, additive):
+    """(position levels, orientation levels, nominal size, covariance size)."""
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    nol = n_do + 1 if n_do >= 0 else 0
+    nx = 3 * npl + (4 + 3 * n_do if n_do >= 0 else 0)
+    nc = nx if additive else 3 * npl + 3 * nol
+    return npl, nol, nx, nc
+
+
+# -- quaternion helpers (scalar, (x, y, z, w)) -----------------------------------------------
+
+
+def qmul(a, b):
+    out = np.empty(4)
+    out[0] = a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1]
+    out[1] = a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0]
+    out[2] = a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3]
+    out[3] = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]
+    return out
+
+
+def qexp(v):
+    t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    out = np.empty(4)
+    if t2 < SMALL * SMALL:
+        k = 0.5 - t2 / 48.0
+        out[3] = 1.0 - t2 / 8.0 + t2 * t2 / 384.0
+    else:
+        t = math.sqrt(t2)
+        k = math.sin(0.5 * t) / t
+        out[3] = math.cos(0.5 * t)
+    out[0] = k * v[0]
+    out[1] = k * v[1]
+    out[2] = k * v[2]
+    return out
+
+
+def qlog(q):
+    s = -1.0 if q[3] < 0.0 else 1.0
+    w = s * q[3]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+    if n < 0.5 * SMALL:
+        k = 2.0 / w * (1.0 - n * n / (3.0 * w * w))
+    else:
+        k = 2.0 * math.atan2(n, w) / n
+    out = np.empty(3)
+    out[0] = s * k * q[0]
+    out[1] = s * k * q[1]
+    out[2] = s * k * q[2]
+    return out
+
+
+def rotmat(q):
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    r = np.empty((3, 3))
+    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    r[0, 1] = 2.0 * (x * y - w * z)
+    r[0, 2] = 2.0 * (x * z + w * y)
+    r[1, 0] = 2.0 * (x * y + w * z)
+    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    r[1, 2] = 2.0 * (y * z - w * x)
+    r[2, 0] = 2.0 * (x * z - w * y)
+    r[2, 1] = 2.0 * (y * z + w * x)
+    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return r
+
+
+def right_jac(v):
+    """SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
+    t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if t2 < SMALL * SMALL:
+        a = 0.5 - t2 / 24.0
+        b = 1.0 / 6.0 - t2 / 120.0
+    else:
+        t = math.sqrt(t2)
+        a = (1.0 - math.cos(t)) / t2
+        b = (t - math.sin(t)) / (t2 * t)
+    k = np.zeros((3, 3))
+    k[0, 1] = -v[2]
+    k[0, 2] = v[1]
+    k[1, 0] = v[2]
+    k[1, 2] = -v[0]
+    k[2, 0] = -v[1]
+    k[2, 1] = v[0]
+    j = np.eye(3) - a * k + b * (k @ k)
+    return j
+
+
+def left_mult(q):
+    """``L(q)`` with ``q * p = L(q) p``."""
+    m = np.empty((4, 4))
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    m[0, 0], m[0, 1], m[0, 2], m[0, 3] = w, -z, y, x
+    m[1, 0], m[1, 1], m[1, 2], m[1, 3] = z, w, -x, y
+    m[2, 0], m[2, 1], m[2, 2], m[2, 3] = -y, x, w, z
+    m[3, 0], m[3, 1], m[3, 2], m[3, 3] = -x, -y, -z, w
+    return m
+
+
+def right_mult(d):
+    """``M(d)`` with ``q * d = M(d) q`` (the upper-left block of the thesis's ``A_R``)."""
+    m = np.empty((4, 4))
+    x, y, z, w = d[0], d[1], d[2], d[3]
+    m[0, 0], m[0, 1], m[0, 2], m[0, 3] = w, z, -y, x
+    m[1, 0], m[1, 1], m[1, 2], m[1, 3] = -z, w, x, y
+    m[2, 0], m[2, 1], m[2, 2], m[2, 3] = y, -x, w, z
+    m[3, 0], m[3, 1], m[3, 2], m[3, 3] = -x, -y, -z, w
+    return m
+
+
+def exp_jac(b):
+    """``d Exp(b) / d b`` (4x3); at ``b = 0`` the limit ``[I/2; 0]`` (thesis's B-tilde)."""
+    t2 = b[0] * b[0] + b[1] * b[1] + b[2] * b[2]
+    j = np.zeros((4, 3))
+    if t2 < SMALL * SMALL:
+        s = 0.5 - t2 / 48.0  # sin(t/2)/t
+        ds = -1.0 / 24.0 + t2 / 960.0  # (d s / d t) / t
+        dw = -0.25 + t2 / 96.0  # (d cos(t/2) / d t) / t
+    else:
+        t = math.sqrt(t2)
+        sn = math.sin(0.5 * t)
+        cs = math.cos(0.5 * t)
+        s = sn / t
+        ds = (0.5 * cs * t - sn) / (t2 * t)
+        dw = -0.5 * sn / t
+    for i in range(3):
+        for k in range(3):
+            j[i, k] = ds * b[i] * b[k]
+        j[i, i] += s
+        j[3, i] = dw * b[i]
+    return j
+
+
+# -- motion model -------------------------------------------------------------------------------
+
+
+def level_noise(n, sig, dt, kind):
+    """Process-noise matrix over derivative levels ``0..n-1`` for one axis.
+
+    ``kind = 0``: continuous white noise of spectral density ``sig[l]^2`` driving level ``l``,
+    integrated exactly over ``dt`` (Ude eq. 23 generalised). ``kind = 1``: thesis eq. 6.21,
+    ``diag((sig[l] dt)^2)``.
+    """
+    m = np.zeros((n, n))
+    if kind == 1:
+        for i in range(n):
+            m[i, i] = (sig[i] * dt) ** 2
+        return m
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for lvl in range(max(i, j), n):
+                e = 2 * lvl - i - j + 1
+                s += sig[lvl] ** 2 * dt**e / (fact(lvl - i) * fact(lvl - j) * e)
+            m[i, j] = s
+    return m
+
+
+def transition(x, dt, n_dp, n_do, additive):
+    """Motion-model prediction over ``dt``: returns ``(x_new, A)``.
+
+    Position: Taylor series (thesis eq. 6.18). Orientation: ``q_new = q * Exp(b)`` with
+    ``b = sum_l w^(l-1) dt^l / l!`` (eq. 6.19). ``A`` is the Jacobian of the covariance
+    coordinates: error state ``dtheta_new = Exp(b)^T dtheta + Jr(b) db``, or, additive, the
+    thesis's ``A_R`` with ``M(d)`` and ``B = L(q) dExp/db``.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    xn = np.zeros(nx)
+    a = np.zeros((nc, nc))
+    for i in range(npl):
+        for j in range(i, npl):
+            c = dt ** (j - i) / fact(j - i)
+            for k in range(3):
+                xn[3 * i + k] += c * x[3 * j + k]
+                a[3 * i + k, 3 * j + k] = c
+    if n_do < 0:
+        return xn, a
+    qo = 3 * npl
+    q = x[qo : qo + 4].copy()
+    b = np.zeros(3)
+    for lv in range(1, n_do + 1):
+        c = dt**lv / fact(lv)
+        for k in range(3):
+            b[k] += c * x[qo + 4 + 3 * (lv - 1) + k]
+    d = qexp(b)
+    xn[qo : qo + 4] = qmul(q, d)
+    for lv in range(1, n_do + 1):
+        for j in range(lv, n_do + 1):
+            c = dt ** (j - lv) / fact(j - lv)
+            for k in range(3):
+                xn[qo + 4 + 3 * (lv - 1) + k] += c * x[qo + 4 + 3 * (j - 1) + k]
+    if additive:
+        a[qo : qo + 4, qo : qo + 4] = right_mult(d)
+        bm = left_mult(q) @ exp_jac(b)
+        for lv in range(1, n_do + 1):
+            c = dt**lv / fact(lv)
+            a[qo : qo + 4, qo + 4 + 3 * (lv - 1) : qo + 4 + 3 * lv] = c * bm
+        base = qo + 4 - 3  # angular level lv sits at base + 3 lv
+    else:
+        r = rotmat(d)
+        a[qo : qo + 3, qo : qo + 3] = r.T
+        jr = right_jac(b)
+        for lv in range(1, n_do + 1):
+            c = dt**lv / fact(lv)
+            a[qo : qo + 3, qo + 3 * lv : qo + 3 * lv + 3] = c * jr
+        base = qo
+    for lv in range(1, n_do + 1):
+        for j in range(lv, n_do + 1):
+            c = dt ** (j - lv) / fact(j - lv)
+            for k in range(3):
+                a[base + 3 * lv + k, base + 3 * j + k] = c
+    return xn, a
+
+
+def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """Process-noise covariance ``Q`` in the covariance coordinates (see :func:`level_noise`).
+
+    The additive formulation maps the rotation-vector noise onto the quaternion with
+    ``dq = L(q)[:, :3] dtheta / 2`` and adds the same variance along ``q`` itself, which makes the
+    quaternion block isotropic (``(sig dt / 2)^2 I_4`` for the thesis's diagonal model).
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qm = np.zeros((nc, nc))
+    if npl > 0:
+        mp = level_noise(npl, sig_p, dt, kind)
+        for i in range(npl):
+            for j in range(npl):
+                for k in range(3):
+                    qm[3 * i + k, 3 * j + k] = mp[i, j]
+    if nol == 0:
+        return qm
+    mo = level_noise(nol, sig_o, dt, kind)
+    eo = 3 * npl
+    if not additive:
+        for i in range(nol):
+            for j in range(nol):
+                for k in range(3):
+                    qm[eo + 3 * i + k, eo + 3 * j + k] = mo[i, j]
+        return qm
+    g = 0.5 * left_mult(x[eo : eo + 4])[:, :3]
+    q = x[eo : eo + 4]
+    qq = g @ g.T * mo[0, 0]
+    for r in range(4):
+        for c in range(4):
+            qq[r, c] += 0.25 * mo[0, 0] * q[r] * q[c]
+    qm[eo : eo + 4, eo : eo + 4] = qq
+    for j in range(1, nol):
+        col = eo + 4 + 3 * (j - 1)
+        blk = g * mo[0, j]
+        qm[eo : eo + 4, col : col + 3] = blk
+        qm[col : col + 3, eo : eo + 4] = blk.T
+        for i in range(1, nol):
+            row = eo + 4 + 3 * (i - 1)
+            for k in range(3):
+                qm[row + k, col + k] = mo[i, j]
+    return qm
+
+
+def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """Time update: ``x = f(x)``, ``P = A P A^T + Q`` (thesis eqs. 5.59-5.60), new arrays."""
+    xn, a = transition(x, dt, n_dp, n_do, additive)
+    qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    return xn, sym(a @ p @ a.T + qm)
+
+
+# -- measurements ----------------------------------------------------------------------------
+
+
+def residual(x, n_dp, n_do, additive, lp, lo, zp, zo):
+    """Innovation ``y = z - h(x)`` and measurement Jacobian ``H`` (``y ~ H e + v``).
+
+    ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
+    not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
+    ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = 0
+    if lp >= 0:
+        m += 3
+    if lo >= 0:
+        m += 4 if (additive and lo == 0) else 3
+    y = np.zeros(m)
+    h = np.zeros((m, nc))
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            y[k] = zp[k] - x[3 * lp + k]
+            h[k, 3 * lp + k] = 1.0
+        r = 3
+    if lo < 0:
+        return y, h
+    qo = 3 * npl
+    q = x[qo : qo + 4]
+    if lo >= 1:
+        xo = qo + 4 + 3 * (lo - 1)
+        co = xo if additive else qo + 3 * lo
+        for k in range(3):
+            y[r + k] = zo[k] - x[xo + k]
+            h[r + k, co + k] = 1.0
+        return y, h
+    if not additive:
+        qc = np.empty(4)
+        qc[0], qc[1], qc[2], qc[3] = -q[0], -q[1], -q[2], q[3]
+        e = qlog(qmul(qc, zo))
+        for k in range(3):
+            y[r + k] = e[k]
+            h[r + k, qo + k] = 1.0
+        return y, h
+    dd = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+    ll = math.sqrt(dd)
+    s = 1.0
+    if zo[0] * q[0] + zo[1] * q[1] + zo[2] * q[2] + zo[3] * q[3] < 0.0:
+        s = -1.0
+    for i in range(4):
+        y[r + i] = s * zo[i] - q[i] / ll
+        for j in range(4):
+            h[r + i, qo + j] = ((dd if i == j else 0.0) - q[i] * q[j]) / (ll * dd)
+    return y, h
+
+
+def meas_cov(c, q, lp, lo, additive):
+    """Measurement noise in residual coordinates from the caller's covariance ``c``.
+
+    ``c`` is 3x3 (one part) or 6x6 (position and orientation, conventions.md order). For the
+    additive orientation it becomes 4x4 / 7x7 via ``V [[C, 0], [0, 1]] V^T`` (eqs. 6.24-6.25),
+    ``V`` mapping ``dtheta`` to ``dq = L(q)[:, :3] dtheta / 2`` and the unit scalar along ``q``.
+    """
+    if not (additive and lo == 0):
+        return c.copy()
+    m = c.shape[0] + 1
+    v = np.zeros((m, c.shape[0] + 1))
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            v[k, k] = 1.0
+        r = 3
+    lq = left_mult(q)
+    for i in range(4):
+        for j in range(3):
+            v[r + i, r + j] = 0.5 * lq[i, j]
+        v[r + i, r + 3] = q[i]
+    ce = np.zeros((m, m))
+    ce[: c.shape[0], : c.shape[0]] = c
+    ce[m - 1, m - 1] = 1.0
+    return sym(v @ ce @ v.T)
+
+
+def chol(s):
+    """Lower Cholesky factor; ``ok = False`` if ``s`` is not positive definite."""
+    n = s.shape[0]
+    lo = np.zeros((n, n))
+    for j in range(n):
+        d = s[j, j]
+        for k in range(j):
+            d -= lo[j, k] * lo[j, k]
+        if not d > 0.0:
+            return lo, False
+        lo[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = s[i, j]
+            for k in range(j):
+                v -= lo[i, k] * lo[j, k]
+            lo[i, j] = v / lo[j, j]
+    return lo, True
+
+
+def chol_solve(lo, b):
+    """Solve ``L L^T X = B`` for ``B`` of shape (n, k)."""
+    n = lo.shape[0]
+    x = b.copy()
+    for c in range(b.shape[1]):
+        for i in range(n):
+            v = x[i, c]
+            for k in range(i):
+                v -= lo[i, k] * x[k, c]
+            x[i, c] = v / lo[i, i]
+        for i in range(n - 1, -1, -1):
+            v = x[i, c]
+            for k in range(i + 1, n):
+                v -= lo[k, i] * x[k, c]
+            x[i, c] = v / lo[i, i]
+    return x
+
+
+def inject(x, delta, n_dp, n_do, additive, wmax):
+    """Apply a correction in the covariance coordinates (``x <- x [+] delta``) in place.
+
+    Error state: ``q <- q Exp(dtheta)``; additive: ``q <- q + dq``; then ``q`` is normalised and
+    the angular velocity clipped to ``|w| <= wmax`` (if ``wmax > 0``), which changes the mean
+    only: the covariance stays symmetric positive definite.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    for i in range(qo):
+        x[i] += delta[i]
+    if n_do < 0:
+        return
+    if additive:
+        for i in range(qo, nx):
+            x[i] += delta[i]
+    else:
+        x[qo : qo + 4] = qmul(x[qo : qo + 4].copy(), qexp(delta[qo : qo + 3]))
+        for i in range(qo + 4, nx):
+            x[i] += delta[i - 1]
+    n = math.sqrt(x[qo] ** 2 + x[qo + 1] ** 2 + x[qo + 2] ** 2 + x[qo + 3] ** 2)
+    for i in range(4):
+        x[qo + i] /= n
+    if n_do >= 1 and wmax > 0.0:
+        w = x[qo + 4 : qo + 7]
+        wn = math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
+        if wn > wmax:
+            for i in range(3):
+                x[qo + 4 + i] *= wmax / wn
+
+
+def local(x1, x0, n_dp, n_do, additive):
+    """``x1 [-] x0`` in the covariance coordinates (inverse of :func:`inject` for small steps)."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    d = np.zeros(nc)
+    for i in range(qo):
+        d[i] = x1[i] - x0[i]
+    if n_do < 0:
+        return d
+    if additive:
+        s = 1.0
+        if (
+            x1[qo] * x0[qo]
+            + x1[qo + 1] * x0[qo + 1]
+            + x1[qo + 2] * x0[qo + 2]
+            + x1[qo + 3] * x0[qo + 3]
+            < 0.0
+        ):
+            s = -1.0
+        for i in range(4):
+            d[qo + i] = s * x1[qo + i] - x0[qo + i]
+        for i in range(qo + 4, nx):
+            d[i] = x1[i] - x0[i]
+        return d
+    qc = x0[qo : qo + 4].copy()
+    qc[0], qc[1], qc[2] = -qc[0], -qc[1], -qc[2]
+    d[qo : qo + 3] = qlog(qmul(qc, x1[qo : qo + 4]))
+    for i in range(qo + 4, nx):
+        d[i - 1] = x1[i] - x0[i]
+    return d
+
+
+def initialize(x, p, n_dp, n_do, additive, lp, lo, zp, zo, r):
+    """First measurement: copy the measured part into the state, its noise into ``P``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    idx = np.zeros(8, np.int64)
+    m = 0
+    if lp >= 0:
+        for k in range(3):
+            x[3 * lp + k] = zp[k]
+            idx[m] = 3 * lp + k
+            m += 1
+    if lo == 0:
+        s = 1.0 if zo[3] >= 0.0 else -1.0
+        for k in range(4):
+            x[qo + k] = s * zo[k]
+        for k in range(4 if additive else 3):
+            idx[m] = qo + k
+            m += 1
+    elif lo >= 1:
+        xo = qo + 4 + 3 * (lo - 1)
+        co = xo if additive else qo + 3 * lo
+        for k in range(3):
+            x[xo + k] = zo[k]
+            idx[m] = co + k
+            m += 1
+    for i in range(m):
+        for j in range(nc):
+            p[idx[i], j] = 0.0
+            p[j, idx[i]] = 0.0
+    for i in range(m):
+        for j in range(m):
+            p[idx[i], idx[j]] = r[i, j]
+
+
+def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
+    """EKF measurement update in place (thesis eqs. 5.61-5.63); returns ``(status, nis)``.
+
+    ``status``: ACCEPTED, GATED (``nis > gate``; state untouched) or DIVERGED (singular
+    innovation covariance or a non-finite result; the caller resets the filter).
+    """
+    nc = p.shape[0]
+    pht = p @ h.T
+    s = sym(h @ pht + r)
+    lo, ok = chol(s)
+    if not ok:
+        return DIVERGED, np.nan
+    m = y.shape[0]
+    yy = np.empty((m, 1))
+    for i in range(m):
+        yy[i, 0] = y[i]
+    sy = chol_solve(lo, yy)
+    nis = 0.0
+    for i in range(m):
+        nis += y[i] * sy[i, 0]
+    if not np.isfinite(nis):
+        return DIVERGED, nis
+    if nis > gate:
+        return GATED, nis
+    k = chol_solve(lo, pht.T).T  # K = P H^T S^-1
+    delta = k @ y
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
+    # when K is not exactly optimal (rounding, gating, clipped angular velocity).
+    mm = np.eye(nc) - k @ h
+    pn = mm @ p @ mm.T + k @ r @ k.T
+    for i in range(nc):
+        for j in range(nc):
+            p[i, j] = 0.5 * (pn[i, j] + pn[j, i])
+    inject(x, delta, n_dp, n_do, additive, wmax)
+    for i in range(nc):
+        if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
+            return DIVERGED, nis
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return DIVERGED, nis
+    return ACCEPTED, nis
+
+
+def pose_of(x, p, n_dp, n_do, additive):
+    """Pose part of a state: ``(t (3), q (4), C (6x6))`` in trackflow's convention."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    t = np.zeros(3)
+    q = np.zeros(4)
+    q[3] = 1.0
+    c = np.zeros((6, 6))
+    j = np.zeros((6, nc))  # d (dt, dtheta) / d covariance coordinates
+    if npl > 0:
+        for k in range(3):
+            t[k] = x[k]
+            j[k, k] = 1.0
+    if nol > 0:
+        q[:] = x[qo : qo + 4]
+        if additive:
+            n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+            q /= n
+            lt = left_mult(q).T  # L(q^*)
+            for a in range(3):
+                for b in range(4):
+                    j[3 + a, qo + b] = 2.0 * lt[a, b] / n
+        else:
+            for k in range(3):
+                j[3 + k, qo + k] = 1.0
+    c[:, :] = j @ p @ j.T
+    if npl == 0:
+        for k in range(3):
+            c[k, k] = UNKNOWN_VARIANCE
+    if nol == 0:
+        for k in range(3, 6):
+            c[k, k] = UNKNOWN_VARIANCE
+    return t, q, sym(c)
+
+
+def smooth(x0, p0, t0, x1, p1, t1, t, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """State at ``t0 <= t <= t1`` from the filtered states at ``t0`` and ``t1``.
+
+    One Rauch-Tung-Striebel step: predict forward ``t0 -> t`` (``x_f, P_f``) and ``t -> t1``
+    (``x_m, P_m``, Jacobian ``A``), then ``x = x_f [+] G (x1 [-] x_m)``,
+    ``P = P_f + G (P1 - P_m) G^T`` with ``G = P_f A^T P_m^-1``. The motion model only runs
+    forwards in time.
+    """
+    xf, pf = predict(x0, p0, t - t0, n_dp, n_do, additive, kind, sig_p, sig_o)
+    xm, a = transition(xf, t1 - t, n_dp, n_do, additive)
+    pm = a @ pf @ a.T + process_noise(xf, t1 - t, n_dp, n_do, additive, kind, sig_p, sig_o)
+    pm = sym(pm)
+    lo, ok = chol(pm)
+    if not ok:
+        return xf, pf
+    g = chol_solve(lo, (pf @ a.T).T).T
+    d = local(x1, xm, n_dp, n_do, additive)
+    xs = xf.copy()
+    inject(xs, g @ d, n_dp, n_do, additive, 0.0)
+    ps = pf + g @ (p1 - pm) @ g.T
+    return xs, sym(ps)
+
+
+def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax):
+    """Streaming predict + update in place; returns ``(status, nis)``.
+
+    On GATED or DIVERGED ``x, p`` hold the prediction to the measurement time.
+    """
+    xn, pn = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    x[:] = xn
+    p[:, :] = pn
+    y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
+    if additive and lo == 0:
+        q = x[3 * (n_dp + 1 if n_dp >= 0 else 0) :][:4]
+        n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+        rr = meas_cov(r, q / n, lp, lo, additive)
+    else:
+        rr = r
+    xs = x.copy()
+    ps = p.copy()
+    status, nis = update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
+    if status != ACCEPTED:
+        x[:] = xs
+        p[:, :] = ps
+    return status, nis
+
+
+def run(
+    times, pos, quat, cov, horizons, x, p, n_dp, n_do, additive, kind, sig_p, sig_o,
+    gate, wmax, reset_after, out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status,
+):  # fmt: skip
+    """Offline run over time-sorted pose measurements; fills the output arrays.
+
+    ``x, p`` hold the initial (uninitialised) state. Rows with non-finite values are skipped
+    (status INVALID) and get the prediction. ``reset_after`` consecutive gated measurements
+    re-initialise the filter from the current one (status INITIALIZED).
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    lp = 0 if n_dp >= 0 else -1
+    lo = 0 if n_do >= 0 else -1
+    x0 = x.copy()
+    p0 = p.copy()
+    initialized = False
+    t_state = 0.0
+    gated_run = 0
+    n = times.shape[0]
+    for i in range(n):
+        zp = pos[i]
+        zo = quat[i]
+        valid = True
+        for k in range(3):
+            if not np.isfinite(zp[k]):
+                valid = False
+        for k in range(4):
+            if not np.isfinite(zo[k]):
+                valid = False
+        for a in range(6):
+            for b in range(6):
+                if not np.isfinite(cov[i, a, b]):
+                    valid = False
+        if lp >= 0 and lo >= 0:
+            r = cov[i]
+        elif lp >= 0:
+            r = cov[i, :3, :3].copy()
+        else:
+            r = cov[i, 3:, 3:].copy()
+        if not valid:
+            status[i] = INVALID
+            if initialized:
+                xx, pp = predict(x, p, times[i] - t_state, n_dp, n_do, additive, kind, sig_p, sig_o)
+            else:
+                xx, pp = x, p
+        elif not initialized or gated_run >= reset_after:
+            status[i] = RESET if initialized else INITIALIZED
+            if initialized:
+                x[:] = x0
+                p[:, :] = p0
+            initialize(
+                x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+            )
+            t_state = times[i]
+            initialized = True
+            gated_run = 0
+            nis[i] = np.nan
+            xx, pp = x, p
+        else:
+            st, v = step(
+                x, p, times[i] - t_state, n_dp, n_do, additive, kind, sig_p, sig_o,
+                lp, lo, zp, zo, r, gate, wmax,
+            )  # fmt: skip
+            t_state = times[i]
+            status[i] = st
+            nis[i] = v
+            if st == GATED:
+                gated_run += 1
+            elif st == DIVERGED:
+                x[:] = x0
+                p[:, :] = p0
+                initialize(
+                    x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+                )
+                gated_run = 0
+            else:
+                gated_run = 0
+            xx, pp = x, p
+        t, q, c = pose_of(xx, pp, n_dp, n_do, additive)
+        out_t[i] = t
+        out_q[i] = q
+        out_c[i] = c
+        if initialized:
+            for h in range(horizons.shape[0]):
+                dt = times[i] - t_state + horizons[h]
+                xh, ph = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+                t, q, c = pose_of(xh, ph, n_dp, n_do, additive)
+                pred_t[h, i] = t
+                pred_q[h, i] = q
+                pred_c[h, i] = c
+        else:
+            for h in range(horizons.shape[0]):
+                pred_t[h, i] = out_t[i]
+                pred_q[h, i] = out_q[i]
+                pred_c[h, i] = out_c[i]

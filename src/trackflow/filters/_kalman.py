@@ -1,0 +1,377 @@
+"""Streaming pose Kalman filter: predict, interpolate, fuse and estimate static poses."""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from trackflow.math import UncertainPose, check_covariance, check_quaternion
+
+from . import _core
+from ._backend import kernels
+from ._model import MotionModel, _additive
+
+__all__ = ["PoseKalmanFilter", "chi2_gate"]
+
+log = logging.getLogger("trackflow.filters")
+
+_PRIOR_SIGMA_POSITION = 10.0  # m, m/s, m/s^2, ... for parts no measurement has reached yet
+_PRIOR_SIGMA_ANGLE = math.pi  # rad
+_PRIOR_SIGMA_RATE = 10.0  # rad/s, rad/s^2, ...
+
+
+def chi2_gate(probability: float | None, dof: int) -> float:
+    """Mahalanobis (NIS) threshold passing ``probability`` of consistent innovations."""
+    if probability is None or probability >= 1.0:
+        return math.inf
+    return float(chi2.ppf(probability, dof))
+
+
+class _Entry:
+    """One logged measurement and the filter state right after it."""
+
+    __slots__ = ("t", "lp", "lo", "zp", "zo", "r", "status", "nis", "x", "p", "gated_run")
+
+    def __init__(self, t, lp, lo, zp, zo, r):
+        self.t, self.lp, self.lo, self.zp, self.zo, self.r = t, lp, lo, zp, zo, r
+        self.status = -1
+        self.nis = math.nan
+        self.x = self.p = None
+        self.gated_run = 0
+
+
+class PoseKalmanFilter:
+    """Kalman filter of one spatial relationship ``T_a_b(t)`` built from a motion model.
+
+    Serves prediction (``predict(t)`` in the future, covariance growing with the motion
+    model), measurement simultaneity (``predict(t)`` in the past, smoothed from the stored
+    states), sensor fusion (SCAAT style: each measurement of any kind is integrated on its own,
+    at its own time) and static estimation (``MotionModel.static()``: recursive least squares).
+
+    Parameters
+    ----------
+    model : MotionModel
+    history : float
+        Seconds of measurements and states kept for out-of-order insertion and past queries.
+    gate_probability : float or None
+        Innovations whose NIS exceeds the chi-square quantile of this probability (degrees of
+        freedom = measured dimensions) are rejected and counted (``stats["rejected_gate"]``).
+        ``None`` disables gating.
+    formulation : {"error_state", "additive"}
+        ``"error_state"`` (default): the covariance is over the multiplicative rotation error
+        ``R_true = R Exp(dtheta)`` (``docs/conventions.md``), so poses come out in trackflow's
+        convention directly. ``"additive"``: the thesis's filter (section 6.2) with the
+        quaternion treated as a 4-vector, normalised after each update.
+    max_angular_velocity : float
+        Upper bound (rad/s) on the estimated angular velocity's norm, applied to the mean only
+        (the covariance stays as the Kalman update made it). ``0`` disables.
+    reset_after : int
+        After this many consecutive gated measurements, the next pose or position or orientation
+        measurement re-initialises the filter (a diverged or lost filter); resets are logged on
+        the ``trackflow.filters`` logger and counted in ``stats["resets"]``, as are resets after a
+        singular innovation covariance or a non-finite state.
+
+    Notes
+    -----
+    Every state part a measurement has not reached yet starts at zero (identity rotation)
+    with a wide prior (10 m and 10 m/s^k; pi rad and 10 rad/s^k). The first measurement of a
+    part replaces the prior outright (the limit of an infinitely wide prior), so a static model
+    reproduces batch least squares over all its measurements.
+    """
+
+    def __init__(
+        self,
+        model: MotionModel,
+        history: float = 1.0,
+        gate_probability: float | None = 0.999,
+        formulation: str = "error_state",
+        max_angular_velocity: float = 50.0,
+        reset_after: int = 10,
+    ):
+        if not isinstance(model, MotionModel):
+            raise ValueError(f"model must be a MotionModel, got {type(model).__name__}")
+        if not (math.isfinite(history) and history >= 0):
+            raise ValueError(f"history must be finite and >= 0 seconds, got {history}")
+        if gate_probability is not None and not (0.0 < gate_probability <= 1.0):
+            raise ValueError(f"gate_probability must be in (0, 1] or None, got {gate_probability}")
+        if not (math.isfinite(max_angular_velocity) and max_angular_velocity >= 0):
+            raise ValueError(f"max_angular_velocity must be >= 0, got {max_angular_velocity}")
+        if int(reset_after) < 1:
+            raise ValueError(f"reset_after must be >= 1, got {reset_after}")
+        self._model = model
+        self._formulation = formulation
+        self._params = model._params(formulation)
+        self._additive = _additive(formulation)
+        self._history = float(history)
+        self._gate_probability = gate_probability
+        self._gates = {m: chi2_gate(gate_probability, m) for m in (3, 6)}
+        self._wmax = float(max_angular_velocity)
+        self._reset_after = int(reset_after)
+        self._x0, self._p0 = self._prior()
+        self.reset()
+
+    # -- state -----------------------------------------------------------------------------
+    def _prior(self):
+        n_dp, n_do, add = self._params[:3]
+        npl, nol, nx, nc = _core.dims(n_dp, n_do, add)
+        x = self._model.initial_state()
+        var = [_PRIOR_SIGMA_POSITION**2] * (3 * npl)
+        for lvl in range(nol):
+            s = _PRIOR_SIGMA_ANGLE if lvl == 0 else _PRIOR_SIGMA_RATE
+            var += [s * s] * (4 if (add and lvl == 0) else 3)
+        if add and nol:  # quaternion components: half-angle units
+            var[3 * npl : 3 * npl + 4] = [(_PRIOR_SIGMA_ANGLE / 2) ** 2] * 4
+        return x, np.diag(var)
+
+    def reset(self) -> None:
+        """Forget everything: state, history and statistics."""
+        self._x = self._x0.copy()
+        self._p = self._p0.copy()
+        self._t: float | None = None
+        self._gated_run = 0
+        self._log: list[_Entry] = []
+        self._times: list[float] = []
+        self._base: _Entry | None = None  # state before the oldest logged measurement
+        self._counts = {"rejected_old": 0, "out_of_order": 0}
+        self._pruned = dict.fromkeys(range(6), 0)
+
+    @property
+    def model(self) -> MotionModel:
+        return self._model
+
+    @property
+    def formulation(self) -> str:
+        return self._formulation
+
+    @property
+    def initialized(self) -> bool:
+        """Whether at least one measurement has been integrated."""
+        return self._t is not None
+
+    @property
+    def time(self) -> float | None:
+        """Time (s) of the newest integrated measurement, ``None`` before the first."""
+        return self._t
+
+    @property
+    def nis(self) -> float:
+        """Normalised innovation squared of the newest measurement (NaN if none was formed)."""
+        return self._log[-1].nis if self._log else math.nan
+
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the nominal state vector and its covariance at :attr:`time`."""
+        return self._x.copy(), self._p.copy()
+
+    @property
+    def stats(self) -> dict:
+        """Counters: ``updates`` (integrated, including (re)initialisations),
+        ``rejected_gate``, ``rejected_old`` (older than the history window), ``resets``,
+        ``out_of_order`` (inserted by re-filtering)."""
+        c = dict(self._pruned)
+        for e in self._log:
+            c[e.status] += 1
+        return {
+            "updates": c[_core.ACCEPTED]
+            + c[_core.INITIALIZED]
+            + c[_core.RESET]
+            + c[_core.DIVERGED],
+            "rejected_gate": c[_core.GATED],
+            "rejected_old": self._counts["rejected_old"],
+            "resets": c[_core.RESET] + c[_core.DIVERGED],
+            "out_of_order": self._counts["out_of_order"],
+        }
+
+    # -- measurements ------------------------------------------------------------------------
+    def update_pose(self, t: float, measurement: UncertainPose) -> bool:
+        """Integrate a full pose measurement ``T_a_b`` at time ``t`` (seconds).
+
+        ``measurement.covariance`` (6x6) is over ``(dt, dtheta)`` with ``t_true = t + dt``,
+        ``R_true = R Exp(dtheta)``. Parts the model does not estimate are ignored.
+
+        Returns
+        -------
+        bool
+            ``True`` if integrated; ``False`` if rejected by the gate or older than the history
+            window (both counted in :attr:`stats`).
+        """
+        if not isinstance(measurement, UncertainPose) or measurement.shape != ():
+            raise ValueError("update_pose needs a single UncertainPose")
+        n_dp, n_do = self._params[0], self._params[1]
+        zp = measurement.position
+        zo = measurement.quaternion
+        c = measurement.covariance
+        if n_dp >= 0 and n_do >= 0:
+            return self._measure(t, 0, 0, zp, zo, c)
+        if n_dp >= 0:
+            return self._measure(t, 0, -1, zp, zo, c[:3, :3].copy())
+        return self._measure(t, -1, 0, zp, zo, c[3:, 3:].copy())
+
+    def update_position(self, t: float, position, covariance) -> bool:
+        """Position ``t_a_b`` (m, frame a) with 3x3 covariance (``t_true = t + dt``)."""
+        return self._vector(t, 0, -1, position, covariance, "position")
+
+    def update_orientation(self, t: float, quaternion, covariance) -> bool:
+        """Orientation ``q_a_b`` with 3x3 covariance of ``dtheta`` (``R_true = R Exp(dtheta)``)."""
+        if self._params[1] < 0:
+            raise ValueError("this motion model does not estimate orientation (n_do = -1)")
+        q = check_quaternion(quaternion)
+        if q.shape != (4,):
+            raise ValueError(f"quaternion must have shape (4,), got {q.shape}")
+        return self._measure(t, -1, 0, np.zeros(3), q, check_covariance(covariance, size=3))
+
+    def update_velocity(self, t: float, velocity, covariance) -> bool:
+        """Linear velocity ``d t_a_b / dt`` (m/s, frame a) with 3x3 covariance (additive)."""
+        return self._vector(t, 1, -1, velocity, covariance, "velocity")
+
+    def update_acceleration(self, t: float, acceleration, covariance) -> bool:
+        """Linear acceleration (m/s^2, frame a, gravity removed) with 3x3 covariance."""
+        return self._vector(t, 2, -1, acceleration, covariance, "acceleration")
+
+    def update_angular_velocity(self, t: float, angular_velocity, covariance) -> bool:
+        """Angular velocity in the body frame b (rad/s, a gyroscope) with 3x3 covariance."""
+        return self._vector(t, -1, 1, angular_velocity, covariance, "angular velocity")
+
+    def _vector(self, t, lp, lo, value, covariance, name) -> bool:
+        level, have = (lp, self._params[0]) if lp >= 0 else (lo, self._params[1])
+        if have < level:
+            part = "position" if lp >= 0 else "orientation"
+            raise ValueError(
+                f"cannot integrate a {name} measurement: the motion model estimates "
+                f"{max(have, -1)} {part} derivatives (needs >= {level})"
+            )
+        v = np.asarray(value, dtype=float)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"{name} must be finite with shape (3,), got {v.shape}")
+        c = check_covariance(covariance, name=f"{name} covariance", size=3)
+        if lp >= 0:
+            return self._measure(t, lp, -1, v, np.zeros(4), c)
+        return self._measure(t, -1, lo, np.zeros(3), np.concatenate([v, [0.0]]), c)
+
+    def _measure(self, t, lp, lo, zp, zo, r) -> bool:
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"measurement time must be finite, got {t}")
+        e = _Entry(t, lp, lo, np.array(zp, dtype=float), np.array(zo, dtype=float), np.array(r))
+        if self._t is None or t >= self._t:
+            self._apply(e)
+            self._log.append(e)
+            self._times.append(t)
+            self._prune()
+            return e.status != _core.GATED
+        oldest = self._base.t if self._base is not None else -math.inf
+        if t < self._t - self._history or t < oldest:
+            self._counts["rejected_old"] += 1
+            return False
+        # Out of order but inside the window: insert and re-filter from the stored state
+        # just before it (same operations, in the same order, as in-order arrival).
+        i = bisect.bisect_right(self._times, t)
+        self._restore(i)
+        self._log.insert(i, e)
+        self._times.insert(i, t)
+        for entry in self._log[i:]:
+            self._apply(entry)
+        self._counts["out_of_order"] += 1
+        return e.status != _core.GATED
+
+    def _restore(self, i: int) -> None:
+        src = self._log[i - 1] if i > 0 else self._base
+        if src is None:
+            self._x, self._p, self._t, self._gated_run = self._x0.copy(), self._p0.copy(), None, 0
+        else:
+            self._x, self._p = src.x.copy(), src.p.copy()
+            self._t, self._gated_run = src.t, src.gated_run
+
+    def _reinit(self, e: _Entry, why: str) -> None:
+        n_dp, n_do, add = self._params[:3]
+        k = kernels()
+        self._x = self._x0.copy()
+        self._p = self._p0.copy()
+        q = e.zo if e.lo == 0 else self._x[3 * (n_dp + 1) :][:4] if n_do >= 0 else e.zo
+        r = k.meas_cov(e.r, np.ascontiguousarray(q), e.lp, e.lo, add)
+        k.initialize(self._x, self._p, n_dp, n_do, add, e.lp, e.lo, e.zp, e.zo, r)
+        if why:
+            log.warning("pose Kalman filter reset at t=%.6f s: %s", e.t, why)
+
+    def _apply(self, e: _Entry) -> None:
+        n_dp, n_do, add, kind, sp, so = self._params
+        absolute = e.lp == 0 or e.lo == 0
+        if self._t is None:
+            self._reinit(e, "")
+            e.status, e.nis = _core.INITIALIZED, math.nan
+            self._gated_run = 0
+        elif absolute and self._gated_run >= self._reset_after:
+            self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
+            e.status, e.nis = _core.RESET, math.nan
+            self._gated_run = 0
+        else:
+            gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
+            status, nis = kernels().step(
+                self._x, self._p, e.t - self._t, n_dp, n_do, add, kind, sp, so,
+                e.lp, e.lo, e.zp, e.zo, e.r, gate, self._wmax,
+            )  # fmt: skip
+            e.status, e.nis = int(status), float(nis)
+            if status == _core.GATED:
+                self._gated_run += 1
+            elif status == _core.DIVERGED:
+                self._reinit(e, "singular innovation covariance or non-finite state")
+                self._gated_run = 0
+            else:
+                self._gated_run = 0
+        self._t = e.t
+        e.x, e.p, e.gated_run = self._x.copy(), self._p.copy(), self._gated_run
+
+    def _prune(self) -> None:
+        horizon = self._t - self._history
+        n = 0
+        while n < len(self._log) - 1 and self._log[n + 1].t < horizon:
+            n += 1
+        if n:
+            for e in self._log[:n]:
+                self._pruned[e.status] += 1
+            self._base = self._log[n - 1]
+            del self._log[:n]
+            del self._times[:n]
+
+    # -- queries -----------------------------------------------------------------------------
+    def predict_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nominal state and covariance at time ``t`` (see :meth:`predict`)."""
+        if self._t is None:
+            raise ValueError("the filter has no measurement yet; cannot predict")
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"prediction time must be finite, got {t}")
+        n_dp, n_do, add, kind, sp, so = self._params
+        k = kernels()
+        if t >= self._t:
+            return k.predict(self._x, self._p, t - self._t, n_dp, n_do, add, kind, sp, so)
+        states = ([self._base] if self._base is not None else []) + self._log
+        if t < states[0].t:
+            raise ValueError(
+                f"t={t:.6f} s is older than the stored history (oldest state at "
+                f"{states[0].t:.6f} s; history={self._history} s)"
+            )
+        i = bisect.bisect_right([s.t for s in states], t) - 1
+        a, b = states[i], states[i + 1]
+        if b.status in (_core.RESET, _core.DIVERGED, _core.INITIALIZED) or b.t == a.t:
+            return k.predict(a.x, a.p, t - a.t, n_dp, n_do, add, kind, sp, so)
+        return k.smooth(a.x, a.p, a.t, b.x, b.p, b.t, t, n_dp, n_do, add, kind, sp, so)
+
+    def predict(self, t: float) -> UncertainPose:
+        """Pose ``T_a_b`` at time ``t`` (seconds) with its 6x6 covariance.
+
+        ``t`` after the newest measurement: motion-model prediction, the covariance growing
+        with the process noise. ``t`` in the past (within ``history``): smoothed between the
+        stored filter states around ``t`` (one Rauch-Tung-Striebel step; the motion model only
+        runs forwards). The covariance is over ``(dt, dtheta)`` with ``t_true = t + dt``,
+        ``R_true = R Exp(dtheta)``; a part the model does not estimate is reported as zero /
+        identity with variance 1e12.
+        """
+        x, p = self.predict_state(t)
+        n_dp, n_do, add = self._params[:3]
+        pos, q, c = kernels().pose_of(x, p, n_dp, n_do, add)
+        return UncertainPose._trusted(pos, q, c)
