@@ -309,3 +309,49 @@ def test_interpolate_exactly_pi_has_no_jacobian(s, rng):
     d_minus = local(mid, a.interpolate(retract(b, -e), s))[3:]
     jump = np.linalg.norm(d_plus - d_minus)
     assert jump > 0.1 * s * np.pi  # O(1), not O(h): the map is discontinuous here
+
+
+# -- batches ----------------------------------------------------------------------------------
+
+
+def test_batched_jacobians_match_finite_differences_per_element(rng):
+    """Batched calls return, element by element, the Jacobians of each single pose."""
+    n = 4
+    a = Pose(rng.normal(size=(n, 3)) * 3.0, random_quaternion(rng, (n,)))
+    b = Pose(rng.normal(size=(n, 3)) * 3.0, random_quaternion(rng, (n,)))
+    x = rng.normal(size=(n, 3)) * 5.0
+    s = np.array([0.0, 0.3, 0.7, 1.0])
+    J_inv = jacobian_inverse(a.position, a.quaternion)
+    J_bet = jacobians_between(a.position, a.quaternion, b.position, b.quaternion)
+    J_int = jacobians_interpolate(a.quaternion, b.quaternion, s)
+    J_pt = jacobians_transform_point(a.quaternion, x)
+    for i in range(n):
+        ai, bi = a[i], b[i]
+        assert_jacobian_close(J_inv[i], numeric_jacobian(_inverse, [ai], 0))
+        assert_jacobian_close(J_bet[0][i], numeric_jacobian(_between, [ai, bi], 0))
+        assert_jacobian_close(J_bet[1][i], numeric_jacobian(_between, [ai, bi], 1))
+
+        def interp(p, r, si=s[i]):
+            return p.interpolate(r, si)
+
+        assert_jacobian_close(J_int[0][i], numeric_jacobian(interp, [ai, bi], 0))
+        assert_jacobian_close(J_int[1][i], numeric_jacobian(interp, [ai, bi], 1))
+        assert_jacobian_close(J_pt[0][i], numeric_jacobian(_transform, [ai, x[i]], 0))
+        assert_jacobian_close(J_pt[1][i], numeric_jacobian(_transform, [ai, x[i]], 1))
+
+
+def test_interpolate_jacobians_broadcast_over_s(rng):
+    """One pair of poses and an array of ``s``: one Jacobian per ``s``."""
+    a, b = _interp_pair("generic", 1.2, rng)
+    s = np.array([0.0, 0.3, 1.0])
+    J_a, J_b = jacobians_interpolate(a.quaternion, b.quaternion, s)
+    assert J_a.shape == J_b.shape == (3, 6, 6)
+    for k, sk in enumerate(s):
+        single = jacobians_interpolate(a.quaternion, b.quaternion, sk)
+        np.testing.assert_allclose(J_a[k], single[0], atol=1e-14)
+        np.testing.assert_allclose(J_b[k], single[1], atol=1e-14)
+    # the end points: s = 0 is T_a itself, s = 1 is T_b itself
+    np.testing.assert_allclose(J_a[0], np.eye(6), atol=1e-12)
+    np.testing.assert_allclose(J_b[0], np.zeros((6, 6)), atol=1e-12)
+    np.testing.assert_allclose(J_a[2], np.zeros((6, 6)), atol=1e-12)
+    np.testing.assert_allclose(J_b[2], np.eye(6), atol=1e-12)
