@@ -380,6 +380,20 @@ def test_make_continuous_synthetic(rng):
     np.testing.assert_array_equal(quat_make_continuous(q[:1]), q[:1])
 
 
+def test_make_continuous_batched_sequences_and_single(rng):
+    """Shape (N, M, 4): M independent sequences along axis 0, each as if alone."""
+    q = quat_exp(np.cumsum(rng.normal(scale=0.1, size=(50, 3, 3)), axis=0))
+    flipped = np.where((rng.random((50, 3)) < 0.4)[..., None], -q, q)
+    out = quat_make_continuous(flipped)
+    assert out.shape == (50, 3, 4)
+    assert np.all(np.sum(out[1:] * out[:-1], axis=-1) >= 0.0)
+    for m in range(3):
+        np.testing.assert_array_equal(out[:, m], quat_make_continuous(flipped[:, m]))
+    single = quat_exp([0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(quat_make_continuous(single), single)
+    assert quat_make_continuous(np.zeros((0, 4))).shape == (0, 4)
+
+
 def test_make_continuous_on_real_recording(shared_data):
     data = np.loadtxt(shared_data / "ar_table" / "table_01.txt")
     q = quat_normalize(data[:, 4:8])

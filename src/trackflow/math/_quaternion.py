@@ -142,18 +142,29 @@ def quat_align_sign(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def quat_make_continuous(q: np.ndarray) -> np.ndarray:
-    """Flip signs along a sequence (axis 0) so consecutive quaternions have positive dot product.
+    """Flip signs along a sequence (axis 0) so consecutive quaternions have dot product >= 0.
 
     Recordings often contain sign flips (``q`` -> ``-q``) that break averaging and additive
-    filters; this removes them without changing any rotation.
+    filters; this removes them without changing any rotation. The first quaternion keeps its
+    sign.
+
+    Parameters
+    ----------
+    q : array_like, shape (N, ..., 4)
+        ``N`` quaternions in time order; further leading dimensions are independent sequences.
+        A single quaternion (shape (4,)) is returned unchanged.
+
+    Returns
+    -------
+    ndarray, same shape as ``q`` (a new array)
     """
     q = np.array(q, dtype=float, copy=True)
-    if q.shape[0] < 2:
+    if q.ndim < 2 or q.shape[0] < 2:
         return q
-    d = np.sum(q[1:] * q[:-1], axis=-1)
-    flips = np.concatenate([[False], d < 0.0])
-    sign = np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)
-    return q * sign[:, None]
+    d = np.sum(q[1:] * q[:-1], axis=-1)  # (N - 1, ...)
+    flips = np.concatenate([np.zeros((1,) + d.shape[1:], dtype=bool), d < 0.0], axis=0)
+    sign = np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)
+    return q * sign[..., None]
 
 
 def quat_angle(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
