@@ -355,3 +355,26 @@ def test_interpolate_jacobians_broadcast_over_s(rng):
     np.testing.assert_allclose(J_b[0], np.zeros((6, 6)), atol=1e-12)
     np.testing.assert_allclose(J_a[2], np.zeros((6, 6)), atol=1e-12)
     np.testing.assert_allclose(J_b[2], np.eye(6), atol=1e-12)
+
+
+# -- exact end points -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("operation", ["between", "interpolate"])
+def test_plain_pose_counts_as_exact(operation, rng):
+    """A plain ``Pose`` as the second operand is an exact pose; other types are a ValueError."""
+    a = UncertainPose(random_pose(rng, 1.0), random_covariance(rng))
+    b = random_pose(rng, 2.0)
+
+    def run(other):
+        if operation == "between":
+            return a.between(other, jacobians=True)
+        return a.interpolate(other, 0.3, jacobians=True)
+
+    got, J_a, J_b = run(b)
+    want, J_a_ref, J_b_ref = run(UncertainPose.exact(b))
+    assert got.pose.allclose(want.pose, atol=1e-15)
+    np.testing.assert_allclose(got.covariance, want.covariance, atol=1e-18)
+    np.testing.assert_allclose(got.covariance, J_a @ a.covariance @ J_a.T, atol=1e-18)
+    with pytest.raises(ValueError, match="UncertainPose or Pose"):
+        run(np.zeros(7))

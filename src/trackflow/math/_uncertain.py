@@ -33,6 +33,15 @@ from ._quaternion import (
 __all__ = ["UncertainPose", "evaluate_covariance", "ellipsoid"]
 
 
+def _as_uncertain(other, operation: str) -> UncertainPose:
+    """``other`` as an UncertainPose: a plain ``Pose`` is exact, anything else an error."""
+    if isinstance(other, UncertainPose):
+        return other
+    if isinstance(other, Pose):
+        return UncertainPose.exact(other)
+    raise ValueError(f"cannot {operation} with {type(other).__name__}; need UncertainPose or Pose")
+
+
 def _as_cross(cross, shape) -> np.ndarray | None:
     if cross is None:
         return None
@@ -211,8 +220,7 @@ class UncertainPose:
         -------
         UncertainPose, or (UncertainPose, J_c_a, J_c_b)
         """
-        if isinstance(other, Pose):
-            other = UncertainPose.exact(other)
+        other = _as_uncertain(other, "take the relative pose")
         cross = _as_cross(cross_covariance, self.shape)
         J_c_a, J_c_b = jacobians_between(
             self.position, self.quaternion, other.position, other.quaternion
@@ -250,8 +258,12 @@ class UncertainPose:
         x_a = self._pose.transform_points(x)
         return (x_a, c, J_x_pose, J_x_point) if jacobians else (x_a, c)
 
-    def interpolate(self, other: UncertainPose, s, jacobians: bool = False, cross_covariance=None):
+    def interpolate(self, other, s, jacobians: bool = False, cross_covariance=None):
         """Interpolate towards ``other`` (lerp of position, slerp of rotation), ``s`` in [0, 1].
+
+        ``other`` is an ``UncertainPose`` or a plain ``Pose`` (exact). The rotation follows the
+        shortest path, so end points with opposite orientations (relative angle exactly pi) have
+        no well-defined interpolation and no Jacobian; near pi the Jacobian stays bounded.
 
         The covariance is ``J_s_a C_a J_s_a^T + J_s_b C_b J_s_b^T`` (plus cross terms if
         ``cross_covariance`` is given): for independent end points it is smallest between them.
@@ -260,6 +272,7 @@ class UncertainPose:
         -------
         UncertainPose, or (UncertainPose, J_s_a, J_s_b)
         """
+        other = _as_uncertain(other, "interpolate")
         s = np.asarray(s, dtype=float)
         J_s_a, J_s_b = jacobians_interpolate(self.quaternion, other.quaternion, s)
         mean = self._pose.interpolate(other._pose, s)
