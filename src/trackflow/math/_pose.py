@@ -59,7 +59,13 @@ class Pose:
         if p.ndim == 1 and q.ndim == 1:
             self._p, self._q = p, q
             return
-        shape = np.broadcast_shapes(p.shape[:-1], q.shape[:-1])
+        try:
+            shape = np.broadcast_shapes(p.shape[:-1], q.shape[:-1])
+        except ValueError as exc:
+            raise ValueError(
+                f"position batch shape {p.shape[:-1]} and quaternion batch shape "
+                f"{q.shape[:-1]} do not broadcast"
+            ) from exc
         self._p = np.broadcast_to(p, shape + (3,)).copy() if p.shape[:-1] != shape else p
         self._q = np.broadcast_to(q, shape + (4,)).copy() if q.shape[:-1] != shape else q
 
@@ -172,11 +178,14 @@ class Pose:
         return Pose._trusted(p, quat_slerp(self._q, other._q, s))
 
     def __eq__(self, other) -> bool:
-        """Exact equality of the rotation (``q`` and ``-q`` equal) and position."""
+        """Exact equality of batch shape, positions and rotations (``q`` and ``-q`` are equal,
+        element by element)."""
         if not isinstance(other, Pose):
             return NotImplemented
-        same_q = np.all(self._q == other._q) or np.all(self._q == -other._q)
-        return bool(np.all(self._p == other._p) and same_q)
+        if self.shape != other.shape:
+            return False
+        same_q = np.all(self._q == other._q, axis=-1) | np.all(self._q == -other._q, axis=-1)
+        return bool(np.all(self._p == other._p) and np.all(same_q))
 
     __hash__ = None
 
