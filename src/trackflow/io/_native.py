@@ -30,10 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..math import check_covariance, check_quaternion
+from ..math import check_covariance
 from ._clean import TRUNCATED, finish_stream
 from ._report import ReadReport
-from ._stream import FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
+from ._stream import (
+    FLAG_COVARIANCE,
+    FLAG_ORIENTATION,
+    FLAG_POSITION,
+    PoseStream,
+    unit_quaternions,
+)
 
 __all__ = ["MAGIC", "VERSION", "RecordingWriter", "read_native", "write_native"]
 
@@ -64,7 +70,7 @@ _SEED = np.uint64(0x5EED_7F1C_0DE5_A11E)
 
 def _checks(records: np.ndarray, covariance: bool) -> np.ndarray:
     """Check values (u4) of records: hash of every 64-bit word except the check itself."""
-    words = records.view("<u8").reshape(len(records), -1)
+    words = records.view("<u8").reshape(len(records), records.dtype.itemsize // 8)
     last = words.shape[1] - 1
     k = _K[covariance][:last]
     k_last = _K[covariance][last]
@@ -341,7 +347,7 @@ class RecordingWriter:
         p = np.asarray(position, dtype=float).reshape(3)
         if not np.all(np.isfinite(p)):
             raise ValueError(f"{self.path}: position contains NaN or inf")
-        q = check_quaternion(np.asarray(quaternion, dtype=float).reshape(4))
+        q = unit_quaternions(np.asarray(quaternion, dtype=float).reshape(4))
         if (covariance is not None) != self.has_covariance:
             need = "needs" if self.has_covariance else "does not take"
             raise ValueError(f"{self.path}: this recording {need} a covariance per sample")

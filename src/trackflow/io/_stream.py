@@ -36,6 +36,17 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def unit_quaternions(q: np.ndarray) -> np.ndarray:
+    """``check_quaternion`` that keeps the given bits where ``|q|`` is 1 to 1e-12.
+
+    Rescaling an already-unit quaternion changes its last bits; keeping them makes copies and
+    file round trips exactly equal.
+    """
+    unit = check_quaternion(q)
+    close = np.abs(np.sum(q * q, axis=-1) - 1.0) <= 2e-12
+    return np.where(close[..., None], q, unit)
+
+
 def _check_name(name, what: str) -> str:
     if not isinstance(name, str) or not name:
         raise ValueError(f"{what} frame must be a non-empty string, got {name!r}")
@@ -111,7 +122,7 @@ class PoseStream:
         if q.shape != (n, 4):
             raise ValueError(f"quaternion must have shape ({n}, 4), got {q.shape}")
         if n:
-            q = check_quaternion(q)
+            q = unit_quaternions(q)
         if n > 1:
             d = np.diff(t)
             if np.any(d <= 0):
