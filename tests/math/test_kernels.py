@@ -125,3 +125,26 @@ def test_bad_backend_name():
     with pytest.raises(ValueError, match="unknown backend"), use_backend("Numba "):
         pass
     assert get_backend() == start
+
+
+@needs_numba
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="reported to the lead: read-only/strided inputs make numba compile (and cache) a new "
+    "specialisation each (14 on a cold cache, ~100 s under load); normalising inputs with "
+    "np.require(..., ('C', 'W')) brings it to one per kernel",
+)
+def test_compose_compiles_one_batch_specialisation(rng):
+    from trackflow.math import _kernels
+
+    a, many = _uncertain(rng, (1,))[0], _uncertain(rng, (8,))
+    g = rng.normal(size=(8, 12, 12)) * 1e-2
+    cross = (g @ np.swapaxes(g, -1, -2))[:, :6, 6:]
+    with use_backend("numba"):
+        a @ many  # one side broadcast (a copy), the other exact shape (a read-only view)
+        many @ a
+        many @ many
+        many.compose(many, cross_covariance=cross)
+        many.compose(many, cross_covariance=cross[0])
+    assert len(_kernels._compose_batch_jit.signatures) == 1
