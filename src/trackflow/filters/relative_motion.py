@@ -65,13 +65,25 @@ UNIT_POINTS = np.eye(3)
 # the closed forms lose at most ~eps / phi^6 ~ 1e-14 (the worst one divides by phi^6).
 _SERIES_BELOW = 0.5
 _SERIES_TERMS = 9
+# Eigenvalues of the residual covariance below this fraction of the largest are treated as 0.
+_RANK_TOLERANCE = 1e-10
 
 
-def _factorial(n: int) -> float:
-    out = 1.0
-    for k in range(2, n + 1):
-        out *= k
-    return out
+def _series_tables() -> tuple[np.ndarray, np.ndarray]:
+    """Taylor coefficients (in powers of ``phi^2``) of ``a_k`` and ``b_k``, k = 1..4: (4, terms)."""
+    fact = np.cumprod(np.concatenate([[1.0], np.arange(1.0, 2 * _SERIES_TERMS + 6)]))
+    ta = np.zeros((4, _SERIES_TERMS))
+    tb = np.zeros((4, _SERIES_TERMS))
+    for k in range(1, 5):
+        for n in range(_SERIES_TERMS):
+            sign = -1.0 if n % 2 else 1.0
+            ta[k - 1, n] = sign / fact[2 * n + k]
+            if n >= 1:
+                tb[k - 1, n - 1] = sign * 2 * n / fact[2 * n + k]
+    return ta, tb
+
+
+_SERIES_A, _SERIES_B = _series_tables()
 
 
 def _coefficients(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -82,6 +94,11 @@ def _coefficients(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``a4 = (phi^2/2 - 1 + cos phi)/phi^4``. Returns arrays of shape ``(4,) + phi.shape``.
     """
     phi = np.asarray(phi, dtype=float)
+    powers = (phi * phi)[..., None] ** np.arange(_SERIES_TERMS)
+    series_a = np.moveaxis(powers @ _SERIES_A.T, -1, 0)
+    series_b = np.moveaxis(powers @ _SERIES_B.T, -1, 0)
+    if np.all(phi < _SERIES_BELOW):  # the usual case: no closed forms needed
+        return series_a, series_b
     small = phi < _SERIES_BELOW
     p = np.where(small, 1.0, phi)  # safe divisor for the closed forms
     s, c = np.sin(p), np.cos(p)
@@ -101,20 +118,11 @@ def _coefficients(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             (4.0 * (1.0 - c) - p**2 - p * s) / p**6,
         ]
     )
-    x2 = phi * phi
-    series_a = np.zeros((4,) + phi.shape)
-    series_b = np.zeros((4,) + phi.shape)
-    for k in range(1, 5):
-        for n in range(_SERIES_TERMS):
-            sign = -1.0 if n % 2 else 1.0
-            series_a[k - 1] += sign * x2**n / _factorial(2 * n + k)
-            if n >= 1:
-                series_b[k - 1] += sign * 2 * n * x2 ** (n - 1) / _factorial(2 * n + k)
     return np.where(small, series_a, closed_a), np.where(small, series_b, closed_b)
 
 
 def _matrix_coefficients(omega: np.ndarray, dt) -> tuple[np.ndarray, np.ndarray]:
-    """``c[m, j]`` and ``d[m, j]`` with ``M_m = c[m,0] I + c[m,1] K + c[m,2] K^2``, ``K = [omega]x``.
+    """``c[m, j]``, ``d[m, j]``: ``M_m = c[m,0] I + c[m,1] K + c[m,2] K^2``, ``K = [omega]x``.
 
     ``m`` indexes (W, V, A); ``d[m, j] = (dc[m, j]/dtheta) / theta`` so that
     ``d c[m, j] / d omega = d[m, j] omega``. Shapes ``(3, 3) + batch``.
@@ -207,21 +215,30 @@ def motion_jacobians_omega(omega, dt, p, v, a) -> tuple[np.ndarray, np.ndarray, 
     """
     omega = np.asarray(omega, dtype=float)
     c, d = _matrix_coefficients(omega, dt)
-    k = skew(omega)
-    eye = np.eye(3)
-    out = []
-    for m, x in enumerate((p, v, a)):
-        x = np.asarray(x, dtype=float)
-        kx = k @ x
-        kkx = k @ kx
-        J_kkx_omega = np.dot(omega, x) * eye + np.outer(omega, x) - 2.0 * np.outer(x, omega)
-        out.append(
-            -c[m, 1] * skew(x)
-            + d[m, 1] * np.outer(kx, omega)
-            + c[m, 2] * J_kkx_omega
-            + d[m, 2] * np.outer(kkx, omega)
-        )
+    out = [
+        _jacobian_omega(c[m], d[m], omega, np.asarray(x, dtype=float))
+        for m, x in enumerate((p, v, a))
+    ]
     return out[0], out[1], out[2]
+
+
+def _jacobian_omega(c, d, omega, x):
+    """``d(M x)/d omega`` for ``M = c0 I + c1 K + c2 K^2``; ``x`` of shape (..., 3)."""
+    k = skew(omega)
+    kx = x @ k.T
+    kkx = kx @ k.T
+    wx = x @ omega
+    J_kkx_omega = (
+        wx[..., None, None] * np.eye(3)
+        + omega[:, None] * x[..., None, :]
+        - 2.0 * x[..., :, None] * omega[None, :]
+    )
+    return (
+        -c[1] * skew(x)
+        + d[1] * kx[..., :, None] * omega
+        + c[2] * J_kkx_omega
+        + d[2] * kkx[..., :, None] * omega
+    )
 
 
 def transition_matrix(dt, origin_shift=None) -> np.ndarray:
@@ -313,13 +330,14 @@ def residual(state, points_prev, points_curr, dt, jacobians: bool = False):
     f = (prev @ W.T + shift - curr).reshape(9)
     if not jacobians:
         return f
+    c, d = _matrix_coefficients(omega, dt)
+    J_Wp = _jacobian_omega(c[0], d[0], omega, prev)  # (3, 3, 3): one per point
+    J_shift = _jacobian_omega(c[1], d[1], omega, v) + _jacobian_omega(c[2], d[2], omega, a)
     J_f_s = np.zeros((9, 9))
     J_f_x = np.zeros((9, 18))
-    J_Vv, J_Aa = None, None
     for i in range(3):
-        J_Wp, J_Vv, J_Aa = motion_jacobians_omega(omega, dt, prev[i], v, a)
         rows = slice(3 * i, 3 * i + 3)
-        J_f_s[rows, 0:3] = J_Wp + J_Vv + J_Aa
+        J_f_s[rows, 0:3] = J_Wp[i] + J_shift
         J_f_s[rows, 3:6] = V
         J_f_s[rows, 6:9] = A
         J_f_x[rows, 3 * i : 3 * i + 3] = W
@@ -398,8 +416,9 @@ class RelativeMotionState:
         m = np.array(self.mean, dtype=float)
         c = np.array(self.covariance, dtype=float)
         if m.shape != (9,) or c.shape != (9, 9):
-            raise ValueError(f"state mean (9,) and covariance (9, 9) expected, got {m.shape}, "
-                             f"{c.shape}")
+            raise ValueError(
+                f"state mean (9,) and covariance (9, 9) expected, got {m.shape}, {c.shape}"
+            )
         if not (np.all(np.isfinite(m)) and np.all(np.isfinite(c))):
             raise ValueError("state mean and covariance must be finite")
         m.flags.writeable = False
@@ -431,12 +450,16 @@ class UpdateInfo:
     residual_covariance : ndarray, shape (9, 9)
         ``S = J_f_s P J_f_s^T + J_f_x C_x J_f_x^T (+ J_f_s C_motion J_f_s^T)``.
     nis : float
-        ``f^T S^-1 f``; chi-square with 9 degrees of freedom when the model is consistent.
+        ``f^T S^+ f`` (pseudo-inverse); chi-square with ``dof`` degrees of freedom when the
+        model is consistent.
+    dof : int
+        Rank of ``S``: 9 for independent point noise, 6 when the points come from poses.
     """
 
     residual: np.ndarray
     residual_covariance: np.ndarray
     nis: float
+    dof: int
 
 
 def predict(
@@ -507,17 +530,24 @@ def update(
     P = state.covariance
     S = J_f_s @ P @ J_f_s.T + R
     S = 0.5 * (S + S.T)
-    PHt = P @ J_f_s.T
-    K = np.linalg.solve(S, PHt.T).T
+    # A rigid relative motion has 6 degrees of freedom but f has 9 components: when the points
+    # come from poses (always exactly rigid), S is singular in the 3 directions that break
+    # rigidity, and f has no first-order component there. The pseudo-inverse drops them.
+    lam, U = np.linalg.eigh(S)
+    keep = lam > _RANK_TOLERANCE * max(lam[-1], 0.0)
+    if not np.any(keep):
+        raise ValueError("residual covariance is zero: give the points or the state a covariance")
+    S_pinv = (U[:, keep] / lam[keep]) @ U[:, keep].T
+    K = P @ J_f_s.T @ S_pinv
     mean = state.mean - K @ f
     # Joseph form: stays symmetric positive semi-definite under rounding and is correct for
-    # any gain, which matters here because S can be badly conditioned (v and a are nearly
-    # collinear in one interval: V ~ h I, A ~ h^2/2 I).
+    # any gain (here a pseudo-inverse gain), which matters because S can be badly conditioned
+    # (v and a are nearly collinear in one interval: V ~ h I, A ~ h^2/2 I).
     I_KH = np.eye(9) - K @ J_f_s
     cov = I_KH @ P @ I_KH.T + K @ R @ K.T
     cov = 0.5 * (cov + cov.T)
-    nis = float(f @ np.linalg.solve(S, f))
-    return RelativeMotionState(mean, cov), UpdateInfo(f, S, nis)
+    nis = float(f @ S_pinv @ f)
+    return RelativeMotionState(mean, cov), UpdateInfo(f, S, nis, int(np.count_nonzero(keep)))
 
 
 def predict_pose(
