@@ -200,12 +200,6 @@ def test_pose_constructor_mismatched_batches_raise_value_error():
         Pose(np.zeros((2, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="minor (reported): the broadcast error comes from NumPy and does not name "
-    "position/quaternion or their shapes in the library's words",
-)
 def test_pose_constructor_mismatch_message_names_arguments():
     with pytest.raises(ValueError) as err:
         Pose(np.zeros((2, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))

@@ -215,12 +215,6 @@ def test_equality():
     assert batch == Pose(np.zeros((3, 3)), np.tile(-q, (3, 1)))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="bug in Pose.__eq__ (reported): sign equivalence is tested for the whole batch at "
-    "once, so a batch with a sign flip in one element compares unequal",
-)
 def test_equality_batch_with_per_element_sign_flip():
     q = Rotation.from_rotvec([[0.1, 0.2, 0.3], [0.0, 1.0, 0.0]]).as_quat()
     a = Pose(np.zeros((2, 3)), q)
@@ -228,12 +222,6 @@ def test_equality_batch_with_per_element_sign_flip():
     assert a == b
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=ValueError,
-    reason="bug in Pose.__eq__ (reported): batches of different shapes raise ValueError from "
-    "NumPy broadcasting instead of comparing unequal",
-)
 def test_equality_of_different_batch_shapes_is_false():
     a = Pose.identity((2,))
     b = Pose.identity((3,))
