@@ -85,10 +85,14 @@ def guess_format(path, for_writing: bool = False) -> str:
             return "rosbag"
         raise ValueError(f"{path}: cannot tell the format from the name; pass format=")
     with open(path, "rb") as f:
-        first = f.readline().decode("utf-8", errors="replace").strip()
+        head = f.read(65536).decode("utf-8", errors="replace").split("\n")[:20]
+    for first in head:
+        first = first.strip().lower()
+        if not first.startswith("#"):
+            break
+        if first.startswith("#timestamp") and "," in first:
+            return "euroc"
     line = _first_data_line(path)
-    if first.lower().startswith("#timestamp") and "," in first:
-        return "euroc"
     if line is None:
         raise ValueError(f"{path}: no data lines; pass format=")
     if "," in line:

@@ -5,7 +5,8 @@ Checks, in order, on the parsed rows of a recording:
 1. non-finite values (NaN, inf) in any field;
 2. zero quaternions;
 3. quaternions off unit length by more than the file's printed precision allows
-   (for text: ``max(1e-4, 5 units of the last printed digit)``; for binary data ``1e-6``);
+   (``1e-6`` for binary data; for decimal text up to ``1e-3`` depending on the printed digits,
+   see ``quat_tolerance_from_tokens``);
 4. covariances that are not symmetric or not positive semi-definite;
 5. timestamps that do not strictly increase (duplicates or steps back in time);
 6. quaternion sign flips between consecutive samples (never an error: ``q`` and ``-q`` are the
@@ -50,11 +51,18 @@ def fmt_ns(t: int) -> str:
 
 
 def _longest_increasing(t: np.ndarray) -> np.ndarray:
-    """Indices of a longest strictly increasing subsequence of ``t`` (earliest-ending ties)."""
-    tails: list[int] = []  # tails[k]: value ending the best subsequence of length k + 1
+    """Indices of a longest strictly increasing subsequence of ``t``.
+
+    Among equally long ones, earlier rows are preferred (a late row that jumps back is the one
+    dropped): the classic patience algorithm runs backwards on ``-t``, where replacing a tail
+    keeps the element seen last, i.e. the earliest row.
+    """
+    u = (-np.asarray(t)[::-1]).tolist()
+    n = len(u)
+    tails: list[int] = []  # tails[k]: smallest value ending an increasing run of length k + 1
     tail_idx: list[int] = []
-    prev = np.full(len(t), -1, dtype=np.int64)
-    for i, v in enumerate(t.tolist()):
+    prev = [-1] * n
+    for i, v in enumerate(u):
         k = bisect_left(tails, v)
         if k == len(tails):
             tails.append(v)
@@ -66,9 +74,9 @@ def _longest_increasing(t: np.ndarray) -> np.ndarray:
     out = []
     i = tail_idx[-1] if tail_idx else -1
     while i >= 0:
-        out.append(i)
-        i = int(prev[i])
-    return np.array(out[::-1], dtype=np.int64)
+        out.append(n - 1 - i)  # back to forward indices; the chain already runs forward
+        i = prev[i]
+    return np.array(out, dtype=np.int64)
 
 
 def finish_stream(

@@ -214,15 +214,16 @@ def quat_tolerance_from_tokens(
 
     Rounding each component to half a unit of its last digit changes the norm by at most one
     such unit, and real files are often normalised before an offline fusion or smoothing step
-    (EuRoC ground truth is off by up to 2e-5, TUM RGB-D by 8e-5), so the tolerance is
-    ``max(TEXT_UNIT_TOLERANCE = 1e-4, 5 units of the coarsest printed digit)``. A wrong
-    component order or corrupted digits are off by far more.
+    (EuRoC ground truth is off by up to 2e-5, TUM RGB-D by 8e-5). The tolerance is
+    ``max(TEXT_UNIT_TOLERANCE = 1e-4, min(2 units of the coarsest printed digit, 1e-3))``: a
+    wrong component order, corrupted digits or a cut-off number are off by far more.
     """
 
     def tol(rows: np.ndarray) -> np.ndarray:
         out = np.empty(len(rows))
         for k, r in enumerate(rows):
-            out[k] = max(TEXT_UNIT_TOLERANCE, 5.0 * max(_place(tokens[r][c]) for c in cols))
+            place = max(_place(tokens[r][c]) for c in cols)
+            out[k] = max(TEXT_UNIT_TOLERANCE, min(2.0 * place, 1e-3))
         return out
 
     return tol
