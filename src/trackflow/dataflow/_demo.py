@@ -59,7 +59,8 @@ class DemoConfig:
     query_rate_hz: float = 60.0
     aligned_offset_s: float = -0.100
     warmup_s: float = 1.0
-    motion_noise: tuple[float, float] = (2.0, 8.0)
+    tracker_motion_noise: tuple[float, float] = (1.0, 3.0)
+    camera_motion_noise: tuple[float, float] = (1.0, 3.0)
 
 
 def load_demo_motion() -> tuple[np.ndarray, Pose]:
@@ -105,7 +106,8 @@ def _fixed_frames(truth, t0: float, t1: float) -> dict[str, Pose]:
 
 def demo_graph(cfg: DemoConfig, fixed: dict[str, Pose], T_T_C: UncertainPose):
     """The demo SRG with the given target->camera calibration."""
-    motion = MotionSpec(static=False, n_dp=1, n_do=1, noise=cfg.motion_noise)
+    tracker_motion = MotionSpec(static=False, n_dp=1, n_do=1, noise=cfg.tracker_motion_noise)
+    camera_motion = MotionSpec(static=False, n_dp=1, n_do=1, noise=cfg.camera_motion_noise)
     g = SpatialRelationshipGraph()
     g.add_static("projector", "P", "A", fixed["T_P_A"], np.diag([1e-8] * 3 + [1e-8] * 3))
     g.add_measured(
@@ -115,7 +117,7 @@ def demo_graph(cfg: DemoConfig, fixed: dict[str, Pose], T_T_C: UncertainPose):
         latency_s=cfg.tracker_latency_s,
         rate_hz=cfg.tracker_rate_hz,
         covariance=np.diag([cfg.tracker_sigma_pos**2] * 3 + [cfg.tracker_sigma_ori**2] * 3),
-        motion=motion,
+        motion=tracker_motion,
     )
     g.add_static("target_camera", "T", "C", T_T_C.pose, T_T_C.covariance)
     g.add_measured(
@@ -126,7 +128,7 @@ def demo_graph(cfg: DemoConfig, fixed: dict[str, Pose], T_T_C: UncertainPose):
         rate_hz=cfg.camera_rate_hz,
         confidence=1.0 - cfg.camera_outlier_rate,
         covariance=np.diag([cfg.camera_sigma_pos**2] * 3 + [s**2 for s in cfg.camera_sigma_ori]),
-        motion=motion,
+        motion=camera_motion,
         stamp_offset_s=cfg.camera_stamp_offset_s,
     )
     g.add_static("marker", "A", "M", fixed["T_A_M"], np.diag([1e-8] * 3 + [1e-8] * 3))

@@ -79,6 +79,28 @@ class Inference(Component):
             self.emit(out)
 
 
+def filter_noise(motion: MotionSpec) -> tuple[float, ...] | None:
+    """Per-level process noise for :class:`trackflow.filters.MotionModel` from a MotionSpec.
+
+    A scalar or a pair ``(position, orientation)`` drives the highest derivative level of
+    each part (white-noise spectral densities, lower levels zero); a full tuple of
+    ``(n_dp + 1) + (n_do + 1)`` values is passed unchanged.
+    """
+    noise = motion.noise
+    levels = (motion.n_dp + 1, motion.n_do + 1)
+    if isinstance(noise, (int, float)):
+        noise = (float(noise), float(noise))
+    noise = tuple(float(v) for v in noise)
+    if len(noise) == sum(levels):
+        return noise
+    if len(noise) != 2:
+        raise ValueError(
+            f"motion noise must be a scalar, a (position, orientation) pair or {sum(levels)} "
+            f"values, got {noise}"
+        )
+    return (0.0,) * motion.n_dp + (noise[0],) + (0.0,) * motion.n_do + (noise[1],)
+
+
 def make_filter(motion: MotionSpec, history_s: float):
     """A :class:`trackflow.filters.PoseKalmanFilter` for a relationship's motion model."""
     try:
@@ -88,7 +110,7 @@ def make_filter(motion: MotionSpec, history_s: float):
     if motion.static:
         model = MotionModel.static()
     else:
-        model = MotionModel(motion.n_dp, motion.n_do, noise=motion.noise)
+        model = MotionModel(motion.n_dp, motion.n_do, noise=filter_noise(motion))
     return PoseKalmanFilter(model, history=history_s)
 
 
