@@ -22,6 +22,8 @@ log = logging.getLogger("trackflow.filters")
 _PRIOR_SIGMA_POSITION = 10.0  # m, m/s, m/s^2, ... for parts no measurement has reached yet
 _PRIOR_SIGMA_ANGLE = math.pi  # rad
 _PRIOR_SIGMA_RATE = 10.0  # rad/s, rad/s^2, ...
+# statuses after which the state does not continue the previous one (no smoothing across)
+_SEGMENT_START = (_core.INITIALIZED, _core.RESET, _core.DIVERGED)
 
 
 def chi2_gate(probability: float | None, dof: int) -> float:
@@ -136,6 +138,7 @@ class PoseKalmanFilter:
         self._log: list[_Entry] = []
         self._times: list[float] = []
         self._base: _Entry | None = None  # state before the oldest logged measurement
+        self._smooth_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._counts = {"rejected_old": 0, "out_of_order": 0}
         self._pruned = dict.fromkeys(range(6), 0)
 
@@ -257,6 +260,7 @@ class PoseKalmanFilter:
         if not math.isfinite(t):
             raise ValueError(f"measurement time must be finite, got {t}")
         e = _Entry(t, lp, lo, np.array(zp, dtype=float), np.array(zo, dtype=float), np.array(r))
+        self._smooth_cache = {}
         if self._t is None or t >= self._t:
             self._apply(e)
             self._log.append(e)
@@ -356,10 +360,35 @@ class PoseKalmanFilter:
                 f"{states[0].t:.6f} s; history={self._history} s)"
             )
         i = bisect.bisect_right([s.t for s in states], t) - 1
-        a, b = states[i], states[i + 1]
-        if b.status in (_core.RESET, _core.DIVERGED, _core.INITIALIZED) or b.t == a.t:
+        a = states[i]
+        if states[i + 1].status in _SEGMENT_START:
             return k.predict(a.x, a.p, t - a.t, n_dp, n_do, add, kind, sp, so)
-        return k.smooth(a.x, a.p, a.t, b.x, b.p, b.t, t, n_dp, n_do, add, kind, sp, so)
+        xb, pb = self._smoothed(states, i + 1)
+        b = states[i + 1]
+        return k.smooth(a.x, a.p, a.t, xb, pb, b.t, t, n_dp, n_do, add, kind, sp, so)
+
+    def _smoothed(self, states: list[_Entry], j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rauch-Tung-Striebel smoothed state at stored node ``j`` (cached until new data)."""
+        if j in self._smooth_cache:
+            return self._smooth_cache[j]
+        n_dp, n_do, add, kind, sp, so = self._params
+        k = kernels()
+        top = j
+        while top + 1 < len(states) and states[top + 1].status not in _SEGMENT_START:
+            if top + 1 in self._smooth_cache:
+                break
+            top += 1
+        if top + 1 < len(states) and top + 1 in self._smooth_cache:
+            xs, ps = self._smooth_cache[top + 1]
+        else:  # newest node of a segment: smoothed = filtered
+            xs, ps = states[top].x, states[top].p
+            self._smooth_cache[top] = (xs, ps)
+            top -= 1
+        for m in range(top, j - 1, -1):
+            a, b = states[m], states[m + 1]
+            xs, ps = k.smooth(a.x, a.p, a.t, xs, ps, b.t, a.t, n_dp, n_do, add, kind, sp, so)
+            self._smooth_cache[m] = (xs, ps)
+        return self._smooth_cache[j]
 
     def predict(self, t: float) -> UncertainPose:
         """Pose ``T_a_b`` at time ``t`` (seconds) with its 6x6 covariance.
