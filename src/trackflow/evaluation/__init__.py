@@ -1,0 +1,34 @@
+"""Prediction-error evaluation and automatic Kalman filter tuning (PoseTool, thesis 8.1, 9.2.1).
+
+``evaluate_recording`` tunes on the first part of a recording and scores the tuned Kalman
+predictor, linear extrapolation and no prediction on the rest (thesis tables 9.2-9.5).
+See ``docs/posetool.md``.
+"""
+
+from ._baselines import predict_linear, predict_none
+from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors, predict_kalman
+from ._metrics import ErrorStats, error_stats, pose_errors
+from ._model import PredictionModel, estimate_noise
+from ._targets import default_gap, interpolate_poses, scored_mask
+from ._tuning import TuneResult, default_model, evaluate_recording, tune_model
+
+__all__ = [
+    "PREDICTORS",
+    "ErrorStats",
+    "PredictionModel",
+    "PredictionReport",
+    "TuneResult",
+    "default_gap",
+    "default_model",
+    "error_stats",
+    "estimate_noise",
+    "evaluate_predictors",
+    "evaluate_recording",
+    "interpolate_poses",
+    "pose_errors",
+    "predict_kalman",
+    "predict_linear",
+    "predict_none",
+    "scored_mask",
+    "tune_model",
+]
