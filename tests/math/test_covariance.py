@@ -315,6 +315,17 @@ def test_from_samples_recovers_mean_and_covariance(rng, q_mean):
         assert np.any(angles > np.pi - 0.01)
 
 
+def test_from_samples_is_the_unbiased_sample_covariance(rng):
+    """With small errors the residuals are the drawn errors almost exactly (relative
+    differences ~ sigma / sqrt(N) from the mean's own error), so ``N - 1`` is visible."""
+    c = _cov(rng, pos_sigma=1e-3, rot_sigma=1e-3)
+    for n in (20, 200):
+        poses, e = _draw_poses(rng, Q, c, n)
+        est = UncertainPose.from_samples(poses)
+        assert _rel(est.covariance, _sample_cov(e)) < 5e-4
+        assert _rel(est.covariance, _sample_cov(e) * (n - 1) / n) > 2e-3
+
+
 def test_from_samples_ignores_sign_flips(rng):
     c = _cov(rng)
     poses, _ = _draw_poses(rng, Q, c, 500, flip_fraction=0.0)

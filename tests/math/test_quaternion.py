@@ -375,6 +375,12 @@ def test_make_continuous_synthetic(rng):
     np.testing.assert_array_equal(out[0], flipped[0])  # the first one is kept
     np.testing.assert_array_equal(np.abs(out), np.abs(flipped))
     np.testing.assert_array_equal(out, q * np.sign(q[:1] @ flipped[0]))
+    # large steps (dot product only slightly negative) are flipped too
+    steps = quat_exp(np.outer(np.arange(6), [0.0, 0.0, 2.6]))  # 149 degrees per step
+    steps[1::2] *= -1.0  # with sign flips, consecutive dot products are -cos(1.3) = -0.27
+    assert np.all(np.sum(steps[1:] * steps[:-1], axis=-1) < 0.0)
+    smooth = quat_make_continuous(steps)
+    assert np.all(np.sum(smooth[1:] * smooth[:-1], axis=-1) > 0.0)
     # input untouched, short inputs fine
     assert np.any(np.sum(flipped[1:] * flipped[:-1], axis=-1) < 0.0)
     np.testing.assert_array_equal(quat_make_continuous(q[:1]), q[:1])
