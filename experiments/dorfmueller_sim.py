@@ -228,10 +228,16 @@ def read_tum(path: Path):
     return a[:, 0], a[:, 1:4], q
 
 
-def real_experiment(path: Path, seed: int, n_max: int, horizon: float, pos_sigma, rot_sigma):
-    """Filter noisy poses of a real recording; errors vs the (smoothed) recording itself."""
+def real_experiment(
+    path: Path, seed: int, n_max: int, horizon: float, pos_sigma, rot_sigma, start: int = 0
+):
+    """Filter noisy poses of a real recording; errors vs the (smoothed) recording itself.
+
+    Uses frames ``start .. start + n_max``; noise N(pos_sigma) [m] on positions and
+    N(rot_sigma) [rad] rotation vectors on the right; ``horizon`` [s] for the prediction.
+    """
     t, p, q = read_tum(path)
-    t, p, q = t[:n_max], p[:n_max], q[:n_max]
+    t, p, q = t[start : start + n_max], p[start : start + n_max], q[start : start + n_max]
     rng = np.random.default_rng(seed)
     n = len(t)
     dt = float(np.median(np.diff(t)))
