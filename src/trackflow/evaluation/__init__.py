@@ -9,6 +9,7 @@ from ._baselines import predict_linear, predict_none
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors, predict_kalman
 from ._metrics import ErrorStats, error_stats, pose_errors
 from ._model import PredictionModel, estimate_noise
+from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._tuning import TuneResult, default_model, evaluate_recording, tune_model
 
@@ -30,5 +31,10 @@ __all__ = [
     "predict_linear",
     "predict_none",
     "scored_mask",
+    "scale_covariance",
+    "shift_stream",
+    "stream_info",
+    "infer_streams",
+    "invert_stream",
     "tune_model",
 ]

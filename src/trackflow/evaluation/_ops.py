@@ -1,0 +1,122 @@
+"""PoseTool operations on whole recordings (thesis 8.1.1): info, shift, scale, invert, infer."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..io import PoseStream
+from ..math import Pose, UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ._targets import default_gap
+
+__all__ = ["stream_info", "shift_stream", "scale_covariance", "invert_stream", "infer_streams"]
+
+
+def stream_info(stream: PoseStream) -> dict:
+    """Rate, duration, gaps, timing jitter and speed statistics of a recording.
+
+    Gaps are intervals longer than three times the median interval. Speeds are from
+    consecutive samples: linear [m/s] and angular [deg/s] (median, 95th percentile, max).
+    """
+    n = len(stream)
+    out = {"source": stream.source, "target": stream.target, "samples": n}
+    out["has_covariance"] = stream.covariance is not None
+    if n < 2:
+        return out
+    t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
+    dt = np.diff(t)
+    gap = default_gap(t) if n > 2 else float(dt[0]) * 3
+    med = float(np.median(dt))
+    regular = dt[dt <= gap]
+    v = np.linalg.norm(np.diff(stream.position, axis=0), axis=1) / dt
+    q = np.asarray(stream.quaternion)
+    w = np.degrees(np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:])), axis=1))
+    w = w / dt
+    flips = int(np.count_nonzero(np.sum(q[1:] * q[:-1], axis=1) < 0))
+    out.update(
+        duration_s=float(t[-1]),
+        rate_hz=1.0 / med,
+        interval_median_ms=med * 1e3,
+        jitter_ms=float(np.std(regular) * 1e3),
+        gaps=int(np.count_nonzero(dt > gap)),
+        largest_gap_s=float(dt.max()),
+        quaternion_sign_flips=flips,
+        speed_m_s={k: float(f(v)) for k, f in _STATS.items()},
+        angular_speed_deg_s={k: float(f(w)) for k, f in _STATS.items()},
+    )
+    return out
+
+
+_STATS = {"median": np.median, "p95": lambda x: np.percentile(x, 95), "max": np.max}
+
+
+def shift_stream(stream: PoseStream, offset_s: float) -> PoseStream:
+    """Add ``offset_s`` seconds to every timestamp (a constant latency correction)."""
+    if not np.isfinite(offset_s):
+        raise ValueError(f"offset must be finite, got {offset_s}")
+    return stream.with_(t_ns=stream.t_ns + np.int64(round(offset_s * 1e9)))
+
+
+def scale_covariance(stream: PoseStream, factor: float) -> PoseStream:
+    """Multiply every covariance by ``factor`` (> 0); errors ``(dt, dtheta)`` scale by its root.
+
+    Perturbation model unchanged: ``t_true = t + dt``, ``R_true = R Exp(dtheta)``.
+    """
+    if not np.isfinite(factor) or factor <= 0:
+        raise ValueError(f"covariance scale factor must be positive, got {factor}")
+    if stream.covariance is None:
+        raise ValueError("the recording carries no covariance to scale")
+    return stream.with_(covariance=stream.covariance * factor)
+
+
+def invert_stream(stream: PoseStream) -> PoseStream:
+    """``T_a_b`` -> ``T_b_a`` for every sample, covariances propagated to first order.
+
+    ``C_inv = J C J^T`` with ``J = J_inv_pose`` of :meth:`UncertainPose.inverse`, in the
+    convention ``t_true = t + dt``, ``R_true = R Exp(dtheta)``.
+    """
+    if stream.covariance is None:
+        inv = Pose(stream.position, stream.quaternion).inverse()
+        return PoseStream.from_poses(stream.target, stream.source, stream.t_ns, inv,
+                                     stream.confidence, stream.flags)  # fmt: skip
+    inv = stream.uncertain_poses.inverse()
+    return PoseStream.from_poses(stream.target, stream.source, stream.t_ns, inv,
+                                 stream.confidence, stream.flags)  # fmt: skip
+
+
+def infer_streams(a: PoseStream, b: PoseStream) -> PoseStream:
+    """Chain ``T_x_y`` (``a``) and ``T_y_z`` (``b``) into ``T_x_z`` at ``a``'s timestamps.
+
+    ``b`` is interpolated to each time of ``a`` (linear position, slerp, covariances
+    interpolated to first order); samples of ``a`` outside ``b``'s time span or inside a gap of
+    ``b`` are dropped. Covariances compose to first order,
+    ``C = J_a C_a J_a^T + J_b C_b J_b^T`` (errors ``t_true = t + dt``, ``R_true = R Exp(dtheta)``);
+    a missing covariance counts as zero.
+    """
+    if a.target != b.source:
+        raise ValueError(
+            f"cannot chain T_{a.source}_{a.target} with T_{b.source}_{b.target}: "
+            f"{a.target!r} != {b.source!r}"
+        )
+    if len(b) < 2:
+        raise ValueError("the second recording needs at least two samples")
+    tb = b.t_ns
+    ta = a.t_ns
+    keep = (ta >= tb[0]) & (tb[-1] >= ta)
+    j = np.clip(np.searchsorted(tb, ta, side="right") - 1, 0, len(b) - 2)
+    tbs = (tb - tb[0]).astype(float) * 1e-9
+    gap = default_gap(tbs) if len(b) > 2 else np.inf
+    keep &= (tb[j + 1] - tb[j]).astype(float) * 1e-9 <= gap
+    if not np.any(keep):
+        raise ValueError("the recordings do not overlap in time")
+    j, tak = j[keep], ta[keep]
+    s = (tak - tb[j]).astype(float) / (tb[j + 1] - tb[j]).astype(float)
+    ub = _uncertain(b)
+    bi = ub[j].interpolate(ub[j + 1], s)
+    ua = _uncertain(a)[keep]
+    return PoseStream.from_poses(a.source, b.target, tak, ua.compose(bi))
+
+
+def _uncertain(s: PoseStream) -> UncertainPose:
+    if s.covariance is not None:
+        return s.uncertain_poses
+    return UncertainPose(Pose(s.position, s.quaternion), np.zeros((len(s), 6, 6)))
