@@ -128,13 +128,6 @@ def test_bad_backend_name():
 
 
 @needs_numba
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="reported to the lead: read-only/strided inputs make numba compile (and cache) a new "
-    "specialisation each (14 on a cold cache, ~100 s under load); normalising inputs with "
-    "np.require(..., ('C', 'W')) brings it to one per kernel",
-)
 def test_compose_compiles_one_batch_specialisation(rng):
     from trackflow.math import _kernels
 

@@ -191,8 +191,9 @@ if _nb is not None:
     @_nb.njit(cache=True)
     def _compose_batch_jit(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
         for n in range(ta.shape[0]):
+            k = n if has_cross else 0  # without cross terms Cab is one unused zero matrix
             _compose_one(
-                ta[n], qa[n], Ca[n], tb[n], qb[n], Cb[n], Cab[n], has_cross, t[n], q[n],
+                ta[n], qa[n], Ca[n], tb[n], qb[n], Cb[n], Cab[k], has_cross, t[n], q[n],
                 C[n], Ja[n], Jb[n],
             )  # fmt: skip
 
@@ -276,7 +277,9 @@ def compose(ta, qa, Ca, tb, qb, Cb, Cab=None):
     if _backend == "numpy":
         return _compose_numpy(ta, qa, Ca, tb, qb, Cb, Cab)
     if Cab is None and ta.ndim == 1 and qa.ndim == 1 and tb.ndim == 1 and qb.ndim == 1:
-        if Ca.ndim == 2 and Cb.ndim == 2:  # single poses: skip all batching overhead
+        # Single poses skip all batching overhead. Arrays held by Pose/UncertainPose are
+        # always C-contiguous writable float64, so this compiles one specialisation.
+        if Ca.ndim == 2 and Cb.ndim == 2:
             return _compose_single_jit(ta, qa, Ca, tb, qb, Cb)
     shape = np.broadcast_shapes(
         ta.shape[:-1], qa.shape[:-1], Ca.shape[:-2], tb.shape[:-1], qb.shape[:-1], Cb.shape[:-2]
@@ -286,14 +289,17 @@ def compose(ta, qa, Ca, tb, qb, Cb, Cab=None):
     n = int(np.prod(shape))
 
     def flat(x, tail):
-        return np.ascontiguousarray(np.broadcast_to(x, shape + tail)).reshape((n,) + tail)
+        # One array type for numba (C-contiguous, writable float64): every distinct layout or
+        # read-only flag would otherwise compile (and cache) another specialisation.
+        x = np.broadcast_to(x, shape + tail) if x.shape != shape + tail else x
+        return np.require(x, dtype=float, requirements=("C", "W")).reshape((n,) + tail)
 
     t = np.empty((n, 3))
     q = np.empty((n, 4))
     C = np.empty((n, 6, 6))
     Ja = np.empty((n, 6, 6))
     Jb = np.empty((n, 6, 6))
-    cab = flat(Cab, (6, 6)) if Cab is not None else np.broadcast_to(_ZERO66, (n, 6, 6))
+    cab = flat(Cab, (6, 6)) if Cab is not None else _ZERO66
     _compose_batch_jit(
         flat(ta, (3,)), flat(qa, (4,)), flat(Ca, (6, 6)), flat(tb, (3,)), flat(qb, (4,)),
         flat(Cb, (6, 6)), cab, Cab is not None, t, q, C, Ja, Jb,
