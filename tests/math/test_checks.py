@@ -242,7 +242,7 @@ def test_from_matrix_rejections():
         Pose.from_matrix(scaled)
     reflected = _homogeneous()
     reflected[:3, 0] *= -1.0  # orthonormal but det = -1
-    with pytest.raises(ValueError, match="not a rotation"):
+    with pytest.raises(ValueError, match=r"not a rotation: a reflection \(determinant -1\)"):
         Pose.from_matrix(reflected)
     sheared = _homogeneous()
     sheared[0, 1] += 1e-4

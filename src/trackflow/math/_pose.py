@@ -93,8 +93,12 @@ class Pose:
             raise ValueError("matrix contains NaN or inf")
         r = m[..., :3, :3]
         err = np.max(np.abs(r @ np.swapaxes(r, -1, -2) - np.eye(3)))
-        if err > 1e-6 or np.any(np.linalg.det(r) < 0):
+        if err > 1e-6:
             raise ValueError(f"matrix rotation part is not a rotation (|R R^T - I| = {err:.3g})")
+        if np.any(np.linalg.det(r) < 0):
+            raise ValueError(
+                "matrix rotation part is not a rotation: a reflection (determinant -1)"
+            )
         if np.any(np.abs(m[..., 3, :] - [0.0, 0.0, 0.0, 1.0]) > 1e-12):
             raise ValueError("matrix last row must be [0, 0, 0, 1]")
         return cls._trusted(m[..., :3, 3].copy(), quat_from_matrix(r))
