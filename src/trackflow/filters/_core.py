@@ -38,6 +38,7 @@ KERNELS = (
     "level_noise",
     "transition",
     "process_noise",
+    "sandwich",
     "predict",
     "residual",
     "meas_cov",
@@ -340,11 +341,36 @@ def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
     return qm
 
 
+def sandwich(a, p, q):
+    """``A P A^T + Q`` (symmetric), skipping the zeros of the sparse transition Jacobian."""
+    n = p.shape[0]
+    t = np.zeros((n, n))
+    for i in range(n):
+        for k in range(n):
+            v = a[i, k]
+            if v != 0.0:
+                for j in range(n):
+                    t[i, j] += v * p[k, j]
+    out = np.zeros((n, n))
+    for j in range(n):
+        for k in range(n):
+            v = a[j, k]
+            if v != 0.0:
+                for i in range(j + 1):
+                    out[i, j] += t[i, k] * v
+    for j in range(n):
+        for i in range(j + 1):
+            w = out[i, j] + 0.5 * (q[i, j] + q[j, i])
+            out[i, j] = w
+            out[j, i] = w
+    return out
+
+
 def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
     """Time update: ``x = f(x)``, ``P = A P A^T + Q`` (thesis eqs. 5.59-5.60), new arrays."""
     xn, a = transition(x, dt, n_dp, n_do, additive)
     qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
-    return xn, sym(a @ p @ a.T + qm)
+    return xn, sandwich(a, p, qm)
 
 
 # -- measurements ----------------------------------------------------------------------------
@@ -570,12 +596,36 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
     innovation covariance or a non-finite result; the caller resets the filter).
     """
     nc = p.shape[0]
-    pht = p @ h.T
-    s = sym(h @ pht + r)
+    m = y.shape[0]
+    # H is a plain selection of state entries (error state, additive non-quaternion parts):
+    # exploit it; otherwise (additive quaternion normalisation) use dense products.
+    idx = np.empty(m, np.int64)
+    selection = True
+    for row in range(m):
+        idx[row] = -1
+        for c in range(nc):
+            if h[row, c] != 0.0:
+                if h[row, c] == 1.0 and idx[row] < 0:
+                    idx[row] = c
+                else:
+                    selection = False
+        if idx[row] < 0:
+            selection = False
+    if selection:
+        pht = np.empty((nc, m))
+        for i in range(nc):
+            for a in range(m):
+                pht[i, a] = p[i, idx[a]]
+        s = np.empty((m, m))
+        for a in range(m):
+            for b in range(m):
+                s[a, b] = 0.5 * (p[idx[a], idx[b]] + p[idx[b], idx[a]]) + 0.5 * (r[a, b] + r[b, a])
+    else:
+        pht = p @ h.T
+        s = sym(h @ pht + r)
     lo, ok = chol(s)
     if not ok:
         return DIVERGED, np.nan
-    m = y.shape[0]
     yy = np.empty((m, 1))
     for i in range(m):
         yy[i, 0] = y[i]
@@ -587,15 +637,43 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
         return DIVERGED, nis
     if nis > gate:
         return GATED, nis
-    k = chol_solve(lo, pht.T).T  # K = P H^T S^-1
-    delta = k @ y
+    kt = chol_solve(lo, np.ascontiguousarray(pht.T))  # K^T = S^-1 H P
+    delta = np.zeros(nc)
+    for i in range(nc):
+        for a in range(m):
+            delta[i] += kt[a, i] * y[a]
     # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
     # when K is not exactly optimal (rounding, gating, clipped angular velocity).
-    mm = np.eye(nc) - k @ h
-    pn = mm @ p @ mm.T + k @ r @ k.T
+    if selection:
+        mp = p.copy()  # (I - K H) P = P - K P[idx, :]
+        for i in range(nc):
+            for a in range(m):
+                ka = kt[a, i]
+                if ka != 0.0:
+                    for j in range(nc):
+                        mp[i, j] -= ka * p[idx[a], j]
+        pn = mp.copy()  # ((I - K H) P) (I - K H)^T = MP - MP[:, idx] K^T
+        for i in range(nc):
+            for a in range(m):
+                v = mp[i, idx[a]]
+                for j in range(nc):
+                    pn[i, j] -= v * kt[a, j]
+    else:
+        mm = np.eye(nc) - kt.T @ h
+        pn = mm @ p @ mm.T
+    kr = np.zeros((nc, m))  # K R
     for i in range(nc):
-        for j in range(nc):
-            p[i, j] = 0.5 * (pn[i, j] + pn[j, i])
+        for a in range(m):
+            for b in range(m):
+                kr[i, b] += kt[a, i] * r[a, b]
+    for i in range(nc):
+        for j in range(i, nc):
+            v = 0.0
+            for b in range(m):
+                v += kr[i, b] * kt[b, j]
+            w = 0.5 * (pn[i, j] + pn[j, i]) + v
+            p[i, j] = w
+            p[j, i] = w
     inject(x, delta, n_dp, n_do, additive, wmax)
     for i in range(nc):
         if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
@@ -631,7 +709,17 @@ def pose_of(x, p, n_dp, n_do, additive):
         else:
             for k in range(3):
                 j[3 + k, qo + k] = 1.0
-    c[:, :] = j @ p @ j.T
+    if additive:
+        c[:, :] = j @ p @ j.T
+    else:
+        sel = np.empty(6, np.int64)
+        for k in range(3):
+            sel[k] = k if npl > 0 else -1
+            sel[3 + k] = qo + k if nol > 0 else -1
+        for a in range(6):
+            for b in range(6):
+                if sel[a] >= 0 and sel[b] >= 0:
+                    c[a, b] = p[sel[a], sel[b]]
     if npl == 0:
         for k in range(3):
             c[k, k] = UNKNOWN_VARIANCE
@@ -667,7 +755,8 @@ def smooth(x0, p0, t0, x1, p1, t1, t, n_dp, n_do, additive, kind, sig_p, sig_o):
 def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax):
     """Streaming predict + update in place; returns ``(status, nis)``.
 
-    On GATED or DIVERGED ``x, p`` hold the prediction to the measurement time.
+    On GATED ``x, p`` hold the prediction to the measurement time; on DIVERGED they are
+    undefined (the caller resets the filter).
     """
     xn, pn = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
     x[:] = xn
@@ -679,13 +768,7 @@ def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, 
         rr = meas_cov(r, q / n, lp, lo, additive)
     else:
         rr = r
-    xs = x.copy()
-    ps = p.copy()
-    status, nis = update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
-    if status != ACCEPTED:
-        x[:] = xs
-        p[:, :] = ps
-    return status, nis
+    return update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
 
 
 def run(
