@@ -51,7 +51,8 @@ def plot_sequence(
     lp, lq = predict_linear(t, p, q, horizon)
     lo, hi = window if window is not None else (t[0], min(t[-1], t[0] + 3.0))
     m = (t >= lo) & (t <= hi)
-    ref = q[np.flatnonzero(m)[0]] if np.any(m) else q[0]
+    first = np.flatnonzero(m)[0] if np.any(m) else 0
+    ref, p0 = q[first], p[first]
     from .math import quat_conjugate, quat_multiply
 
     def rv(qq):
@@ -59,7 +60,14 @@ def plot_sequence(
 
     fig, axes = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     for ax, meas, filt, pred, lin, unit in (
-        (axes[0], p * 1e3, kp[0] * 1e3, kp[1] * 1e3, lp * 1e3, "position [mm]"),
+        (
+            axes[0],
+            (p - p0) * 1e3,
+            (kp[0] - p0) * 1e3,
+            (kp[1] - p0) * 1e3,
+            (lp - p0) * 1e3,
+            "position from start [mm]",
+        ),
         (axes[1], rv(q), rv(kq[0]), rv(kq[1]), rv(lq), "rotation from start [deg]"),
     ):
         for a, c in zip(range(3), ("C0", "C1", "C2")):
