@@ -79,6 +79,16 @@ def _longest_increasing(t: np.ndarray) -> np.ndarray:
     return np.array(out, dtype=np.int64)
 
 
+def _finite_rows(a: np.ndarray) -> np.ndarray:
+    """Per row (axis 0): all entries finite. Row sums decide the common case in one pass."""
+    flat = a.reshape(len(a), int(np.prod(a.shape[1:])))
+    with np.errstate(over="ignore", invalid="ignore"):
+        ok = np.isfinite(np.einsum("ij->i", flat))
+    if not ok.all():  # a huge-but-finite row can overflow its sum: look closer at those rows
+        ok[~ok] = np.isfinite(flat[~ok]).all(axis=1)
+    return ok
+
+
 def finish_stream(
     report: ReadReport,
     *,
@@ -145,9 +155,9 @@ def finish_stream(
         report.drop(reason, where[idx])
 
     # 1. non-finite values
-    finite = np.isfinite(position).all(axis=1) & np.isfinite(quaternion).all(axis=1)
+    finite = _finite_rows(position) & _finite_rows(quaternion)
     if covariance is not None:
-        finite &= np.isfinite(covariance).all(axis=(1, 2))
+        finite &= _finite_rows(covariance)
     if confidence is not None:
         finite &= np.isfinite(confidence)
     reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
@@ -216,8 +226,9 @@ def finish_stream(
         covariance = c
 
     # 5. timestamps
+    all_kept = bool(keep.all())
     kidx = np.flatnonzero(keep)
-    tk = t_ns[kidx]
+    tk = t_ns if all_kept else t_ns[kidx]
     if tk.size > 1 and np.any(np.diff(tk) <= 0):
         d = np.diff(tk)
         if not clean:
@@ -240,11 +251,12 @@ def finish_stream(
         report.drop("non-increasing timestamp", where[dropped[~is_dup]])
         keep[dropped] = False
         kidx = lis
+        all_kept = False
 
     # 6. sign flips (never an error)
-    q = quaternion[kidx]
+    q = quaternion if all_kept else quaternion[kidx]
     if len(kidx) > 1:
-        flip = np.sum(q[1:] * q[:-1], axis=1) < 0.0
+        flip = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0.0
         if np.any(flip):
             report.sign_flips.extend(int(w) for w in where[kidx[1:][flip]])
             if clean:

@@ -9,7 +9,7 @@ Layout (all little-endian; see ``docs/formats.md`` for the byte table):
 * records: ``t_ns`` (i8), position (3 f8), quaternion xyzw (4 f8), [covariance upper triangle,
   21 f8, row-major], confidence (f8), flags (u4), check (u4): 80 bytes, or 248 with covariance.
 
-``check`` is a multiplicative hash of the other bytes of the record, computed vectorised, so a
+``check`` is a 32-bit hash of the other bytes of the record, computed vectorised, so a
 reader can tell a complete record from garbage (for example zero-filled blocks after a power
 failure) at memory speed.
 
@@ -23,6 +23,7 @@ cuts such a tail off before appending.
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import zlib
@@ -48,6 +49,11 @@ VERSION = 1
 _FIXED = struct.Struct("<8sHHIIHH")  # magic, version, layout, record size, header size, names
 
 _IU = np.triu_indices(6)
+# for each of the 36 entries of a 6x6 matrix (row-major), its index among the 21 stored ones
+_FULL_FROM_TRI = np.zeros((6, 6), dtype=np.intp)
+_FULL_FROM_TRI[_IU] = np.arange(21)
+_FULL_FROM_TRI.T[_IU] = np.arange(21)
+_FULL_FROM_TRI = _FULL_FROM_TRI.ravel()
 
 
 def record_dtype(covariance: bool) -> np.dtype:
@@ -66,27 +72,41 @@ def _hash_constants(n: int) -> np.ndarray:
 
 _K = {False: _hash_constants(10), True: _hash_constants(31)}
 _SEED = np.uint64(0x5EED_7F1C_0DE5_A11E)
+_SEED_INT = int(_SEED)
+_K_INT = {cov: [int(x) for x in k] for cov, k in _K.items()}
+_M64 = 0xFFFFFFFFFFFFFFFF
 
 
 def _checks(records: np.ndarray, covariance: bool) -> np.ndarray:
-    """Check values (u4) of records: hash of every 64-bit word except the check itself."""
+    """Check values (u4) of records: a hash of every 64-bit word except the check itself.
+
+    ``h = sum_j K_j w_j (mod 2**64)`` over the words (the last one only its flags half) with
+    odd constants ``K_j``, then an avalanche mix; an all-zero record does not pass.
+    """
     words = records.view("<u8").reshape(len(records), records.dtype.itemsize // 8)
     last = words.shape[1] - 1
-    k = _K[covariance][:last]
-    k_last = _K[covariance][last]
-    out = np.empty(len(records), dtype=np.uint32)
-    step = 1 << 14  # rows per block: keeps the temporaries in cache
+    k = _K[covariance]
     with np.errstate(over="ignore"):
-        for i in range(0, len(records), step):
-            w = words[i : i + step]
-            h = np.bitwise_xor.reduce(w[:, :last] * k, axis=1)
-            h ^= (w[:, last] & np.uint64(0xFFFFFFFF)) * k_last  # the flags half of the last word
-            h ^= _SEED
-            h ^= h >> np.uint64(29)
-            h *= np.uint64(0xBF58476D1CE4E5B9)
-            h ^= h >> np.uint64(32)
-            out[i : i + step] = h & np.uint64(0xFFFFFFFF)
-    return out
+        h = np.einsum("ij,j->i", words[:, :last], k[:last])  # wraps modulo 2**64
+        h += (words[:, last] & np.uint64(0xFFFFFFFF)) * k[last]  # the flags half
+        h += _SEED
+        h ^= h >> np.uint64(29)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(32)
+    return (h & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+
+
+def _check_one(body: bytes, covariance: bool) -> int:
+    """:func:`_checks` of one record given its bytes without the check (pure Python)."""
+    nw = len(body) // 8
+    words = struct.unpack_from(f"<{nw}Q", body)
+    (flags,) = struct.unpack_from("<I", body, 8 * nw)
+    k = _K_INT[covariance]
+    h = (sum(w * kj for w, kj in zip(words, k)) + flags * k[nw] + _SEED_INT) & _M64
+    h ^= h >> 29
+    h = (h * 0xBF58476D1CE4E5B9) & _M64
+    h ^= h >> 32
+    return h & 0xFFFFFFFF
 
 
 def _header(source: str, target: str, covariance: bool) -> bytes:
@@ -176,10 +196,7 @@ def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
     r = rec[idx]
     cov = None
     if has_cov:
-        tri = r["covariance"]
-        cov = np.empty((len(r), 6, 6))
-        cov[:, _IU[0], _IU[1]] = tri
-        cov[:, _IU[1], _IU[0]] = tri
+        cov = np.take(r["covariance"], _FULL_FROM_TRI, axis=1).reshape(len(r), 6, 6)
     report_rows = report.rows_read
     where = np.arange(n_full)[idx]
     stream = finish_stream(
@@ -342,37 +359,36 @@ class RecordingWriter:
         """Append one sample; arguments as one row of :class:`PoseStream`'s fields.
 
         ``flags`` defaults to position and orientation valid (plus covariance when given).
+        This is the per-measurement path of a live recorder, so it avoids numpy overhead.
         """
+        if self._fd is None:
+            raise ValueError(f"{self.path}: writer is closed")
         t = int(t_ns)
-        p = np.asarray(position, dtype=float).reshape(3)
-        if not np.all(np.isfinite(p)):
+        p = [float(x) for x in np.ravel(position)]
+        q = [float(x) for x in np.ravel(quaternion)]
+        if len(p) != 3 or len(q) != 4:
+            raise ValueError(f"{self.path}: position needs 3 and quaternion 4 values")
+        if not all(math.isfinite(x) for x in p):
             raise ValueError(f"{self.path}: position contains NaN or inf")
-        q = unit_quaternions(np.asarray(quaternion, dtype=float).reshape(4))
+        if abs(sum(x * x for x in q) - 1.0) > 2e-12:
+            q = unit_quaternions(np.array(q)).tolist()  # raises unless unit to 1e-6
         if (covariance is not None) != self.has_covariance:
             need = "needs" if self.has_covariance else "does not take"
             raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
-        c = None if covariance is None else check_covariance(np.reshape(covariance, (6, 6)))
+        tri = []
+        if covariance is not None:
+            tri = check_covariance(np.reshape(covariance, (6, 6)))[_IU].tolist()
         conf = 1.0 if confidence is None else float(confidence)
         if not 0.0 <= conf <= 1.0:
             raise ValueError(f"{self.path}: confidence {conf} not in [0, 1]")
         if flags is None:
-            flags = FLAG_POSITION | FLAG_ORIENTATION | (FLAG_COVARIANCE if c is not None else 0)
+            flags = FLAG_POSITION | FLAG_ORIENTATION | (FLAG_COVARIANCE if tri else 0)
         if self._last_t is not None and t <= self._last_t:
             raise ValueError(
                 f"{self.path}: timestamp {t} ns is not after the last recorded {self._last_t} ns"
             )
-        if self._fd is None:
-            raise ValueError(f"{self.path}: writer is closed")
-        rec = _pack(
-            [t],
-            p[None],
-            q[None],
-            None if c is None else c[None],
-            [conf],
-            [flags],
-            self.has_covariance,
-        )
-        _write_all(self._fd, rec.tobytes())
+        body = struct.pack(f"<q{8 + len(tri)}dI", t, *p, *q, *tri, conf, int(flags))
+        _write_all(self._fd, body + struct.pack("<I", _check_one(body, self.has_covariance)))
         self._last_t = t
         self.count += 1
 
