@@ -130,7 +130,7 @@ class Network:
         players = self._players()
         if not players:
             raise ValueError("the network has no sensor or recording to run")
-        arrivals = [p.t_ns + p.latency_ns for p in players if len(p.t_ns)]
+        arrivals = [p.arrivals() for p in players if len(p.t_ns)]
         if not arrivals:
             raise ValueError("every recording in the network is empty")
         start = min(int(a.min()) for a in arrivals)

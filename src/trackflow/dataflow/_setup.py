@@ -40,10 +40,14 @@ class _Map(dict):
 class _LineLoader(yaml.SafeLoader):
     """A safe loader remembering the line of every mapping."""
 
-    def construct_mapping(self, node, deep=False):
-        m = _Map(super().construct_mapping(node, deep=deep))
-        m.line = node.start_mark.line + 1
-        return m
+
+def _construct_map(loader: _LineLoader, node) -> _Map:
+    m = _Map(loader.construct_mapping(node, deep=True))
+    m.line = node.start_mark.line + 1
+    return m
+
+
+_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
 
 
 @dataclass

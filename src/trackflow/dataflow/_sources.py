@@ -71,12 +71,16 @@ class RecordingPlayer(Component):
             cov = covariance
         return cls(name, stream.t_ns, stream.position, stream.quaternion, cov, latency_ns)
 
+    def arrivals(self) -> np.ndarray:
+        """Arrival time [ns] of every sample: ``t_ns + latency_ns``, but never before the
+        previous sample's arrival - a recording is played in file order, so a timestamp that
+        goes backwards arrives (and is rejected) where it stands."""
+        return np.maximum.accumulate(self.t_ns + self.latency_ns) if len(self.t_ns) else self.t_ns
+
     def events(self) -> Iterator[tuple[int, int]]:
-        """``(arrival_ns, index)`` of every sample in arrival order."""
-        arrival = self.t_ns + self.latency_ns
-        order = np.argsort(arrival, kind="stable")
-        for i in order:
-            yield int(arrival[i]), int(i)
+        """``(arrival_ns, index)`` of every sample in file order."""
+        for i, a in enumerate(self.arrivals()):
+            yield int(a), i
 
     def reset(self) -> None:
         super().reset()
