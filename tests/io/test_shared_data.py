@@ -136,3 +136,11 @@ def test_real_data_through_native_round_trip(shared_data, tmp_path, name):
     write_stream(tmp_path / "x.tfrec", s)
     back, report = read_stream(tmp_path / "x.tfrec")
     assert back == s and not report.changed
+
+
+def test_imu_csv_is_not_a_pose_file(shared_data):
+    """The EuRoC IMU file looks like EuRoC csv but has 7 columns: a clear error, not garbage."""
+    path = shared_data / "euroc/V1_01_easy_imu0.csv"
+    assert guess_format(path) == "euroc"
+    with pytest.raises(ValueError, match=r"V1_01_easy_imu0\.csv:2: short row: 7 columns"):
+        read_stream(path)
