@@ -34,7 +34,16 @@ from ..math import Pose, UncertainPose, quat_angle, quat_exp
 from ._planner import plan_query
 from ._sources import SimulatedSensor
 
-__all__ = ["DemoConfig", "demo_graph", "demo_truth", "load_demo_motion", "run_demo"]
+__all__ = [
+    "DemoConfig",
+    "demo_frames",
+    "demo_graph",
+    "demo_json",
+    "demo_sensors",
+    "demo_truth",
+    "load_demo_motion",
+    "run_demo",
+]
 
 
 @dataclass(frozen=True)
@@ -92,7 +101,7 @@ def _rot(axis, deg) -> np.ndarray:
     return quat_exp(a / np.linalg.norm(a) * np.radians(deg))
 
 
-def _fixed_frames(truth, t0: float, t1: float) -> dict[str, Pose]:
+def demo_frames(truth, t0: float, t1: float) -> dict[str, Pose]:
     """True static relationships: target->camera, marker placement, projector."""
     T_T_C = Pose([0.03, -0.05, 0.02], _rot([1, 2, 0.5], 12.0))
     ts = np.linspace(t0, t1, 50)
@@ -135,7 +144,7 @@ def demo_graph(cfg: DemoConfig, fixed: dict[str, Pose], T_T_C: UncertainPose):
     return g
 
 
-def _sensors(cfg: DemoConfig, truth, fixed, t0: float, t1: float) -> dict[str, SimulatedSensor]:
+def demo_sensors(cfg: DemoConfig, truth, fixed, t0: float, t1: float) -> dict[str, SimulatedSensor]:
     """Fresh simulated sensors; the same seed gives bit-identical data."""
     rng = np.random.default_rng(cfg.seed)
     T_T_C, T_A_M = fixed["T_T_C"], fixed["T_A_M"]
@@ -200,7 +209,7 @@ def run_demo(
     t_rec, poses = load_demo_motion()
     truth = demo_truth(t_rec, poses)
     t0, t1 = float(t_rec[0]), float(t_rec[-1])
-    fixed = _fixed_frames(truth, t0, t1)
+    fixed = demo_frames(truth, t0, t1)
 
     # 1. Estimate the static target->camera edge from data (7.4.1): T<-A . A->M . C<-M into a
     #    static estimator, the unknown edge itself excluded from the search.
@@ -208,7 +217,9 @@ def run_demo(
     g0 = demo_graph(cfg, fixed, unknown)
     q_cal = Query("T", "C", static=True, exclude=("target_camera",), name="calibration")
     cal_plan = plan_query(g0, q_cal)
-    net, sink = cal_plan.build(_sensors(cfg, truth, fixed, t0, t1), filter_factory=filter_factory)
+    net, sink = cal_plan.build(
+        demo_sensors(cfg, truth, fixed, t0, t1), filter_factory=filter_factory
+    )
     net.run()
     est = sink.get(int(t1 * 1e9))
     if est is None:
@@ -238,7 +249,9 @@ def run_demo(
             name=label,
         )
         plan = plan_query(graph, q, align=align)
-        net, rec = plan.build(_sensors(cfg, truth, fixed, t0, t1), filter_factory=filter_factory)
+        net, rec = plan.build(
+            demo_sensors(cfg, truth, fixed, t0, t1), filter_factory=filter_factory
+        )
         net.run()
         a = rec.arrays()
         keep = a["t_ns"] * 1e-9 >= t0 + cfg.warmup_s
