@@ -1,8 +1,8 @@
 """Shared test fixtures.
 
-Real recordings live outside the repository (``../shared/data`` relative to the repository
-root, or ``$TRACKFLOW_DATA``). Tests that need them take the ``shared_data`` fixture, which skips
-with the reason when the folder is absent.
+Real recordings live outside the repository: ``$TRACKFLOW_DATA``, else ``../shared/data``
+relative to the repository root, else the workplace's ``/work/shared/data``. Tests that need
+them take the ``shared_data`` fixture, which skips with the reason when none is present.
 """
 
 from __future__ import annotations
@@ -19,7 +19,12 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 def shared_data_dir() -> Path:
     """Folder with the shared real recordings (may not exist)."""
     env = os.environ.get("TRACKFLOW_DATA")
-    return Path(env) if env else (REPO_ROOT.parent / "shared" / "data")
+    if env:
+        return Path(env)
+    for candidate in (REPO_ROOT.parent / "shared" / "data", Path("/work/shared/data")):
+        if (candidate / "README.md").is_file():
+            return candidate
+    return REPO_ROOT.parent / "shared" / "data"
 
 
 @pytest.fixture
