@@ -6,7 +6,7 @@ array holding the same bytes, no validation) and the text readers (TUM, CSV) per
 
 * native read: ``read_native`` -> a validated ``PoseStream`` (record check values, finite
   values, unit quaternions, increasing timestamps, sign-flip scan), without and with 6x6
-  covariances (80 / 248 bytes per record).
+  covariances (80 / 368 bytes per record).
 * native write: ``write_native`` (one ``os.write`` + ``fsync`` + atomic rename) and the
   streaming ``RecordingWriter.append_sample`` rate for the dataflow recorder.
 * peer: ``np.save`` / ``np.load`` of a float64 array with the same content (10 or 31 columns).
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
             out[f"native_read_{tag}_s"] = _best(lambda p=path: read_native(p), args.repeat)
             cols = [s.t_ns[:, None].astype(float), s.position, s.quaternion]
             if cov:
-                cols.append(s.covariance[:, *np.triu_indices(6)])
+                cols.append(s.covariance.reshape(n, 36))
             arr = np.hstack(cols + [s.confidence[:, None]])
             npy = d / f"{tag}.npy"
             np.save(npy, arr)

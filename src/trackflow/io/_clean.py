@@ -167,7 +167,7 @@ def finish_stream(
 
     # 2./3. quaternion length
     with np.errstate(invalid="ignore"):
-        norm = np.linalg.norm(quaternion, axis=1)
+        norm = np.sqrt(np.einsum("ij,ij->i", quaternion, quaternion))
     reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
     off = np.abs(norm - 1.0)
     cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))

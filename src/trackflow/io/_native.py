@@ -7,7 +7,7 @@ Layout (all little-endian; see ``docs/formats.md`` for the byte table):
   each), the two UTF-8 names, zero padding, and a CRC-32 of everything before it (u32) plus 4
   zero bytes, so that the header size is a multiple of 8;
 * records: ``t_ns`` (i8), position (3 f8), quaternion xyzw (4 f8), [covariance upper triangle,
-  21 f8, row-major], confidence (f8), flags (u4), check (u4): 80 bytes, or 248 with covariance.
+  36 f8, row-major], confidence (f8), flags (u4), check (u4): 80 bytes, or 368 with covariance.
 
 ``check`` is a 32-bit hash of the other bytes of the record, computed vectorised, so a
 reader can tell a complete record from garbage (for example zero-filled blocks after a power
@@ -48,19 +48,15 @@ MAGIC = b"\x89TFREC\r\n"
 VERSION = 1
 _FIXED = struct.Struct("<8sHHIIHH")  # magic, version, layout, record size, header size, names
 
-_IU = np.triu_indices(6)
-# for each of the 36 entries of a 6x6 matrix (row-major), its index among the 21 stored ones
-_FULL_FROM_TRI = np.zeros((6, 6), dtype=np.intp)
-_FULL_FROM_TRI[_IU] = np.arange(21)
-_FULL_FROM_TRI.T[_IU] = np.arange(21)
-_FULL_FROM_TRI = _FULL_FROM_TRI.ravel()
+#: Bytes of records read per block: blocks stay in the CPU cache while fields are copied out.
+_BLOCK_BYTES = 1 << 20
 
 
 def record_dtype(covariance: bool) -> np.dtype:
     """The numpy structured dtype of one record."""
     fields = [("t_ns", "<i8"), ("position", "<f8", (3,)), ("quaternion", "<f8", (4,))]
     if covariance:
-        fields.append(("covariance", "<f8", (21,)))
+        fields.append(("covariance", "<f8", (6, 6)))
     fields += [("confidence", "<f8"), ("flags", "<u4"), ("check", "<u4")]
     return np.dtype(fields)
 
@@ -70,7 +66,7 @@ def _hash_constants(n: int) -> np.ndarray:
     return np.array([k & 0xFFFFFFFFFFFFFFFF for k in ks], dtype=np.uint64)
 
 
-_K = {False: _hash_constants(10), True: _hash_constants(31)}
+_K = {False: _hash_constants(10), True: _hash_constants(46)}
 _SEED = np.uint64(0x5EED_7F1C_0DE5_A11E)
 _SEED_INT = int(_SEED)
 _K_INT = {cov: [int(x) for x in k] for cov, k in _K.items()}
@@ -166,9 +162,32 @@ def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
         dt = record_dtype(has_cov)
         n_full, tail = divmod(size - hsize, dt.itemsize)
         f.seek(hsize)
-        rec = np.fromfile(f, dtype=dt, count=n_full)
+        # copy the fields out block by block: one pass over the data instead of one per field
+        t_ns = np.empty(n_full, dtype=np.int64)
+        pos = np.empty((n_full, 3))
+        quat = np.empty((n_full, 4))
+        cov = np.empty((n_full, 6, 6)) if has_cov else None
+        conf = np.empty(n_full)
+        flags = np.empty(n_full, dtype=np.uint32)
+        valid = np.empty(n_full, dtype=bool)
+        step = max(1, _BLOCK_BYTES // dt.itemsize)
+        buf = np.empty(step, dtype=dt)
+        raw = buf.view(np.uint8)
+        for i in range(0, n_full, step):
+            m = min(step, n_full - i)
+            got = f.readinto(raw[: m * dt.itemsize])
+            if got != m * dt.itemsize:
+                raise ValueError(f"{path}: file shrank while being read")
+            b = buf[:m]
+            t_ns[i : i + m] = b["t_ns"]
+            pos[i : i + m] = b["position"]
+            quat[i : i + m] = b["quaternion"]
+            if has_cov:
+                cov[i : i + m] = b["covariance"]
+            conf[i : i + m] = b["confidence"]
+            flags[i : i + m] = b["flags"]
+            valid[i : i + m] = b["check"] == _checks(b, has_cov)
     report = ReadReport(str(path), "native", unit="record", rows_read=n_full + (tail > 0))
-    valid = rec["check"] == _checks(rec, has_cov)
     n_ok = n_full
     if not valid.all():
         last_good = np.flatnonzero(valid)
@@ -193,21 +212,20 @@ def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
     good = valid.copy()
     good[n_ok:] = False
     idx = slice(0, n_ok) if good[:n_ok].all() else np.flatnonzero(good)
-    r = rec[idx]
-    cov = None
-    if has_cov:
-        cov = np.take(r["covariance"], _FULL_FROM_TRI, axis=1).reshape(len(r), 6, 6)
+    if not (isinstance(idx, slice) and n_ok == n_full):
+        t_ns, pos, quat, conf, flags = t_ns[idx], pos[idx], quat[idx], conf[idx], flags[idx]
+        cov = None if cov is None else cov[idx]
     report_rows = report.rows_read
     where = np.arange(n_full)[idx]
     stream = finish_stream(
         report,
         where=where,
-        t_ns=r["t_ns"],
-        position=np.ascontiguousarray(r["position"]),
-        quaternion=np.ascontiguousarray(r["quaternion"]),
+        t_ns=t_ns,
+        position=pos,
+        quaternion=quat,
         covariance=cov,
-        confidence=np.ascontiguousarray(r["confidence"]),
-        flags=r["flags"],
+        confidence=conf,
+        flags=flags,
         source=source,
         target=target,
         clean=clean,
@@ -224,7 +242,7 @@ def _pack(t_ns, position, quaternion, covariance, confidence, flags, has_cov: bo
     rec["position"] = position
     rec["quaternion"] = quaternion
     if has_cov:
-        rec["covariance"] = np.asarray(covariance)[:, _IU[0], _IU[1]]
+        rec["covariance"] = covariance
     rec["confidence"] = confidence
     rec["flags"] = flags
     rec["check"] = _checks(rec, has_cov)
@@ -377,7 +395,7 @@ class RecordingWriter:
             raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
         tri = []
         if covariance is not None:
-            tri = check_covariance(np.reshape(covariance, (6, 6)))[_IU].tolist()
+            tri = check_covariance(np.reshape(covariance, (6, 6))).ravel().tolist()
         conf = 1.0 if confidence is None else float(confidence)
         if not 0.0 <= conf <= 1.0:
             raise ValueError(f"{self.path}: confidence {conf} not in [0, 1]")
