@@ -134,6 +134,9 @@ def test_rosbag_round_trip(tmp_path, rng, ros, msgtype):
     write_stream(path, s, format="rosbag", msgtype=msgtype)
     back, report = read_stream(path)
     assert report.format == "rosbag" and report.rows_read == 15
+    if ros == "ros2":  # the storage file inside the directory works too
+        (db,) = path.glob("*.db3")
+        assert read_stream(db)[0] == back
     assert (back.source, back.target) == ("map", "tool")
     assert np.array_equal(back.t_ns, s.t_ns)
     assert np.array_equal(back.position, s.position)

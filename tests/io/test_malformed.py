@@ -6,8 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trackflow.io import read_stream
+from trackflow.io._clean import _longest_increasing
 
 DATA = Path(__file__).parent / "data"
 
@@ -132,3 +135,18 @@ def test_csv_and_euroc_errors_name_lines(tmp_path):
     e.write_text("#timestamp, x, y, z, qw, qx, qy, qz\n10,0,0,0,1,0,0,0\n10,0,0,0,1,0,0,0\n")
     with pytest.raises(ValueError, match=r"e\.csv:3: duplicated timestamp"):
         read_stream(e)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 12), max_size=14))
+def test_longest_increasing_subsequence_is_longest(values):
+    t = np.array(values, dtype=np.int64)
+    idx = _longest_increasing(t)
+    assert np.all(np.diff(idx) > 0) and np.all(np.diff(t[idx]) > 0)
+    # O(n^2) reference length
+    best = [1] * len(values)
+    for i in range(len(values)):
+        for j in range(i):
+            if values[j] < values[i]:
+                best[i] = max(best[i], best[j] + 1)
+    assert len(idx) == max(best, default=0)

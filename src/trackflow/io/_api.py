@@ -72,6 +72,8 @@ def guess_format(path, for_writing: bool = False) -> str:
                 return "native"
     if suffix == ".bag" or (path.is_dir() and (path / "metadata.yaml").exists()):
         return "rosbag"
+    if suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").exists():
+        return "rosbag"
     if suffix == ".mat":
         return "broad"
     if suffix == ".tfrec":

@@ -87,6 +87,8 @@ def read_rosbag(
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     path = Path(path)
+    if path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").exists():
+        path = path.parent  # a ROS 2 storage file: read its bag directory
     if stamp not in ("header", "receive"):
         raise ValueError(f"stamp must be 'header' or 'receive', got {stamp!r}")
     ros1 = _is_ros1(path)
