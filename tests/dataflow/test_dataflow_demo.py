@@ -12,7 +12,7 @@ from trackflow.cli.main import main
 def test_demo_json(tmp_path, capsys):
     logging.getLogger("trackflow.filters").setLevel(logging.ERROR)
     png = tmp_path / "demo.png"
-    assert main(["demo", "--json", "--out", str(png)]) == 0
+    assert main(["demo", "--json", "--backend", "numba", "--out", str(png)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"naive", "aligned", "predicted", "static_edge_error", "plot"}
     for key in ("naive", "aligned", "predicted"):

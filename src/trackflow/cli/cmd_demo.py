@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..dataflow import DemoConfig, demo_json, run_demo
+from ..math import use_backend
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -19,12 +20,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", type=Path, default=Path("out/demo.png"), help="PNG plot path")
     p.add_argument("--seed", type=int, default=DemoConfig.seed, help="noise seed")
+    p.add_argument(
+        "--backend",
+        choices=("numpy", "numba"),
+        default="numpy",
+        help="kernel backend (default numpy: no compile step, so a fresh clone runs in "
+        "seconds; numba is faster once its cache is warm; results agree to rounding)",
+    )
     p.set_defaults(func=run)
     return p
 
 
 def run(args) -> int:
-    result = run_demo(args.out, DemoConfig(seed=args.seed))
+    with use_backend(args.backend):
+        result = run_demo(args.out, DemoConfig(seed=args.seed))
     if args.json:
         print(demo_json(result))
         return 0
