@@ -60,8 +60,8 @@ def guess_format(path, for_writing: bool = False) -> str:
     """Format name from content (when reading an existing file) and extension.
 
     Rules: native magic bytes; ``.bag`` or a directory with ``metadata.yaml`` -> ``rosbag``;
-    ``.mat`` -> ``broad``; ``.tfrec`` -> ``native``; a text file whose first line starts
-    ``#timestamp`` with commas -> ``euroc``; 16 comma-separated columns with .NET ticks ->
+    ``.mat`` -> ``broad``; ``.tfrec`` -> ``native``; a text file with a leading comment line
+    ``#timestamp,...`` -> ``euroc``; 16 comma-separated columns with .NET ticks ->
     ``quest``; other comma-separated text -> ``csv``; whitespace-separated -> ``tum``.
     """
     path = Path(path)

@@ -172,8 +172,10 @@ def finish_stream(
     off = np.abs(norm - 1.0)
     cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
     if cand.size:
-        tol = quat_tolerance(cand) if quat_tolerance is not None else UNIT_TOLERANCE
-        over = off[cand] > tol
+        tol = np.full(n, UNIT_TOLERANCE)
+        if quat_tolerance is not None:
+            tol[cand] = quat_tolerance(cand)
+        over = off[cand] > tol[cand]
         bad_idx = cand[over]
         if np.any(~over):
             report.notes.append(
@@ -190,8 +192,7 @@ def finish_stream(
                     bad,
                     lambda i: (
                         f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
-                        f"{norm[i]:.9g}, not unit (allowed deviation "
-                        f"{float(np.max(np.atleast_1d(tol))):.2g})"
+                        f"{norm[i]:.9g}, not unit (allowed deviation {tol[i]:.2g})"
                     ),
                 )
             else:
@@ -264,6 +265,9 @@ def finish_stream(
                 q = q * sign[:, None]
                 report.signs_fixed = True
 
+    if report.normalized:  # list only repaired rows that made it into the stream
+        kept_where = set(where[kidx].tolist())
+        report.normalized[:] = [w for w in report.normalized if w in kept_where]
     m = len(kidx)
     if m == n:  # nothing dropped: keep the arrays, avoid gathering copies of large batches
         kidx = slice(None)
