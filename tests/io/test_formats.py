@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _io_helpers import random_stream
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trackflow.io import (
     BROAD_RATE_HZ,
@@ -184,3 +186,26 @@ def test_options_and_formats_are_checked(tmp_path, rng):
         read_stream(tmp_path / "a.txt", format="xml")
     with pytest.raises(ValueError, match="format="):
         write_stream(tmp_path / "a.weird", s)
+
+
+_finite = st.floats(
+    allow_nan=False, allow_infinity=False, width=64, min_value=-1e300, max_value=1e300
+)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.lists(st.tuples(_finite, _finite, _finite), min_size=1, max_size=5),
+    st.integers(-(2**62), 2**62),
+    st.sampled_from(["tum", "csv", "euroc", "native"]),
+)
+def test_any_float_round_trips_exactly(tmp_path_factory, rows, t0, fmt):
+    """repr-written floats and decimal ns times read back bit for bit, whatever the value."""
+    n = len(rows)
+    t = t0 + np.arange(n, dtype=np.int64) * 7
+    q = np.tile([0.0, 0.6, 0.0, 0.8], (n, 1))
+    s = PoseStream("world", "body", t, np.array(rows, dtype=float), q)
+    path = tmp_path_factory.mktemp("h") / f"x.{fmt}"
+    write_stream(path, s, format=fmt)
+    back, _ = read_stream(path, format=fmt)
+    assert back == s
