@@ -39,6 +39,7 @@ from ._stream import (
     FLAG_ORIENTATION,
     FLAG_POSITION,
     PoseStream,
+    check_frame_name,
     unit_quaternions,
 )
 
@@ -278,17 +279,17 @@ class RecordingWriter:
     """
 
     def __init__(self, path, source: str, target: str, *, covariance: bool, mode: str = "w"):
+        self._fd: int | None = None
         if mode not in ("w", "x", "a"):
             raise ValueError(f"mode must be 'w', 'x' or 'a', got {mode!r}")
         self.path = Path(path)
-        self.source = source
-        self.target = target
+        self.source = check_frame_name(source, "source")
+        self.target = check_frame_name(target, "target")
         self.has_covariance = bool(covariance)
         self.recovered_bytes = 0
         self.count = 0
         self._last_t: int | None = None
         self._dtype = record_dtype(self.has_covariance)
-        PoseStream(source, target, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
         if mode == "a" and self.path.exists():
             self._open_existing()
         else:

@@ -47,7 +47,7 @@ def unit_quaternions(q: np.ndarray) -> np.ndarray:
     return np.where(close[..., None], q, unit)
 
 
-def _check_name(name, what: str) -> str:
+def check_frame_name(name, what: str) -> str:
     if not isinstance(name, str) or not name:
         raise ValueError(f"{what} frame must be a non-empty string, got {name!r}")
     if "\n" in name or "\0" in name:
@@ -163,9 +163,9 @@ class PoseStream:
             if fl.size and (fl.min() < 0 or fl.max() > 0xFFFFFFFF):
                 raise ValueError("flags must fit in uint32")
             fl = fl.astype(np.uint32)
-        self._init(
-            _check_name(source, "source"), _check_name(target, "target"), t, p, q, c, conf, fl
-        )
+        source = check_frame_name(source, "source")
+        target = check_frame_name(target, "target")
+        self._init(source, target, t, p, q, c, conf, fl)
 
     def _init(self, source, target, t, p, q, c, conf, fl) -> None:
         self._source = source
