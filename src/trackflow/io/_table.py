@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
@@ -91,7 +92,7 @@ class Table:
     where: np.ndarray  # (N,) 1-based line numbers
     t_ns: np.ndarray  # (N,) int64
     values: np.ndarray  # (N, K) float
-    tokens: list[list[str]]  # raw tokens of each kept row (for precision-aware checks)
+    tokens: Sequence[list[str]]  # tokens of each kept row, on demand (precision-aware checks)
     tail_unterminated: bool  # the last row is an unterminated last line
     meta: dict[str, str] = field(default_factory=dict)  # from a "# trackflow:" comment
 
@@ -120,15 +121,8 @@ def parse_rows(
     integers, before conversion to int64).
     """
     lines, unterminated, tail_bytes = read_lines(path)
-    where: list[int] = []
-    times: list[int] = []
-    vals: list[list[float]] = []
-    toks_kept: list[list[str]] = []
     meta: dict[str, str] = {}
     head: list[str] | None = None
-    first = True
-    rows = 0
-    extra = 0
     last_index = len(lines) - 1
 
     def split(line: str) -> list[str]:
@@ -136,21 +130,51 @@ def parse_rows(
             return line.split()
         return [x.strip() for x in line.split(delimiter)]
 
+    data_idx: list[int] = []  # 0-based line index of each data row
+    data: list[str] = []
+    first = True
     for i, raw in enumerate(lines):
         line = raw.strip()
         if not line:
             continue
-        if line.startswith("#"):
+        if line[0] == "#":
             if line.startswith(FRAMES_PREFIX):
                 meta.update(parse_frames_comment(line))
             continue
-        toks = split(line)
         if first:
             first = False
-            if header is not None and header(toks):
-                head = toks
+            if header is not None and header(split(line)):
+                head = split(line)
                 continue
-        rows += 1
+        data_idx.append(i)
+        data.append(line)
+    report.rows_read = len(data)
+    tail_in_data = bool(unterminated and data_idx and data_idx[-1] == last_index)
+    args = (delimiter, ncols, time_col, time_exponent, list(value_cols), time_offset_ns)
+    fast = None if tail_in_data else _parse_fast(data, *args)
+    if fast is not None:
+        t_ns, values = fast
+        extra = len(split(data[0])) - ncols if data else 0
+        if extra > 0:
+            report.notes.append(f"ignored extra column(s) beyond the first {ncols}")
+        table = Table(
+            where=np.array(data_idx, dtype=np.int64) + 1,
+            t_ns=t_ns,
+            values=values,
+            tokens=_RowTokens(data, split),
+            tail_unterminated=False,
+            meta=meta,
+        )
+        return table, head
+
+    # slow path, row by row: exact diagnostics for malformed rows
+    where: list[int] = []
+    times: list[int] = []
+    vals: list[list[float]] = []
+    kept: list[str] = []
+    extra = 0
+    for i, line in zip(data_idx, data):
+        toks = split(line)
         lineno = i + 1
         problem = None
         reason = None
@@ -180,20 +204,100 @@ def parse_rows(
         where.append(lineno)
         times.append(t)
         vals.append(v)
-        toks_kept.append(toks)
-    report.rows_read = rows
+        kept.append(line)
     if extra:
-        report.notes.append(f"ignored up to {extra} extra column(s) per row")
+        report.notes.append(f"ignored extra column(s) beyond the first {ncols}")
     tail = bool(unterminated and where and where[-1] == last_index + 1)
     table = Table(
         where=np.array(where, dtype=np.int64),
         t_ns=np.array(times, dtype=np.int64),
         values=np.array(vals, dtype=float).reshape(len(vals), len(value_cols)),
-        tokens=toks_kept,
+        tokens=_RowTokens(kept, split),
         tail_unterminated=tail,
         meta=meta,
     )
     return table, head
+
+
+class _RowTokens:
+    """Tokens of row ``r`` on demand (only rows that need a closer look are split again)."""
+
+    def __init__(self, lines: list[str], split: Callable[[str], list[str]]):
+        self._lines = lines
+        self._split = split
+
+    def __len__(self) -> int:
+        return len(self._lines)
+
+    def __getitem__(self, r: int) -> list[str]:
+        return self._split(self._lines[r])
+
+
+def _time_fast(token: str, exponent: int) -> int:
+    """``parse_time_ns`` for plain decimals without rounding (the common case), else exact."""
+    body = token[1:] if token[:1] in "+-" else token
+    whole, _, frac = body.partition(".")
+    if whole.isdigit() and (not frac or frac.isdigit()) and len(frac) <= exponent:
+        v = int(whole) * 10**exponent + (int(frac) * 10 ** (exponent - len(frac)) if frac else 0)
+        return -v if token[0] == "-" else v
+    return parse_time_ns(token, exponent)
+
+
+def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.ndarray | None:
+    """Exact ns from plain decimal strings (``-?digits[.digits]``, at most ``exponent``
+    decimals) with numpy string functions; ``None`` when any token needs the general parser."""
+    scale = 10**exponent
+    if offset_ns % scale:
+        return None
+    toks = np.strings.strip(toks)
+    neg = np.strings.startswith(toks, "-")
+    body = np.where(neg, np.strings.slice(toks, 1, None), toks)
+    whole, _, frac = np.strings.partition(body, ".")
+    flen = np.strings.str_len(frac)
+    ok = np.strings.isdigit(whole) & ((flen == 0) | np.strings.isdigit(frac))
+    if not ok.all() or flen.max() > exponent or np.strings.str_len(whole).max() > 18:
+        return None
+    w = whole.astype(np.int64) - offset_ns // scale * np.where(neg, -1, 1)
+    if exponent:
+        f = np.strings.ljust(frac, exponent, "0").astype(np.int64)
+    else:
+        f = np.zeros(len(toks), dtype=np.int64)
+    if np.any(np.abs(w) > (2**63 - 1) // scale - 1):
+        return None
+    v = w * scale + f
+    return np.where(neg, -v, v)
+
+
+def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, time_offset_ns):
+    """Whole-file parse with numpy's C reader when every row is well formed, else ``None``."""
+    if not data or max(value_cols) != ncols - 1:
+        return None
+    try:
+        values = np.loadtxt(
+            io.StringIO("\n".join(data)),
+            delimiter=delimiter,
+            usecols=value_cols,
+            ndmin=2,
+            comments=None,
+            dtype=float,
+        )
+        if values.shape != (len(data), len(value_cols)):
+            return None
+        toks = np.loadtxt(
+            io.StringIO("\n".join(data)),
+            delimiter=delimiter,
+            usecols=[time_col],
+            ndmin=1,
+            comments=None,
+            dtype=str,
+        )
+        t_ns = _times_vectorised(toks, time_exponent, time_offset_ns)
+        if t_ns is None:
+            t = [_time_fast(str(x).strip(), time_exponent) - time_offset_ns for x in toks]
+            t_ns = np.array(t, dtype=np.int64)
+    except (ValueError, IndexError, OverflowError):
+        return None  # the row-by-row parser names the offending line
+    return t_ns, values
 
 
 def _place(token: str) -> float:
