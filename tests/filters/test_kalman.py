@@ -188,6 +188,12 @@ def test_future_prediction_grows_and_past_is_smoothed(rng):
         kf.update_pose(t, UncertainPose(Pose([t, 0, 0] + rng.normal(0, 1e-3, 3), q), C))
     tr = [np.trace(kf.predict(kf.time + h).covariance) for h in (0, 0.05, 0.1, 0.5)]
     assert np.all(np.diff(tr) > 0)
+    # the pose-rows-only prediction equals the pose block of the full state prediction
+    x, P = kf.predict_state(kf.time + 0.1)
+    fast = kf.predict(kf.time + 0.1)
+    np.testing.assert_allclose(fast.position, x[:3], atol=1e-15)
+    sel = [0, 1, 2, 9, 10, 11]
+    np.testing.assert_allclose(fast.covariance, P[np.ix_(sel, sel)], rtol=1e-12, atol=1e-20)
     # between two stored measurements: close to the truth and at most as uncertain as the
     # forward prediction from the earlier state
     t = 1.51

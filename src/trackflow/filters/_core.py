@@ -44,11 +44,13 @@ KERNELS = (
     "meas_cov",
     "chol",
     "chol_solve",
+    "chol_solve_rows",
     "update",
     "inject",
     "local",
     "initialize",
     "pose_of",
+    "predict_pose",
     "smooth",
     "step",
     "run",
@@ -56,6 +58,9 @@ KERNELS = (
 
 SMALL = 1e-4
 UNKNOWN_VARIANCE = 1e12  # reported for a pose part the model does not estimate
+# Covariance entries below this are flushed to zero: cross terms that are zero in theory
+# otherwise decay into denormal numbers, which make every later operation ~10x slower.
+TINY = 1e-150
 
 # status codes of an update
 ACCEPTED = 0
@@ -160,14 +165,18 @@ def right_jac(v):
         t = math.sqrt(t2)
         a = (1.0 - math.cos(t)) / t2
         b = (t - math.sin(t)) / (t2 * t)
-    k = np.zeros((3, 3))
-    k[0, 1] = -v[2]
-    k[0, 2] = v[1]
-    k[1, 0] = v[2]
-    k[1, 2] = -v[0]
-    k[2, 0] = -v[1]
-    k[2, 1] = v[0]
-    j = np.eye(3) - a * k + b * (k @ k)
+    # Jr = I - a [v]x + b [v]x^2 with [v]x^2 = v v^T - |v|^2 I
+    j = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            j[r, c] = b * v[r] * v[c]
+        j[r, r] += 1.0 - b * t2
+    j[0, 1] += a * v[2]
+    j[0, 2] -= a * v[1]
+    j[1, 0] -= a * v[2]
+    j[1, 2] += a * v[0]
+    j[2, 0] += a * v[1]
+    j[2, 1] -= a * v[0]
     return j
 
 
@@ -252,9 +261,13 @@ def transition(x, dt, n_dp, n_do, additive):
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     xn = np.zeros(nx)
     a = np.zeros((nc, nc))
+    cf = np.empty(max(npl, nol) + 1)  # dt^k / k!
+    cf[0] = 1.0
+    for i in range(1, cf.shape[0]):
+        cf[i] = cf[i - 1] * dt / i
     for i in range(npl):
         for j in range(i, npl):
-            c = dt ** (j - i) / fact(j - i)
+            c = cf[j - i]
             for k in range(3):
                 xn[3 * i + k] += c * x[3 * j + k]
                 a[3 * i + k, 3 * j + k] = c
@@ -264,21 +277,21 @@ def transition(x, dt, n_dp, n_do, additive):
     q = x[qo : qo + 4].copy()
     b = np.zeros(3)
     for lv in range(1, n_do + 1):
-        c = dt**lv / fact(lv)
+        c = cf[lv]
         for k in range(3):
             b[k] += c * x[qo + 4 + 3 * (lv - 1) + k]
     d = qexp(b)
     xn[qo : qo + 4] = qmul(q, d)
     for lv in range(1, n_do + 1):
         for j in range(lv, n_do + 1):
-            c = dt ** (j - lv) / fact(j - lv)
+            c = cf[j - lv]
             for k in range(3):
                 xn[qo + 4 + 3 * (lv - 1) + k] += c * x[qo + 4 + 3 * (j - 1) + k]
     if additive:
         a[qo : qo + 4, qo : qo + 4] = right_mult(d)
         bm = left_mult(q) @ exp_jac(b)
         for lv in range(1, n_do + 1):
-            c = dt**lv / fact(lv)
+            c = cf[lv]
             a[qo : qo + 4, qo + 4 + 3 * (lv - 1) : qo + 4 + 3 * lv] = c * bm
         base = qo + 4 - 3  # angular level lv sits at base + 3 lv
     else:
@@ -286,12 +299,12 @@ def transition(x, dt, n_dp, n_do, additive):
         a[qo : qo + 3, qo : qo + 3] = r.T
         jr = right_jac(b)
         for lv in range(1, n_do + 1):
-            c = dt**lv / fact(lv)
+            c = cf[lv]
             a[qo : qo + 3, qo + 3 * lv : qo + 3 * lv + 3] = c * jr
         base = qo
     for lv in range(1, n_do + 1):
         for j in range(lv, n_do + 1):
-            c = dt ** (j - lv) / fact(j - lv)
+            c = cf[j - lv]
             for k in range(3):
                 a[base + 3 * lv + k, base + 3 * j + k] = c
     return xn, a
@@ -361,6 +374,8 @@ def sandwich(a, p, q):
     for j in range(n):
         for i in range(j + 1):
             w = out[i, j] + 0.5 * (q[i, j] + q[j, i])
+            if abs(w) < TINY:
+                w = 0.0
             out[i, j] = w
             out[j, i] = w
     return out
@@ -492,6 +507,28 @@ def chol_solve(lo, b):
     return x
 
 
+def chol_solve_rows(lo, b):
+    """Solve ``L L^T X = B`` in place for ``B`` of shape (n, k), row operations (contiguous)."""
+    n = lo.shape[0]
+    k = b.shape[1]
+    for i in range(n):
+        for j in range(i):
+            f = lo[i, j]
+            for c in range(k):
+                b[i, c] -= f * b[j, c]
+        d = 1.0 / lo[i, i]
+        for c in range(k):
+            b[i, c] *= d
+    for i in range(n - 1, -1, -1):
+        for j in range(i + 1, n):
+            f = lo[j, i]
+            for c in range(k):
+                b[i, c] -= f * b[j, c]
+        d = 1.0 / lo[i, i]
+        for c in range(k):
+            b[i, c] *= d
+
+
 def inject(x, delta, n_dp, n_do, additive, wmax):
     """Apply a correction in the covariance coordinates (``x <- x [+] delta``) in place.
 
@@ -612,24 +649,22 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
         if idx[row] < 0:
             selection = False
     if selection:
-        pht = np.empty((nc, m))
-        for i in range(nc):
-            for a in range(m):
-                pht[i, a] = p[i, idx[a]]
+        hp = np.empty((m, nc))  # H P: rows idx of P
+        for a in range(m):
+            for j in range(nc):
+                hp[a, j] = p[idx[a], j]
         s = np.empty((m, m))
         for a in range(m):
             for b in range(m):
-                s[a, b] = 0.5 * (p[idx[a], idx[b]] + p[idx[b], idx[a]]) + 0.5 * (r[a, b] + r[b, a])
+                s[a, b] = 0.5 * (hp[a, idx[b]] + hp[b, idx[a]]) + 0.5 * (r[a, b] + r[b, a])
     else:
-        pht = p @ h.T
-        s = sym(h @ pht + r)
+        hp = h @ p
+        s = sym(hp @ h.T + r)
     lo, ok = chol(s)
     if not ok:
         return DIVERGED, np.nan
-    yy = np.empty((m, 1))
-    for i in range(m):
-        yy[i, 0] = y[i]
-    sy = chol_solve(lo, yy)
+    sy = y.reshape((m, 1)).copy()
+    chol_solve_rows(lo, sy)
     nis = 0.0
     for i in range(m):
         nis += y[i] * sy[i, 0]
@@ -637,43 +672,56 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
         return DIVERGED, nis
     if nis > gate:
         return GATED, nis
-    kt = chol_solve(lo, np.ascontiguousarray(pht.T))  # K^T = S^-1 H P
+    kt = hp.copy()  # K^T = S^-1 H P
+    chol_solve_rows(lo, kt)
     delta = np.zeros(nc)
-    for i in range(nc):
-        for a in range(m):
+    for a in range(m):
+        for i in range(nc):
             delta[i] += kt[a, i] * y[a]
-    # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
-    # when K is not exactly optimal (rounding, gating, clipped angular velocity).
-    if selection:
-        mp = p.copy()  # (I - K H) P = P - K P[idx, :]
-        for i in range(nc):
-            for a in range(m):
-                ka = kt[a, i]
-                if ka != 0.0:
-                    for j in range(nc):
-                        mp[i, j] -= ka * p[idx[a], j]
-        pn = mp.copy()  # ((I - K H) P) (I - K H)^T = MP - MP[:, idx] K^T
-        for i in range(nc):
-            for a in range(m):
-                v = mp[i, idx[a]]
-                for j in range(nc):
-                    pn[i, j] -= v * kt[a, j]
-    else:
-        mm = np.eye(nc) - kt.T @ h
-        pn = mm @ p @ mm.T
     kr = np.zeros((nc, m))  # K R
     for i in range(nc):
         for a in range(m):
             for b in range(m):
                 kr[i, b] += kt[a, i] * r[a, b]
-    for i in range(nc):
-        for j in range(i, nc):
-            v = 0.0
-            for b in range(m):
-                v += kr[i, b] * kt[b, j]
-            w = 0.5 * (pn[i, j] + pn[j, i]) + v
-            p[i, j] = w
-            p[j, i] = w
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
+    # when K is not exactly optimal (rounding, gating, clipped angular velocity).
+    if selection:
+        mp = p.copy()  # (I - K H) P = P - K (H P)
+        for i in range(nc):
+            for a in range(m):
+                ka = kt[a, i]
+                for j in range(nc):
+                    mp[i, j] -= ka * hp[a, j]
+        # (I - K H) P (I - K H)^T + K R K^T = MP + (K R - MP H^T) K^T; upper triangle mirrored
+        g = np.empty(m)
+        acc = np.empty(nc)
+        for i in range(nc):
+            for a in range(m):
+                g[a] = kr[i, a] - mp[i, idx[a]]
+            for j in range(nc):
+                acc[j] = mp[i, j]
+            for a in range(m):
+                ga = g[a]
+                for j in range(nc):
+                    acc[j] += ga * kt[a, j]
+            for j in range(i, nc):
+                w = acc[j]
+                if abs(w) < TINY:
+                    w = 0.0
+                p[i, j] = w
+                p[j, i] = w
+    else:
+        mm = np.eye(nc) - kt.T @ h
+        pn = mm @ p @ mm.T
+        for i in range(nc):
+            for j in range(i, nc):
+                w = 0.5 * (pn[i, j] + pn[j, i])
+                for b in range(m):
+                    w += kr[i, b] * kt[b, j]
+                if abs(w) < TINY:
+                    w = 0.0
+                p[i, j] = w
+                p[j, i] = w
     inject(x, delta, n_dp, n_do, additive, wmax)
     for i in range(nc):
         if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
@@ -727,6 +775,57 @@ def pose_of(x, p, n_dp, n_do, additive):
         for k in range(3, 6):
             c[k, k] = UNKNOWN_VARIANCE
     return t, q, sym(c)
+
+
+def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """Pose part of the prediction over ``dt``: ``(t, q, C)`` as :func:`pose_of` of
+    :func:`predict`, computing only the pose rows of ``A P A^T + Q``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    if additive:
+        xn, pn = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+        return pose_of(xn, pn, n_dp, n_do, additive)
+    xn, a = transition(x, dt, n_dp, n_do, additive)
+    qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    qo = 3 * npl
+    sel = np.empty(6, np.int64)
+    for k in range(3):
+        sel[k] = k if npl > 0 else 0
+        sel[3 + k] = qo + k if nol > 0 else 0
+    t = np.zeros((6, nc))
+    for r in range(6):
+        for k in range(nc):
+            v = a[sel[r], k]
+            if v != 0.0:
+                for j in range(nc):
+                    t[r, j] += v * p[k, j]
+    c = np.zeros((6, 6))
+    for r in range(6):
+        for col in range(r, 6):
+            w = qm[sel[r], sel[col]]
+            for k in range(nc):
+                w += t[r, k] * a[sel[col], k]
+            c[r, col] = w
+            c[col, r] = w
+    pos = np.zeros(3)
+    q = np.zeros(4)
+    q[3] = 1.0
+    if npl > 0:
+        pos[:] = xn[:3]
+    else:
+        for k in range(3):
+            for j in range(6):
+                c[k, j] = 0.0
+                c[j, k] = 0.0
+            c[k, k] = UNKNOWN_VARIANCE
+    if nol > 0:
+        q[:] = xn[qo : qo + 4]
+    else:
+        for k in range(3, 6):
+            for j in range(6):
+                c[k, j] = 0.0
+                c[j, k] = 0.0
+            c[k, k] = UNKNOWN_VARIANCE
+    return pos, q, c
 
 
 def smooth(x0, p0, t0, x1, p1, t1, t, n_dp, n_do, additive, kind, sig_p, sig_o):
@@ -856,8 +955,7 @@ def run(
         if initialized:
             for h in range(horizons.shape[0]):
                 dt = times[i] - t_state + horizons[h]
-                xh, ph = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
-                t, q, c = pose_of(xh, ph, n_dp, n_do, additive)
+                t, q, c = predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
                 pred_t[h, i] = t
                 pred_q[h, i] = q
                 pred_c[h, i] = c

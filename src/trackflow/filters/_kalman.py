@@ -400,7 +400,12 @@ class PoseKalmanFilter:
         ``R_true = R Exp(dtheta)``; a part the model does not estimate is reported as zero /
         identity with variance 1e12.
         """
-        x, p = self.predict_state(t)
-        n_dp, n_do, add = self._params[:3]
-        pos, q, c = kernels().pose_of(x, p, n_dp, n_do, add)
+        if self._t is not None and t >= self._t:  # fast path: only the pose rows
+            n_dp, n_do, add, kind, sp, so = self._params
+            pos, q, c = kernels().predict_pose(
+                self._x, self._p, float(t) - self._t, n_dp, n_do, add, kind, sp, so
+            )
+        else:
+            x, p = self.predict_state(t)
+            pos, q, c = kernels().pose_of(x, p, *self._params[:3])
         return UncertainPose._trusted(pos, q, c)

@@ -104,10 +104,15 @@ def run_filter(
     n_dp, n_do, add, kind, sp, so = kf._params
     order = np.argsort(t, kind="stable")
     out_of_order = int(np.count_nonzero(order != np.arange(t.size)))
-    ts = np.ascontiguousarray(t[order])
-    pos = np.ascontiguousarray(poses.position[order])
-    quat = np.ascontiguousarray(poses.quaternion[order])
-    cov = np.ascontiguousarray(poses.covariance[order])
+    sort = out_of_order > 0  # in-order input (the usual case) is used without copies
+
+    def ordered(a):
+        return np.ascontiguousarray(a[order] if sort else a, dtype=float)
+
+    ts = ordered(t)
+    pos = ordered(poses.position)
+    quat = ordered(poses.quaternion)
+    cov = ordered(poses.covariance)
     n = t.size
     nh = h.size
     out_t, out_q, out_c = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros((n, 6, 6))
@@ -121,8 +126,11 @@ def run_filter(
         chi2_gate(gate_probability, dof), float(max_angular_velocity), int(reset_after),
         out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status,
     )  # fmt: skip
-    inv = np.empty_like(order)
-    inv[order] = np.arange(n)
+    if sort:
+        inv = np.empty_like(order)
+        inv[order] = np.arange(n)
+    else:
+        inv = slice(None)
     counts = np.bincount(status, minlength=6)
     stats = {
         "updates": int(
