@@ -19,6 +19,9 @@ from . import _core
 __all__ = ["kernels"]
 
 _jit_module: types.ModuleType | None = None
+# error_model="numpy": division by zero gives inf/nan like NumPy (caught by the divergence
+# checks) instead of a raising branch in every inner loop.
+_OPTIONS = {"cache": True, "error_model": "numpy"}
 
 
 def _load_jit() -> types.ModuleType:
@@ -30,7 +33,7 @@ def _load_jit() -> types.ModuleType:
     sys.modules[name] = mod  # numba's on-disk cache re-imports the module by name
     spec.loader.exec_module(mod)
     for name in _core.KERNELS:
-        setattr(mod, name, numba.njit(cache=True)(getattr(mod, name)))
+        setattr(mod, name, numba.njit(**_OPTIONS)(getattr(mod, name)))
     return mod
 
 
