@@ -57,7 +57,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +82,7 @@ from trackflow.math import (
     quat_log,
     quat_multiply,
     quat_to_matrix,
+    use_backend,
 )
 
 HORIZON = 0.05  # s, prediction horizon
@@ -272,6 +273,7 @@ class Run:
     filtered: UncertainPose  # (N,)
     predicted: UncertainPose  # (N,) for times + HORIZON
     step_us: float  # mean wall time per step (update + prediction), after 10 steps
+    extra: dict = field(default_factory=dict)  # filter-specific diagnostics
 
 
 def _stack(poses: list[UncertainPose]) -> UncertainPose:
@@ -296,15 +298,24 @@ def run_pose_kf(times, meas: Measurements, q_a: float, q_alpha: float, timing: b
         kf = PoseKalmanFilter(model, history=0.0, gate_probability=None)
         kf.update_pose(times[0], meas.poses[0])  # warm-up (a compiled backend compiles here)
         kf.predict(times[0] + HORIZON)
-        kf.reset()
-        durations = []
-        for k in range(len(times)):
-            t0 = time.perf_counter()
-            kf.update_pose(times[k], meas.poses[k])
-            kf.predict(times[k] + HORIZON)
-            durations.append(time.perf_counter() - t0)
-        step_us = _mean_step(durations)
-    return Run(res.filtered, res.predictions[HORIZON], step_us)
+        kf.update_pose(times[1], meas.poses[1])
+        step_us = _time_stream(times, meas, model)
+    extra = {}
+    if timing and get_backend() != "numpy":
+        with use_backend("numpy"):  # the seed filters are plain NumPy: time this one so too
+            extra["step_us_numpy_backend"] = _time_stream(times, meas, model)
+    return Run(res.filtered, res.predictions[HORIZON], step_us, extra)
+
+
+def _time_stream(times, meas: Measurements, model: MotionModel) -> float:
+    kf = PoseKalmanFilter(model, history=0.0, gate_probability=None)
+    durations = []
+    for k in range(len(times)):
+        t0 = time.perf_counter()
+        kf.update_pose(times[k], meas.poses[k])
+        kf.predict(times[k] + HORIZON)
+        durations.append(time.perf_counter() - t0)
+    return _mean_step(durations)
 
 
 def run_ude(times, meas: Measurements, q_a: float, q_alpha: float, timing: bool = True):
@@ -317,15 +328,18 @@ def run_ude(times, meas: Measurements, q_a: float, q_alpha: float, timing: bool 
     )  # fmt: skip
     filtered = [state.uncertain_pose()]
     predicted = [filt.predict(state, times[0] + HORIZON).uncertain_pose()]
-    durations = []
+    durations, iterations = [], []
     for k in range(1, len(times)):
         t0 = time.perf_counter()
-        _, state, _ = filt.step(state, times[k], meas.observations[k])
+        _, state, report = filt.step(state, times[k], meas.observations[k])
         pred = filt.predict(state, times[k] + HORIZON)
         durations.append(time.perf_counter() - t0)
+        iterations.append(report.iterations)
         filtered.append(state.uncertain_pose())
         predicted.append(pred.uncertain_pose())
-    return Run(_stack(filtered), _stack(predicted), _mean_step(durations) if timing else math.nan)
+    extra = {"mean_gauss_newton_iterations": float(np.mean(iterations))}
+    step_us = _mean_step(durations) if timing else math.nan
+    return Run(_stack(filtered), _stack(predicted), step_us, extra)
 
 
 def run_du_ekf(times, meas: Measurements, q_a: float, q_alpha: float, timing: bool = True):
@@ -413,6 +427,7 @@ def evaluate(motion: Motion, meas: Measurements, run: Run) -> dict:
         "nees_pred_mean": float(np.mean(n_pred)),
         "step_us": run.step_us,
         "n_eval": int(rows.size),
+        **run.extra,
     }
 
 
@@ -583,6 +598,19 @@ def format_table(result: dict) -> str:
             lines.append(
                 f"| {name} | {tu['ratio_alpha_a']:.3g} | {fname} | {c['q_a']:.3g} | {where} |"
             )
+    lines.append("")
+    lines.append(
+        "| motion, sensor | pose KF us/step (compiled / NumPy backend) | Ude GN us/step "
+        "(GN iterations) | D-U EKF us/step |"
+    )
+    lines.append("|---|---|---|---|")
+    for name, sc in result["scenarios"].items():
+        kf, ude, du = (sc["filters"][f] for f in FILTERS)
+        lines.append(
+            f"| {name} | {kf['step_us']:.0f} / {kf.get('step_us_numpy_backend', math.nan):.0f} "
+            f"| {ude['step_us']:.0f} ({ude['mean_gauss_newton_iterations']:.1f}) "
+            f"| {du['step_us']:.0f} |"
+        )
     return "\n".join(lines)
 
 
