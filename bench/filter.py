@@ -255,11 +255,96 @@ def stability(steps: int) -> dict:
     }
 
 
+# -- error-state vs additive on real recordings ---------------------------------------------
+
+RECORDINGS = [
+    "tumvi/dataset-room1_512_16.txt",
+    "tumvi/dataset-room2_512_16.txt",
+    "tumvi/dataset-room3_512_16.txt",
+    "ar_table/table_01.txt",
+    "ar_table/table_02.txt",
+    "ar_table/table_03.txt",
+    "ar_table/table_04.txt",
+    "euroc/V1_01_easy_groundtruth_200hz.txt",
+]
+HORIZONS = (0.0, 0.02, 0.05, 0.1)
+COMPARE_MODEL = MotionModel(2, 1, noise=(0.0, 0.0, 30.0, 0.0, 20.0))
+COMPARE_COV = np.diag([0.5e-3**2] * 3 + [np.radians(0.2) ** 2] * 3)
+
+
+def _reference(t, p, q, tq):
+    """Recorded pose at times ``tq`` (linear / slerp between neighbours; NaN across gaps)."""
+    from trackflow.math import quat_slerp
+
+    i = np.searchsorted(t, tq) - 1
+    ok = (i >= 0) & (i < len(t) - 1)
+    i = np.clip(i, 0, len(t) - 2)
+    gap = t[i + 1] - t[i]
+    ok &= gap < 2.5 * np.median(np.diff(t))
+    s = np.clip((tq - t[i]) / np.where(gap > 0, gap, 1.0), 0.0, 1.0)
+    pr = p[i] + s[:, None] * (p[i + 1] - p[i])
+    qr = quat_slerp(q[i], q[i + 1], s)
+    pr[~ok] = np.nan
+    return pr, qr, ok
+
+
+def compare_formulations(data_dir) -> list[dict]:
+    """Run both formulations over the real recordings; prediction errors vs the recording."""
+    from pathlib import Path
+
+    from trackflow.math import quat_angle
+
+    rows = []
+    for name in RECORDINGS:
+        path = Path(data_dir) / name
+        if not path.is_file():
+            continue
+        d = np.loadtxt(path, comments="#")
+        t, p, q = d[:, 0] - d[0, 0], d[:, 1:4], d[:, 4:8]
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        n = len(t)
+        poses = UncertainPose._trusted(p, q, np.broadcast_to(COMPARE_COV, (n, 6, 6)))
+        for form in ("error_state", "additive"):
+            run_filter(t[:50], poses[:50], COMPARE_MODEL, HORIZONS, formulation=form)
+            t0 = time.perf_counter()
+            res = run_filter(t, poses, COMPARE_MODEL, HORIZONS, formulation=form)
+            sec = time.perf_counter() - t0
+            row = {
+                "recording": name,
+                "formulation": form,
+                "rows": n,
+                "seconds": round(sec, 3),
+                "mean_nis": round(float(np.nanmean(res.nis)), 2),
+                "rejected_gate": res.stats["rejected_gate"],
+                "resets": res.stats["resets"],
+            }
+            skip = t > t[0] + 1.0  # after convergence
+            for h in HORIZONS:
+                pr, qr, ok = _reference(t, p, q, t + h)
+                pred = res.predictions[h]
+                ok &= skip
+                ep = np.linalg.norm(pred.position[ok] - pr[ok], axis=1) * 1e3
+                eo = np.degrees(quat_angle(pred.quaternion[ok], qr[ok]))
+                row[f"pos_rms_mm_{int(h * 1e3)}ms"] = round(float(np.sqrt(np.mean(ep**2))), 3)
+                row[f"rot_rms_deg_{int(h * 1e3)}ms"] = round(float(np.sqrt(np.mean(eo**2))), 3)
+            rows.append(row)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--quick", action="store_true", help="short runs (1e5 stability steps)")
+    ap.add_argument(
+        "--compare",
+        metavar="DATA_DIR",
+        help="only compare the error-state and additive filters on the recordings in DATA_DIR",
+    )
     args = ap.parse_args(argv)
+    if args.compare:
+        rows = compare_formulations(args.compare)
+        print(json.dumps(rows, indent=1))
+        return 0
     rng = np.random.default_rng(2026)
     n = 1000 if args.quick else 4000
     out = {
