@@ -80,8 +80,8 @@ class PoseKalmanFilter:
     Notes
     -----
     Every state part a measurement has not reached yet starts at zero (identity rotation)
-    with a wide prior (10 m and 10 m/s^k; pi rad and 10 rad/s^k). The first measurement of a
-    part replaces the prior outright (the limit of an infinitely wide prior), so a static model
+    with a wide prior (10 m and 10 m/s^k; pi rad and 10 rad/s^k). The first measurement sets the
+    parts it measures outright (the limit of an infinitely wide prior), so a static model
     reproduces batch least squares over all its measurements.
     """
 
