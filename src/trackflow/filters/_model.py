@@ -228,8 +228,8 @@ class MotionModel:
         Returns
         -------
         y : ndarray (m,)
-        H : ndarray (m, n) with ``y ~ -H e`` ... i.e. ``z = h(x [+] e) + v`` gives
-            ``y ~ H e + v`` to first order.
+        H : ndarray (m, n)
+            With ``z = h(x [+] e) + v`` the innovation is ``y ~ H e + v`` to first order.
         """
         n_dp, n_do, add, _, _, _ = self._params(formulation)
         zp = np.zeros(3) if z_position is None else np.ascontiguousarray(z_position, dtype=float)
