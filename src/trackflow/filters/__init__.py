@@ -1,19 +1,37 @@
-"""Pose Kalman filters built from motion models (Pustka's thesis, chapters 5.3, 6.2, 6.3).
+"""Pose filters.
 
-``PoseKalmanFilter`` (streaming: predict, interpolate, fuse, estimate static poses),
-``MotionModel`` (state layout and process noise) and ``run_filter`` (whole recordings).
-See ``docs/filters.md``.
+* The thesis's pose Kalman filter built from motion models (Pustka, chapters 5.3, 6.2, 6.3):
+  ``PoseKalmanFilter`` (streaming: predict, interpolate, fuse, estimate static poses),
+  ``MotionModel`` (state layout and process noise) and ``run_filter`` (whole recordings).
+  See ``docs/filters.md``.
+* Dorfmueller-Ulhaas's EKF on relative rigid-body motion: ``RelativeMotionEKF``
+  (module ``relative_motion``; ``docs/seed_filter_relative_motion.md``).
+* Ude's filter in the unit-quaternion space, adjusted by Gauss-Newton on the manifold:
+  ``QuaternionSpaceFilter`` with ``PinholeCamera`` / ``CameraObservation`` features
+  (modules ``manifold_gn`` and ``camera_features``; ``docs/seed_filter_quaternion_space.md``).
+
+All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``.
 """
 
 from ._kalman import PoseKalmanFilter, chi2_gate
 from ._model import FORMULATIONS, MotionModel
 from ._offline import FilterResult, run_filter
+from .camera_features import CameraObservation, PinholeCamera
+from .manifold_gn import QuaternionSpaceFilter, QuaternionSpaceState, estimate_pose
+from .relative_motion import RelativeMotionEKF, RelativeMotionState
 
 __all__ = [
     "FORMULATIONS",
+    "CameraObservation",
     "FilterResult",
     "MotionModel",
+    "PinholeCamera",
     "PoseKalmanFilter",
+    "QuaternionSpaceFilter",
+    "QuaternionSpaceState",
+    "RelativeMotionEKF",
+    "RelativeMotionState",
     "chi2_gate",
+    "estimate_pose",
     "run_filter",
 ]
