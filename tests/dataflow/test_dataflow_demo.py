@@ -7,10 +7,11 @@ import logging
 import math
 
 from trackflow.cli.main import main
+from trackflow.dataflow import run_demo
+from trackflow.math import use_backend
 
 
 def test_demo_json(tmp_path, capsys):
-    logging.getLogger("trackflow.filters").setLevel(logging.ERROR)
     png = tmp_path / "demo.png"
     assert main(["demo", "--json", "--backend", "numba", "--out", str(png)]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -23,7 +24,32 @@ def test_demo_json(tmp_path, capsys):
     # Time alignment removes most of the naive chain's simultaneity error (9.2.2).
     assert out["aligned"]["pos_rms_mm"] < 0.5 * out["naive"]["pos_rms_mm"]
     assert out["aligned"]["ori_rms_deg"] < out["naive"]["ori_rms_deg"]
+    # Prediction to the present beats the naive chain clearly (its floor is the camera's
+    # ~67 ms extrapolation, docs/dataflow.md), and interpolating in the past beats both.
+    assert out["predicted"]["pos_rms_mm"] < 0.75 * out["naive"]["pos_rms_mm"]
+    assert out["predicted"]["ori_rms_deg"] < 0.8 * out["naive"]["ori_rms_deg"]
+    assert out["aligned"]["pos_rms_mm"] < out["predicted"]["pos_rms_mm"]
     # The static edge estimated from ~14 s of data is far better than a single camera frame
     # (2 mm, 1 deg noise).
     assert out["static_edge_error"]["pos_mm"] < 2.0
     assert out["static_edge_error"]["ori_deg"] < 0.3
+
+
+def test_demo_rejections_are_the_wrong_detections(tmp_path, caplog):
+    """The low-noise tracker is never gated and no filter resets; the camera's filter rejects
+    exactly its wrong detections (0.1 m / 17 deg off), another seed than the default."""
+    with caplog.at_level(logging.WARNING, logger="trackflow.filters"), use_backend("numba"):
+        from trackflow.dataflow import DemoConfig
+
+        result = run_demo(tmp_path / "d.png", DemoConfig(seed=3), plot=False)
+    assert not [r for r in caplog.records if "reset" in r.getMessage()]
+    wrong = result["details"]["camera_wrong_detections"]
+    assert wrong > 0
+    for label in ("aligned", "predicted"):
+        rej = result["details"]["rejections"][label]
+        assert "filter rejected update" not in rej.get("kf_art", {})
+        assert rej["kf_artoolkit"]["filter rejected update"] == wrong
+        # no prediction ever fails; start-up requests are the only unanswered ones
+        for comp in rej.values():
+            assert "prediction failed" not in comp
+        assert rej.get("sampler", {}).get("no result", 0) <= 10

@@ -50,6 +50,10 @@ def run(args) -> int:
         f"static target->camera edge estimated from data (7.4.1): error {e['pos_mm']:.2f} mm, "
         f"{e['ori_deg']:.3f} deg"
     )
+    print(
+        f"  the camera made {result['details']['camera_wrong_detections']} wrong detections "
+        "(the filters should reject them: 'filter rejected update')"
+    )
     for label, rej in result["details"]["rejections"].items():
         counts = {f"{c}: {r}": n for c, rs in rej.items() for r, n in rs.items()}
         if counts:

@@ -70,6 +70,9 @@ class Component:
         """Forget runtime state (statistics and buffers) before a new run."""
         self.stats = ComponentStats()
 
+    def finish(self) -> None:
+        """Called once after a run (close files and the like); nothing by default."""
+
     def describe(self) -> str:
         """One line for plans and logs."""
         return f"{self.kind} {self.name}"

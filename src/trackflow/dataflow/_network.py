@@ -150,12 +150,16 @@ class Network:
             False: virtual clock, as fast as possible, deterministic. True: wall clock, every
             source in its own thread; ``speed`` > 1 plays faster than real time.
         """
-        self.reset()
         start, end = self._span(until_ns)
-        if realtime:
-            self._run_realtime(start, end, float(speed))
-        else:
-            self._run_virtual(start, end)
+        self.reset()
+        try:
+            if realtime:
+                self._run_realtime(start, end, float(speed))
+            else:
+                self._run_virtual(start, end)
+        finally:
+            for c in self.components.values():
+                c.finish()
         return self
 
     def _run_virtual(self, start: int, end: int) -> None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from os import PathLike
 
 from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
 from ._network import Network
@@ -120,6 +121,7 @@ class Plan:
         history_s: float = 1.0,
         network: Network | None = None,
         prefix: str = "",
+        record: str | PathLike | None = None,
     ) -> tuple[Network, Recorder | PullSink]:
         """Instantiate the plan.
 
@@ -131,6 +133,9 @@ class Plan:
             Called with every pushed result (push delivery).
         network : Network, optional
             Add to an existing network (component names get ``prefix``).
+        record : path, optional
+            Push delivery: the application recorder also writes every result to this
+            ``.tfrec`` file (``T_source_target`` of the query, with covariance).
 
         Returns
         -------
@@ -174,7 +179,8 @@ class Plan:
             elif n.kind == "sampler":
                 c = net.add(Sampler(name, p["rate_hz"], p["offset_ns"]))
             elif n.kind == "recorder":
-                c = net.add(Recorder(name, callback))
+                q = self.query
+                c = net.add(Recorder(name, callback, path=record, source=q.source, target=q.target))
             elif n.kind == "pull sink":
                 c = net.add(PullSink(name))
             else:  # pragma: no cover - plan nodes are made by plan_query only

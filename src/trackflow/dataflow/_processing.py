@@ -123,9 +123,10 @@ class KalmanFilter(Component):
 
     Measurement timestamps are corrected by the edge's known ``stamp_offset_ns`` (``true =
     stamp - offset``). Rejected updates (filter gating, out-of-order, invalid) are counted;
-    requests more than ``max_extrapolation_ns`` past the last accepted measurement, or before
-    the history, return ``None`` and are counted ("stale"), so a sensor that stops produces
-    counted rejections instead of a drifting answer. Accepted, time-corrected measurements are
+    requests more than ``max_extrapolation_ns`` past the last accepted measurement ("stale"),
+    before the first accepted one ("before first measurement") or before the history ("before
+    history") return ``None`` and are counted, so a sensor that stops produces counted
+    rejections instead of a drifting answer. Accepted, time-corrected measurements are
     pushed on (a trigger for push-mode inference).
 
     Parameters
@@ -189,8 +190,7 @@ class KalmanFilter(Component):
         if not ok:
             self.stats.reject("filter rejected update")
             return
-        if self.first_t is None:
-            self.first_t = t
+        self.first_t = t if self.first_t is None else min(self.first_t, t)
         self.last_t = t if self.last_t is None else max(self.last_t, t)
         self.last_origin = max(self.last_origin, m.origin_ns)
         self.emit(Measurement(t, m.pose, m.origin_ns))
@@ -201,6 +201,10 @@ class KalmanFilter(Component):
             return None
         if self.max_extrapolation_ns is not None and t_ns - self.last_t > self.max_extrapolation_ns:
             self.stats.reject("stale")
+            return None
+        if not self.motion.static and t_ns < self.first_t:
+            # an interpolator asked for a time before the sensor's first sample (start-up)
+            self.stats.reject("before first measurement")
             return None
         if not self.motion.static and self.last_t - t_ns > int(self.history_s * 1e9):
             self.stats.reject("before history")

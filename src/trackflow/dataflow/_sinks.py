@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -46,21 +47,72 @@ class CallbackSink(Component):
 
 class Recorder(CallbackSink):
     """Keeps every pushed result (and calls ``callback`` if given); :meth:`arrays` /
-    :meth:`to_stream` give them back."""
+    :meth:`to_stream` give them back.
+
+    With ``path`` it also writes every result, as it arrives, to a crash-safe native
+    recording (:class:`trackflow.io.RecordingWriter`, ``.tfrec``) of ``T_source_target`` with
+    its 6x6 covariance over ``(dt, dtheta)`` (``t_true = t + dt``, ``R_true = R Exp(dtheta)``).
+    The file is created (replaced) when a run starts and closed when it ends; a killed process
+    leaves every record written before the kill readable. A :class:`RecordingPlayer` made from
+    the file (``RecordingPlayer.from_stream``) replays the recorded events bit for bit. A
+    result whose timestamp is not after the previous recorded one (a naive chain can repeat a
+    time) stays in memory but is not written, counted as the rejection "not recorded: time not
+    increasing".
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        The ``.tfrec`` file to write.
+    source, target : str
+        Frames of the recorded relationship (required with ``path``).
+    """
 
     kind = "recorder"
 
-    def __init__(self, name: str, callback: Callable[[Measurement], None] | None = None):
+    def __init__(
+        self,
+        name: str,
+        callback: Callable[[Measurement], None] | None = None,
+        *,
+        path=None,
+        source: str | None = None,
+        target: str | None = None,
+    ):
+        if path is not None and not (source and target):
+            raise ValueError(f"recorder {name!r}: a recording path needs source and target frames")
+        self.path = None if path is None else Path(path)
+        self.source, self.target = source, target
+        self._writer = None
         super().__init__(name, callback)
         self.events: list[Measurement] = []
 
     def reset(self) -> None:
         super().reset()
         self.events = []
+        self.finish()
+        self._last_written: int | None = None
+        if self.path is not None:
+            from ..io import RecordingWriter
+
+            self._writer = RecordingWriter(self.path, self.source, self.target, covariance=True)
+
+    def finish(self) -> None:
+        """Close the recording file (if any); the network calls it after a run."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
 
     def push(self, m: Measurement, port: int = 0) -> None:
         super().push(m, port)
         self.events.append(m)
+        w = self._writer
+        if w is not None:
+            if self._last_written is not None and m.t_ns <= self._last_written:
+                self.stats.reject("not recorded: time not increasing")
+                return
+            pose = m.pose
+            w.append_sample(m.t_ns, pose.position, pose.quaternion, pose.covariance)
+            self._last_written = m.t_ns
 
     def arrays(self) -> dict[str, np.ndarray]:
         """``t_ns`` (N,), ``position`` (N, 3), ``quaternion`` (N, 4), ``covariance``

@@ -58,7 +58,53 @@ class RecordingPlayer(Component):
         self.latency_ns = int(latency_ns)
         if self.latency_ns < 0:
             raise ValueError(f"player {name!r}: latency must be >= 0")
+        self._prepare()
         self.reset()
+
+    def _prepare(self) -> None:
+        """Check every sample once, vectorised, and keep what :meth:`deliver` needs: the
+        reason a sample is rejected (or ``None``), and read-only arrays of the valid values
+        (quaternions normalised, covariances exactly symmetric), so that delivering a sample
+        builds its pose without re-validating it."""
+        p, q, c = self.position, self.quaternion, self.covariance
+        n = len(p)
+        one = c.shape == (n, 6, 6) and n > 0 and c.strides[0] == 0  # one broadcast matrix
+        cs = c[:1] if one else c
+        finite_c = np.isfinite(cs).all(axis=(1, 2))
+        ok_c = np.zeros(len(cs), dtype=bool)
+        sym = np.zeros_like(cs)
+        if finite_c.any():
+            # the tolerances of trackflow.math.check_covariance, on the whole batch at once
+            cf = cs[finite_c]
+            ct = np.swapaxes(cf, 1, 2)
+            scale = np.maximum(np.abs(cf).max(axis=(1, 2)), 1e-300)
+            symmetric = np.abs(cf - ct).max(axis=(1, 2)) <= 1e-9 * scale
+            cf = 0.5 * (cf + ct)
+            eig = np.linalg.eigvalsh(cf)
+            psd = eig[:, 0] >= -1e-12 * np.maximum(eig[:, -1], 1e-300)
+            ok_c[finite_c] = symmetric & psd
+            sym[finite_c] = cf
+        if one:
+            ok_c = np.broadcast_to(ok_c, (n,))
+            sym = np.broadcast_to(sym[0], (n, 6, 6))
+        finite = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1) & np.isfinite(c).all(
+            axis=(1, 2)
+        )
+        with np.errstate(invalid="ignore"):
+            qq = np.einsum("ij,ij->i", q, q)
+            unit = np.abs(qq - 1.0) <= 1e-5
+            # unit to rounding: used as is (normalising again would change the last bit, and a
+            # recorded-then-replayed stream must give the same poses)
+            exact = np.abs(qq - 1.0) <= 1e-12
+            qn = np.where(exact[:, None], q, q / np.sqrt(qq)[:, None])
+        reason = np.full(n, None, dtype=object)
+        reason[~ok_c] = "invalid covariance"
+        reason[~unit] = "non-unit quaternion"
+        reason[~finite] = "non-finite pose"
+        self._reason = reason.tolist()
+        for a in (pos := np.array(p), qn, sym):
+            a.setflags(write=False)
+        self._p, self._q, self._c = pos, qn, sym
 
     @classmethod
     def from_stream(cls, name: str, stream, latency_ns: int = 0, covariance=None):
@@ -87,26 +133,18 @@ class RecordingPlayer(Component):
         self._last_t: int | None = None
 
     def deliver(self, index: int) -> None:
-        """Validate sample ``index`` and push it (or count why not)."""
+        """Push sample ``index`` (or count why not: checks made once in the constructor)."""
         self.stats.events_in += 1
+        why = self._reason[index]
+        if why is not None:
+            self.stats.reject(why)
+            return
         t = int(self.t_ns[index])
-        p, q, c = self.position[index], self.quaternion[index], self.covariance[index]
-        last = self._last_t
-        if not (np.isfinite(p).all() and np.isfinite(q).all() and np.isfinite(c).all()):
-            self.stats.reject("non-finite pose")
-            return
-        if abs(float(q @ q) - 1.0) > 1e-5:
-            self.stats.reject("non-unit quaternion")
-            return
-        if last is not None and t <= last:
+        if self._last_t is not None and t <= self._last_t:
             self.stats.reject("timestamp backwards")
             return
-        try:
-            pose = UncertainPose(Pose(p, q, normalize=True), c)
-        except ValueError:
-            self.stats.reject("invalid covariance")
-            return
         self._last_t = t
+        pose = UncertainPose._trusted(self._p[index], self._q[index], self._c[index])
         self.emit(Measurement(t, pose, t))
 
 
