@@ -35,7 +35,7 @@ from trackflow.math import UncertainPose
 def build():
     cfg = DemoConfig()
     t, poses = load_demo_motion()
-    truth = demo_truth(t, poses)
+    truth = demo_truth(t, poses, cfg.truth_lowpass_hz)
     fixed = demo_frames(truth, t[0], t[-1])
     calib = UncertainPose(fixed["T_T_C"], np.diag([1e-6] * 6))
     g = demo_graph(cfg, fixed, calib)

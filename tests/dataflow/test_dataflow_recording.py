@@ -83,3 +83,27 @@ def test_recorder_counts_times_it_cannot_write(tmp_path):
 def test_recorder_needs_frames_for_a_file(tmp_path):
     with pytest.raises(ValueError, match="source and target"):
         Recorder("r", path=tmp_path / "x.tfrec")
+
+
+def test_queries_sharing_a_network_share_the_sensor_filters():
+    """Two queries built into one network run one filter per sensor and give exactly what
+    each gives in a network of its own."""
+    g = graph()
+    q_now = Query("A", "M", mode="push", rate_hz=60, time_offset_s=0.0, name="now")
+    q_past = Query("A", "M", mode="push", rate_hz=60, time_offset_s=-0.1, name="past")
+    alone = {}
+    for q in (q_now, q_past):
+        net, app = plan_query(g, q).build(sensors(seed=4, end_s=1.5))
+        net.run()
+        alone[q.name] = app.arrays()
+    live = sensors(seed=4, end_s=1.5)
+    net, app_now = plan_query(g, q_now).build(live, network=None, prefix="now_")
+    net, app_past = plan_query(g, q_past).build(live, network=net, prefix="past_")
+    filters = sorted(n for n, c in net.components.items() if c.kind == "kalman")
+    assert filters == ["kf_art", "kf_cam"]
+    assert net["kf_art"].role == "predictor+interpolator"
+    net.run()
+    _equal_arrays(alone["now"], app_now.arrays())
+    _equal_arrays(alone["past"], app_past.arrays())
+    # every sensor sample reached its filter once
+    assert net["kf_art"].stats.events_in == net["art"].stats.events_out

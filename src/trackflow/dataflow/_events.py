@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -11,9 +12,8 @@ from ..math import UncertainPose
 __all__ = ["ComponentStats", "Measurement"]
 
 
-@dataclass(frozen=True)
-class Measurement:
-    """A pose event.
+class Measurement(NamedTuple):
+    """A pose event (an immutable named tuple: cheap to make once per event).
 
     Parameters
     ----------

@@ -132,7 +132,12 @@ class Plan:
         callback : callable, optional
             Called with every pushed result (push delivery).
         network : Network, optional
-            Add to an existing network (component names get ``prefix``).
+            Add to an existing network (component names get ``prefix``). Sources and the
+            Kalman filter behind each sensor are shared: a plan built into a network that
+            already holds the filter of one of its sensors (same motion model, stamp offset,
+            history and filter factory) pulls from that filter instead of running a second
+            copy of it - the filter's state does not depend on who asks it, so every query gets
+            the same answers as in a network of its own, for the cost of one filter.
         record : path, optional
             Push delivery: the application recorder also writes every result to this
             ``.tfrec`` file (``T_source_target`` of the query, with covariance).
@@ -144,6 +149,7 @@ class Plan:
         """
         net = network if network is not None else Network()
         made: dict[str, object] = {}
+        reused: set = set()
         for n in self.nodes:
             name = prefix + n.id
             p = n.params
@@ -157,17 +163,25 @@ class Plan:
                 else:
                     net.add(c)
             elif n.kind == "kalman":
-                c = net.add(
-                    KalmanFilter(
-                        name,
-                        p["motion"],
-                        role=p["role"],
-                        history_s=history_s,
-                        stamp_offset_ns=p.get("stamp_offset_ns", 0),
-                        filter_factory=filter_factory,
-                        prior=p.get("prior"),
-                    )
+                kf = KalmanFilter(
+                    name,
+                    p["motion"],
+                    role=p["role"],
+                    history_s=history_s,
+                    stamp_offset_ns=p.get("stamp_offset_ns", 0),
+                    filter_factory=filter_factory,
+                    prior=p.get("prior"),
                 )
+                shared = net.components.get(n.id) if "edge" in p else None
+                if isinstance(shared, KalmanFilter) and shared.same_filter(kf):
+                    c = shared  # the filter of a sensor serves every query of the network
+                    reused.add(c)
+                    if p["role"] not in c.role.split("+"):
+                        c.role += "+" + p["role"]
+                else:
+                    if "edge" in p and n.id not in net.components:
+                        kf.name = n.id  # a sensor's filter is named for the sensor alone
+                    c = net.add(kf)
             elif n.kind == "latest":
                 c = net.add(LatestValue(name))
             elif n.kind == "static":
@@ -186,6 +200,8 @@ class Plan:
             else:  # pragma: no cover - plan nodes are made by plan_query only
                 raise ValueError(f"unknown plan node kind {n.kind!r}")
             made[n.id] = c
+            if c in reused:
+                continue  # already wired by the plan that made it
             for i, mode in n.inputs:
                 net.connect(made[i], c, mode=mode)
         return net, made[self.output]
@@ -272,6 +288,7 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
                     f"kf_{edge.name}",
                     "kalman",
                     {
+                        "edge": edge.name,
                         "motion": edge.motion,
                         "role": role,
                         "stamp_offset_ns": _stamp_offset_ns(edge),

@@ -177,6 +177,19 @@ class KalmanFilter(Component):
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
 
+    def same_filter(self, other: KalmanFilter) -> bool:
+        """Whether ``other`` would compute exactly what this filter computes (motion model,
+        stamp offset, history, extrapolation limit, filter factory and prior)."""
+        return (
+            self.motion == other.motion
+            and self.stamp_offset_ns == other.stamp_offset_ns
+            and self.history_s == other.history_s
+            and self.max_extrapolation_ns == other.max_extrapolation_ns
+            and self.filter_factory is other.filter_factory
+            and self.prior is None
+            and other.prior is None
+        )
+
     def push(self, m: Measurement, port: int = 0) -> None:
         self.stats.events_in += 1
         t = m.t_ns - self.stamp_offset_ns

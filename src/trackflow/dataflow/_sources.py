@@ -63,7 +63,7 @@ class RecordingPlayer(Component):
 
     def _prepare(self) -> None:
         """Check every sample once, vectorised, and keep what :meth:`deliver` needs: the
-        reason a sample is rejected (or ``None``), and read-only arrays of the valid values
+        reason a sample is rejected (or ``None``), and arrays of the valid values
         (quaternions normalised, covariances exactly symmetric), so that delivering a sample
         builds its pose without re-validating it."""
         p, q, c = self.position, self.quaternion, self.covariance
@@ -86,9 +86,10 @@ class RecordingPlayer(Component):
             sym[finite_c] = cf
         if one:
             ok_c = np.broadcast_to(ok_c, (n,))
-            sym = np.broadcast_to(sym[0], (n, 6, 6))
-        finite = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1) & np.isfinite(c).all(
-            axis=(1, 2)
+        finite = (
+            np.isfinite(p).all(axis=1)
+            & np.isfinite(q).all(axis=1)
+            & np.isfinite(c).all(axis=(1, 2))
         )
         with np.errstate(invalid="ignore"):
             qq = np.einsum("ij,ij->i", q, q)
@@ -102,9 +103,12 @@ class RecordingPlayer(Component):
         reason[~unit] = "non-unit quaternion"
         reason[~finite] = "non-finite pose"
         self._reason = reason.tolist()
-        for a in (pos := np.array(p), qn, sym):
-            a.setflags(write=False)
-        self._p, self._q, self._c = pos, qn, sym
+        # C-contiguous writable float64 rows, the one layout the compiled kernels expect; the
+        # poses share them (nothing downstream writes into a pose's arrays)
+        self._p = np.array(p, dtype=float, order="C")
+        self._q = np.ascontiguousarray(qn, dtype=float)
+        self._c = np.ascontiguousarray(sym, dtype=float)
+        self._c_one = self._c[0] if one else None
 
     @classmethod
     def from_stream(cls, name: str, stream, latency_ns: int = 0, covariance=None):
@@ -144,7 +148,8 @@ class RecordingPlayer(Component):
             self.stats.reject("timestamp backwards")
             return
         self._last_t = t
-        pose = UncertainPose._trusted(self._p[index], self._q[index], self._c[index])
+        c = self._c_one if self._c_one is not None else self._c[index]
+        pose = UncertainPose._trusted(self._p[index], self._q[index], c)
         self.emit(Measurement(t, pose, t))
 
 
