@@ -4,12 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .evaluation import (
-    PredictionModel,
-    PredictionReport,
-    predict_kalman,
-    predict_linear,
-)
+from .evaluation import KalmanPredictor, PredictionReport, predict_kalman, predict_linear
 from .math import quat_log, quat_make_continuous
 
 __all__ = ["plot_sequence", "plot_error_vs_horizon"]
@@ -25,7 +20,7 @@ def _pyplot():
 
 
 def plot_sequence(
-    path, t, position, quaternion, model: PredictionModel, horizon: float = 0.1,
+    path, t, position, quaternion, predictor: KalmanPredictor, horizon: float = 0.1,
     window: tuple[float, float] | None = None,
 ) -> None:  # fmt: skip
     """Position and orientation over time: measured points, Kalman-filtered and predicted
@@ -37,7 +32,8 @@ def plot_sequence(
         Output PNG.
     t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
         Recording ``T_a_b`` [s, m, (x, y, z, w)].
-    model : PredictionModel
+    predictor : KalmanPredictor
+        The Kalman filter (``trackflow.filters.run_filter`` settings) to draw.
     horizon : float
         Prediction horizon [s]; predictions are drawn at ``t + horizon``.
     window : (float, float), optional
@@ -47,7 +43,7 @@ def plot_sequence(
     t = np.asarray(t, float)
     p = np.asarray(position, float)
     q = quat_make_continuous(np.asarray(quaternion, float))
-    kp, kq, _ = predict_kalman(t, p, q, model, (0.0, horizon))
+    kp, kq, _ = predict_kalman(t, p, q, predictor, (0.0, horizon))
     lp, lq = predict_linear(t, p, q, horizon)
     lo, hi = window if window is not None else (t[0], min(t[-1], t[0] + 3.0))
     m = (t >= lo) & (t <= hi)

@@ -1,4 +1,4 @@
-"""Prediction-error evaluation: baselines, targets, Kalman predictor and tuning."""
+"""Prediction-error evaluation: baselines, targets, the Kalman predictor and tuning."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from trackflow.evaluation import (
-    PredictionModel,
+    KalmanPredictor,
     evaluate_predictors,
     evaluate_recording,
     interpolate_poses,
@@ -15,6 +15,7 @@ from trackflow.evaluation import (
     scored_mask,
     tune_model,
 )
+from trackflow.filters import MotionModel
 from trackflow.math import quat_angle, quat_exp, quat_multiply
 
 
@@ -27,6 +28,13 @@ def _smooth(n=1200, rate=120.0):
     for k in range(1, n):
         q[k] = quat_multiply(q[k - 1], quat_exp(w[k - 1] / rate))
     return t, p, q
+
+
+def _noisy(rng, n=1200, sp=5e-4, so=2e-3):
+    t, p, q = _smooth(n)
+    zp = p + rng.normal(0, sp, p.shape)
+    zq = quat_multiply(q, quat_exp(rng.normal(0, so, (len(t), 3))))
+    return t, p, q, zp, zq
 
 
 def test_linear_extrapolation_is_exact_for_constant_velocity():
@@ -57,12 +65,9 @@ def test_interpolation_handles_sign_flips():
 
 
 def test_kalman_beats_linear_on_noisy_smooth_motion(rng):
-    t, p, q = _smooth()
-    zp = p + rng.normal(0, 5e-4, p.shape)
-    zq = quat_multiply(q, quat_exp(rng.normal(0, 2e-3, (len(t), 3))))
-    model = PredictionModel(n_dp=2, n_do=2, pos_top_noise=3.0, ori_top_noise=3.0,
-                            pos_sigma=5e-4, ori_sigma=2e-3)  # fmt: skip
-    kp, kq, _ = predict_kalman(t, zp, zq, model, (0.05,))
+    t, p, q, zp, zq = _noisy(rng)
+    model = MotionModel(2, 2, noise=(0, 0, 3.0, 0, 0, 3.0))
+    kp, kq, _ = predict_kalman(t, zp, zq, KalmanPredictor(model, 5e-4, 2e-3), (0.05,))
     lp, lq = predict_linear(t, zp, zq, 0.05)
     k = np.arange(200, len(t) - 6)
     e_k = np.linalg.norm(kp[0][k] - p[k + 6], axis=1)
@@ -73,48 +78,61 @@ def test_kalman_beats_linear_on_noisy_smooth_motion(rng):
     assert np.sqrt(np.mean(o_k**2)) < 0.3 * np.sqrt(np.mean(o_l**2))
 
 
-def test_gate_limits_the_pull_of_a_single_spike():
+def test_parts_are_the_full_filter_without_a_gate(rng):
+    # block-diagonal noise: position and orientation parts of the error-state filter decouple
+    t, _, _, zp, zq = _noisy(rng, 600)
+    full = KalmanPredictor(MotionModel(2, 2, noise=(1e-4, 0, 3.0, 1e-4, 0, 3.0)), 5e-4, 2e-3, None)
+    fp, fq, _ = predict_kalman(t, zp, zq, full, (0.05, 0.1))
+    pp, _, _ = predict_kalman(t, zp, zq, full.part("position"), (0.05, 0.1))
+    _, pq, _ = predict_kalman(t, zp, zq, full.part("orientation"), (0.05, 0.1))
+    assert np.allclose(fp, pp, rtol=0, atol=1e-12)
+    assert quat_angle(fq, pq).max() < 1e-10
+
+
+def test_gate_rejects_a_single_spike():
     t, p, q = _smooth(600)
     spiky = p.copy()
     spiky[300] += 0.05
-    model = PredictionModel(pos_sigma=1e-4, pos_top_noise=3.0, gate=16.0)
-    kp, _, n_inflated = predict_kalman(t, spiky, q, model, (0.0,))
-    loose = PredictionModel(pos_sigma=1e-4, pos_top_noise=3.0, gate=1e12)
-    lp, _, _ = predict_kalman(t, spiky, q, loose, (0.0,))
-    assert n_inflated >= 1
+    model = MotionModel(2, 1, noise=(0, 0, 3.0, 0, 3.0))
+    gated = KalmanPredictor(model, 1e-4, 1e-3, gate_probability=0.999)
+    kp, _, n_gated = predict_kalman(t, spiky, q, gated, (0.0,))
+    lp, _, _ = predict_kalman(t, spiky, q, KalmanPredictor(model, 1e-4, 1e-3, None), (0.0,))
+    assert n_gated >= 1
     err = lambda x: np.abs(x[0][300:330] - p[300:330]).max()  # noqa: E731
     assert err(kp) < 0.2 * err(lp)
 
 
 def test_tuning_improves_on_a_bad_start_and_reports_counts(rng):
-    t, p, q = _smooth(900)
-    zp = p + rng.normal(0, 3e-4, p.shape)
-    zq = quat_multiply(q, quat_exp(rng.normal(0, 1e-3, (len(t), 3))))
-    bad = PredictionModel(pos_top_noise=1e4, ori_top_noise=1e4, pos_sigma=3e-4, ori_sigma=1e-3)
-    res = tune_model(t, zp, zq, start=bad, max_evaluations=30)
+    t, _, _, zp, zq = _noisy(rng, 900, 3e-4, 1e-3)
+    bad = KalmanPredictor(MotionModel(2, 1, noise=(0, 0, 1e4, 0, 1e4)), 3e-4, 1e-3, None)
+    res = tune_model(t, zp, zq, start=bad, pos_derivatives=(1, 2), max_evaluations=25)
     before = evaluate_predictors(t, zp, zq, bad, (0.05,))
-    after = evaluate_predictors(t, zp, zq, res.model, (0.05,))
+    after = evaluate_predictors(t, zp, zq, res.predictor, (0.05,))
     assert after.stats["kalman"][50].pos_rms_mm < before.stats["kalman"][50].pos_rms_mm
     assert after.stats["kalman"][50].ori_rms_deg < before.stats["kalman"][50].ori_rms_deg
     assert res.cost_position < 1.0 and res.n_evaluations > 10
+    assert set(res.candidates["position"]) == {"1", "2"}
 
 
 def test_evaluate_recording_scores_only_the_second_part(rng):
-    t, p, q = _smooth(1200)
-    zp = p + rng.normal(0, 3e-4, p.shape)
+    t, _, q, zp, _ = _noisy(rng, 1200, 3e-4)
     rep = evaluate_recording(t, zp, q, horizons=(0.02, 0.1), tune_fraction=0.5)
     d = rep.to_dict()
     assert d["scored_from_s"] == pytest.approx(t[-1] / 2)
     n = d["predictors"]["none"]["100"]["n"]
     assert 0 < n < 600
     assert set(d["predictors"]) == {"kalman", "linear", "none"}
+    assert {"n_dp", "n_do", "noise", "pos_sigma"} <= set(d["motion_model"])
 
 
 def test_bad_input_is_a_value_error():
     t, p, q = _smooth(20)
+    pred = KalmanPredictor(MotionModel(), 1e-3, 1e-3)
     with pytest.raises(ValueError, match="increase"):
-        evaluate_predictors(t[::-1], p, q, PredictionModel())
+        evaluate_predictors(t[::-1], p, q, pred)
     with pytest.raises(ValueError, match="horizons"):
-        evaluate_predictors(t, p, q, PredictionModel(), horizons=(-0.1,))
-    with pytest.raises(ValueError, match="n_dp"):
-        PredictionModel(n_dp=5)
+        evaluate_predictors(t, p, q, pred, horizons=(-0.1,))
+    with pytest.raises(ValueError, match="pos_sigma"):
+        KalmanPredictor(MotionModel(), 0.0, 1e-3)
+    with pytest.raises(ValueError, match="part"):
+        pred.part("velocity")

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..io import FORMATS, PoseStream, read_stream
 
-__all__ = ["add_input", "load", "parse_horizons", "stream_arrays"]
+__all__ = ["add_input", "load", "parse_horizons", "parse_ints", "stream_arrays"]
 
 
 def add_input(parser: argparse.ArgumentParser, name: str = "file") -> None:
@@ -41,6 +41,17 @@ def parse_horizons(text: str) -> tuple[float, ...]:
     if not ms or any(not np.isfinite(v) or v <= 0 for v in ms):
         raise ValueError(f"horizons must be positive milliseconds, got {text!r}")
     return tuple(v / 1e3 for v in ms)
+
+
+def parse_ints(text: str) -> tuple[int, ...]:
+    """``"1,2,3"`` -> ``(1, 2, 3)``; anything else is a ``ValueError``."""
+    try:
+        out = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError as exc:
+        raise ValueError(f"expected comma-separated integers, got {text!r}") from exc
+    if not out:
+        raise ValueError(f"expected comma-separated integers, got {text!r}")
+    return out
 
 
 def stream_arrays(stream: PoseStream):

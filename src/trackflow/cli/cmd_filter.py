@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..evaluation import default_model
+from ..evaluation import default_predictor
 from ..filters import MotionModel, run_filter
 from ..io import PoseStream, write_stream
 from ..math import Pose, UncertainPose
@@ -38,7 +38,7 @@ def run(args) -> int:
     model = MotionModel(args.n_dp, args.n_do, noise=noise, kind="white_noise")
     if stream.covariance is None:
         t, p, q = stream_arrays(stream)
-        cov = np.broadcast_to(default_model(t, p, q).measurement_covariance(), (len(t), 6, 6))
+        cov = np.broadcast_to(default_predictor(t, p, q).measurement_covariance(), (len(t), 6, 6))
     else:
         cov = stream.covariance
     poses = UncertainPose(Pose(stream.position, stream.quaternion), np.array(cov))

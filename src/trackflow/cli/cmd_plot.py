@@ -29,7 +29,7 @@ def run(args) -> int:
     report = evaluate_recording(t, pos, quat, parse_horizons(args.horizons), args.tune_fraction)
     start = t[-1] * max(args.tune_fraction, 0.0) if args.start is None else args.start
     stem = Path(args.file).stem
-    plot_sequence(out / f"{stem}_sequence.png", t, pos, quat, report.model,
+    plot_sequence(out / f"{stem}_sequence.png", t, pos, quat, report.predictor,
                   args.horizon / 1e3, (start, start + args.length))  # fmt: skip
     plot_error_vs_horizon(out / f"{stem}_error_vs_horizon.png", report)
     print(out / f"{stem}_sequence.png")

@@ -6,14 +6,15 @@ import json
 import sys
 
 from ..evaluation import tune_model
-from ._common import add_input, load, parse_horizons, stream_arrays
+from ._common import add_input, load, parse_horizons, parse_ints, stream_arrays
 
 
 def register(subparsers):
     p = subparsers.add_parser("tune", help="tune the motion model's process noise (Powell)")
     add_input(p)
     p.add_argument("--horizons", default="50,100", help="horizons the cost uses (ms)")
-    p.add_argument("--derivatives", default="1,2", help="candidate derivative counts")
+    p.add_argument("--pos-derivatives", default="1,2,3", help="candidate position derivatives")
+    p.add_argument("--ori-derivatives", default="1,2", help="candidate orientation derivatives")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -21,10 +22,9 @@ def register(subparsers):
 
 def run(args) -> int:
     t, pos, quat = stream_arrays(load(args.file, args.format, args.clean))
-    derivs = tuple(int(v) for v in args.derivatives.split(",") if v.strip())
     res = tune_model(
-        t, pos, quat, parse_horizons(args.horizons), derivs,
-        progress=None if args.quiet else sys.stderr,
+        t, pos, quat, parse_horizons(args.horizons), parse_ints(args.pos_derivatives),
+        parse_ints(args.ori_derivatives), progress=None if args.quiet else sys.stderr,
     )  # fmt: skip
-    print(json.dumps({"motion_model": res.model.as_dict(), **res.as_dict()}, indent=2))
+    print(json.dumps({"motion_model": res.predictor.as_dict(), **res.as_dict()}, indent=2))
     return 0

@@ -6,21 +6,21 @@ See ``docs/posetool.md``.
 """
 
 from ._baselines import predict_linear, predict_none
-from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors, predict_kalman
+from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
-from ._model import PredictionModel, estimate_noise
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
+from ._predictor import KalmanPredictor, default_predictor, estimate_noise, predict_kalman
 from ._targets import default_gap, interpolate_poses, scored_mask
-from ._tuning import TuneResult, default_model, evaluate_recording, tune_model
+from ._tuning import TuneResult, evaluate_recording, tune_model
 
 __all__ = [
     "PREDICTORS",
     "ErrorStats",
-    "PredictionModel",
+    "KalmanPredictor",
     "PredictionReport",
     "TuneResult",
     "default_gap",
-    "default_model",
+    "default_predictor",
     "error_stats",
     "estimate_noise",
     "evaluate_predictors",

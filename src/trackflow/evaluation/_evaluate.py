@@ -7,12 +7,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._baselines import predict_linear, predict_none
-from ._kalman import run_predictor_orientation, run_predictor_position
 from ._metrics import ErrorStats, error_stats, pose_errors
-from ._model import PredictionModel
+from ._predictor import KalmanPredictor, predict_kalman
 from ._targets import default_gap, interpolate_poses, scored_mask
 
-__all__ = ["PREDICTORS", "PredictionReport", "predict_kalman", "evaluate_predictors"]
+__all__ = ["PREDICTORS", "PredictionReport", "evaluate_predictors"]
 
 PREDICTORS = ("kalman", "linear", "none")
 
@@ -36,42 +35,6 @@ def _as_arrays(t, position, quaternion):
     return t, p, q
 
 
-def predict_kalman(
-    t, position, quaternion, model: PredictionModel, horizons, gap_s: float | None = None
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Kalman-filter predictions ``horizons`` ahead of every sample.
-
-    Parameters
-    ----------
-    t : array_like, shape (N,)
-        Strictly increasing times [s].
-    position, quaternion : array_like, shape (N, 3) and (N, 4)
-        Measured ``T_a_b`` [m], ``(x, y, z, w)``.
-    model : PredictionModel
-    horizons : sequence of float, length H
-        Horizons [s].
-    gap_s : float, optional
-        The filter restarts after a larger sample interval; default :func:`default_gap`.
-
-    Returns
-    -------
-    position : ndarray, shape (H, N, 3)
-    quaternion : ndarray, shape (H, N, 4)
-    n_inflated : int
-        Measurements down-weighted by the outlier gate (position plus orientation).
-    """
-    t, p, q = _as_arrays(t, position, quaternion)
-    h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
-    gap = default_gap(t) if gap_s is None else float(gap_s)
-    pp, n1 = run_predictor_position(
-        t, p, model.n_dp, model.position_levels(), model.pos_sigma, model.gate, gap, h
-    )
-    pq, n2 = run_predictor_orientation(
-        t, q, model.n_do, model.orientation_levels(), model.ori_sigma, model.gate, gap, h
-    )
-    return pp, pq, int(n1 + n2)
-
-
 @dataclass
 class PredictionReport:
     """Prediction errors per predictor and horizon (thesis tables 9.2-9.5).
@@ -83,7 +46,7 @@ class PredictionReport:
     scored_from_s: float
     horizons_ms: tuple[int, ...]
     stats: dict
-    model: PredictionModel
+    predictor: KalmanPredictor
     n_samples: int
     n_gaps: int
     gap_s: float
@@ -98,7 +61,7 @@ class PredictionReport:
                 name: {str(h): s.as_dict() for h, s in per.items()}
                 for name, per in self.stats.items()
             },
-            "motion_model": self.model.as_dict(),
+            "motion_model": self.predictor.as_dict(),
             "n_samples": self.n_samples,
             "n_gaps": self.n_gaps,
             "gap_s": self.gap_s,
@@ -133,7 +96,7 @@ def evaluate_predictors(
     t,
     position,
     quaternion,
-    model: PredictionModel,
+    predictor: KalmanPredictor,
     horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     scored_from: float | None = None,
     gap_s: float | None = None,
@@ -144,13 +107,14 @@ def evaluate_predictors(
     ``t[k] + h`` from samples ``0..k``; the target is the recording interpolated there (linear
     position, slerp orientation). Samples whose window ``[t[k-1], t[k] + h]`` contains a gap
     longer than ``gap_s`` are skipped (``n`` in the result says how many were scored). The
-    Kalman filter runs over the whole recording so it is warmed up when scoring starts.
+    Kalman filter (:func:`trackflow.filters.run_filter` configured by ``predictor``) runs over
+    the whole recording, so it is warmed up when scoring starts, and restarts after gaps.
 
     Parameters
     ----------
     t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
         The recording ``T_a_b``: times [s], positions [m], quaternions ``(x, y, z, w)``.
-    model : PredictionModel
+    predictor : KalmanPredictor
     horizons : sequence of float
         Horizons [s]; reported in whole milliseconds.
     scored_from : float, optional
@@ -168,7 +132,7 @@ def evaluate_predictors(
         raise ValueError(f"horizons must be positive seconds, got {h.tolist()}")
     gap = default_gap(t) if gap_s is None else float(gap_s)
     start = float(t[0]) if scored_from is None else float(scored_from)
-    kp, kq, n_gated = predict_kalman(t, p, q, model, h, gap)
+    kp, kq, n_gated = predict_kalman(t, p, q, predictor, h, max_gap=gap)
     h_ms = tuple(int(round(v * 1e3)) for v in h)
     stats: dict[str, dict[int, ErrorStats]] = {name: {} for name in PREDICTORS}
     for i, (hs, hm) in enumerate(zip(h, h_ms)):
@@ -186,7 +150,7 @@ def evaluate_predictors(
         scored_from_s=start,
         horizons_ms=h_ms,
         stats=stats,
-        model=model,
+        predictor=predictor,
         n_samples=int(t.shape[0]),
         n_gaps=int(np.count_nonzero(np.diff(t) > gap)),
         gap_s=gap,

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..filters import PoseKalmanFilter
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ._predictor import KalmanPredictor, default_predictor
 from ._targets import default_gap
 
 __all__ = ["stream_info", "shift_stream", "scale_covariance", "invert_stream", "infer_streams"]
@@ -83,31 +85,92 @@ def invert_stream(stream: PoseStream) -> PoseStream:
                                  stream.confidence, stream.flags)  # fmt: skip
 
 
-def infer_streams(a: PoseStream, b: PoseStream) -> PoseStream:
-    """Chain ``T_x_y`` (``a``) and ``T_y_z`` (``b``) into ``T_x_z`` at ``a``'s timestamps.
+def infer_streams(
+    a: PoseStream,
+    b: PoseStream,
+    method: str = "filter",
+    predictor_a: KalmanPredictor | None = None,
+    predictor_b: KalmanPredictor | None = None,
+) -> PoseStream:
+    """Chain ``T_x_y`` (``a``) and ``T_y_z`` (``b``) into ``T_x_z``, time-aligned.
 
-    ``b`` is interpolated to each time of ``a`` (linear position, slerp, covariances
-    interpolated to first order); samples of ``a`` outside ``b``'s time span or inside a gap of
-    ``b`` are dropped. Covariances compose to first order,
-    ``C = J_a C_a J_a^T + J_b C_b J_b^T`` (errors ``t_true = t + dt``, ``R_true = R Exp(dtheta)``);
-    a missing covariance counts as zero.
+    ``method="filter"`` (default): each recording runs through a pose Kalman filter
+    (:class:`trackflow.filters.PoseKalmanFilter` keeping its whole history; motion model and
+    measurement noise from ``predictor_a`` / ``predictor_b``, default
+    :func:`default_predictor` of that recording; a recording's own covariances are used when it
+    has them). Both filters are queried at the union of the two recordings' timestamps inside
+    their common time span: a query between two stored states is smoothed (one
+    Rauch-Tung-Striebel step between the filtered states around it), so each relation is
+    estimated at the other's times from its measurements before and after.
+    ``method="interpolate"``: ``b`` is interpolated to ``a``'s times (linear position, slerp,
+    covariances interpolated) and ``a`` is taken as measured.
+
+    Query times inside a gap (interval longer than :func:`default_gap`) of either recording
+    are dropped. Covariances compose to first order, ``C = J_a C_a J_a^T + J_b C_b J_b^T`` (the
+    two recordings independent; errors ``t_true = t + dt``, ``R_true = R Exp(dtheta)``); with
+    ``"interpolate"`` a missing covariance counts as zero.
+
+    Returns
+    -------
+    PoseStream
+        ``T_x_z`` with covariances.
     """
     if a.target != b.source:
         raise ValueError(
             f"cannot chain T_{a.source}_{a.target} with T_{b.source}_{b.target}: "
             f"{a.target!r} != {b.source!r}"
         )
-    if len(b) < 2:
-        raise ValueError("the second recording needs at least two samples")
-    tb = b.t_ns
-    ta = a.t_ns
-    keep = (ta >= tb[0]) & (tb[-1] >= ta)
-    j = np.clip(np.searchsorted(tb, ta, side="right") - 1, 0, len(b) - 2)
-    tbs = (tb - tb[0]).astype(float) * 1e-9
-    gap = default_gap(tbs) if len(b) > 2 else np.inf
-    keep &= (tb[j + 1] - tb[j]).astype(float) * 1e-9 <= gap
+    if len(a) < 4 or len(b) < 4:
+        raise ValueError("each recording needs at least four samples")
+    if method == "interpolate":
+        return _infer_interpolated(a, b)
+    if method != "filter":
+        raise ValueError(f"unknown method {method!r}; use 'filter' or 'interpolate'")
+    t0 = min(int(a.t_ns[0]), int(b.t_ns[0]))
+    tq = np.union1d(a.t_ns, b.t_ns)
+    keep = _inside(tq, a.t_ns) & _inside(tq, b.t_ns)
     if not np.any(keep):
         raise ValueError("the recordings do not overlap in time")
+    tq = tq[keep]
+    ts = (tq - t0).astype(float) * 1e-9
+    ua = _filtered_at(a, predictor_a, t0, ts)
+    ub = _filtered_at(b, predictor_b, t0, ts)
+    return PoseStream.from_poses(a.source, b.target, tq, ua.compose(ub))
+
+
+def _inside(tq: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Query times (ns) within ``t``'s span and not inside one of its gaps."""
+    ts = (t - t[0]).astype(float) * 1e-9
+    gap = default_gap(ts)
+    j = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 2)
+    return (tq >= t[0]) & (tq <= t[-1]) & ((t[j + 1] - t[j]).astype(float) * 1e-9 <= gap)
+
+
+def _filtered_at(s: PoseStream, predictor, t0: int, ts: np.ndarray) -> UncertainPose:
+    """Run ``s`` through a pose Kalman filter and query it (smoothed) at ``ts`` [s from t0]."""
+    t = (s.t_ns - t0).astype(float) * 1e-9
+    p, q = np.asarray(s.position, float), np.asarray(s.quaternion, float)
+    pred = predictor if predictor is not None else default_predictor(t, p, q)
+    meas = s.uncertain_poses if s.covariance is not None else pred.measurements(p, q)
+    kf = PoseKalmanFilter(
+        pred.model, history=float(t[-1] - t[0]) + 1.0, gate_probability=pred.gate_probability
+    )
+    for k in range(len(t)):
+        kf.update_pose(float(t[k]), meas[k])
+    out = [kf.predict(float(v)) for v in ts]
+    return UncertainPose(
+        Pose(np.stack([u.position for u in out]), np.stack([u.quaternion for u in out])),
+        np.stack([u.covariance for u in out]),
+    )
+
+
+def _infer_interpolated(a: PoseStream, b: PoseStream) -> PoseStream:
+    tb = b.t_ns
+    ta = a.t_ns
+    keep = _inside(ta, tb)
+    if not np.any(keep):
+        raise ValueError("the recordings do not overlap in time")
+    j = np.clip(np.searchsorted(tb, ta, side="right") - 1, 0, len(b) - 2)
     j, tak = j[keep], ta[keep]
     s = (tak - tb[j]).astype(float) / (tb[j + 1] - tb[j]).astype(float)
     ub = _uncertain(b)

@@ -3,37 +3,41 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from typing import TextIO
 
 import numpy as np
 from scipy.optimize import minimize
 
+from ..filters import MotionModel
 from ..math import quat_angle
 from ._baselines import predict_linear
 from ._evaluate import PredictionReport, _as_arrays, evaluate_predictors
-from ._kalman import run_predictor_orientation, run_predictor_position
-from ._model import PredictionModel, estimate_noise
+from ._predictor import KalmanPredictor, default_predictor
 from ._targets import default_gap, interpolate_poses, scored_mask
 
-__all__ = ["TuneResult", "default_model", "tune_model", "evaluate_recording"]
+__all__ = ["TuneResult", "tune_model", "evaluate_recording"]
 
-_BOUNDS = (-10.0, 5.0)  # log10 of noise densities
+_BOUNDS = (-9.0, 5.0)  # log10 of the white-noise densities
+_GRID = (-0.5, 1.5, 3.5)  # log10 starting values tried for the highest derivative
 
 
 @dataclass(frozen=True)
 class TuneResult:
-    """Outcome of :func:`tune_model`: the model and how the search went.
+    """Outcome of :func:`tune_model`: the chosen filter and how the search went.
 
-    ``cost_position`` / ``cost_orientation`` are the robust prediction costs relative to
-    linear extrapolation on the tuning data (1.0 = as good as linear extrapolation).
+    ``cost_position`` / ``cost_orientation`` are the robust prediction costs of the chosen
+    derivative counts (mean of the search and held-out costs), relative to linear
+    extrapolation (1.0 = as good as linear extrapolation). ``candidates`` lists every derivative
+    count tried with its search and held-out costs.
     """
 
-    model: PredictionModel
+    predictor: KalmanPredictor
     cost_position: float
     cost_orientation: float
     n_evaluations: int
     seconds: float
+    candidates: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {
@@ -41,20 +45,8 @@ class TuneResult:
             "cost_orientation": self.cost_orientation,
             "n_evaluations": self.n_evaluations,
             "seconds": self.seconds,
+            "candidates": self.candidates,
         }
-
-
-def default_model(t, position, quaternion) -> PredictionModel:
-    """Untuned starting model: measurement noise estimated from the data, generic dynamics.
-
-    Position: constant acceleration with white jerk of 30 m/s^3/sqrt(s); orientation: constant
-    angular velocity with white angular acceleration of 30 rad/s^2/sqrt(s) (fast hand motion).
-    """
-    ps, os_ = estimate_noise(t, position, quaternion)
-    return PredictionModel(
-        n_dp=2, n_do=1, pos_noise=ps, pos_top_noise=30.0, ori_noise=os_, ori_top_noise=30.0,
-        pos_sigma=ps, ori_sigma=os_,
-    )  # fmt: skip
 
 
 def _huber(e: np.ndarray, c: float) -> np.ndarray:
@@ -96,22 +88,31 @@ def tune_model(
     position,
     quaternion,
     horizons=(0.05, 0.1),
-    derivatives=(1, 2),
-    start: PredictionModel | None = None,
+    pos_derivatives=(1, 2, 3),
+    ori_derivatives=(1, 2),
+    start: KalmanPredictor | None = None,
     gap_s: float | None = None,
-    max_evaluations: int = 120,
+    holdout: float = 0.25,
+    max_evaluations: int = 40,
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
 
-    Position and orientation are tuned separately (thesis 9.2.1), each over the derivative
-    counts in ``derivatives``; for each, Powell's method searches the log10 of the two noise
-    densities (value level and highest derivative) from ``start`` (default
-    :func:`default_model`). The cost is, summed over ``horizons``, the mean Huber loss of the
-    prediction error divided by that of linear extrapolation; the Huber threshold is three
-    times the median linear-extrapolation error, so outliers (tracking spikes, the thesis had
-    to delete them by hand) count linearly instead of quadratically. The filter's own gate
-    down-weights isolated outlier measurements.
+    The filter is :func:`trackflow.filters.run_filter` (via :class:`KalmanPredictor`). Its
+    position and orientation parts are independent (block-diagonal noise, see
+    :meth:`KalmanPredictor.part`), so each is tuned on its own, with two parameters: the
+    log10 white-noise densities on the value (level 0) and on the highest derivative. For each
+    candidate derivative count Powell's method (scipy) starts from the best of a coarse grid
+    over the highest-derivative noise and minimises the cost on the first ``1 - holdout`` of
+    the tuning data; the derivative count with the lowest mean of that cost and the cost on
+    the held-out tail wins (more derivatives can fit the search data yet extrapolate noise).
+
+    The cost is, averaged over ``horizons``, the mean Huber loss of the prediction error
+    divided by that of linear extrapolation from the last two samples; the Huber threshold is
+    three times the median linear-extrapolation error, so outliers (tracking spikes, which the
+    thesis removed by hand) count linearly instead of quadratically. Targets across gaps
+    (intervals longer than ``gap_s``) are not scored, and the filter restarts after them; its
+    chi-square gate rejects isolated outlier measurements.
 
     Parameters
     ----------
@@ -119,11 +120,15 @@ def tune_model(
         Tuning data ``T_a_b``: times [s], positions [m], quaternions ``(x, y, z, w)``.
     horizons : sequence of float
         Horizons [s] the cost is taken at.
-    derivatives : sequence of int
-        Candidate derivative counts (0, 1, 2) for both parts.
-    start : PredictionModel, optional
+    pos_derivatives, ori_derivatives : sequence of int
+        Candidate derivative counts (>= 0) of the two parts.
+    start : KalmanPredictor, optional
+        Measurement noise and gate to keep (default :func:`default_predictor`).
     gap_s : float, optional
         Default :func:`default_gap`.
+    holdout : float in [0, 0.5]
+        Fraction of the tuning duration (at its end) used only to choose the derivative counts;
+        0 chooses on the search cost.
     max_evaluations : int
         Powell evaluation budget per part and derivative count.
     progress : text stream, optional
@@ -135,79 +140,105 @@ def tune_model(
     """
     t, p, q = _as_arrays(t, position, quaternion)
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
+    if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
+        raise ValueError(f"horizons must be positive seconds, got {h.tolist()}")
+    if not 0.0 <= holdout <= 0.5:
+        raise ValueError(f"holdout must be in [0, 0.5], got {holdout}")
     gap = default_gap(t) if gap_s is None else float(gap_s)
-    model = start if start is not None else default_model(t, p, q)
-    derivs = tuple(int(d) for d in derivatives)
-    if not derivs or any(d not in (0, 1, 2) for d in derivs):
-        raise ValueError(f"derivatives must be a non-empty subset of (0, 1, 2), got {derivatives}")
-    masks, tp, tq, base_p, base_q, c_p, c_q = [], [], [], [], [], [], []
+    base = start if start is not None else default_predictor(t, p, q)
+    cands = {
+        "position": tuple(int(d) for d in pos_derivatives),
+        "orientation": tuple(int(d) for d in ori_derivatives),
+    }
+    for part, ds in cands.items():
+        if not ds or any(d < 0 for d in ds):
+            raise ValueError(f"{part} derivative counts must be >= 0, got {ds}")
+    meas = base.measurements(p, q)
+    t_hold = float(t[0] + (1.0 - holdout) * (t[-1] - t[0])) if holdout > 0 else np.inf
+    # per part and horizon: (search mask, hold mask, target, Huber threshold, linear costs)
+    targets = {"position": [], "orientation": []}
     for hs in h:
         m = scored_mask(t, hs, gap)
-        if np.count_nonzero(m) < 10:
+        search, hold = m & (t < t_hold), m & (t >= t_hold)
+        if np.count_nonzero(search) < 10:
             raise ValueError(f"too few scorable samples for horizon {hs} s in the tuning data")
         ip, iq = interpolate_poses(t, p, q, t + hs)
         lp, lq = predict_linear(t, p, q, hs)
-        ep = np.linalg.norm(lp[m] - ip[m], axis=1)
-        eq = quat_angle(lq[m], iq[m])
-        cp, cq = 3.0 * np.median(ep) + 1e-12, 3.0 * np.median(eq) + 1e-12
-        masks.append(m)
-        tp.append(ip[m])
-        tq.append(iq[m])
-        c_p.append(cp)
-        c_q.append(cq)
-        base_p.append(np.mean(_huber(ep, cp)) + 1e-300)
-        base_q.append(np.mean(_huber(eq, cq)) + 1e-300)
+        for part, err, tgt in (
+            ("position", np.linalg.norm(lp - ip, axis=1), ip),
+            ("orientation", quat_angle(lq, iq), iq),
+        ):
+            c = 3.0 * float(np.median(err[search])) + 1e-12
+            lin = [np.mean(_huber(err[s], c)) + 1e-300 if np.any(s) else np.nan
+                   for s in (search, hold)]  # fmt: skip
+            targets[part].append((search, hold, tgt, c, lin))
+    n_hold = min(int(np.count_nonzero(tg[1])) for tg in targets["position"])
 
-    bar = _Progress(progress, total=2 * len(derivs) * max_evaluations)
+    total = sum(len(ds) for ds in cands.values()) * (max_evaluations + len(_GRID))
+    bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
 
-    def cost_pos(lx, nd):
-        lv = np.zeros(nd + 1)
-        lv[0] += 10.0 ** lx[0]
-        lv[nd] += 10.0 ** lx[1]
-        pred, _ = run_predictor_position(t, p, nd, lv, model.pos_sigma, model.gate, gap, h)
-        c = 0.0
-        for i in range(h.size):
-            e = np.linalg.norm(pred[i][masks[i]] - tp[i], axis=1)
-            c += np.mean(_huber(e, c_p[i])) / base_p[i]
-        c /= h.size
-        bar.step(c)
-        return c if np.isfinite(c) else 1e6
+    def levels(lx, nd):
+        v = np.zeros(nd + 1)
+        v[0] += 10.0 ** lx[0]
+        v[nd] += 10.0 ** lx[1]
+        return v
 
-    def cost_ori(lx, nd):
-        lv = np.zeros(nd + 1)
-        lv[0] += 10.0 ** lx[0]
-        lv[nd] += 10.0 ** lx[1]
-        pred, _ = run_predictor_orientation(t, q, nd, lv, model.ori_sigma, model.gate, gap, h)
-        c = 0.0
-        for i in range(h.size):
-            e = quat_angle(pred[i][masks[i]], tq[i])
-            c += np.mean(_huber(e, c_q[i])) / base_q[i]
-        c /= h.size
-        bar.step(c)
-        return c if np.isfinite(c) else 1e6
+    def run_part(part, lx, nd):
+        if part == "position":
+            model = MotionModel(nd, -1, levels(lx, nd), kind=base.model.kind)
+        else:
+            model = MotionModel(-1, nd, levels(lx, nd), kind=base.model.kind)
+        # no gate during the search: the cost stays smooth in the parameters
+        res = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, None).run(
+            t, meas, h, max_gap=gap
+        )
+        costs = np.zeros(2)
+        for i, (search, hold, tgt, c, lin) in enumerate(targets[part]):
+            pk = res.predictions[float(h[i])]
+            for j, s in enumerate((search, hold)):
+                if not np.any(s):
+                    continue
+                if part == "position":
+                    e = np.linalg.norm(pk.position[s] - tgt[s], axis=1)
+                else:
+                    e = quat_angle(pk.quaternion[s], tgt[s])
+                costs[j] += np.mean(_huber(e, c)) / lin[j]
+        costs /= h.size
+        costs[~np.isfinite(costs)] = 1e6
+        bar.step(costs[0])
+        return costs
 
-    best = {}
-    for part, fun, sigma in (
-        ("position", cost_pos, model.pos_sigma),
-        ("orientation", cost_ori, model.ori_sigma),
-    ):
-        for nd in derivs:
+    best, summary = {}, {}
+    for part, ds in cands.items():
+        sigma = base.pos_sigma if part == "position" else base.ori_sigma
+        summary[part] = {}
+        for nd in ds:
             bar.start(f"{part} ({nd} deriv.)")
-            x0 = np.log10([max(sigma, 1e-9), 30.0 if nd == 2 else (1.0 if nd == 1 else 1e-2)])
-            res = minimize(
-                fun, x0, args=(nd,), method="Powell", bounds=[_BOUNDS, _BOUNDS],
-                options={"xtol": 1e-2, "ftol": 1e-3, "maxfev": max_evaluations},
-            )  # fmt: skip
-            if part not in best or res.fun < best[part][0]:
-                best[part] = (float(res.fun), nd, 10.0**res.x)
+            lx0 = np.log10(max(sigma, 1e-9)) - 1.0
+            opts = {"xtol": 0.05, "ftol": 3e-3, "maxfev": max_evaluations}
+            if nd == 0:  # one level: one parameter (a random walk of the value)
+                res = minimize(lambda z, part=part: run_part(part, (_BOUNDS[0], z[0]), 0)[0],
+                               [lx0], method="Powell", bounds=[_BOUNDS], options=opts)  # fmt: skip
+                x = np.array([_BOUNDS[0], res.x[0]])
+            else:
+                grid = [run_part(part, (lx0, g), nd)[0] for g in _GRID]
+                x0 = np.array([lx0, _GRID[int(np.argmin(grid))]])
+                res = minimize(lambda z, nd=nd, part=part: run_part(part, z, nd)[0], x0,
+                               method="Powell", bounds=[_BOUNDS] * 2, options=opts)  # fmt: skip
+                x = np.asarray(res.x, dtype=float)
+            c_search, c_hold = run_part(part, x, nd)
+            # the tail alone is short and noisy: choose on the mean of both costs
+            choose = 0.5 * (c_search + c_hold) if n_hold >= 10 else c_search
+            summary[part][str(nd)] = {"search_cost": float(c_search), "holdout_cost": float(c_hold),
+                                      "noise": levels(x, nd).tolist()}  # fmt: skip
+            if part not in best or choose < best[part][0]:
+                best[part] = (float(choose), nd, levels(x, nd))
     bar.close()
-    (cp_, ndp, xp), (co_, ndo, xo) = best["position"], best["orientation"]
-    tuned = replace(
-        model, n_dp=ndp, pos_noise=float(xp[0]), pos_top_noise=float(xp[1]),
-        n_do=ndo, ori_noise=float(xo[0]), ori_top_noise=float(xo[1]),
-    )  # fmt: skip
-    return TuneResult(tuned, cp_, co_, bar.n, time.perf_counter() - t0)
+    (cp_, ndp, vp), (co_, ndo, vo) = best["position"], best["orientation"]
+    model = MotionModel(ndp, ndo, np.r_[vp, vo], kind=base.model.kind)
+    tuned = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, base.gate_probability)
+    return TuneResult(tuned, cp_, co_, bar.n, time.perf_counter() - t0, summary)
 
 
 def evaluate_recording(
@@ -217,15 +248,15 @@ def evaluate_recording(
     horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     tune_fraction: float = 0.5,
     tune_horizons=(0.05, 0.1),
-    model: PredictionModel | None = None,
+    predictor: KalmanPredictor | None = None,
     progress: TextIO | None = None,
 ) -> PredictionReport:
     """Tune on the first part of a recording and score all predictors on the rest.
 
     The first ``tune_fraction`` of the duration is used by :func:`tune_model`; the prediction
     errors (:func:`evaluate_predictors`) are scored only from there on, so the figures are
-    cross-validated. ``tune_fraction = 0`` skips tuning, uses ``model`` (default
-    :func:`default_model`) and scores the whole recording.
+    cross-validated. ``tune_fraction = 0`` skips tuning, uses ``predictor`` (default
+    :func:`default_predictor`) and scores the whole recording.
 
     Parameters
     ----------
@@ -234,8 +265,9 @@ def evaluate_recording(
     horizons, tune_horizons : sequence of float
         Scored and tuned horizons [s].
     tune_fraction : float in [0, 1)
-    model : PredictionModel, optional
-        Starting (or, without tuning, the evaluated) model.
+    predictor : KalmanPredictor, optional
+        Starting point of the tuning (its measurement noise and gate are kept), or, without
+        tuning, the evaluated filter.
     progress : text stream, optional
 
     Returns
@@ -248,15 +280,16 @@ def evaluate_recording(
         raise ValueError(f"tune_fraction must be in [0, 1), got {tune_fraction}")
     gap = default_gap(t)
     if tune_fraction == 0.0:
-        m = model if model is not None else default_model(t, p, q)
+        m = predictor if predictor is not None else default_predictor(t, p, q)
         return evaluate_predictors(t, p, q, m, horizons, None, gap)
     split = float(t[0] + tune_fraction * (t[-1] - t[0]))
     train = t <= split
     if np.count_nonzero(train) < 20 or np.count_nonzero(~train) < 20:
         raise ValueError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
     res = tune_model(
-        t[train], p[train], q[train], tune_horizons, start=model, gap_s=gap, progress=progress
-    )
-    report = evaluate_predictors(t, p, q, res.model, horizons, split, gap)
+        t[train], p[train], q[train], tune_horizons, start=predictor, gap_s=gap,
+        progress=progress,
+    )  # fmt: skip
+    report = evaluate_predictors(t, p, q, res.predictor, horizons, split, gap)
     report.tuning = res.as_dict()
     return report

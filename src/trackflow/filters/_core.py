@@ -54,6 +54,15 @@ KERNELS = (
     "smooth",
     "step",
     "run",
+    "qmul_into",
+    "qexp_into",
+    "mean_transition_into",
+    "level_noise_into",
+    "predict_cov_into",
+    "update_into",
+    "update_scratch",
+    "pose_mean_into",
+    "run_means",
 )
 
 SMALL = 1e-4
@@ -964,3 +973,415 @@ def run(
                 pred_t[h, i] = out_t[i]
                 pred_q[h, i] = out_q[i]
                 pred_c[h, i] = out_c[i]
+
+
+# -- fast path: error-state offline run without covariance output ------------------------------
+#
+# The functions below compute exactly what :func:`run` computes for ``additive = 0`` (same
+# formulas, same order of operations up to floating-point rounding) but write into scratch
+# buffers allocated once per run and only output the means. They make a whole-recording run
+# cheap enough for parameter searches (``trackflow.evaluation.tune_model``).
+
+
+def qmul_into(a, b, out):
+    """``out = a * b`` (Hamilton, ``(x, y, z, w)``); ``out`` must not alias ``a`` or ``b``."""
+    out[0] = a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1]
+    out[1] = a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0]
+    out[2] = a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3]
+    out[3] = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]
+
+
+def qexp_into(v, out):
+    """``out = Exp(v)`` as :func:`qexp`."""
+    t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if t2 < SMALL * SMALL:
+        k = 0.5 - t2 / 48.0
+        out[3] = 1.0 - t2 / 8.0 + t2 * t2 / 384.0
+    else:
+        t = math.sqrt(t2)
+        k = math.sin(0.5 * t) / t
+        out[3] = math.cos(0.5 * t)
+    out[0] = k * v[0]
+    out[1] = k * v[1]
+    out[2] = k * v[2]
+
+
+def mean_transition_into(x, dt, n_dp, n_do, out, cf, b, d):
+    """``out`` = nominal part of :func:`transition` (error state); returns nothing.
+
+    ``cf`` (>= max levels + 1), ``b`` (3) and ``d`` (4) are scratch; ``d`` holds ``Exp(b)``
+    and ``b`` the rotation increment afterwards.
+    """
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    cf[0] = 1.0
+    for i in range(1, cf.shape[0]):
+        cf[i] = cf[i - 1] * dt / i
+    for i in range(npl):
+        for k in range(3):
+            v = 0.0
+            for j in range(i, npl):
+                v += cf[j - i] * x[3 * j + k]
+            out[3 * i + k] = v
+    if n_do < 0:
+        return
+    qo = 3 * npl
+    b[0] = 0.0
+    b[1] = 0.0
+    b[2] = 0.0
+    for lv in range(1, n_do + 1):
+        c = cf[lv]
+        for k in range(3):
+            b[k] += c * x[qo + 4 + 3 * (lv - 1) + k]
+    qexp_into(b, d)
+    qmul_into(x[qo : qo + 4], d, out[qo : qo + 4])
+    for lv in range(1, n_do + 1):
+        for k in range(3):
+            v = 0.0
+            for j in range(lv, n_do + 1):
+                v += cf[j - lv] * x[qo + 4 + 3 * (j - 1) + k]
+            out[qo + 4 + 3 * (lv - 1) + k] = v
+
+
+def level_noise_into(n, sig, dt, kind, m):
+    """:func:`level_noise` written into ``m`` (at least ``n x n``)."""
+    for i in range(n):
+        for j in range(n):
+            m[i, j] = 0.0
+    if kind == 1:
+        for i in range(n):
+            m[i, i] = (sig[i] * dt) ** 2
+        return
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for lvl in range(max(i, j), n):
+                e = 2 * lvl - i - j + 1
+                s += sig[lvl] ** 2 * dt**e / (fact(lvl - i) * fact(lvl - j) * e)
+            m[i, j] = s
+
+
+def predict_cov_into(p, dt, n_dp, n_do, kind, sig_p, sig_o, cf, b, d, a, qm, lv, tmp, out):
+    """``p <- A P A^T + Q`` of :func:`predict` (error state) in place.
+
+    Needs ``cf``, ``b`` and ``d`` as left by :func:`mean_transition_into` for the same ``dt``
+    and state; ``a``, ``qm``, ``tmp``, ``out`` (nc x nc) and ``lv`` (levels x levels) are scratch.
+    """
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    nol = n_do + 1 if n_do >= 0 else 0
+    nc = p.shape[0]
+    for i in range(nc):
+        for j in range(nc):
+            a[i, j] = 0.0
+            qm[i, j] = 0.0
+    for i in range(npl):
+        for j in range(i, npl):
+            c = cf[j - i]
+            for k in range(3):
+                a[3 * i + k, 3 * j + k] = c
+    if npl > 0:
+        level_noise_into(npl, sig_p, dt, kind, lv)
+        for i in range(npl):
+            for j in range(npl):
+                for k in range(3):
+                    qm[3 * i + k, 3 * j + k] = lv[i, j]
+    if nol > 0:
+        qo = 3 * npl
+        r = rotmat(d)
+        jr = right_jac(b)
+        for i in range(3):
+            for j in range(3):
+                a[qo + i, qo + j] = r[j, i]
+        for lvl in range(1, nol):
+            c = cf[lvl]
+            for i in range(3):
+                for j in range(3):
+                    a[qo + i, qo + 3 * lvl + j] = c * jr[i, j]
+            for j in range(lvl, nol):
+                c = cf[j - lvl]
+                for k in range(3):
+                    a[qo + 3 * lvl + k, qo + 3 * j + k] = c
+        level_noise_into(nol, sig_o, dt, kind, lv)
+        for i in range(nol):
+            for j in range(nol):
+                for k in range(3):
+                    qm[qo + 3 * i + k, qo + 3 * j + k] = lv[i, j]
+    # the arithmetic of :func:`sandwich`
+    for i in range(nc):
+        for j in range(nc):
+            tmp[i, j] = 0.0
+            out[i, j] = 0.0
+    for i in range(nc):
+        for k in range(nc):
+            v = a[i, k]
+            if v != 0.0:
+                for j in range(nc):
+                    tmp[i, j] += v * p[k, j]
+    for j in range(nc):
+        for k in range(nc):
+            v = a[j, k]
+            if v != 0.0:
+                for i in range(j + 1):
+                    out[i, j] += tmp[i, k] * v
+    for j in range(nc):
+        for i in range(j + 1):
+            w = out[i, j] + 0.5 * (qm[i, j] + qm[j, i])
+            if abs(w) < TINY:
+                w = 0.0
+            p[i, j] = w
+            p[j, i] = w
+
+
+def update_into(x, p, y, r, idx, gate, n_dp, n_do, wmax, ws):
+    """:func:`update` for a selection ``H`` (rows ``idx`` of the error state), in place.
+
+    ``ws`` is a tuple of scratch arrays from :func:`update_scratch`. Returns ``(status, nis)``.
+    """
+    hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
+    nc = p.shape[0]
+    m = y.shape[0]
+    for a_ in range(m):
+        for j in range(nc):
+            hp[a_, j] = p[idx[a_], j]
+    for a_ in range(m):
+        for b_ in range(m):
+            s[a_, b_] = 0.5 * (hp[a_, idx[b_]] + hp[b_, idx[a_]]) + 0.5 * (r[a_, b_] + r[b_, a_])
+    for i in range(m):
+        for j in range(m):
+            lo[i, j] = 0.0
+    for j in range(m):  # the arithmetic of :func:`chol`
+        dd = s[j, j]
+        for k in range(j):
+            dd -= lo[j, k] * lo[j, k]
+        if not dd > 0.0:
+            return DIVERGED, np.nan
+        lo[j, j] = math.sqrt(dd)
+        for i in range(j + 1, m):
+            v = s[i, j]
+            for k in range(j):
+                v -= lo[i, k] * lo[j, k]
+            lo[i, j] = v / lo[j, j]
+    for i in range(m):
+        sy[i, 0] = y[i]
+    chol_solve_rows(lo, sy)
+    nis = 0.0
+    for i in range(m):
+        nis += y[i] * sy[i, 0]
+    if not np.isfinite(nis):
+        return DIVERGED, nis
+    if nis > gate:
+        return GATED, nis
+    for a_ in range(m):
+        for j in range(nc):
+            kt[a_, j] = hp[a_, j]
+    chol_solve_rows(lo, kt)
+    for i in range(nc):
+        delta[i] = 0.0
+    for a_ in range(m):
+        for i in range(nc):
+            delta[i] += kt[a_, i] * y[a_]
+    for i in range(nc):
+        for b_ in range(m):
+            kr[i, b_] = 0.0
+    for i in range(nc):
+        for a_ in range(m):
+            for b_ in range(m):
+                kr[i, b_] += kt[a_, i] * r[a_, b_]
+    # Joseph form, as in :func:`update`: (I - K H) P (I - K H)^T + K R K^T keeps P symmetric
+    # positive definite even when K is not exactly optimal (rounding, gating, clipped rates).
+    for i in range(nc):
+        for j in range(nc):
+            mp[i, j] = p[i, j]
+    for i in range(nc):
+        for a_ in range(m):
+            ka = kt[a_, i]
+            for j in range(nc):
+                mp[i, j] -= ka * hp[a_, j]
+    for i in range(nc):
+        for a_ in range(m):
+            g[a_] = kr[i, a_] - mp[i, idx[a_]]
+        for j in range(nc):
+            acc[j] = mp[i, j]
+        for a_ in range(m):
+            ga = g[a_]
+            for j in range(nc):
+                acc[j] += ga * kt[a_, j]
+        for j in range(i, nc):
+            w = acc[j]
+            if abs(w) < TINY:
+                w = 0.0
+            p[i, j] = w
+            p[j, i] = w
+    # inject (error state): t += dt, q <- q Exp(dtheta), rates += d; normalise, clip |w|
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    qo = 3 * npl
+    nx = x.shape[0]
+    for i in range(qo):
+        x[i] += delta[i]
+    if n_do >= 0:
+        qexp_into(delta[qo : qo + 3], d4)
+        for k in range(4):
+            q4[k] = x[qo + k]
+        qmul_into(q4, d4, x[qo : qo + 4])
+        for i in range(qo + 4, nx):
+            x[i] += delta[i - 1]
+        nq = math.sqrt(x[qo] ** 2 + x[qo + 1] ** 2 + x[qo + 2] ** 2 + x[qo + 3] ** 2)
+        for k in range(4):
+            x[qo + k] /= nq
+        if n_do >= 1 and wmax > 0.0:
+            wn = math.sqrt(x[qo + 4] ** 2 + x[qo + 5] ** 2 + x[qo + 6] ** 2)
+            if wn > wmax:
+                for k in range(3):
+                    x[qo + 4 + k] *= wmax / wn
+    for i in range(nc):
+        if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
+            return DIVERGED, nis
+    for i in range(nx):
+        if not np.isfinite(x[i]):
+            return DIVERGED, nis
+    return ACCEPTED, nis
+
+
+def update_scratch(m, nc):
+    """Scratch arrays for :func:`update_into` (``m`` measured rows, ``nc`` error size)."""
+    return (
+        np.empty((m, nc)), np.empty((m, m)), np.empty((m, m)), np.empty((m, 1)),
+        np.empty((m, nc)), np.empty((nc, m)), np.empty(nc), np.empty(m), np.empty(nc),
+        np.empty((nc, nc)), np.empty(4), np.empty(4),
+    )  # fmt: skip
+
+
+def pose_mean_into(x, n_dp, n_do, pos, quat):
+    """Pose part of a nominal state (error state) into ``pos`` (3) and ``quat`` (4)."""
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    for k in range(3):
+        pos[k] = x[k] if npl > 0 else 0.0
+    if n_do >= 0:
+        for k in range(4):
+            quat[k] = x[3 * npl + k]
+    else:
+        quat[0], quat[1], quat[2], quat[3] = 0.0, 0.0, 0.0, 1.0
+
+
+def run_means(
+    times, pos, quat, cov, horizons, x, p, n_dp, n_do, kind, sig_p, sig_o,
+    gate, wmax, reset_after, out_t, out_q, pred_t, pred_q, nis, status,
+):  # fmt: skip
+    """:func:`run` for the error-state formulation, means only (no covariance output).
+
+    The filter is the same (same predictions, gating, resets and statuses); only the pose
+    covariances are not written, and the loop allocates nothing per measurement. About ten
+    times faster than :func:`run`, which makes parameter searches over whole recordings cheap.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, 0)
+    qo = 3 * npl
+    lp = 0 if n_dp >= 0 else -1
+    lo = 0 if n_do >= 0 else -1
+    m = (3 if lp >= 0 else 0) + (3 if lo >= 0 else 0)
+    roff = 0 if lp >= 0 else 3  # first row/column of the measured block in cov[i]
+    idx = np.empty(m, np.int64)
+    c = 0
+    if lp >= 0:
+        for k in range(3):
+            idx[c] = k
+            c += 1
+    if lo >= 0:
+        for k in range(3):
+            idx[c] = qo + k
+            c += 1
+    x0 = x.copy()
+    p0 = p.copy()
+    nlev = max(npl, nol)
+    cf = np.empty(nlev + 1)
+    b = np.empty(3)
+    d = np.empty(4)
+    a = np.empty((nc, nc))
+    qm = np.empty((nc, nc))
+    tmp = np.empty((nc, nc))
+    out = np.empty((nc, nc))
+    lv = np.empty((nlev, nlev))
+    xn = np.empty(nx)
+    r = np.empty((m, m))
+    y = np.empty(m)
+    qc = np.empty(4)
+    e4 = np.empty(4)
+    ws = update_scratch(m, nc)
+    initialized = False
+    t_state = 0.0
+    gated_run = 0
+    n = times.shape[0]
+    for i in range(n):
+        zp = pos[i]
+        zo = quat[i]
+        valid = True
+        for k in range(3):
+            if not np.isfinite(zp[k]):
+                valid = False
+        for k in range(4):
+            if not np.isfinite(zo[k]):
+                valid = False
+        for k in range(6):
+            for j in range(6):
+                if not np.isfinite(cov[i, k, j]):
+                    valid = False
+        for k in range(m):
+            for j in range(m):
+                r[k, j] = cov[i, roff + k, roff + j]
+        if not valid:
+            status[i] = INVALID
+            if initialized:
+                mean_transition_into(x, times[i] - t_state, n_dp, n_do, xn, cf, b, d)
+                pose_mean_into(xn, n_dp, n_do, out_t[i], out_q[i])
+            else:
+                pose_mean_into(x, n_dp, n_do, out_t[i], out_q[i])
+        elif not initialized or gated_run >= reset_after:
+            status[i] = RESET if initialized else INITIALIZED
+            if initialized:
+                x[:] = x0
+                p[:, :] = p0
+            initialize(x, p, n_dp, n_do, 0, lp, lo, zp, zo, r)
+            t_state = times[i]
+            initialized = True
+            gated_run = 0
+            nis[i] = np.nan
+            pose_mean_into(x, n_dp, n_do, out_t[i], out_q[i])
+        else:
+            dt = times[i] - t_state
+            mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
+            predict_cov_into(p, dt, n_dp, n_do, kind, sig_p, sig_o, cf, b, d, a, qm, lv, tmp, out)
+            x[:] = xn
+            # residual of :func:`residual` (error state): position, then Log(q^* z_q)
+            c = 0
+            if lp >= 0:
+                for k in range(3):
+                    y[k] = zp[k] - x[k]
+                c = 3
+            if lo >= 0:
+                qc[0], qc[1], qc[2], qc[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
+                qmul_into(qc, zo, e4)
+                ev = qlog(e4)
+                for k in range(3):
+                    y[c + k] = ev[k]
+            st, v = update_into(x, p, y, r, idx, gate, n_dp, n_do, wmax, ws)
+            t_state = times[i]
+            status[i] = st
+            nis[i] = v
+            if st == GATED:
+                gated_run += 1
+            elif st == DIVERGED:
+                x[:] = x0
+                p[:, :] = p0
+                initialize(x, p, n_dp, n_do, 0, lp, lo, zp, zo, r)
+                gated_run = 0
+            else:
+                gated_run = 0
+            pose_mean_into(x, n_dp, n_do, out_t[i], out_q[i])
+        if initialized:
+            for h in range(horizons.shape[0]):
+                mean_transition_into(x, times[i] - t_state + horizons[h], n_dp, n_do, xn, cf, b, d)
+                pose_mean_into(xn, n_dp, n_do, pred_t[h, i], pred_q[h, i])
+        else:
+            for h in range(horizons.shape[0]):
+                for k in range(3):
+                    pred_t[h, i, k] = out_t[i, k]
+                for k in range(4):
+                    pred_q[h, i, k] = out_q[i, k]
