@@ -19,7 +19,7 @@ from ._targets import default_gap, interpolate_poses, scored_mask
 __all__ = ["TuneResult", "tune_model", "evaluate_recording"]
 
 _BOUNDS = (-9.0, 5.0)  # log10 of the white-noise densities
-_GRID = (-0.5, 1.5, 3.5)  # log10 starting values tried for the highest derivative
+_GRID = (-1.0, 0.5, 2.0, 3.5)  # log10 starting values tried for the highest derivative
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ def tune_model(
     start: KalmanPredictor | None = None,
     gap_s: float | None = None,
     holdout: float = 0.25,
-    max_evaluations: int = 40,
+    max_evaluations: int = 50,
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
@@ -216,7 +216,7 @@ def tune_model(
         for nd in ds:
             bar.start(f"{part} ({nd} deriv.)")
             lx0 = np.log10(max(sigma, 1e-9)) - 1.0
-            opts = {"xtol": 0.05, "ftol": 3e-3, "maxfev": max_evaluations}
+            opts = {"xtol": 1e-2, "ftol": 1e-3, "maxfev": max_evaluations}
             if nd == 0:  # one level: one parameter (a random walk of the value)
                 res = minimize(lambda z, part=part: run_part(part, (_BOUNDS[0], z[0]), 0)[0],
                                [lx0], method="Powell", bounds=[_BOUNDS], options=opts)  # fmt: skip
