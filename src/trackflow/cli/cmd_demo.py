@@ -54,9 +54,10 @@ def run(args) -> int:
         f"  the camera made {result['details']['camera_wrong_detections']} wrong detections "
         "(the filters should reject them: 'filter rejected update')"
     )
+    print("  rejections (the kf_* filters serve both aligned and predicted, so appear twice):")
     for label, rej in result["details"]["rejections"].items():
         counts = {f"{c}: {r}": n for c, rs in rej.items() for r, n in rs.items()}
         if counts:
-            print(f"  {label} rejections: " + ", ".join(f"{k} x{n}" for k, n in counts.items()))
+            print(f"    {label}: " + ", ".join(f"{k} x{n}" for k, n in counts.items()))
     print(f"plot written to {result['plot']}")
     return 0
