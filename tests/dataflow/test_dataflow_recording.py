@@ -78,6 +78,10 @@ def test_recorder_counts_times_it_cannot_write(tmp_path):
     assert stream.t_ns.tolist() == [10, 20, 30]
     assert len(rec.events) == 5
     assert rec.stats.rejections == {"not recorded: time not increasing": 2}
+    # after the run, further results are appended, never silently dropped
+    rec.push(Measurement(40, m.pose, m.origin_ns))
+    rec.finish()
+    assert read_native(tmp_path / "r.tfrec")[0].t_ns.tolist() == [10, 20, 30, 40]
 
 
 def test_recorder_needs_frames_for_a_file(tmp_path):
@@ -107,3 +111,42 @@ def test_queries_sharing_a_network_share_the_sensor_filters():
     _equal_arrays(alone["past"], app_past.arrays())
     # every sensor sample reached its filter once
     assert net["kf_art"].stats.events_in == net["art"].stats.events_out
+
+
+_KILLED_RUN = """
+import os, sys
+sys.path.insert(0, {tests!r})
+from _scenario import graph, sensors
+from trackflow.dataflow import plan_query
+from trackflow.graph import Query
+n = 0
+def die(m):
+    global n
+    n += 1
+    if n == 50:
+        os._exit(3)  # a crash: no finally, no close, no flush
+q = Query("A", "M", mode="push", rate_hz=60, time_offset_s=0.0)
+net, app = plan_query(graph(), q).build(sensors(seed=5, end_s=2.0), callback=die, record={path!r})
+net.run()
+"""
+
+
+def test_a_killed_run_leaves_a_readable_recording(tmp_path):
+    """The recorder writes each result as it arrives: a process killed in the middle of a run
+    leaves every result delivered before the kill, identical to a complete run's first ones."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = tmp_path / "killed.tfrec"
+    code = _KILLED_RUN.format(tests=str(Path(__file__).parent), path=str(path))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
+    assert proc.returncode == 3, proc.stderr.decode()
+    stream, _ = read_native(path)
+    assert len(stream) == 49  # the 50th result was being delivered when the process died
+    net, app = plan_query(graph(), QUERY).build(sensors(seed=5, end_s=2.0))
+    net.run()
+    full = app.arrays()
+    np.testing.assert_array_equal(stream.t_ns, full["t_ns"][:49])
+    np.testing.assert_array_equal(stream.position, full["position"][:49])
+    np.testing.assert_array_equal(stream.covariance, full["covariance"][:49])

@@ -52,8 +52,9 @@ class Recorder(CallbackSink):
     With ``path`` it also writes every result, as it arrives, to a crash-safe native
     recording (:class:`trackflow.io.RecordingWriter`, ``.tfrec``) of ``T_source_target`` with
     its 6x6 covariance over ``(dt, dtheta)`` (``t_true = t + dt``, ``R_true = R Exp(dtheta)``).
-    The file is created (replaced) when a run starts and closed when it ends; a killed process
-    leaves every record written before the kill readable. A :class:`RecordingPlayer` made from
+    The file is created (replaced) when a run starts and closed when it ends; results pushed
+    outside a run are appended to it. A killed process leaves every record written before the
+    kill readable. A :class:`RecordingPlayer` made from
     the file (``RecordingPlayer.from_stream``) replays the recorded events bit for bit. A
     result whose timestamp is not after the previous recorded one (a naive chain can repeat a
     time) stays in memory but is not written, counted as the rejection "not recorded: time not
@@ -92,9 +93,7 @@ class Recorder(CallbackSink):
         self.finish()
         self._last_written: int | None = None
         if self.path is not None:
-            from ..io import RecordingWriter
-
-            self._writer = RecordingWriter(self.path, self.source, self.target, covariance=True)
+            self._writer = self._open("w")
 
     def finish(self) -> None:
         """Close the recording file (if any); the network calls it after a run."""
@@ -105,14 +104,21 @@ class Recorder(CallbackSink):
     def push(self, m: Measurement, port: int = 0) -> None:
         super().push(m, port)
         self.events.append(m)
-        w = self._writer
-        if w is not None:
-            if self._last_written is not None and m.t_ns <= self._last_written:
-                self.stats.reject("not recorded: time not increasing")
-                return
-            pose = m.pose
-            w.append_sample(m.t_ns, pose.position, pose.quaternion, pose.covariance)
-            self._last_written = m.t_ns
+        if self.path is None:
+            return
+        if self._last_written is not None and m.t_ns <= self._last_written:
+            self.stats.reject("not recorded: time not increasing")
+            return
+        if self._writer is None:  # a push outside a run: append (the file is created if new)
+            self._writer = self._open("a")
+        pose = m.pose
+        self._writer.append_sample(m.t_ns, pose.position, pose.quaternion, pose.covariance)
+        self._last_written = m.t_ns
+
+    def _open(self, mode: str):
+        from ..io import RecordingWriter
+
+        return RecordingWriter(self.path, self.source, self.target, covariance=True, mode=mode)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """``t_ns`` (N,), ``position`` (N, 3), ``quaternion`` (N, 4), ``covariance``
