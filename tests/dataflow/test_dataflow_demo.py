@@ -45,6 +45,10 @@ def test_demo_rejections_are_the_wrong_detections(tmp_path, caplog):
     assert not [r for r in caplog.records if "reset" in r.getMessage()]
     wrong = result["details"]["camera_wrong_detections"]
     assert wrong > 0
+    # the static-edge estimation sees the same camera: only its wrong detections are dropped
+    assert result["details"]["rejections"]["calibration"] == {
+        "kf_artoolkit": {"filter rejected update": wrong}
+    }
     for label in ("aligned", "predicted"):
         rej = result["details"]["rejections"][label]
         assert "filter rejected update" not in rej.get("kf_art", {})

@@ -261,6 +261,7 @@ def run_demo(
     )
     net.run()
     est = sink.get(int(t1 * 1e9))
+    cal_rejections = {n: st["rejections"] for n, st in net.stats().items() if st["rejections"]}
     if est is None:
         raise RuntimeError("the static edge could not be estimated: no accepted measurements")
     T_T_C_est = est.pose
@@ -278,7 +279,7 @@ def run_demo(
     }
     result: dict = {}
     series = {}
-    details = {"static_edge": {}, "rejections": {}}
+    details = {"static_edge": {}, "rejections": {"calibration": cal_rejections}}
     sinks = {}
     nets = {}
     shared = None
