@@ -45,10 +45,12 @@ def test_demo_rejections_are_the_wrong_detections(tmp_path, caplog):
     assert not [r for r in caplog.records if "reset" in r.getMessage()]
     wrong = result["details"]["camera_wrong_detections"]
     assert wrong > 0
-    # the static-edge estimation sees the same camera: only its wrong detections are dropped
-    assert result["details"]["rejections"]["calibration"] == {
-        "kf_artoolkit": {"filter rejected update": wrong}
-    }
+    # The static-edge estimation sees the same camera and drops its wrong detections; its
+    # static estimator's 99.9 % gate may drop a consistent input now and then (0.1 % of ~420)
+    cal = result["details"]["rejections"]["calibration"]
+    assert cal["kf_artoolkit"] == {"filter rejected update": wrong}
+    assert set(cal) <= {"kf_artoolkit", "static_estimator"}
+    assert cal.get("static_estimator", {}).get("filter rejected update", 0) <= 2
     for label in ("aligned", "predicted"):
         rej = result["details"]["rejections"][label]
         assert "filter rejected update" not in rej.get("kf_art", {})
