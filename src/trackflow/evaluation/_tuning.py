@@ -18,8 +18,11 @@ from ._targets import default_gap, interpolate_poses, scored_mask
 
 __all__ = ["TuneResult", "tune_model", "evaluate_recording"]
 
-_BOUNDS = (-9.0, 5.0)  # log10 of the white-noise densities
-_GRID = (-1.0, 0.5, 2.0, 3.5)  # log10 starting values tried for the highest derivative
+_BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
+# coarse start grid in log10: value-level noise relative to the measurement sigma, and the
+# highest-derivative noise (shifted up by half a decade per derivative above the first)
+_GRID_VALUE = (-1.0, 0.5, 2.0, 3.5)
+_GRID_TOP = (-1.0, 0.5, 2.0, 3.5)
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,21 @@ class _Progress:
             self.stream.flush()
 
 
+def _grid_then_powell(cost, starts, options) -> np.ndarray:
+    """Minimise ``cost`` over log10 parameters: best of a coarse grid, then Powell from there.
+
+    The grid makes the result independent of where a single local search would have started
+    (the cost has long flat plateaus and ridges in these coordinates); Powell (bounded to
+    ``_BOUNDS``) then refines the best grid point.
+    """
+    starts = [np.asarray(s, dtype=float) for s in starts]
+    values = [cost(s) for s in starts]
+    x0 = starts[int(np.argmin(values))]
+    res = minimize(cost, x0, method="Powell", bounds=[_BOUNDS] * x0.size, options=options)
+    x = np.asarray(res.x, dtype=float)
+    return x if float(res.fun) <= float(np.min(values)) else x0
+
+
 def tune_model(
     t,
     position,
@@ -93,7 +111,7 @@ def tune_model(
     start: KalmanPredictor | None = None,
     gap_s: float | None = None,
     holdout: float = 0.25,
-    max_evaluations: int = 50,
+    max_evaluations: int = 40,
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
@@ -174,9 +192,14 @@ def tune_model(
             targets[part].append((search, hold, tgt, c, lin))
     n_hold = min(int(np.count_nonzero(tg[1])) for tg in targets["position"])
 
-    total = sum(len(ds) for ds in cands.values()) * (max_evaluations + len(_GRID))
+    n_grid = len(_GRID_VALUE) * len(_GRID_TOP)
+    total = sum(len(ds) for ds in cands.values()) * (max_evaluations + n_grid + 1)
     bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
+
+    def _pad(z):  # one parameter (nd = 0): the value level alone
+        z = np.asarray(z, dtype=float)
+        return z if z.size == 2 else np.array([z[0], _BOUNDS[0]])
 
     def levels(lx, nd):
         v = np.zeros(nd + 1)
@@ -215,18 +238,17 @@ def tune_model(
         summary[part] = {}
         for nd in ds:
             bar.start(f"{part} ({nd} deriv.)")
-            lx0 = np.log10(max(sigma, 1e-9)) - 1.0
-            opts = {"xtol": 1e-2, "ftol": 1e-3, "maxfev": max_evaluations}
+            ls = np.log10(max(sigma, 1e-9))
+            opts = {"xtol": 0.05, "ftol": 1e-3, "maxfev": max_evaluations}
             if nd == 0:  # one level: one parameter (a random walk of the value)
-                res = minimize(lambda z, part=part: run_part(part, (_BOUNDS[0], z[0]), 0)[0],
-                               [lx0], method="Powell", bounds=[_BOUNDS], options=opts)  # fmt: skip
-                x = np.array([_BOUNDS[0], res.x[0]])
+                starts = [(ls + g,) for g in _GRID_VALUE]
             else:
-                grid = [run_part(part, (lx0, g), nd)[0] for g in _GRID]
-                x0 = np.array([lx0, _GRID[int(np.argmin(grid))]])
-                res = minimize(lambda z, nd=nd, part=part: run_part(part, z, nd)[0], x0,
-                               method="Powell", bounds=[_BOUNDS] * 2, options=opts)  # fmt: skip
-                x = np.asarray(res.x, dtype=float)
+                top = [g + 0.5 * (nd - 1) for g in _GRID_TOP]
+                starts = [(ls + g, b) for g in _GRID_VALUE for b in top]
+            x = _grid_then_powell(
+                lambda z, nd=nd, part=part: run_part(part, _pad(z), nd)[0], starts, opts
+            )
+            x = _pad(x)
             c_search, c_hold = run_part(part, x, nd)
             # the tail alone is short and noisy: choose on the mean of both costs
             choose = 0.5 * (c_search + c_hold) if n_hold >= 10 else c_search
