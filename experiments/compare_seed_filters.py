@@ -10,17 +10,18 @@ Filters (all from trackflow, used through their public API):
   (Dorfmueller-Ulhaas), fed the same poses, which it turns into its three-point measurements
   (eq. 11) itself.
 
-Sensor. One virtual optical tracker serves all three: four pinhole cameras (1280 x 1024 px) on a
+Sensor. One virtual optical tracker serves all three: pinhole cameras (1280 x 1024 px) on a
 ring around the working volume look at a cube (edge ``CUBE_EDGE``) whose 8 corners are markers
 fixed to the tracked body. Each frame the true corners are projected and Gaussian pixel noise
-(``--sigma-px``) is added. Ude's filter gets these image points. The pose filters get what the
+is added. Two trackers (``SENSORS``): "mocap", four cameras and 0.2 px; "1 camera", one of
+them and 1.0 px. Ude's filter gets these image points. The pose filters get what the
 tracker would report from the same image points: the single-frame pose estimate
 (:func:`estimate_pose`, Gauss-Newton to convergence) with its covariance ``(D^T D)^-1``
 (eq. 30), converted to trackflow's convention. All three therefore see the same noise
 realisation; the per-frame information is the same.
 
-Motions. (1) ``sim``: a seeded smooth 6-DoF hand-like motion (sums of sinusoids, ~0.7 m/s and
-~60 deg/s) with exact truth. (2) ``ar_table``: ``ar_table/table_01.txt`` (100 Hz). (3)
+Motions. (1) ``sim``: a seeded smooth 6-DoF hand-like motion (sums of sinusoids; median 0.9 m/s
+and 90 deg/s for seed 0) with exact truth. (2) ``ar_table``: ``ar_table/table_01.txt`` (100 Hz). (3)
 ``tumvi``: ``tumvi/dataset-room1_512_16.txt`` (120 Hz), an excerpt without dropouts or spikes.
 The recordings are taken as the truth.
 
