@@ -1,7 +1,8 @@
 """Dataflow throughput and latency on the demo network (one core).
 
-Plays the demo's simulated tracker (60 Hz) and camera (30 Hz) through the aligned
-projector -> marker network with a 60 Hz sampler, on the virtual clock as fast as possible.
+Plays the demo's simulated tracker (60 Hz) and camera (30 Hz) through the projector -> marker
+network with a Kalman filter behind each sensor, predicting to the present at 60 Hz, on the
+virtual clock as fast as possible (default kernel backend, after one warm-up run).
 
 * ``events_per_s``: dispatched events (sensor samples + sampler ticks) per wall-clock second.
 * ``latency_us``: wall time from the scheduler dispatching an event to the result reaching the
