@@ -91,7 +91,7 @@ class RecordingPlayer(Component):
             & np.isfinite(q).all(axis=1)
             & np.isfinite(c).all(axis=(1, 2))
         )
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore"):
             qq = np.einsum("ij,ij->i", q, q)
             unit = np.abs(qq - 1.0) <= 1e-5
             # unit to rounding: used as is (normalising again would change the last bit, and a
