@@ -10,6 +10,9 @@
   ``QuaternionSpaceFilter`` with ``PinholeCamera`` / ``CameraObservation`` features
   (modules ``manifold_gn`` and ``camera_features``; ``docs/seed_filter_quaternion_space.md``).
 
+``RelativeMotionPoseFilter`` and ``QuaternionSpacePoseFilter`` give the two seed filters the
+streaming protocol of ``PoseKalmanFilter`` (``update_pose``/``predict``), so the dataflow can use
+them through ``filter_factory`` (``relative_motion_factory``, ``quaternion_space_factory``).
 All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``.
 """
 
@@ -19,6 +22,12 @@ from ._offline import FilterResult, run_filter
 from .camera_features import CameraObservation, PinholeCamera
 from .manifold_gn import QuaternionSpaceFilter, QuaternionSpaceState, estimate_pose
 from .relative_motion import RelativeMotionEKF, RelativeMotionState
+from .seed_adapters import (
+    QuaternionSpacePoseFilter,
+    RelativeMotionPoseFilter,
+    quaternion_space_factory,
+    relative_motion_factory,
+)
 
 __all__ = [
     "FORMULATIONS",
@@ -28,10 +37,14 @@ __all__ = [
     "PinholeCamera",
     "PoseKalmanFilter",
     "QuaternionSpaceFilter",
+    "QuaternionSpacePoseFilter",
     "QuaternionSpaceState",
     "RelativeMotionEKF",
+    "RelativeMotionPoseFilter",
     "RelativeMotionState",
     "chi2_gate",
     "estimate_pose",
+    "quaternion_space_factory",
+    "relative_motion_factory",
     "run_filter",
 ]
