@@ -23,6 +23,7 @@ _BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
 # highest-derivative noise (shifted up by half a decade per derivative above the first)
 _GRID_VALUE = (-1.0, 0.5, 2.0, 3.5)
 _GRID_TOP = (-1.0, 0.5, 2.0, 3.5)
+_PRUNE = 1.25  # derivative counts whose best grid cost exceeds 1.25 x the part's best: skipped
 
 
 @dataclass(frozen=True)
@@ -86,19 +87,44 @@ class _Progress:
             self.stream.flush()
 
 
-def _grid_then_powell(cost, starts, options) -> np.ndarray:
-    """Minimise ``cost`` over log10 parameters: best of a coarse grid, then Powell from there.
+def _grid(cost, starts) -> tuple[np.ndarray, np.ndarray]:
+    """``cost`` at every grid point: ``(points (G, D), values (G,))``."""
+    pts = np.array([np.asarray(s, dtype=float) for s in starts])
+    return pts, np.array([cost(s) for s in pts])
 
-    The grid makes the result independent of where a single local search would have started
-    (the cost has long flat plateaus and ridges in these coordinates); Powell (bounded to
-    ``_BOUNDS``) then refines the best grid point.
+
+def _refine(cost, pts, values, options, n_starts: int = 2) -> np.ndarray:
+    """Powell from the best basins of a grid (see :func:`_grid_then_powell`)."""
+    step = np.array([np.min(np.diff(np.unique(c))) if np.unique(c).size > 1 else 1.0
+                     for c in pts.T])  # fmt: skip
+    near = np.all(np.abs(pts[:, None, :] - pts[None, :, :]) <= 1.5 * step, axis=2)
+    local = [i for i in range(len(values)) if values[i] <= values[near[i]].min()]
+    chosen = sorted(local, key=lambda i: values[i])[:n_starts]
+    best_x, best_f = pts[chosen[0]], float(values[chosen[0]])
+    for i in chosen:
+        # local: Powell's bounded line searches span the whole box, so the box is the basin
+        lo = np.maximum(pts[i] - 1.5 * step, _BOUNDS[0])
+        hi = np.minimum(pts[i] + 1.5 * step, _BOUNDS[1])
+        res = minimize(cost, pts[i], method="Powell", bounds=list(zip(lo, hi)),
+                       options=options)  # fmt: skip
+        if float(res.fun) < best_f:
+            best_x, best_f = np.asarray(res.x, dtype=float), float(res.fun)
+    return best_x
+
+
+def _grid_then_powell(cost, starts, options, n_starts: int = 2) -> np.ndarray:
+    """Minimise ``cost`` over log10 parameters: a coarse grid, then Powell from its best basins.
+
+    The cost has long flat plateaus and several narrow ridges in these coordinates, so one
+    local search lands in whichever optimum is nearest its start. The grid points that are
+    local minima of the grid (no lower value among their neighbours, 1 grid step away in every
+    coordinate) each stand for one basin; Powell refines the ``n_starts`` best of them, each
+    inside the box of +-1.5 grid steps around it (scipy's bounded line searches range over
+    the whole box, so wider bounds would let a refinement jump into another basin), and the
+    lowest result wins (never worse than the best grid point).
     """
-    starts = [np.asarray(s, dtype=float) for s in starts]
-    values = [cost(s) for s in starts]
-    x0 = starts[int(np.argmin(values))]
-    res = minimize(cost, x0, method="Powell", bounds=[_BOUNDS] * x0.size, options=options)
-    x = np.asarray(res.x, dtype=float)
-    return x if float(res.fun) <= float(np.min(values)) else x0
+    pts, values = _grid(cost, starts)
+    return _refine(cost, pts, values, options, n_starts)
 
 
 def tune_model(
@@ -111,7 +137,7 @@ def tune_model(
     start: KalmanPredictor | None = None,
     gap_s: float | None = None,
     holdout: float = 0.25,
-    max_evaluations: int = 40,
+    max_evaluations: int = 20,
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
@@ -187,13 +213,15 @@ def tune_model(
             ("orientation", quat_angle(lq, iq), iq),
         ):
             c = 3.0 * float(np.median(err[search])) + 1e-12
+            sets = (search, hold, search | hold)
             lin = [np.mean(_huber(err[s], c)) + 1e-300 if np.any(s) else np.nan
-                   for s in (search, hold)]  # fmt: skip
-            targets[part].append((search, hold, tgt, c, lin))
-    n_hold = min(int(np.count_nonzero(tg[1])) for tg in targets["position"])
+                   for s in sets]  # fmt: skip
+            targets[part].append((sets, tgt, c, lin))
+    n_hold = min(int(np.count_nonzero(tg[0][1])) for tg in targets["position"])
 
     n_grid = len(_GRID_VALUE) * len(_GRID_TOP)
-    total = sum(len(ds) for ds in cands.values()) * (max_evaluations + n_grid + 1)
+    n_cand = sum(len(ds) for ds in cands.values())
+    total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
     bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
 
@@ -216,10 +244,10 @@ def tune_model(
         res = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, None).run(
             t, meas, h, max_gap=gap
         )
-        costs = np.zeros(2)
-        for i, (search, hold, tgt, c, lin) in enumerate(targets[part]):
+        costs = np.zeros(3)  # search, held-out, all tuning data
+        for i, (sets, tgt, c, lin) in enumerate(targets[part]):
             pk = res.predictions[float(h[i])]
-            for j, s in enumerate((search, hold)):
+            for j, s in enumerate(sets):
                 if not np.any(s):
                     continue
                 if part == "position":
@@ -233,29 +261,48 @@ def tune_model(
         return costs
 
     best, summary = {}, {}
+    opts = {"xtol": 0.1, "ftol": 2e-3, "maxfev": max_evaluations}
     for part, ds in cands.items():
         sigma = base.pos_sigma if part == "position" else base.ori_sigma
-        summary[part] = {}
+        ls = np.log10(max(sigma, 1e-9))
+        summary[part], grids = {}, {}
         for nd in ds:
-            bar.start(f"{part} ({nd} deriv.)")
-            ls = np.log10(max(sigma, 1e-9))
-            opts = {"xtol": 0.05, "ftol": 1e-3, "maxfev": max_evaluations}
+            bar.start(f"{part} ({nd} deriv., grid)")
             if nd == 0:  # one level: one parameter (a random walk of the value)
                 starts = [(ls + g,) for g in _GRID_VALUE]
             else:
                 top = [g + 0.5 * (nd - 1) for g in _GRID_TOP]
                 starts = [(ls + g, b) for g in _GRID_VALUE for b in top]
-            x = _grid_then_powell(
-                lambda z, nd=nd, part=part: run_part(part, _pad(z), nd)[0], starts, opts
-            )
-            x = _pad(x)
-            c_search, c_hold = run_part(part, x, nd)
+            cost = lambda z, nd=nd, part=part: run_part(part, _pad(z), nd)[0]  # noqa: E731
+            grids[nd] = (cost, *_grid(cost, starts))
+        floor = min(float(np.min(g[2])) for g in grids.values())
+        for nd, (cost, pts, values) in grids.items():
+            if np.min(values) > _PRUNE * floor:  # far behind on the grid: not refined
+                x = _pad(pts[int(np.argmin(values))])
+                summary[part][str(nd)] = {"search_cost": float(np.min(values)), "pruned": True,
+                                          "noise": levels(x, nd).tolist()}  # fmt: skip
+                continue
+            bar.start(f"{part} ({nd} deriv.)")
+            x = _pad(_refine(cost, pts, values, opts))
+            c_search, c_hold, _ = run_part(part, x, nd)
             # the tail alone is short and noisy: choose on the mean of both costs
             choose = 0.5 * (c_search + c_hold) if n_hold >= 10 else c_search
             summary[part][str(nd)] = {"search_cost": float(c_search), "holdout_cost": float(c_hold),
                                       "noise": levels(x, nd).tolist()}  # fmt: skip
             if part not in best or choose < best[part][0]:
-                best[part] = (float(choose), nd, levels(x, nd))
+                best[part] = (float(choose), nd, x)
+        # the chosen count is refined on all the tuning data (the held-out tail is the most
+        # recent motion, so it should shape the final noise too), locally (+-1 decade)
+        choose, nd, x = best[part]
+        bar.start(f"{part} ({nd} deriv., all)")
+        cost_all = lambda z, nd=nd, part=part: run_part(part, _pad(z), nd)[2]  # noqa: E731
+        z0 = x if nd > 0 else x[:1]
+        box = list(zip(np.maximum(z0 - 1.0, _BOUNDS[0]), np.minimum(z0 + 1.0, _BOUNDS[1])))
+        res = minimize(cost_all, z0, method="Powell", bounds=box,
+                       options={**opts, "maxfev": max(max_evaluations // 2, 1)})  # fmt: skip
+        if float(res.fun) < cost_all(z0):
+            x = _pad(res.x)
+        best[part] = (choose, nd, levels(x, nd))
     bar.close()
     (cp_, ndp, vp), (co_, ndo, vo) = best["position"], best["orientation"]
     model = MotionModel(ndp, ndo, np.r_[vp, vo], kind=base.model.kind)
