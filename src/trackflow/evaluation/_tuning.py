@@ -146,10 +146,13 @@ def tune_model(
     position and orientation parts are independent (block-diagonal noise, see
     :meth:`KalmanPredictor.part`), so each is tuned on its own, with two parameters: the
     log10 white-noise densities on the value (level 0) and on the highest derivative. For each
-    candidate derivative count Powell's method (scipy) starts from the best of a coarse grid
-    over the highest-derivative noise and minimises the cost on the first ``1 - holdout`` of
-    the tuning data; the derivative count with the lowest mean of that cost and the cost on
-    the held-out tail wins (more derivatives can fit the search data yet extrapolate noise).
+    candidate derivative count a coarse 4 x 4 grid in log space is evaluated on the first
+    ``1 - holdout`` of the tuning data; counts far behind on the grid (``_PRUNE``) are
+    dropped, and for the others Powell's method (scipy) refines the two best basins of the
+    grid, each inside its own box (:func:`_grid_then_powell`), so the result does not hinge
+    on one starting point. The derivative count with the lowest mean of the search cost and
+    the cost on the held-out tail wins (more derivatives can fit the search data yet
+    extrapolate noise); its densities are then refined locally on all the tuning data.
 
     The cost is, averaged over ``horizons``, the mean Huber loss of the prediction error
     divided by that of linear extrapolation from the last two samples; the Huber threshold is
@@ -174,7 +177,8 @@ def tune_model(
         Fraction of the tuning duration (at its end) used only to choose the derivative counts;
         0 chooses on the search cost.
     max_evaluations : int
-        Powell evaluation budget per part and derivative count.
+        Powell evaluation budget per start (two starts per part and derivative count; half
+        of it for the final refinement).
     progress : text stream, optional
         Where to draw a progress bar (e.g. ``sys.stderr``).
 
