@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from trackflow import Pose, UncertainPose
-from trackflow.filters import MotionModel, PoseKalmanFilter, run_filter
+from trackflow.filters import MotionModel, PoseKalmanFilter, chi2_gate, run_filter
 from trackflow.math import quat_exp, quat_multiply, use_backend
 
 
@@ -489,3 +489,10 @@ def test_past_queries_are_consistent_smoothed_estimates():
     assert np.mean(err_s) < 0.5 * np.mean(err_f)
     assert 5.0 < np.mean(nees) < 7.0, np.mean(nees)
     assert np.sqrt(np.mean(err_mid)) < 1e-3  # measurement noise: 1.7 mm RMS
+
+
+@pytest.mark.parametrize("dof", [1, 3, 6])
+@pytest.mark.parametrize("probability", [0.9, 0.99, 0.999])
+def test_chi2_gate_is_the_chi_square_quantile(probability, dof):
+    assert chi2_gate(probability, dof) == pytest.approx(chi2.ppf(probability, dof), rel=1e-10)
+    assert chi2_gate(None, dof) == float("inf")

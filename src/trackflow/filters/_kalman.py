@@ -7,7 +7,7 @@ import logging
 import math
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from trackflow.math import UncertainPose, check_covariance, check_quaternion
 
@@ -30,7 +30,9 @@ def chi2_gate(probability: float | None, dof: int) -> float:
     """Mahalanobis (NIS) threshold passing ``probability`` of consistent innovations."""
     if probability is None or probability >= 1.0:
         return math.inf
-    return float(chi2.ppf(probability, dof))
+    # chdtri is the inverse survival function of chi-square; it avoids importing scipy.stats
+    # (about a second at every command-line start).
+    return float(chdtri(dof, 1.0 - probability))
 
 
 class _Entry:
