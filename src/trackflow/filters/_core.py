@@ -53,6 +53,7 @@ KERNELS = (
     "predict_pose",
     "smooth",
     "step",
+    "row_is_finite",
     "run",
     "qmul_into",
     "qexp_into",
@@ -879,6 +880,21 @@ def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, 
     return update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
 
 
+def row_is_finite(pos, quat, cov, i):
+    """Whether measurement row ``i`` (position, quaternion and covariance) is all finite."""
+    for k in range(3):
+        if not np.isfinite(pos[i, k]):
+            return False
+    for k in range(4):
+        if not np.isfinite(quat[i, k]):
+            return False
+    for a in range(6):
+        for b in range(6):
+            if not np.isfinite(cov[i, a, b]):
+                return False
+    return True
+
+
 def run(
     times, pos, quat, cov, horizons, x, p, n_dp, n_do, additive, kind, sig_p, sig_o,
     gate, wmax, reset_after, out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status,
@@ -901,17 +917,7 @@ def run(
     for i in range(n):
         zp = pos[i]
         zo = quat[i]
-        valid = True
-        for k in range(3):
-            if not np.isfinite(zp[k]):
-                valid = False
-        for k in range(4):
-            if not np.isfinite(zo[k]):
-                valid = False
-        for a in range(6):
-            for b in range(6):
-                if not np.isfinite(cov[i, a, b]):
-                    valid = False
+        valid = row_is_finite(pos, quat, cov, i)
         if lp >= 0 and lo >= 0:
             r = cov[i]
         elif lp >= 0:
@@ -1312,17 +1318,7 @@ def run_means(
     for i in range(n):
         zp = pos[i]
         zo = quat[i]
-        valid = True
-        for k in range(3):
-            if not np.isfinite(zp[k]):
-                valid = False
-        for k in range(4):
-            if not np.isfinite(zo[k]):
-                valid = False
-        for k in range(6):
-            for j in range(6):
-                if not np.isfinite(cov[i, k, j]):
-                    valid = False
+        valid = row_is_finite(pos, quat, cov, i)
         for k in range(m):
             for j in range(m):
                 r[k, j] = cov[i, roff + k, roff + j]
