@@ -45,6 +45,7 @@ KERNELS = (
     "chol",
     "chol_solve",
     "chol_solve_rows",
+    "joseph_selection",
     "update",
     "inject",
     "local",
@@ -636,6 +637,42 @@ def initialize(x, p, n_dp, n_do, additive, lp, lo, zp, zo, r):
             p[idx[i], idx[j]] = r[i, j]
 
 
+def joseph_selection(p, kt, kr, hp, idx, mp, g, acc):
+    """Joseph-form covariance update for a measurement that selects state rows ``idx``.
+
+    ``(I - K H) P (I - K H)^T + K R K^T = MP + (K R - MP H^T) K^T`` with ``MP = P - K (H P)``:
+    it keeps ``P`` symmetric positive definite even when ``K`` is not exactly optimal
+    (rounding, gating, clipped angular velocity). ``kt`` is ``K^T``, ``kr`` is ``K R`` and
+    ``hp`` is ``H P``; ``mp``, ``g`` and ``acc`` are scratch buffers. Writes ``P`` in place,
+    upper triangle mirrored.
+    """
+    nc = p.shape[0]
+    m = kt.shape[0]
+    for i in range(nc):
+        for j in range(nc):
+            mp[i, j] = p[i, j]
+    for i in range(nc):
+        for a in range(m):
+            ka = kt[a, i]
+            for j in range(nc):
+                mp[i, j] -= ka * hp[a, j]
+    for i in range(nc):
+        for a in range(m):
+            g[a] = kr[i, a] - mp[i, idx[a]]
+        for j in range(nc):
+            acc[j] = mp[i, j]
+        for a in range(m):
+            ga = g[a]
+            for j in range(nc):
+                acc[j] += ga * kt[a, j]
+        for j in range(i, nc):
+            w = acc[j]
+            if abs(w) < TINY:
+                w = 0.0
+            p[i, j] = w
+            p[j, i] = w
+
+
 def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
     """EKF measurement update in place (thesis eqs. 5.61-5.63); returns ``(status, nis)``.
 
@@ -696,30 +733,7 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
     # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
     # when K is not exactly optimal (rounding, gating, clipped angular velocity).
     if selection:
-        mp = p.copy()  # (I - K H) P = P - K (H P)
-        for i in range(nc):
-            for a in range(m):
-                ka = kt[a, i]
-                for j in range(nc):
-                    mp[i, j] -= ka * hp[a, j]
-        # (I - K H) P (I - K H)^T + K R K^T = MP + (K R - MP H^T) K^T; upper triangle mirrored
-        g = np.empty(m)
-        acc = np.empty(nc)
-        for i in range(nc):
-            for a in range(m):
-                g[a] = kr[i, a] - mp[i, idx[a]]
-            for j in range(nc):
-                acc[j] = mp[i, j]
-            for a in range(m):
-                ga = g[a]
-                for j in range(nc):
-                    acc[j] += ga * kt[a, j]
-            for j in range(i, nc):
-                w = acc[j]
-                if abs(w) < TINY:
-                    w = 0.0
-                p[i, j] = w
-                p[j, i] = w
+        joseph_selection(p, kt, kr, hp, idx, np.empty((nc, nc)), np.empty(m), np.empty(nc))
     else:
         mm = np.eye(nc) - kt.T @ h
         pn = mm @ p @ mm.T
@@ -1192,31 +1206,8 @@ def update_into(x, p, y, r, idx, gate, n_dp, n_do, wmax, ws):
         for a_ in range(m):
             for b_ in range(m):
                 kr[i, b_] += kt[a_, i] * r[a_, b_]
-    # Joseph form, as in :func:`update`: (I - K H) P (I - K H)^T + K R K^T keeps P symmetric
-    # positive definite even when K is not exactly optimal (rounding, gating, clipped rates).
-    for i in range(nc):
-        for j in range(nc):
-            mp[i, j] = p[i, j]
-    for i in range(nc):
-        for a_ in range(m):
-            ka = kt[a_, i]
-            for j in range(nc):
-                mp[i, j] -= ka * hp[a_, j]
-    for i in range(nc):
-        for a_ in range(m):
-            g[a_] = kr[i, a_] - mp[i, idx[a_]]
-        for j in range(nc):
-            acc[j] = mp[i, j]
-        for a_ in range(m):
-            ga = g[a_]
-            for j in range(nc):
-                acc[j] += ga * kt[a_, j]
-        for j in range(i, nc):
-            w = acc[j]
-            if abs(w) < TINY:
-                w = 0.0
-            p[i, j] = w
-            p[j, i] = w
+    # Joseph form, as in :func:`update`.
+    joseph_selection(p, kt, kr, hp, idx, mp, g, acc)
     # inject (error state): t += dt, q <- q Exp(dtheta), rates += d; normalise, clip |w|
     npl = n_dp + 1 if n_dp >= 0 else 0
     qo = 3 * npl
