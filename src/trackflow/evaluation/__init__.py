@@ -9,7 +9,14 @@ from ._baselines import predict_linear, predict_none
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
-from ._predictor import KalmanPredictor, default_predictor, estimate_noise, predict_kalman
+from ._predictor import (
+    KalmanPredictor,
+    PartwisePredictor,
+    TwistARPredictor,
+    default_predictor,
+    estimate_noise,
+    predict_kalman,
+)
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._tuning import TuneResult, evaluate_recording, tune_model
 
@@ -17,8 +24,10 @@ __all__ = [
     "PREDICTORS",
     "ErrorStats",
     "KalmanPredictor",
+    "PartwisePredictor",
     "PredictionReport",
     "TuneResult",
+    "TwistARPredictor",
     "default_gap",
     "default_predictor",
     "error_stats",

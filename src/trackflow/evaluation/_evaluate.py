@@ -8,7 +8,7 @@ import numpy as np
 
 from ._baselines import predict_linear, predict_none
 from ._metrics import ErrorStats, error_stats, pose_errors
-from ._predictor import KalmanPredictor, predict_kalman
+from ._predictor import predict_kalman
 from ._targets import default_gap, interpolate_poses, scored_mask
 
 __all__ = ["PREDICTORS", "PredictionReport", "evaluate_predictors"]
@@ -46,7 +46,7 @@ class PredictionReport:
     scored_from_s: float
     horizons_ms: tuple[int, ...]
     stats: dict
-    predictor: KalmanPredictor
+    predictor: object
     n_samples: int
     n_gaps: int
     gap_s: float
@@ -96,7 +96,7 @@ def evaluate_predictors(
     t,
     position,
     quaternion,
-    predictor: KalmanPredictor,
+    predictor,
     horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     scored_from: float | None = None,
     gap_s: float | None = None,

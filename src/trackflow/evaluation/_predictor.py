@@ -7,9 +7,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..filters import MotionModel, run_filter
+from ..filters.twist_ar import TwistARModel, run_twist_ar
 from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
 
-__all__ = ["KalmanPredictor", "default_predictor", "estimate_noise", "predict_kalman"]
+__all__ = [
+    "KalmanPredictor",
+    "PartwisePredictor",
+    "TwistARPredictor",
+    "default_predictor",
+    "estimate_noise",
+    "predict_kalman",
+]
 
 
 @dataclass(frozen=True)
@@ -96,6 +104,76 @@ class KalmanPredictor:
         }
 
 
+@dataclass(frozen=True)
+class TwistARPredictor:
+    """Settings of the autoregressive-twist Kalman filter (:mod:`trackflow.filters.twist_ar`).
+
+    Attributes
+    ----------
+    model : TwistARModel
+        Learned increment dynamics (order, step, coefficients, increment noise).
+    pos_sigma : float
+        Measurement standard deviation per position axis [m].
+    ori_sigma : float
+        Measurement standard deviation per rotation axis of ``dtheta`` [rad]
+        (``R_true = R Exp(dtheta)``).
+    """
+
+    model: TwistARModel
+    pos_sigma: float
+    ori_sigma: float
+
+    def __post_init__(self):
+        if not isinstance(self.model, TwistARModel):
+            raise ValueError(f"model must be a TwistARModel, got {type(self.model).__name__}")
+        for name in ("pos_sigma", "ori_sigma"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+
+    def run(self, t, position, quaternion, horizons, max_gap=None) -> dict:
+        """Predicted means ``{h: (position (N, 3), quaternion (N, 4))}`` for every horizon."""
+        return run_twist_ar(
+            t, position, quaternion, self.model, self.pos_sigma, self.ori_sigma, horizons,
+            max_gap=max_gap,
+        ).predictions  # fmt: skip
+
+    def as_dict(self) -> dict:
+        return {**self.model.as_dict(), "pos_sigma": self.pos_sigma, "ori_sigma": self.ori_sigma}
+
+
+@dataclass(frozen=True)
+class PartwisePredictor:
+    """Position and orientation each predicted by its own filter.
+
+    The tuning chooses the motion model of each part separately (thesis 9.2.1 tunes them
+    separately too); when the best models of the two parts differ, the prediction takes its
+    position from one filter and its orientation from the other.
+
+    Attributes
+    ----------
+    position, orientation : KalmanPredictor or TwistARPredictor
+    """
+
+    position: KalmanPredictor | TwistARPredictor
+    orientation: KalmanPredictor | TwistARPredictor
+
+    def __post_init__(self):
+        for name in ("position", "orientation"):
+            v = getattr(self, name)
+            if not isinstance(v, (KalmanPredictor, TwistARPredictor)):
+                raise ValueError(
+                    f"{name} must be a KalmanPredictor or TwistARPredictor, got {type(v).__name__}"
+                )
+
+    def as_dict(self) -> dict:
+        return {
+            "kind": "partwise",
+            "position": self.position.as_dict(),
+            "orientation": self.orientation.as_dict(),
+        }
+
+
 def default_predictor(t, position, quaternion) -> KalmanPredictor:
     """Untuned starting filter: measurement noise estimated from the data, generic dynamics.
 
@@ -109,7 +187,7 @@ def default_predictor(t, position, quaternion) -> KalmanPredictor:
 
 
 def predict_kalman(
-    t, position, quaternion, predictor: KalmanPredictor, horizons, max_gap: float | None = None
+    t, position, quaternion, predictor, horizons, max_gap: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Kalman-filter predictions ``horizons`` ahead of every sample.
 
@@ -119,9 +197,9 @@ def predict_kalman(
         Strictly increasing times [s].
     position, quaternion : array_like, shape (N, 3) and (N, 4)
         Measured ``T_a_b`` [m], ``(x, y, z, w)``.
-    predictor : KalmanPredictor
+    predictor : KalmanPredictor, TwistARPredictor or PartwisePredictor
     horizons : sequence of float, length H
-        Horizons [s].
+        Horizons [s] (0 gives the filtered poses).
     max_gap : float, optional
         The filter restarts after a larger sample interval [s]; default never.
 
@@ -131,13 +209,32 @@ def predict_kalman(
         ``position[h, k]``: predicted for ``t[k] + horizons[h]`` from samples ``0..k``.
     quaternion : ndarray, shape (H, N, 4)
     n_gated : int
-        Measurements the filter's outlier gate rejected.
+        Measurements the outlier gate of a derivative-model filter rejected.
     """
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
-    res = predictor.run(t, predictor.measurements(position, quaternion), h, max_gap)
-    pp = np.stack([res.predictions[float(v)].position for v in h]) if h.size else np.empty(0)
-    pq = np.stack([res.predictions[float(v)].quaternion for v in h]) if h.size else np.empty(0)
-    return pp, pq, int(res.stats["rejected_gate"])
+    if isinstance(predictor, PartwisePredictor):
+        parts = [predictor.position, predictor.orientation]
+    elif isinstance(predictor, (KalmanPredictor, TwistARPredictor)):
+        parts = [predictor, predictor]
+    else:
+        raise ValueError(f"not a predictor: {type(predictor).__name__}")
+    runs, n_gated = [], 0
+    for i, part in enumerate(parts):
+        if i == 1 and part is parts[0]:
+            runs.append(runs[0])
+            continue
+        if isinstance(part, KalmanPredictor):
+            res = part.run(t, part.measurements(position, quaternion), h, max_gap)
+            n_gated += int(res.stats["rejected_gate"])
+            runs.append({v: (res.predictions[v].position, res.predictions[v].quaternion)
+                         for v in res.predictions})  # fmt: skip
+        else:
+            runs.append(part.run(t, position, quaternion, h, max_gap))
+    if h.size == 0:
+        return np.empty(0), np.empty(0), n_gated
+    pp = np.stack([runs[0][float(v)][0] for v in h])
+    pq = np.stack([runs[1][float(v)][1] for v in h])
+    return pp, pq, n_gated
 
 
 def estimate_noise(t, position, quaternion) -> tuple[float, float]:

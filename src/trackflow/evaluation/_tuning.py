@@ -10,10 +10,11 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..filters import MotionModel
+from ..filters.twist_ar import TwistARModel
 from ..math import quat_angle
 from ._baselines import predict_linear
 from ._evaluate import PredictionReport, _as_arrays, evaluate_predictors
-from ._predictor import KalmanPredictor, default_predictor
+from ._predictor import KalmanPredictor, PartwisePredictor, TwistARPredictor, default_predictor
 from ._targets import default_gap, interpolate_poses, scored_mask
 
 __all__ = ["TuneResult", "tune_model", "evaluate_recording"]
@@ -24,6 +25,9 @@ _BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
 _GRID_VALUE = (-1.0, 0.5, 2.0, 3.5)
 _GRID_TOP = (-1.0, 0.5, 2.0, 3.5)
 _PRUNE = 1.25  # derivative counts whose best grid cost exceeds 1.25 x the part's best: skipped
+# measurement sigma of the learned-increment filter, times the estimated noise: the first is
+# tried with every order, the others with each part's best order
+_AR_SCALES = (0.1, 0.01, 1.0)
 
 
 @dataclass(frozen=True)
@@ -138,6 +142,7 @@ def tune_model(
     gap_s: float | None = None,
     holdout: float = 0.25,
     max_evaluations: int = 20,
+    ar_orders=(3, 5, 10),
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
@@ -225,7 +230,12 @@ def tune_model(
 
     n_grid = len(_GRID_VALUE) * len(_GRID_TOP)
     n_cand = sum(len(ds) for ds in cands.values())
+    ar_orders = tuple(int(v) for v in ar_orders)
+    if any(v < 1 for v in ar_orders):
+        raise ValueError(f"ar_orders must be >= 1, got {ar_orders}")
+    step = float(np.median(np.diff(t)))
     total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
+    total += len(ar_orders) + 2 * (len(_AR_SCALES) - 1)
     bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
 
@@ -248,20 +258,26 @@ def tune_model(
         res = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, None).run(
             t, meas, h, max_gap=gap
         )
+        costs = part_costs(part, {v: (res.predictions[v].position, res.predictions[v].quaternion)
+                                  for v in res.predictions})  # fmt: skip
+        bar.step(costs[0])
+        return costs
+
+    def part_costs(part, preds):
+        """Search, held-out and all-data costs of one part from ``{h: (pos, quat)}``."""
         costs = np.zeros(3)  # search, held-out, all tuning data
         for i, (sets, tgt, c, lin) in enumerate(targets[part]):
-            pk = res.predictions[float(h[i])]
+            pk_p, pk_q = preds[float(h[i])]
             for j, s in enumerate(sets):
                 if not np.any(s):
                     continue
                 if part == "position":
-                    e = np.linalg.norm(pk.position[s] - tgt[s], axis=1)
+                    e = np.linalg.norm(pk_p[s] - tgt[s], axis=1)
                 else:
-                    e = quat_angle(pk.quaternion[s], tgt[s])
+                    e = quat_angle(pk_q[s], tgt[s])
                 costs[j] += np.mean(_huber(e, c)) / lin[j]
         costs /= h.size
         costs[~np.isfinite(costs)] = 1e6
-        bar.step(costs[0])
         return costs
 
     best, summary = {}, {}
@@ -307,11 +323,59 @@ def tune_model(
         if float(res.fun) < cost_all(z0):
             x = _pad(res.x)
         best[part] = (choose, nd, levels(x, nd))
-    bar.close()
     (cp_, ndp, vp), (co_, ndo, vo) = best["position"], best["orientation"]
     model = MotionModel(ndp, ndo, np.r_[vp, vo], kind=base.model.kind)
     tuned = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, base.gate_probability)
-    return TuneResult(tuned, cp_, co_, bar.n, time.perf_counter() - t0, summary)
+    chosen = {"position": (cp_, tuned), "orientation": (co_, tuned)}
+
+    # learned increment dynamics (trackflow.filters.twist_ar): fitted on the search part by
+    # least squares, scored like the derivative models, and kept per part where it wins
+    if ar_orders:
+        search_rows = t < t_hold
+        summary["twist_ar"] = {}
+
+        def run_ar(order, scale, fitted):
+            pred = TwistARPredictor(fitted, base.pos_sigma * scale, base.ori_sigma * scale)
+            preds = pred.run(t, p, q, h, max_gap=gap)
+            out = {}
+            for part in ("position", "orientation"):
+                c_search, c_hold, _ = part_costs(part, preds)
+                choose = 0.5 * (c_search + c_hold) if n_hold >= 10 else c_search
+                out[part] = float(choose)
+            bar.step(min(out.values()))
+            summary["twist_ar"][f"{order}@{scale:g}"] = out
+            return out
+
+        bar.start("learned increment model")
+        fits, ar_best = {}, {}
+        for order in ar_orders:
+            try:
+                fits[order] = TwistARModel.fit(t[search_rows], p[search_rows], q[search_rows],
+                                               order, dt=step)  # fmt: skip
+            except ValueError as exc:  # too little regular data for this order
+                summary["twist_ar"][str(order)] = {"skipped": str(exc)}
+                continue
+            for part, c in run_ar(order, _AR_SCALES[0], fits[order]).items():
+                if part not in ar_best or c < ar_best[part][0]:
+                    ar_best[part] = (c, order, _AR_SCALES[0])
+        for order in sorted({v[1] for v in ar_best.values()}):
+            for scale in _AR_SCALES[1:]:
+                for part, c in run_ar(order, scale, fits[order]).items():
+                    if c < ar_best[part][0]:
+                        ar_best[part] = (c, order, scale)
+        finals = {}
+        for part, (c, order, scale) in ar_best.items():
+            if c < chosen[part][0]:
+                if (order, scale) not in finals:  # refitted on all the tuning data
+                    m = TwistARModel.fit(t, p, q, order, dt=step)
+                    finals[order, scale] = TwistARPredictor(
+                        m, base.pos_sigma * scale, base.ori_sigma * scale
+                    )
+                chosen[part] = (c, finals[order, scale])
+    bar.close()
+    (cp_, pos_pred), (co_, ori_pred) = chosen["position"], chosen["orientation"]
+    final = pos_pred if pos_pred is ori_pred else PartwisePredictor(pos_pred, ori_pred)
+    return TuneResult(final, cp_, co_, bar.n, time.perf_counter() - t0, summary)
 
 
 def evaluate_recording(

@@ -13,6 +13,11 @@
 ``RelativeMotionPoseFilter`` and ``QuaternionSpacePoseFilter`` give the two seed filters the
 streaming protocol of ``PoseKalmanFilter`` (``update_pose``/``predict``), so the dataflow can use
 them through ``filter_factory`` (``relative_motion_factory``, ``quaternion_space_factory``).
+* A Kalman filter on learned dynamics: ``TwistARModel`` (a vector autoregression of
+  body-frame pose increments, fitted to a recording) and ``run_twist_ar`` (module
+  ``twist_ar``; ``docs/filters.md``), which the evaluation's tuning uses where it predicts
+  better than the derivative models.
+
 All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``.
 """
 
@@ -28,6 +33,7 @@ from .seed_adapters import (
     quaternion_space_factory,
     relative_motion_factory,
 )
+from .twist_ar import TwistARModel, TwistARResult, body_increments, run_twist_ar
 
 __all__ = [
     "FORMULATIONS",
@@ -42,9 +48,13 @@ __all__ = [
     "RelativeMotionEKF",
     "RelativeMotionPoseFilter",
     "RelativeMotionState",
+    "TwistARModel",
+    "TwistARResult",
+    "body_increments",
     "chi2_gate",
     "estimate_pose",
     "quaternion_space_factory",
     "relative_motion_factory",
     "run_filter",
+    "run_twist_ar",
 ]
