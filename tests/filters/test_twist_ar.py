@@ -384,11 +384,6 @@ def test_position_spikes_pull_the_plain_fit(fit_data):
     assert z_score(plain, d) > 20.0
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library: robust=True (Huber weights on residuals scaled by std(y)) does not "
-    "resist 1 % of 5 cm position spikes (spikes enter the regressors; z ~ 119 vs 119 plain)",
-)
 def test_fit_robust_to_position_spikes(fit_data):
     """``robust=True`` stays within 8 standard errors (the clean fit: ~3); plain is 4x worse."""
     d = fit_data
@@ -713,11 +708,6 @@ def test_fit_and_predict_reject_bad_input(fit_data, small_case):
             model.predict(pp[0], qq[0], h, bad)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="library: fit() does not check its inputs for NaN; the error names the fitted "
-    "coefficients instead ('coefficients must be finite')",
-)
 def test_fit_names_non_finite_input(fit_data):
     d = fit_data
     p = d["pos"][:500].copy()

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..filters import MotionModel
-from ..filters.twist_ar import TwistARModel
+from ..filters.twist_ar import TwistARModel, excitation_ratios
 from ..math import quat_angle
 from ._baselines import predict_linear
 from ._evaluate import PredictionReport, _as_arrays, evaluate_predictors
@@ -25,9 +25,16 @@ _BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
 _GRID_VALUE = (-1.0, 0.5, 2.0, 3.5)
 _GRID_TOP = (-1.0, 0.5, 2.0, 3.5)
 _PRUNE = 1.25  # derivative counts whose best grid cost exceeds 1.25 x the part's best: skipped
-# measurement sigma of the learned-increment filter, times the estimated noise: the first is
-# tried with every order, the others with each part's best order
-_AR_SCALES = (0.1, 0.01, 1.0)
+# learned-increment filter (trackflow.filters.twist_ar): couplings tried, cross-validation
+# blocks, measurement sigma relative to the estimated noise (that estimate, from second
+# differences, mostly measures motion on smoothed recordings), warm-up samples per order
+_AR_STRUCTURES = ("full", "isotropic")
+_AR_FOLDS = 3
+_AR_SCALE = 0.1
+_AR_WARMUP = 5
+# smallest spread along a body axis relative to the largest (``excitation_ratios``) for which
+# the full-coupling model is tried
+_AR_MIN_EXCITATION = 0.25
 
 
 @dataclass(frozen=True)
@@ -235,7 +242,7 @@ def tune_model(
         raise ValueError(f"ar_orders must be >= 1, got {ar_orders}")
     step = float(np.median(np.diff(t)))
     total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
-    total += len(ar_orders) + 2 * (len(_AR_SCALES) - 1)
+    total += len(ar_orders) * len(_AR_STRUCTURES)
     bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
 
@@ -328,50 +335,58 @@ def tune_model(
     tuned = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, base.gate_probability)
     chosen = {"position": (cp_, tuned), "orientation": (co_, tuned)}
 
-    # learned increment dynamics (trackflow.filters.twist_ar): fitted on the search part by
-    # least squares, scored like the derivative models, and kept per part where it wins
+    # learned increment dynamics (trackflow.filters.twist_ar), scored by blocked
+    # cross-validation: each block of the tuning data is predicted by a model fitted to the
+    # other blocks, so every cost is out-of-sample (a model that only fits the motion it saw,
+    # e.g. along one axis, loses here); kept per part where it beats the derivative model
     if ar_orders:
-        search_rows = t < t_hold
         summary["twist_ar"] = {}
-
-        def run_ar(order, scale, fitted):
-            pred = TwistARPredictor(fitted, base.pos_sigma * scale, base.ori_sigma * scale)
-            preds = pred.run(t, p, q, h, max_gap=gap)
-            out = {}
-            for part in ("position", "orientation"):
-                c_search, c_hold, _ = part_costs(part, preds)
-                choose = 0.5 * (c_search + c_hold) if n_hold >= 10 else c_search
-                out[part] = float(choose)
-            bar.step(min(out.values()))
-            summary["twist_ar"][f"{order}@{scale:g}"] = out
-            return out
-
-        bar.start("learned increment model")
-        fits, ar_best = {}, {}
-        for order in ar_orders:
-            try:
-                fits[order] = TwistARModel.fit(t[search_rows], p[search_rows], q[search_rows],
-                                               order, dt=step)  # fmt: skip
-            except ValueError as exc:  # too little regular data for this order
-                summary["twist_ar"][str(order)] = {"skipped": str(exc)}
-                continue
-            for part, c in run_ar(order, _AR_SCALES[0], fits[order]).items():
-                if part not in ar_best or c < ar_best[part][0]:
-                    ar_best[part] = (c, order, _AR_SCALES[0])
-        for order in sorted({v[1] for v in ar_best.values()}):
-            for scale in _AR_SCALES[1:]:
-                for part, c in run_ar(order, scale, fits[order]).items():
-                    if c < ar_best[part][0]:
-                        ar_best[part] = (c, order, scale)
+        edges = t[0] + (t[-1] - t[0]) * np.arange(_AR_FOLDS + 1) / _AR_FOLDS
+        block = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, _AR_FOLDS - 1)
+        ar_best = {}
+        # persistent excitation: full couplings only when the tuning data moves along every
+        # body axis (otherwise the full model is unidentified along the others)
+        ratios = excitation_ratios(t, p, q)
+        structures = _AR_STRUCTURES if min(ratios) >= _AR_MIN_EXCITATION else ("isotropic",)
+        summary["twist_ar"]["excitation"] = {"translation": ratios[0], "rotation": ratios[1]}
+        for structure in structures:
+            for order in ar_orders:
+                bar.start(f"learned {structure} ({order})")
+                preds = {float(v): (np.zeros((t.size, 3)), np.zeros((t.size, 4))) for v in h}
+                try:
+                    for b in range(_AR_FOLDS):
+                        rows = np.flatnonzero(block == b)
+                        fitted = TwistARModel.fit(t, p, q, order, dt=step, structure=structure,
+                                                  use=block != b)  # fmt: skip
+                        lo = max(int(rows[0]) - _AR_WARMUP * order, 0)
+                        seg = slice(lo, int(rows[-1]) + 1)
+                        pred = TwistARPredictor(fitted, base.pos_sigma * _AR_SCALE,
+                                                base.ori_sigma * _AR_SCALE)  # fmt: skip
+                        out = pred.run(t[seg], p[seg], q[seg], h, max_gap=gap)
+                        for v in h:
+                            preds[float(v)][0][rows] = out[float(v)][0][rows - lo]
+                            preds[float(v)][1][rows] = out[float(v)][1][rows - lo]
+                except ValueError as exc:  # too little regular data for this order
+                    summary["twist_ar"][f"{structure} {order}"] = {"skipped": str(exc)}
+                    bar.step(np.inf)
+                    continue
+                rec = {}
+                for part in ("position", "orientation"):
+                    c = float(part_costs(part, preds)[2])  # all out-of-sample
+                    rec[part] = {"cv_cost": c}
+                    if part not in ar_best or c < ar_best[part][0]:
+                        ar_best[part] = (c, structure, order)
+                bar.step(min(v["cv_cost"] for v in rec.values()))
+                summary["twist_ar"][f"{structure} {order}"] = rec
         finals = {}
-        for part, (c, order, scale) in ar_best.items():
+        for part, (c, structure, order) in ar_best.items():
             if c < chosen[part][0]:
-                if (order, scale) not in finals:  # refitted on all the tuning data
-                    m = TwistARModel.fit(t, p, q, order, dt=step)
-                    finals[order, scale] = TwistARPredictor(
-                        m, base.pos_sigma * scale, base.ori_sigma * scale
+                if (structure, order) not in finals:  # refitted on all the tuning data
+                    m = TwistARModel.fit(t, p, q, order, dt=step, structure=structure)
+                    finals[structure, order] = TwistARPredictor(
+                        m, base.pos_sigma * _AR_SCALE, base.ori_sigma * _AR_SCALE
                     )
-                chosen[part] = (c, finals[order, scale])
+                chosen[part] = (c, finals[structure, order])
     bar.close()
     (cp_, pos_pred), (co_, ori_pred) = chosen["position"], chosen["orientation"]
     final = pos_pred if pos_pred is ori_pred else PartwisePredictor(pos_pred, ori_pred)

@@ -33,7 +33,13 @@ from .seed_adapters import (
     quaternion_space_factory,
     relative_motion_factory,
 )
-from .twist_ar import TwistARModel, TwistARResult, body_increments, run_twist_ar
+from .twist_ar import (
+    TwistARModel,
+    TwistARResult,
+    body_increments,
+    excitation_ratios,
+    run_twist_ar,
+)
 
 __all__ = [
     "FORMULATIONS",
@@ -51,6 +57,7 @@ __all__ = [
     "TwistARModel",
     "TwistARResult",
     "body_increments",
+    "excitation_ratios",
     "chi2_gate",
     "estimate_pose",
     "quaternion_space_factory",

@@ -41,7 +41,13 @@ from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply, qu
 
 from ._backend import kernels
 
-__all__ = ["TwistARModel", "TwistARResult", "body_increments", "run_twist_ar"]
+__all__ = [
+    "TwistARModel",
+    "TwistARResult",
+    "body_increments",
+    "excitation_ratios",
+    "run_twist_ar",
+]
 
 #: sample intervals within this fraction of the model step count as one step when fitting
 _STEP_TOLERANCE = 0.25
@@ -73,11 +79,83 @@ def body_increments(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     return xi
 
 
+def excitation_ratios(t, position, quaternion) -> tuple[float, float]:
+    """How evenly a recording moves along the body axes: a persistent-excitation check.
+
+    For the translation and the rotation parts of the body-frame increments (regular sample
+    intervals only), the square root of the smallest over the largest eigenvalue of their
+    covariance: 1 = the same spread along every axis, near 0 = (almost) no motion along some
+    axis. A full coupling model (:meth:`TwistARModel.fit` with ``structure="full"``) says
+    little about axes the data hardly moved along.
+
+    Parameters
+    ----------
+    t : array_like, shape (N,)
+        Strictly increasing times [s].
+    position, quaternion : array_like, shapes (N, 3), (N, 4)
+
+    Returns
+    -------
+    translation, rotation : float
+        In [0, 1]; 0 when fewer than 7 regular increments exist.
+    """
+    t = np.asarray(t, dtype=float).reshape(-1)
+    if t.shape[0] < 8:
+        return 0.0, 0.0
+    dt = np.diff(t)
+    xi = body_increments(position, quaternion)[1:]
+    xi = xi[np.abs(dt / np.median(dt) - 1.0) < _STEP_TOLERANCE]
+    if xi.shape[0] < 7:
+        return 0.0, 0.0
+    out = []
+    for block in (xi[:, :3], xi[:, 3:]):
+        ev = np.linalg.eigvalsh(np.cov(block.T))
+        out.append(float(np.sqrt(max(ev[0], 0.0) / ev[-1])) if ev[-1] > 0 else 0.0)
+    return out[0], out[1]
+
+
 def _apply(position, quaternion, xi, fraction=1.0):
     """``(t + R f u, q Exp(f w))``, batched over leading axes."""
     p = position + quat_rotate(quaternion, fraction * xi[..., :3])
     q = quat_multiply(quaternion, quat_exp(fraction * xi[..., 3:]))
     return p, q
+
+
+def _spiky(xi, regular, k_sigma=10.0):
+    """Increments next to a jump (see :meth:`TwistARModel.fit`), shape (N,) bool."""
+    both = regular[1:] & regular[:-1]
+    d2 = np.zeros_like(xi)
+    d2[1:] = np.where(both[:, None], xi[1:] - xi[:-1], 0.0)
+    if np.count_nonzero(both) < 10:
+        return np.zeros(xi.shape[0], dtype=bool)
+    scale = 1.4826 * np.median(np.abs(d2[1:][both]), axis=0) + 1e-300
+    jump = np.any(np.abs(d2) > k_sigma * scale, axis=1)  # xi_k differs from xi_{k-1}
+    out = jump.copy()
+    out[:-1] |= jump[1:]  # ... or from xi_{k+1}
+    return out
+
+
+def _ridge_solve(x, y, w, ridge):
+    """Weighted ridge least squares ``min sum_i w_i |y_i - x_i c|^2 + ridge' |c|^2``."""
+    sw = np.sqrt(w)[:, None]
+    xw = x * sw
+    g = xw.T @ xw
+    g[np.diag_indices_from(g)] += ridge * np.trace(g) / g.shape[0] + 1e-300
+    return np.linalg.solve(g, xw.T @ (y * sw))
+
+
+def _weighted_solve(x, y, w, order, structure, ridge):
+    """Coefficients (6 L, 6) of ``y ~ x coef`` for the given structure (see ``fit``)."""
+    if structure == "full":
+        return _ridge_solve(x, y, w, ridge)
+    coef = np.zeros((6 * order, 6))
+    for block in (0, 3):  # translation, rotation: one scalar per tap, shared by the axes
+        xs = np.concatenate([x[:, block + i :: 6] for i in range(3)], axis=0)  # (3n, L)
+        ys = np.concatenate([y[:, block + i] for i in range(3)])[:, None]
+        c = _ridge_solve(xs, ys, np.tile(w, 3), ridge)[:, 0]
+        for i in range(3):
+            coef[block + i :: 6, block + i] = c
+    return coef
 
 
 @dataclass(frozen=True)
@@ -163,6 +241,8 @@ class TwistARModel:
         quaternion,
         order: int,
         dt: float | None = None,
+        structure: str = "full",
+        use=None,
         robust: bool = True,
         ridge: float = 1e-6,
     ) -> TwistARModel:
@@ -171,7 +251,18 @@ class TwistARModel:
         Only windows of ``order + 1`` consecutive increments whose sample intervals are all
         within 25 % of ``dt`` are used (gaps and dropped frames are skipped). With ``robust``
         the rows are re-weighted three times with Huber weights (threshold 3 x the median
-        normalised residual), so tracking spikes do not pull the coefficients.
+        normalised residual), and increments next to a jump are left out first: a tracking
+        spike in one sample puts a large increment into and out of it, which would otherwise
+        sit in the regressors, where residual weights cannot see it. A jump is a change of
+        increment (``xi_k - xi_{k-1}``) beyond 10 robust standard deviations (1.4826 x median
+        absolute value, per component). The fit is a
+        correction to constant increments (``A_0 = I + B_0``, ``A_j = B_j``), so the ridge
+        shrinks directions the data hardly excites toward constant velocity.
+
+        ``structure`` says which couplings are learned: ``"full"``, every ``A_j`` a full 6x6
+        matrix (36 L numbers: translation and rotation, all axes coupled, in the body frame);
+        ``"isotropic"``, ``A_j = diag(a_j I_3, b_j I_3)`` (2 L numbers: the same dynamics on
+        every axis), which transfers to motion along axes the fitted data hardly used.
 
         Parameters
         ----------
@@ -183,6 +274,9 @@ class TwistARModel:
             ``L >= 1``.
         dt : float, optional
             Model step [s]; default the median sample interval.
+        structure : {"full", "isotropic"}
+        use : array_like of bool, shape (N,), optional
+            Only windows whose samples all have ``use`` true are fitted (cross-validation).
         robust : bool
         ridge : float
             Tikhonov weight relative to the mean diagonal of the normal matrix (keeps the
@@ -203,14 +297,25 @@ class TwistARModel:
                 f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
                 f"{p.shape}, {q.shape}"
             )
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+            raise ValueError("times, positions and quaternions must be finite (clean the input)")
         if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
             raise ValueError("times must increase strictly")
         step = float(np.median(np.diff(t))) if dt is None and t.shape[0] > 1 else dt
         if step is None or not (np.isfinite(step) and step > 0):
             raise ValueError(f"dt must be a positive number of seconds, got {step!r}")
+        if structure not in ("full", "isotropic"):
+            raise ValueError(f"structure must be 'full' or 'isotropic', got {structure!r}")
         xi = body_increments(p, q)
         regular = np.zeros(t.shape[0], dtype=bool)
         regular[1:] = np.abs(np.diff(t) / step - 1.0) < _STEP_TOLERANCE
+        if use is not None:
+            use = np.asarray(use, dtype=bool).reshape(-1)
+            if use.shape != t.shape:
+                raise ValueError(f"use must have shape {t.shape}, got {use.shape}")
+            regular[1:] &= use[1:] & use[:-1]
+        if robust:
+            regular &= ~_spiky(xi, regular)
         # row k predicts xi[k+1] from xi[k], ..., xi[k-L+1]: all L+1 increments regular
         run = np.convolve(regular.astype(float), np.ones(order + 1), mode="valid")
         rows = np.flatnonzero(run > order + 0.5) + order - 1  # window xi[k-L+1 .. k+1]
@@ -221,20 +326,19 @@ class TwistARModel:
                 f"need at least {24 * order}"
             )
         x = np.concatenate([xi[rows - j] for j in range(order)], axis=1)  # (n, 6L)
-        y = xi[rows + 1]
+        # fitted as a correction to constant increments (A_0 = I + B_0, A_j = B_j): the ridge
+        # shrinks directions the data hardly excites toward constant velocity, not toward zero
+        y = xi[rows + 1] - xi[rows]
         scale = np.std(y, axis=0) + 1e-15
         w = np.ones(rows.size)
         for _ in range(3 if robust else 1):
-            sw = np.sqrt(w)[:, None]
-            xw, yw = x * sw, y * sw
-            g = xw.T @ xw
-            g[np.diag_indices_from(g)] += ridge * np.trace(g) / g.shape[0]
-            coef = np.linalg.solve(g, xw.T @ yw)  # (6L, 6)
+            coef = _weighted_solve(x, y, w, order, structure, ridge)  # (6L, 6)
             res = (y - x @ coef) / scale
             r = np.linalg.norm(res, axis=1)
             c = 3.0 * float(np.median(r)) + 1e-300
             w = np.where(r <= c, 1.0, c / np.maximum(r, 1e-300))
         resid = y - x @ coef
+        coef[:6] += np.eye(6)
         noise = (resid * w[:, None]).T @ resid / np.sum(w)
         noise = 0.5 * (noise + noise.T)
         a = coef.T.reshape(6, order, 6).transpose(1, 0, 2)  # A_j = coef[6j:6j+6].T
@@ -374,7 +478,7 @@ def run_twist_ar(
     horizons : sequence of float
         Prediction horizons [s] (means only).
     max_gap : float, optional
-        [s]; default ``max(3 dt, ...)``: never restart except at the start.
+        [s]; default none: the filter starts once, at the first sample.
 
     Returns
     -------
