@@ -25,12 +25,13 @@ _BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
 _GRID_VALUE = (-1.0, 0.5, 2.0, 3.5)
 _GRID_TOP = (-1.0, 0.5, 2.0, 3.5)
 _PRUNE = 1.25  # derivative counts whose best grid cost exceeds 1.25 x the part's best: skipped
-# learned-increment filter (trackflow.filters.twist_ar): couplings tried, cross-validation
-# blocks, measurement sigma relative to the estimated noise (that estimate, from second
-# differences, mostly measures motion on smoothed recordings), warm-up samples per order
+# learned-increment filter (trackflow.filters.twist_ar): couplings tried, validation blocks,
+# measurement sigma relative to the estimated noise (that estimate, from second differences,
+# mostly measures motion on smoothed recordings; the first scale is tried with every
+# candidate, the others with each part's best), warm-up samples per order
 _AR_STRUCTURES = ("full", "isotropic")
 _AR_FOLDS = 3
-_AR_SCALE = 0.1
+_AR_SCALES = (0.1, 1.0)
 _AR_WARMUP = 5
 # smallest spread along a body axis relative to the largest (``excitation_ratios``) for which
 # the full-coupling model is tried
@@ -232,7 +233,7 @@ def tune_model(
             sets = (search, hold, search | hold)
             lin = [np.mean(_huber(err[s], c)) + 1e-300 if np.any(s) else np.nan
                    for s in sets]  # fmt: skip
-            targets[part].append((sets, tgt, c, lin))
+            targets[part].append((sets, tgt, c, lin, err))
     n_hold = min(int(np.count_nonzero(tg[0][1])) for tg in targets["position"])
 
     n_grid = len(_GRID_VALUE) * len(_GRID_TOP)
@@ -242,7 +243,7 @@ def tune_model(
         raise ValueError(f"ar_orders must be >= 1, got {ar_orders}")
     step = float(np.median(np.diff(t)))
     total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
-    total += len(ar_orders) * len(_AR_STRUCTURES)
+    total += len(ar_orders) * len(_AR_STRUCTURES) + 2 * (len(_AR_SCALES) - 1)
     bar = _Progress(progress, total=total)
     t0 = time.perf_counter()
 
@@ -270,19 +271,27 @@ def tune_model(
         bar.step(costs[0])
         return costs
 
-    def part_costs(part, preds):
-        """Search, held-out and all-data costs of one part from ``{h: (pos, quat)}``."""
+    def part_costs(part, preds, only=None):
+        """Search, held-out and all-data costs of one part from ``{h: (pos, quat)}``.
+
+        ``only`` (bool mask) restricts every set to those samples (normalised by linear
+        extrapolation on the same samples).
+        """
         costs = np.zeros(3)  # search, held-out, all tuning data
-        for i, (sets, tgt, c, lin) in enumerate(targets[part]):
+        for i, (sets, tgt, c, lin, lin_err) in enumerate(targets[part]):
             pk_p, pk_q = preds[float(h[i])]
             for j, s in enumerate(sets):
+                norm = lin[j]
+                if only is not None:
+                    s = s & only
+                    norm = np.mean(_huber(lin_err[s], c)) + 1e-300 if np.any(s) else np.nan
                 if not np.any(s):
                     continue
                 if part == "position":
                     e = np.linalg.norm(pk_p[s] - tgt[s], axis=1)
                 else:
                     e = quat_angle(pk_q[s], tgt[s])
-                costs[j] += np.mean(_huber(e, c)) / lin[j]
+                costs[j] += np.mean(_huber(e, c)) / norm
         costs /= h.size
         costs[~np.isfinite(costs)] = 1e6
         return costs
@@ -335,10 +344,11 @@ def tune_model(
     tuned = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, base.gate_probability)
     chosen = {"position": (cp_, tuned), "orientation": (co_, tuned)}
 
-    # learned increment dynamics (trackflow.filters.twist_ar), scored by blocked
-    # cross-validation: each block of the tuning data is predicted by a model fitted to the
-    # other blocks, so every cost is out-of-sample (a model that only fits the motion it saw,
-    # e.g. along one axis, loses here); kept per part where it beats the derivative model
+    # learned increment dynamics (trackflow.filters.twist_ar), scored forward in time: the
+    # tuning data is cut into blocks and each block after the first is predicted by a model
+    # fitted to the blocks before it, as the evaluation predicts the future from the past (a
+    # model that only fits the motion it saw, e.g. along one axis, loses here); kept per part
+    # where it beats the derivative model
     if ar_orders:
         summary["twist_ar"] = {}
         edges = t[0] + (t[-1] - t[0]) * np.arange(_AR_FOLDS + 1) / _AR_FOLDS
@@ -349,44 +359,68 @@ def tune_model(
         ratios = excitation_ratios(t, p, q)
         structures = _AR_STRUCTURES if min(ratios) >= _AR_MIN_EXCITATION else ("isotropic",)
         summary["twist_ar"]["excitation"] = {"translation": ratios[0], "rotation": ratios[1]}
+
+        hold_last = {float(v): (p, q) for v in h}  # the "none" predictor
+
+        def score_ar(structure, order, scale):
+            """Forward-validated costs of one learned candidate, or None if it cannot be fit."""
+            key = f"{structure} {order} @{scale:g}"
+            bar.start(f"learned {structure} ({order})")
+            preds = {float(v): (np.zeros((t.size, 3)), np.zeros((t.size, 4))) for v in h}
+            try:
+                for b in range(1, _AR_FOLDS):
+                    rows = np.flatnonzero(block == b)
+                    fitted = TwistARModel.fit(t, p, q, order, dt=step, structure=structure,
+                                              use=block < b)  # fmt: skip
+                    lo = max(int(rows[0]) - _AR_WARMUP * order, 0)
+                    seg = slice(lo, int(rows[-1]) + 1)
+                    pred = TwistARPredictor(fitted, base.pos_sigma * scale,
+                                            base.ori_sigma * scale)  # fmt: skip
+                    out = pred.run(t[seg], p[seg], q[seg], h, max_gap=gap)
+                    for v in h:
+                        preds[float(v)][0][rows] = out[float(v)][0][rows - lo]
+                        preds[float(v)][1][rows] = out[float(v)][1][rows - lo]
+            except ValueError as exc:  # too little regular data for this order
+                summary["twist_ar"][key] = {"skipped": str(exc)}
+                bar.step(np.inf)
+                return None
+            rec, info = {}, {}
+            for part in ("position", "orientation"):
+                c = float(part_costs(part, preds, block > 0)[2])  # all out-of-sample
+                # never worse than holding the last measurement, in any validation block:
+                # a model that is only better on average is not kept for that part
+                worse = [b for b in range(1, _AR_FOLDS)
+                         if part_costs(part, preds, block == b)[2]
+                         > part_costs(part, hold_last, block == b)[2]]  # fmt: skip
+                info[part] = {"cv_cost": c, "worse_than_none_in_blocks": worse}
+                rec[part] = np.inf if worse else c
+            bar.step(min(rec.values()))
+            summary["twist_ar"][key] = info
+            return rec
+
         for structure in structures:
             for order in ar_orders:
-                bar.start(f"learned {structure} ({order})")
-                preds = {float(v): (np.zeros((t.size, 3)), np.zeros((t.size, 4))) for v in h}
-                try:
-                    for b in range(_AR_FOLDS):
-                        rows = np.flatnonzero(block == b)
-                        fitted = TwistARModel.fit(t, p, q, order, dt=step, structure=structure,
-                                                  use=block != b)  # fmt: skip
-                        lo = max(int(rows[0]) - _AR_WARMUP * order, 0)
-                        seg = slice(lo, int(rows[-1]) + 1)
-                        pred = TwistARPredictor(fitted, base.pos_sigma * _AR_SCALE,
-                                                base.ori_sigma * _AR_SCALE)  # fmt: skip
-                        out = pred.run(t[seg], p[seg], q[seg], h, max_gap=gap)
-                        for v in h:
-                            preds[float(v)][0][rows] = out[float(v)][0][rows - lo]
-                            preds[float(v)][1][rows] = out[float(v)][1][rows - lo]
-                except ValueError as exc:  # too little regular data for this order
-                    summary["twist_ar"][f"{structure} {order}"] = {"skipped": str(exc)}
-                    bar.step(np.inf)
-                    continue
-                rec = {}
-                for part in ("position", "orientation"):
-                    c = float(part_costs(part, preds)[2])  # all out-of-sample
-                    rec[part] = {"cv_cost": c}
-                    if part not in ar_best or c < ar_best[part][0]:
-                        ar_best[part] = (c, structure, order)
-                bar.step(min(v["cv_cost"] for v in rec.values()))
-                summary["twist_ar"][f"{structure} {order}"] = rec
+                rec = score_ar(structure, order, _AR_SCALES[0])
+                for part, c in (rec or {}).items():
+                    if np.isfinite(c) and (part not in ar_best or c < ar_best[part][0]):
+                        ar_best[part] = (c, structure, order, _AR_SCALES[0])
+        # the measurement noise: the best candidates again with the other scales
+        for structure, order in sorted({v[1:3] for v in ar_best.values()}):
+            for scale in _AR_SCALES[1:]:
+                for part, c in (score_ar(structure, order, scale) or {}).items():
+                    if c < ar_best[part][0] and ar_best[part][1:3] == (structure, order):
+                        ar_best[part] = (c, structure, order, scale)
         finals = {}
-        for part, (c, structure, order) in ar_best.items():
+        for part, (c, *key) in ar_best.items():
             if c < chosen[part][0]:
-                if (structure, order) not in finals:  # refitted on all the tuning data
+                key = tuple(key)
+                if key not in finals:  # refitted on all the tuning data
+                    structure, order, scale = key
                     m = TwistARModel.fit(t, p, q, order, dt=step, structure=structure)
-                    finals[structure, order] = TwistARPredictor(
-                        m, base.pos_sigma * _AR_SCALE, base.ori_sigma * _AR_SCALE
+                    finals[key] = TwistARPredictor(
+                        m, base.pos_sigma * scale, base.ori_sigma * scale
                     )
-                chosen[part] = (c, finals[structure, order])
+                chosen[part] = (c, finals[key])
     bar.close()
     (cp_, pos_pred), (co_, ori_pred) = chosen["position"], chosen["orientation"]
     final = pos_pred if pos_pred is ori_pred else PartwisePredictor(pos_pred, ori_pred)

@@ -320,10 +320,13 @@ class TwistARModel:
         run = np.convolve(regular.astype(float), np.ones(order + 1), mode="valid")
         rows = np.flatnonzero(run > order + 0.5) + order - 1  # window xi[k-L+1 .. k+1]
         rows = rows[rows + 1 < t.shape[0]]
-        if rows.size < 6 * order * 4:
+        # at least ten windows per coefficient of one output (6 L full; isotropic: L, each
+        # window giving three equations, so the floor of 24 L is the binding one)
+        need = 60 * order if structure == "full" else 24 * order
+        if rows.size < need:
             raise ValueError(
-                f"too few regular samples to fit an order-{order} model: {rows.size} windows, "
-                f"need at least {24 * order}"
+                f"too few regular samples to fit an order-{order} {structure} model: "
+                f"{rows.size} windows, need at least {need}"
             )
         x = np.concatenate([xi[rows - j] for j in range(order)], axis=1)  # (n, 6L)
         # fitted as a correction to constant increments (A_0 = I + B_0, A_j = B_j): the ridge
