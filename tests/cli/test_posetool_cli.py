@@ -44,6 +44,22 @@ def test_evaluate_json_interface(small, capsys):
     )
 
 
+@pytest.mark.parametrize("orders", ["none", "3"])
+def test_tune_learned_orders_option(orders, capsys):
+    assert main(["tune", str(GT), "--quiet", "--learned-orders", orders]) == 0
+    d = json.loads(capsys.readouterr().out)
+    tried = [k for k in d["candidates"].get("twist_ar", {}) if k != "excitation"]
+    if orders == "none":
+        assert d["motion_model"]["kind"] == "white_noise" and tried == []
+    else:
+        assert tried and all(k.split()[1] == "3" for k in tried)
+
+
+def test_tune_learned_orders_rejects_garbage(capsys):
+    assert main(["tune", str(GT), "--quiet", "--learned-orders", "three"]) == 1
+    assert "comma-separated integers" in capsys.readouterr().err
+
+
 def test_every_subcommand_runs(small, tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()

@@ -54,6 +54,11 @@ def parse_ints(text: str) -> tuple[int, ...]:
     return out
 
 
+def parse_orders(text: str) -> tuple[int, ...]:
+    """``"3,5,10"`` -> ``(3, 5, 10)``; ``"none"`` -> ``()`` (no learned models)."""
+    return () if text.strip().lower() == "none" else parse_ints(text)
+
+
 def stream_arrays(stream: PoseStream):
     """Times [s] relative to the first sample, positions (N, 3), quaternions (N, 4)."""
     t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9

@@ -6,7 +6,7 @@ import json
 import sys
 
 from ..evaluation import evaluate_recording
-from ._common import add_input, load, parse_horizons, stream_arrays
+from ._common import add_input, load, parse_horizons, parse_orders, stream_arrays
 
 
 def register(subparsers):
@@ -27,6 +27,12 @@ def register(subparsers):
     )
     p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning cost uses (ms)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--learned-orders",
+        default="3,5,10",
+        help="orders of the learned increment models the tuning tries ('none': derivative "
+        "models only)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -42,6 +48,7 @@ def run(args) -> int:
         horizons=parse_horizons(args.horizons),
         tune_fraction=args.tune_fraction,
         tune_horizons=parse_horizons(args.tune_horizons),
+        ar_orders=parse_orders(args.learned_orders),
         progress=None if args.quiet else sys.stderr,
     )
     if args.json:

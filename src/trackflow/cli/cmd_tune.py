@@ -6,7 +6,7 @@ import json
 import sys
 
 from ..evaluation import tune_model
-from ._common import add_input, load, parse_horizons, parse_ints, stream_arrays
+from ._common import add_input, load, parse_horizons, parse_ints, parse_orders, stream_arrays
 
 
 def register(subparsers):
@@ -15,6 +15,12 @@ def register(subparsers):
     p.add_argument("--horizons", default="50,100", help="horizons the cost uses (ms)")
     p.add_argument("--pos-derivatives", default="1,2,3", help="candidate position derivatives")
     p.add_argument("--ori-derivatives", default="1,2", help="candidate orientation derivatives")
+    p.add_argument(
+        "--learned-orders",
+        default="3,5,10",
+        help="orders of the learned increment models the tuning tries ('none': derivative "
+        "models only)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -24,7 +30,8 @@ def run(args) -> int:
     t, pos, quat = stream_arrays(load(args.file, args.format, args.clean))
     res = tune_model(
         t, pos, quat, parse_horizons(args.horizons), parse_ints(args.pos_derivatives),
-        parse_ints(args.ori_derivatives), progress=None if args.quiet else sys.stderr,
+        parse_ints(args.ori_derivatives), ar_orders=parse_orders(args.learned_orders),
+        progress=None if args.quiet else sys.stderr,
     )  # fmt: skip
     print(json.dumps({"motion_model": res.predictor.as_dict(), **res.as_dict()}, indent=2))
     return 0

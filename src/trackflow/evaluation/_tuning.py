@@ -192,6 +192,16 @@ def tune_model(
     max_evaluations : int
         Powell evaluation budget per start (two starts per part and derivative count; half
         of it for the final refinement).
+    ar_orders : sequence of int
+        Orders ``L`` of the learned increment models (:mod:`trackflow.filters.twist_ar`)
+        tried after the derivative search, each with the structures ``"full"`` (only when
+        :func:`~trackflow.filters.excitation_ratios` of the tuning data are >= 0.25) and
+        ``"isotropic"``. They are scored forward in time: the tuning data is cut into three
+        spans, the second predicted by a model fitted to the first, the third by one fitted
+        to the first two. A learned model that is worse than holding the last sample in
+        either span is not kept for that part; otherwise, per part, it replaces the
+        derivative model if its cost is lower, refitted on all the tuning data. ``()``:
+        derivative models only.
     progress : text stream, optional
         Where to draw a progress bar (e.g. ``sys.stderr``).
 
@@ -435,6 +445,7 @@ def evaluate_recording(
     tune_fraction: float = 0.5,
     tune_horizons=(0.05, 0.1),
     predictor: KalmanPredictor | None = None,
+    ar_orders=(3, 5, 10),
     progress: TextIO | None = None,
 ) -> PredictionReport:
     """Tune on the first part of a recording and score all predictors on the rest.
@@ -454,6 +465,9 @@ def evaluate_recording(
     predictor : KalmanPredictor, optional
         Starting point of the tuning (its measurement noise and gate are kept), or, without
         tuning, the evaluated filter.
+    ar_orders : sequence of int
+        Orders of the learned increment models the tuning tries (``()``: derivative models
+        only); see :func:`tune_model`.
     progress : text stream, optional
 
     Returns
@@ -474,6 +488,7 @@ def evaluate_recording(
         raise ValueError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
     res = tune_model(
         t[train], p[train], q[train], tune_horizons, start=predictor, gap_s=gap,
+        ar_orders=ar_orders,
         progress=progress,
     )  # fmt: skip
     report = evaluate_predictors(t, p, q, res.predictor, horizons, split, gap)
