@@ -66,6 +66,7 @@ KERNELS = (
     "pose_mean_into",
     "run_means",
     "twist_ar_top",
+    "twist_ar_top_into",
     "twist_ar_run",
 )
 
@@ -1388,13 +1389,24 @@ def twist_ar_top(q, h, a_cat):
     ``top`` as rows 0..11 and shifts the history below, ``G`` has ``jn`` as rows 0..11.
     """
     n = 6 + a_cat.shape[1]
+    top = np.empty((12, n))
+    jn = np.empty((12, 6))
+    xi = twist_ar_top_into(q, h, a_cat, top, jn)
+    return xi, top, jn
+
+
+def twist_ar_top_into(q, h, a_cat, top, jn):
+    """:func:`twist_ar_top` writing into ``top`` (12, n) and ``jn`` (12, 6); returns ``xi``."""
+    n = 6 + a_cat.shape[1]
     xi = np.dot(a_cat, h)
     r = rotmat(q)
     jr = right_jac(xi[3:])
     back = rotmat(qexp(-xi[3:]))
-    top = np.zeros((12, n))
-    jn = np.zeros((12, 6))
     u = xi[:3]
+    for i in range(12):
+        for c in range(6):
+            top[i, c] = 0.0
+            jn[i, c] = 0.0
     for i in range(3):
         top[i, i] = 1.0
         # -R [u]x, column by column: [u]x e_c = u x e_c
@@ -1405,17 +1417,17 @@ def twist_ar_top(q, h, a_cat):
             top[3 + i, 3 + c] = back[i, c]
             jn[i, c] = r[i, c]
             jn[3 + i, 3 + c] = jr[i, c]
-    ra = np.dot(r, np.ascontiguousarray(a_cat[:3]))
-    ja = np.dot(jr, np.ascontiguousarray(a_cat[3:]))
     for i in range(3):
         for c in range(n - 6):
-            top[i, 6 + c] = ra[i, c]
-            top[3 + i, 6 + c] = ja[i, c]
+            a0 = a_cat[0, c] * r[i, 0] + a_cat[1, c] * r[i, 1] + a_cat[2, c] * r[i, 2]
+            a1 = a_cat[3, c] * jr[i, 0] + a_cat[4, c] * jr[i, 1] + a_cat[5, c] * jr[i, 2]
+            top[i, 6 + c] = a0
+            top[3 + i, 6 + c] = a1
     for i in range(6):
         jn[6 + i, i] = 1.0
         for c in range(n - 6):
             top[6 + i, 6 + c] = a_cat[i, c]
-    return xi, top, jn
+    return xi
 
 
 def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap):
@@ -1439,6 +1451,8 @@ def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap):
     h = np.zeros(nh)
     cov = np.zeros((n, n))
     fp = np.empty((12, n))
+    top = np.empty((12, n))
+    jn = np.empty((12, 6))
     idx = np.arange(6)
     mp = np.empty((n, n))
     g = np.empty(6)
@@ -1464,7 +1478,7 @@ def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap):
         else:
             steps = max(1, int(round(dtk / dt)))
             for _ in range(steps):
-                xi, top, jn = twist_ar_top(q, h, a_cat)
+                xi = twist_ar_top_into(q, h, a_cat, top, jn)
                 # covariance, rows 0..11 of F P: the history rows are A_cat P_h (6 L x n), the
                 # pose rows add the pose block; F's other rows shift P's rows by one entry
                 ac = np.dot(a_cat, np.ascontiguousarray(cov[6:, :]))
