@@ -354,11 +354,25 @@ def test_no_orders_is_exactly_the_derivative_only_tuning(orbit_report, orbit_der
         np.testing.assert_array_equal(_rms(rep_ar, h), _rms(rep_d, h))
 
 
-@pytest.mark.parametrize("orders", [(0,), (-1,), (3, 0)])
+@pytest.mark.parametrize("orders", [(0,), (-1,), (3, 0), (2.5,), "3", (True,)])
 def test_invalid_orders_raise(rng, orders):
     t, p, q = orbit_recording(rng, 3.0)
     with pytest.raises(ValueError, match="ar_orders"):
         tune_model(t, p, q, ar_orders=orders)
+
+
+def test_a_learned_start_point_is_refused_by_name(two_filters):
+    (t, p, q), kalman, learned = two_filters
+    for bad in (learned, PartwisePredictor(kalman, learned)):
+        with pytest.raises(ValueError, match="start must be a KalmanPredictor"):
+            tune_model(t, p, q, start=bad)
+
+
+def test_no_horizons_give_empty_arrays_of_the_documented_shape(two_filters):
+    (t, p, q), kalman, learned = two_filters
+    for pred in (kalman, learned, PartwisePredictor(kalman, learned)):
+        pp, pq, _ = predict_kalman(t, p, q, pred, ())
+        assert pp.shape == (0, t.size, 3) and pq.shape == (0, t.size, 4)
 
 
 # -- 5. the report --------------------------------------------------------------------------------

@@ -94,6 +94,7 @@ class KalmanPredictor:
 
     def as_dict(self) -> dict:
         return {
+            "family": "derivative",
             "n_dp": self.model.n_dp,
             "n_do": self.model.n_do,
             "noise": list(self.model.noise),
@@ -139,7 +140,12 @@ class TwistARPredictor:
         ).predictions  # fmt: skip
 
     def as_dict(self) -> dict:
-        return {**self.model.as_dict(), "pos_sigma": self.pos_sigma, "ori_sigma": self.ori_sigma}
+        return {
+            "family": "twist_ar",
+            **self.model.as_dict(),
+            "pos_sigma": float(self.pos_sigma),
+            "ori_sigma": float(self.ori_sigma),
+        }
 
 
 @dataclass(frozen=True)
@@ -168,6 +174,7 @@ class PartwisePredictor:
 
     def as_dict(self) -> dict:
         return {
+            "family": "partwise",
             "kind": "partwise",
             "position": self.position.as_dict(),
             "orientation": self.orientation.as_dict(),
@@ -231,7 +238,8 @@ def predict_kalman(
         else:
             runs.append(part.run(t, position, quaternion, h, max_gap))
     if h.size == 0:
-        return np.empty(0), np.empty(0), n_gated
+        n = np.shape(position)[0]
+        return np.empty((0, n, 3)), np.empty((0, n, 4)), n_gated
     pp = np.stack([runs[0][float(v)][0] for v in h])
     pq = np.stack([runs[1][float(v)][1] for v in h])
     return pp, pq, n_gated

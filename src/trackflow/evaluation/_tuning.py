@@ -42,13 +42,16 @@ _AR_MIN_EXCITATION = 0.25
 class TuneResult:
     """Outcome of :func:`tune_model`: the chosen filter and how the search went.
 
+    ``predictor`` is a :class:`KalmanPredictor` (derivative models for both parts), a
+    :class:`TwistARPredictor` (one learned model for both) or a :class:`PartwisePredictor`.
+
     ``cost_position`` / ``cost_orientation`` are the robust prediction costs of the chosen
     derivative counts (mean of the search and held-out costs), relative to linear
     extrapolation (1.0 = as good as linear extrapolation). ``candidates`` lists every derivative
     count tried with its search and held-out costs.
     """
 
-    predictor: KalmanPredictor
+    predictor: KalmanPredictor | TwistARPredictor | PartwisePredictor
     cost_position: float
     cost_orientation: float
     n_evaluations: int
@@ -216,6 +219,11 @@ def tune_model(
     if not 0.0 <= holdout <= 0.5:
         raise ValueError(f"holdout must be in [0, 0.5], got {holdout}")
     gap = default_gap(t) if gap_s is None else float(gap_s)
+    if start is not None and not isinstance(start, KalmanPredictor):
+        raise ValueError(
+            f"start must be a KalmanPredictor (its measurement noise and gate are kept), got "
+            f"{type(start).__name__}"
+        )
     base = start if start is not None else default_predictor(t, p, q)
     cands = {
         "position": tuple(int(d) for d in pos_derivatives),
@@ -248,6 +256,10 @@ def tune_model(
 
     n_grid = len(_GRID_VALUE) * len(_GRID_TOP)
     n_cand = sum(len(ds) for ds in cands.values())
+    if isinstance(ar_orders, (str, bytes)) or not all(
+        isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in ar_orders
+    ):
+        raise ValueError(f"ar_orders must be a sequence of integers, got {ar_orders!r}")
     ar_orders = tuple(int(v) for v in ar_orders)
     if any(v < 1 for v in ar_orders):
         raise ValueError(f"ar_orders must be >= 1, got {ar_orders}")
