@@ -152,7 +152,7 @@ def tune_model(
     start: KalmanPredictor | None = None,
     gap_s: float | None = None,
     holdout: float = 0.25,
-    max_evaluations: int = 20,
+    max_evaluations: int = 15,
     ar_orders=(3, 5, 10),
     progress: TextIO | None = None,
 ) -> TuneResult:
