@@ -30,7 +30,8 @@ _PRUNE = 1.25  # derivative counts whose best grid cost exceeds 1.25 x the part'
 # mostly measures motion on smoothed recordings; the first scale is tried with every
 # candidate, the others with each part's best), warm-up samples per order
 _AR_STRUCTURES = ("full", "isotropic")
-_AR_FOLDS = 3
+_AR_SPLITS = (1 / 3, 2 / 3)  # validation spans start here (fractions of the tuning duration)
+_AR_FOLDS = len(_AR_SPLITS) + 1
 _AR_SCALES = (0.1, 1.0)
 _AR_WARMUP = 5
 # smallest spread along a body axis relative to the largest (``excitation_ratios``) for which
@@ -373,8 +374,8 @@ def tune_model(
     # where it beats the derivative model
     if ar_orders:
         summary["twist_ar"] = {}
-        edges = t[0] + (t[-1] - t[0]) * np.arange(_AR_FOLDS + 1) / _AR_FOLDS
-        block = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, _AR_FOLDS - 1)
+        edges = t[0] + (t[-1] - t[0]) * np.array(_AR_SPLITS)
+        block = np.searchsorted(edges, t, side="right")  # 0: fit only; 1, 2: validated
         ar_best = {}
         # persistent excitation: full couplings only when the tuning data moves along every
         # body axis (otherwise the full model is unidentified along the others)
