@@ -361,6 +361,23 @@ def test_invalid_orders_raise(rng, orders):
         tune_model(t, p, q, ar_orders=orders)
 
 
+@pytest.mark.parametrize("check", [(-0.01,), (0.0,), (float("nan"),)])
+def test_invalid_check_horizons_raise(rng, check):
+    t, p, q = orbit_recording(rng, 3.0)
+    with pytest.raises(ValueError, match="check_horizons"):
+        tune_model(t, p, q, check_horizons=check)
+
+
+def test_every_learned_candidate_records_the_never_worse_check(orbit_report):
+    cands = orbit_report.tuning["candidates"]["twist_ar"]
+    scored = [v for k, v in cands.items() if k != "excitation" and "skipped" not in v]
+    assert scored
+    for v in scored:
+        for part in ("position", "orientation"):
+            assert isinstance(v[part]["worse_than_none_in_blocks"], list)
+            assert set(v[part]["worse_than_none_in_blocks"]) <= {1, 2}
+
+
 def test_a_learned_start_point_is_refused_by_name(two_filters):
     (t, p, q), kalman, learned = two_filters
     for bad in (learned, PartwisePredictor(kalman, learned)):

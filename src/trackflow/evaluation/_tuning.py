@@ -155,6 +155,7 @@ def tune_model(
     holdout: float = 0.25,
     max_evaluations: int = 15,
     ar_orders=(3, 5, 10),
+    check_horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     progress: TextIO | None = None,
 ) -> TuneResult:
     """Choose process noise and derivative counts that minimise the prediction error.
@@ -206,6 +207,9 @@ def tune_model(
         either span is not kept for that part; otherwise, per part, it replaces the
         derivative model if its cost is lower, refitted on all the tuning data. ``()``:
         derivative models only.
+    check_horizons : sequence of float
+        Horizons [s] at which a learned model must also not be worse (RMS) than holding the
+        last sample in either validation span (besides ``horizons``).
     progress : text stream, optional
         Where to draw a progress bar (e.g. ``sys.stderr``).
 
@@ -264,6 +268,9 @@ def tune_model(
     ar_orders = tuple(int(v) for v in ar_orders)
     if any(v < 1 for v in ar_orders):
         raise ValueError(f"ar_orders must be >= 1, got {ar_orders}")
+    check = np.asarray(check_horizons, dtype=float).reshape(-1)
+    if np.any(~np.isfinite(check)) or np.any(check <= 0):
+        raise ValueError(f"check_horizons must be positive seconds, got {check.tolist()}")
     step = float(np.median(np.diff(t)))
     total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
     total += len(ar_orders) * len(_AR_STRUCTURES) + 2 * (len(_AR_SCALES) - 1)
@@ -384,12 +391,38 @@ def tune_model(
         summary["twist_ar"]["excitation"] = {"translation": ratios[0], "rotation": ratios[1]}
 
         hold_last = {float(v): (p, q) for v in h}  # the "none" predictor
+        # horizons of the never-worse-than-holding check (besides the tuning horizons):
+        # targets and the last sample's RMS errors per part, horizon and validation span
+        hc = np.unique(np.r_[h, check]).astype(float)
+        guard = []
+        for v in hc:
+            m = scored_mask(t, v, gap)
+            ip, iq = interpolate_poses(t, p, q, t + v)
+            guard.append((float(v), m, ip, iq))
+
+        def worse_than_holding(part, preds):
+            """Validation spans where some check horizon's RMS error exceeds holding's."""
+            out = set()
+            for v, m, ip, iq in guard:
+                pp, pq = preds[v]
+                for b in range(1, _AR_FOLDS):
+                    s_ = m & (block == b)
+                    if not np.any(s_):
+                        continue
+                    if part == "position":
+                        e = np.linalg.norm(pp[s_] - ip[s_], axis=1)
+                        e0 = np.linalg.norm(p[s_] - ip[s_], axis=1)
+                    else:
+                        e, e0 = quat_angle(pq[s_], iq[s_]), quat_angle(q[s_], iq[s_])
+                    if np.mean(e * e) > np.mean(e0 * e0):
+                        out.add(b)
+            return sorted(out)
 
         def score_ar(structure, order, scale):
             """Forward-validated costs of one learned candidate, or None if it cannot be fit."""
             key = f"{structure} {order} @{scale:g}"
             bar.start(f"learned {structure} ({order})")
-            preds = {float(v): (np.zeros((t.size, 3)), np.zeros((t.size, 4))) for v in h}
+            preds = {float(v): (np.zeros((t.size, 3)), np.zeros((t.size, 4))) for v in hc}
             try:
                 for b in range(1, _AR_FOLDS):
                     rows = np.flatnonzero(block == b)
@@ -399,8 +432,8 @@ def tune_model(
                     seg = slice(lo, int(rows[-1]) + 1)
                     pred = TwistARPredictor(fitted, base.pos_sigma * scale,
                                             base.ori_sigma * scale)  # fmt: skip
-                    out = pred.run(t[seg], p[seg], q[seg], h, max_gap=gap)
-                    for v in h:
+                    out = pred.run(t[seg], p[seg], q[seg], hc, max_gap=gap)
+                    for v in hc:
                         preds[float(v)][0][rows] = out[float(v)][0][rows - lo]
                         preds[float(v)][1][rows] = out[float(v)][1][rows - lo]
             except ValueError as exc:  # too little regular data for this order
@@ -410,11 +443,13 @@ def tune_model(
             rec, info = {}, {}
             for part in ("position", "orientation"):
                 c = float(part_costs(part, preds, block > 0)[2])  # all out-of-sample
-                # never worse than holding the last measurement, in any validation block:
-                # a model that is only better on average is not kept for that part
-                worse = [b for b in range(1, _AR_FOLDS)
-                         if part_costs(part, preds, block == b)[2]
-                         > part_costs(part, hold_last, block == b)[2]]  # fmt: skip
+                # never worse than holding the last measurement, in any validation span (in
+                # the robust cost at the tuning horizons, in RMS at the check horizons): a
+                # model that is only better on average is not kept for that part
+                worse = sorted(set(worse_than_holding(part, preds)) | {
+                    b for b in range(1, _AR_FOLDS)
+                    if part_costs(part, preds, block == b)[2]
+                    > part_costs(part, hold_last, block == b)[2]})  # fmt: skip
                 info[part] = {"cv_cost": c, "worse_than_none_in_blocks": worse}
                 rec[part] = np.inf if worse else c
             bar.step(min(rec.values()))
@@ -501,7 +536,7 @@ def evaluate_recording(
         raise ValueError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
     res = tune_model(
         t[train], p[train], q[train], tune_horizons, start=predictor, gap_s=gap,
-        ar_orders=ar_orders,
+        ar_orders=ar_orders, check_horizons=horizons,
         progress=progress,
     )  # fmt: skip
     report = evaluate_predictors(t, p, q, res.predictor, horizons, split, gap)

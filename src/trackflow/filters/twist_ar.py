@@ -379,17 +379,30 @@ class TwistARModel:
         -------
         position, quaternion : ndarray, shapes (..., 3), (..., 4)
         """
-        if not (np.isfinite(horizon) and horizon >= 0):
-            raise ValueError(f"horizon must be >= 0 seconds, got {horizon!r}")
-        m = horizon / self.dt
-        n = int(np.floor(m + 1e-9))
-        frac = m - n if m - n > 1e-9 else 0.0
+        return self.predict_many(position, quaternion, history, (horizon,))[float(horizon)]
+
+    def predict_many(self, position, quaternion, history, horizons) -> dict:
+        """:meth:`predict` for several horizons in one pass of steps.
+
+        Returns
+        -------
+        dict float -> (position (..., 3), quaternion (..., 4))
+        """
+        hz = sorted({float(v) for v in horizons})
+        for v in hz:
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"horizon must be >= 0 seconds, got {v!r}")
         p, q, h = np.array(position, dtype=float), np.array(quaternion, dtype=float), history
-        for _ in range(n):
-            p, q, h = self.step(p, q, h)
-        if frac > 0.0:
-            p, q = _apply(p, q, self.next_increment(h), frac)
-        return p, q
+        done, out = 0, {}
+        for v in hz:
+            m = v / self.dt
+            n = int(np.floor(m + 1e-9))
+            frac = m - n if m - n > 1e-9 else 0.0
+            for _ in range(n - done):
+                p, q, h = self.step(p, q, h)
+            done = n
+            out[v] = _apply(p, q, self.next_increment(h), frac) if frac > 0.0 else (p, q)
+        return out
 
     def jacobians_step(self, quaternion, history):
         """Error-state Jacobians of one step (see the module docstring), unbatched.
@@ -516,5 +529,5 @@ def run_twist_ar(
         np.ascontiguousarray(model.twist_covariance), r_diag, float(model.dt), gap,
     )  # fmt: skip
     out_h = out_h.reshape(n_s, model.order, 6)
-    preds = {float(v): model.predict(out_p, out_q, out_h, float(v)) for v in hz}
+    preds = model.predict_many(out_p, out_q, out_h, hz) if hz.size else {}
     return TwistARResult(out_p, out_q, out_h, out_c, preds, nis, int(restarts))
