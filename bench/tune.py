@@ -4,7 +4,8 @@ The problem: the first 60 s of a 120 Hz recording (TUM-VI room 1, OptiTrack). tr
 whole default search (``trackflow.evaluation.tune_model``: position with 1-3 and orientation
 with 1-2 derivatives, two log-parameterised white-noise densities each, Powell's method, robust
 prediction cost at 50 and 100 ms; every cost evaluation is a ``trackflow.filters.run_filter``
-run over the 60 s). The filterpy variant evaluates the same kind of cost with
+run over the 60 s; then the learned increment models of ``trackflow.filters.twist_ar``, orders
+3, 5, 10, forward-validated). The filterpy variant evaluates the same kind of cost with
 ``filterpy.kalman.KalmanFilter`` (position, constant acceleration: one 3-state filter per axis,
 the same F, Q, R, no gating) under Powell with a capped evaluation budget; its time per
 evaluation is extrapolated to trackflow's evaluation count. ``--json`` prints
