@@ -451,3 +451,29 @@ def test_real_hand_held_recording(shared_data):
     for h in rep.horizons_ms:
         assert k[h].pos_rms_mm <= none[h].pos_rms_mm and k[h].ori_rms_deg <= none[h].ori_rms_deg
         assert k[h].n > 1000
+
+
+def test_a_part_whose_learned_candidates_are_all_rejected_keeps_its_derivative_model(
+    orbit, monkeypatch
+):
+    """Fault injection: every learned orientation prediction is turned by 20 degrees, so each
+    learned candidate is worse than holding the last sample for orientation (and rejected
+    there) while position keeps a learned model; the measurement-noise refinement of the
+    position's best candidate must not trip over the part that has none."""
+    original = TwistARPredictor.run
+    turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(20.0)])
+
+    def turned(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        return {h: (pp, (Rotation.from_quat(pq) * turn).as_quat()) for h, (pp, pq) in out.items()}
+
+    monkeypatch.setattr(TwistARPredictor, "run", turned)
+    t, p, q = orbit
+    half = t <= t[0] + 0.5 * (t[-1] - t[0])
+    res = tune_model(t[half], p[half], q[half], ar_orders=(3,))
+    pos, ori = _parts(res.predictor)
+    assert isinstance(ori, KalmanPredictor) and isinstance(pos, TwistARPredictor)
+    scored = [v for k, v in res.candidates["twist_ar"].items()
+              if k != "excitation" and "skipped" not in v]  # fmt: skip
+    assert scored and all(v["orientation"]["worse_than_none_in_blocks"] for v in scored)
+    assert any(not v["position"]["worse_than_none_in_blocks"] for v in scored)

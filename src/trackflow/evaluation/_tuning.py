@@ -466,7 +466,8 @@ def tune_model(
         for structure, order in sorted({v[1:3] for v in ar_best.values()}):
             for scale in _AR_SCALES[1:]:
                 for part, c in (score_ar(structure, order, scale) or {}).items():
-                    if c < ar_best[part][0] and ar_best[part][1:3] == (structure, order):
+                    best = ar_best.get(part)
+                    if best is not None and c < best[0] and best[1:3] == (structure, order):
                         ar_best[part] = (c, structure, order, scale)
         finals = {}
         for part, (c, *key) in ar_best.items():
