@@ -39,6 +39,7 @@ KERNELS = (
     "transition",
     "process_noise",
     "sandwich",
+    "sandwich_into",
     "predict",
     "residual",
     "meas_cov",
@@ -369,30 +370,42 @@ def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
 
 
 def sandwich(a, p, q):
-    """``A P A^T + Q`` (symmetric), skipping the zeros of the sparse transition Jacobian."""
+    """``A P A^T + Q`` (symmetric) as a new array; see :func:`sandwich_into`."""
     n = p.shape[0]
-    t = np.zeros((n, n))
+    out = p.copy()
+    sandwich_into(a, out, q, np.empty((n, n)), np.empty((n, n)))
+    return out
+
+
+def sandwich_into(a, p, q, tmp, out):
+    """``p <- A P A^T + Q`` (symmetric) in place, skipping the zeros of the sparse ``A``.
+
+    ``tmp`` and ``out`` (n x n) are scratch.
+    """
+    n = p.shape[0]
+    for i in range(n):
+        for j in range(n):
+            tmp[i, j] = 0.0
+            out[i, j] = 0.0
     for i in range(n):
         for k in range(n):
             v = a[i, k]
             if v != 0.0:
                 for j in range(n):
-                    t[i, j] += v * p[k, j]
-    out = np.zeros((n, n))
+                    tmp[i, j] += v * p[k, j]
     for j in range(n):
         for k in range(n):
             v = a[j, k]
             if v != 0.0:
                 for i in range(j + 1):
-                    out[i, j] += t[i, k] * v
+                    out[i, j] += tmp[i, k] * v
     for j in range(n):
         for i in range(j + 1):
             w = out[i, j] + 0.5 * (q[i, j] + q[j, i])
             if abs(w) < TINY:
                 w = 0.0
-            out[i, j] = w
-            out[j, i] = w
-    return out
+            p[i, j] = w
+            p[j, i] = w
 
 
 def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
@@ -1128,30 +1141,7 @@ def predict_cov_into(p, dt, n_dp, n_do, kind, sig_p, sig_o, cf, b, d, a, qm, lv,
             for j in range(nol):
                 for k in range(3):
                     qm[qo + 3 * i + k, qo + 3 * j + k] = lv[i, j]
-    # the arithmetic of :func:`sandwich`
-    for i in range(nc):
-        for j in range(nc):
-            tmp[i, j] = 0.0
-            out[i, j] = 0.0
-    for i in range(nc):
-        for k in range(nc):
-            v = a[i, k]
-            if v != 0.0:
-                for j in range(nc):
-                    tmp[i, j] += v * p[k, j]
-    for j in range(nc):
-        for k in range(nc):
-            v = a[j, k]
-            if v != 0.0:
-                for i in range(j + 1):
-                    out[i, j] += tmp[i, k] * v
-    for j in range(nc):
-        for i in range(j + 1):
-            w = out[i, j] + 0.5 * (qm[i, j] + qm[j, i])
-            if abs(w) < TINY:
-                w = 0.0
-            p[i, j] = w
-            p[j, i] = w
+    sandwich_into(a, p, qm, tmp, out)
 
 
 def update_into(x, p, y, r, idx, gate, n_dp, n_do, wmax, ws):
