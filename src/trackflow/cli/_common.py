@@ -6,6 +6,7 @@ import argparse
 
 import numpy as np
 
+from ..evaluation import LEARNED_ORDERS
 from ..io import FORMATS, PoseStream, read_stream
 
 __all__ = ["add_input", "load", "parse_horizons", "parse_ints", "stream_arrays"]
@@ -52,6 +53,16 @@ def parse_ints(text: str) -> tuple[int, ...]:
     if not out:
         raise ValueError(f"expected comma-separated integers, got {text!r}")
     return out
+
+
+def add_learned_orders(p) -> None:
+    """The ``--learned-orders`` option of ``tune`` and ``evaluate`` (see :func:`parse_orders`)."""
+    p.add_argument(
+        "--learned-orders",
+        default=",".join(str(v) for v in LEARNED_ORDERS),
+        help="orders of the learned increment models the tuning tries ('none': derivative "
+        "models only)",
+    )
 
 
 def parse_orders(text: str) -> tuple[int, ...]:

@@ -6,7 +6,14 @@ import json
 import sys
 
 from ..evaluation import evaluate_recording
-from ._common import add_input, load, parse_horizons, parse_orders, stream_arrays
+from ._common import (
+    add_input,
+    add_learned_orders,
+    load,
+    parse_horizons,
+    parse_orders,
+    stream_arrays,
+)
 
 
 def register(subparsers):
@@ -27,12 +34,7 @@ def register(subparsers):
     )
     p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning cost uses (ms)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument(
-        "--learned-orders",
-        default="3,5,10",
-        help="orders of the learned increment models the tuning tries ('none': derivative "
-        "models only)",
-    )
+    add_learned_orders(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p

@@ -6,7 +6,15 @@ import json
 import sys
 
 from ..evaluation import tune_model
-from ._common import add_input, load, parse_horizons, parse_ints, parse_orders, stream_arrays
+from ._common import (
+    add_input,
+    add_learned_orders,
+    load,
+    parse_horizons,
+    parse_ints,
+    parse_orders,
+    stream_arrays,
+)
 
 
 def register(subparsers):
@@ -15,12 +23,7 @@ def register(subparsers):
     p.add_argument("--horizons", default="50,100", help="horizons the cost uses (ms)")
     p.add_argument("--pos-derivatives", default="1,2,3", help="candidate position derivatives")
     p.add_argument("--ori-derivatives", default="1,2", help="candidate orientation derivatives")
-    p.add_argument(
-        "--learned-orders",
-        default="3,5,10",
-        help="orders of the learned increment models the tuning tries ('none': derivative "
-        "models only)",
-    )
+    add_learned_orders(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p

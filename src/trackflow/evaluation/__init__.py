@@ -18,9 +18,10 @@ from ._predictor import (
     predict_kalman,
 )
 from ._targets import default_gap, interpolate_poses, scored_mask
-from ._tuning import TuneResult, evaluate_recording, tune_model
+from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 
 __all__ = [
+    "LEARNED_ORDERS",
     "PREDICTORS",
     "ErrorStats",
     "KalmanPredictor",

@@ -20,6 +20,14 @@ __all__ = [
 ]
 
 
+def _check_sigmas(settings) -> None:
+    """``pos_sigma`` and ``ori_sigma`` of a predictor's settings must be finite and > 0."""
+    for name in ("pos_sigma", "ori_sigma"):
+        v = getattr(settings, name)
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+
+
 @dataclass(frozen=True)
 class KalmanPredictor:
     """Pose Kalman filter settings that the evaluation runs and the tuning chooses.
@@ -54,10 +62,7 @@ class KalmanPredictor:
     def __post_init__(self):
         if not isinstance(self.model, MotionModel):
             raise ValueError(f"model must be a MotionModel, got {type(self.model).__name__}")
-        for name in ("pos_sigma", "ori_sigma"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        _check_sigmas(self)
         g = self.gate_probability
         if g is not None and not 0.0 < g <= 1.0:
             raise ValueError(f"gate_probability must be in (0, 1] or None, got {g!r}")
@@ -127,10 +132,7 @@ class TwistARPredictor:
     def __post_init__(self):
         if not isinstance(self.model, TwistARModel):
             raise ValueError(f"model must be a TwistARModel, got {type(self.model).__name__}")
-        for name in ("pos_sigma", "ori_sigma"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        _check_sigmas(self)
 
     def run(self, t, position, quaternion, horizons, max_gap=None) -> dict:
         """Predicted means ``{h: (position (N, 3), quaternion (N, 4))}`` for every horizon."""

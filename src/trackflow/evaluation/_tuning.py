@@ -17,8 +17,10 @@ from ._evaluate import PredictionReport, _as_arrays, evaluate_predictors
 from ._predictor import KalmanPredictor, PartwisePredictor, TwistARPredictor, default_predictor
 from ._targets import default_gap, interpolate_poses, scored_mask
 
-__all__ = ["TuneResult", "tune_model", "evaluate_recording"]
+__all__ = ["LEARNED_ORDERS", "TuneResult", "tune_model", "evaluate_recording"]
 
+#: orders of the learned increment models the tuning tries by default
+LEARNED_ORDERS = (3, 5, 10)
 _BOUNDS = (-9.0, 6.0)  # log10 of the white-noise densities
 # coarse start grid in log10: value-level noise relative to the measurement sigma, and the
 # highest-derivative noise (shifted up by half a decade per derivative above the first)
@@ -154,7 +156,7 @@ def tune_model(
     gap_s: float | None = None,
     holdout: float = 0.25,
     max_evaluations: int = 15,
-    ar_orders=(3, 5, 10),
+    ar_orders=LEARNED_ORDERS,
     check_horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     progress: TextIO | None = None,
 ) -> TuneResult:
@@ -494,7 +496,7 @@ def evaluate_recording(
     tune_fraction: float = 0.5,
     tune_horizons=(0.05, 0.1),
     predictor: KalmanPredictor | None = None,
-    ar_orders=(3, 5, 10),
+    ar_orders=LEARNED_ORDERS,
     progress: TextIO | None = None,
 ) -> PredictionReport:
     """Tune on the first part of a recording and score all predictors on the rest.

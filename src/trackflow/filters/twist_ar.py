@@ -79,6 +79,31 @@ def body_increments(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     return xi
 
 
+def _recording(t, position, quaternion):
+    """The checked arrays ``(t (N,), p (N, 3), q (N, 4))``; ``ValueError`` naming the problem."""
+    t = np.asarray(t, dtype=float).reshape(-1)
+    p = np.asarray(position, dtype=float)
+    q = np.asarray(quaternion, dtype=float)
+    if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
+        raise ValueError(
+            f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
+            f"{p.shape}, {q.shape}"
+        )
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise ValueError("times, positions and quaternions must be finite (clean the input)")
+    if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise ValueError(f"times must increase strictly (sample {k})")
+    return t, p, q
+
+
+def _regular(t, step):
+    """Shape (N,) bool: the increment into sample ``k`` spans one model step (within 25 %)."""
+    out = np.zeros(t.shape[0], dtype=bool)
+    out[1:] = np.abs(np.diff(t) / step - 1.0) < _STEP_TOLERANCE
+    return out
+
+
 def excitation_ratios(t, position, quaternion) -> tuple[float, float]:
     """How evenly a recording moves along the body axes: a persistent-excitation check.
 
@@ -102,9 +127,7 @@ def excitation_ratios(t, position, quaternion) -> tuple[float, float]:
     t = np.asarray(t, dtype=float).reshape(-1)
     if t.shape[0] < 8:
         return 0.0, 0.0
-    dt = np.diff(t)
-    xi = body_increments(position, quaternion)[1:]
-    xi = xi[np.abs(dt / np.median(dt) - 1.0) < _STEP_TOLERANCE]
+    xi = body_increments(position, quaternion)[_regular(t, np.median(np.diff(t)))]
     if xi.shape[0] < 7:
         return 0.0, 0.0
     out = []
@@ -286,29 +309,17 @@ class TwistARModel:
         -------
         TwistARModel
         """
-        t = np.asarray(t, dtype=float).reshape(-1)
-        p = np.asarray(position, dtype=float)
-        q = np.asarray(quaternion, dtype=float)
         order = int(order)
         if order < 1:
             raise ValueError(f"order must be >= 1, got {order}")
-        if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
-            raise ValueError(
-                f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
-                f"{p.shape}, {q.shape}"
-            )
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-            raise ValueError("times, positions and quaternions must be finite (clean the input)")
-        if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
-            raise ValueError("times must increase strictly")
+        t, p, q = _recording(t, position, quaternion)
         step = float(np.median(np.diff(t))) if dt is None and t.shape[0] > 1 else dt
         if step is None or not (np.isfinite(step) and step > 0):
             raise ValueError(f"dt must be a positive number of seconds, got {step!r}")
         if structure not in ("full", "isotropic"):
             raise ValueError(f"structure must be 'full' or 'isotropic', got {structure!r}")
         xi = body_increments(p, q)
-        regular = np.zeros(t.shape[0], dtype=bool)
-        regular[1:] = np.abs(np.diff(t) / step - 1.0) < _STEP_TOLERANCE
+        regular = _regular(t, step)
         if use is not None:
             use = np.asarray(use, dtype=bool).reshape(-1)
             if use.shape != t.shape:
@@ -500,20 +511,8 @@ def run_twist_ar(
     -------
     TwistARResult
     """
-    t = np.asarray(t, dtype=float).reshape(-1)
-    pm = np.asarray(position, dtype=float)
-    qm = np.asarray(quaternion, dtype=float)
+    t, pm, qm = _recording(t, position, quaternion)
     n_s = t.shape[0]
-    if pm.shape != (n_s, 3) or qm.shape != (n_s, 4):
-        raise ValueError(
-            f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
-            f"{pm.shape}, {qm.shape}"
-        )
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(pm)) and np.all(np.isfinite(qm))):
-        raise ValueError("times, positions and quaternions must be finite")
-    if n_s > 1 and np.any(np.diff(t) <= 0):
-        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise ValueError(f"times must increase strictly (sample {k})")
     for name, v in (("pos_sigma", pos_sigma), ("ori_sigma", ori_sigma)):
         if not (np.isfinite(v) and v > 0):
             raise ValueError(f"{name} must be finite and > 0, got {v!r}")
