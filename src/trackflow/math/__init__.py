@@ -23,7 +23,7 @@ from ._jacobians import (
     jacobians_transform_point,
     propagate_covariance,
 )
-from ._kernels import get_backend, numba_available, set_backend, use_backend
+from ._backend import get_backend, numba_available, set_backend, use_backend
 from ._pose import Pose
 from ._quaternion import (
     quat_align_sign,

@@ -1,128 +1,42 @@
-"""Compiled kernels for hot paths, with a pure-NumPy reference path.
+"""Compiled kernels of the uncertain-pose algebra, with the NumPy formulas as reference path.
 
-trackflow runs on NumPy alone; when numba is importable, hot operations (uncertain composition)
-are compiled for a 5-20x speed-up on single calls and large batches. Both paths compute the
-same formulas and ``tests/math/test_kernels.py`` checks them against each other.
-
-The backend is chosen once at import (``TRACKFLOW_BACKEND=numpy`` forces NumPy) and can be
-switched for a block of code with :func:`use_backend`, which always restores the previous one.
-numba's compile cache goes to ``$NUMBA_CACHE_DIR`` if set, else to a per-user cache directory
-(``$XDG_CACHE_HOME/trackflow/numba`` or ``~/.cache/trackflow/numba``), never into the source tree.
+A kernel source for :mod:`trackflow.math._backend` (``KERNELS`` below), built on the scalar SO(3)
+kernels of :mod:`trackflow.math._scalar`. With the numba backend, uncertain composition runs
+:func:`compose_one` (5-20x faster on single calls and large batches); with the NumPy backend it
+runs the vectorised public formulas (:func:`~trackflow.math.jacobians_compose` and
+:func:`~trackflow.math.propagate_covariance`), and ``tests/math/test_kernels.py`` checks the two
+against each other.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
-from pathlib import Path
+import sys
 
 import numpy as np
 
+from ._backend import get_backend, kernels
 from ._jacobians import jacobians_compose, propagate_covariance
 from ._quaternion import quat_multiply, quat_rotate
+from ._scalar import qmul_into, rotmat_into
 
-__all__ = [
-    "get_backend",
-    "set_backend",
-    "use_backend",
-    "numba_available",
-    "compose",
-    "covariance_is_plainly_valid",
-]
+__all__ = ["compose", "covariance_is_plainly_valid"]
 
-
-def _cache_dir() -> str:
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    for root in (Path(base), Path(tempfile.gettempdir())):
-        d = root / "trackflow" / "numba"
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-            if os.access(d, os.W_OK):
-                return str(d)
-        except OSError:
-            continue
-    return tempfile.mkdtemp(prefix="trackflow-numba-")
-
-
-os.environ.setdefault("NUMBA_CACHE_DIR", _cache_dir())
-
-try:  # numba is a runtime dependency, but the library must keep working without it
-    import numba as _nb
-except ImportError:  # pragma: no cover - exercised only on installs without numba
-    _nb = None
-
-_backend = "numba" if _nb is not None else "numpy"
-if os.environ.get("TRACKFLOW_BACKEND", "").lower() == "numpy":
-    _backend = "numpy"
-
-
-def numba_available() -> bool:
-    """Whether the compiled backend can be used."""
-    return _nb is not None
-
-
-def get_backend() -> str:
-    """The active backend name, ``"numba"`` or ``"numpy"``."""
-    return _backend
-
-
-def set_backend(name: str) -> None:
-    """Select ``"numba"`` or ``"numpy"`` for all following calls (prefer :func:`use_backend`)."""
-    global _backend
-    if name not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
-    if name == "numba" and _nb is None:
-        raise ValueError("numba backend requested but numba is not installed")
-    _backend = name
-
-
-@contextlib.contextmanager
-def use_backend(name: str):
-    """Context manager selecting a backend and restoring the previous one afterwards."""
-    old = _backend
-    set_backend(name)
-    try:
-        yield
-    finally:
-        set_backend(old)
+KERNELS = ("compose_one", "compose_batch", "compose_single", "covariance_code")
+KERNEL_SOURCES = ("trackflow.math._scalar",)
 
 
 # -- uncertain composition ----------------------------------------------------------------------
 
 
-def _compose_numpy(ta, qa, Ca, tb, qb, Cb, Cab):
-    J_c_a, J_c_b = jacobians_compose(ta, qa, tb, qb)
-    c = propagate_covariance(J_c_a, Ca, J_c_b, Cb, Cab)
-    return ta + quat_rotate(qa, tb), quat_multiply(qa, qb), c, J_c_a, J_c_b
-
-
-def _rotation_matrix(x, y, z, w, r):
-    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    r[0, 1] = 2.0 * (x * y - w * z)
-    r[0, 2] = 2.0 * (x * z + w * y)
-    r[1, 0] = 2.0 * (x * y + w * z)
-    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    r[1, 2] = 2.0 * (y * z - w * x)
-    r[2, 0] = 2.0 * (x * z - w * y)
-    r[2, 1] = 2.0 * (y * z + w * x)
-    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-def _compose_one(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
+def compose_one(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
     """Scalar kernel: fill one composition result (see ``jacobians_compose`` for formulas)."""
-    ax, ay, az, aw = qa[0], qa[1], qa[2], qa[3]
-    bx, by, bz, bw = qb[0], qb[1], qb[2], qb[3]
     ra = np.empty((3, 3))
     rb = np.empty((3, 3))
-    _rotation_matrix(ax, ay, az, aw, ra)
-    _rotation_matrix(bx, by, bz, bw, rb)
+    rotmat_into(qa, ra)
+    rotmat_into(qb, rb)
     for i in range(3):
         t[i] = ta[i] + ra[i, 0] * tb[0] + ra[i, 1] * tb[1] + ra[i, 2] * tb[2]
-    q[0] = aw * bx + ax * bw + ay * bz - az * by
-    q[1] = aw * by - ax * bz + ay * bw + az * bx
-    q[2] = aw * bz + ax * by - ay * bx + az * bw
-    q[3] = aw * bw - ax * bx - ay * by - az * bz
+    qmul_into(qa, qb, q)
     # J_c_a = [[I, -R_a [t_b]x], [0, R_b^T]], J_c_b = [[R_a, 0], [0, I]]
     for i in range(6):
         for j in range(6):
@@ -184,31 +98,29 @@ def _compose_one(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
             C[j, i] = C[i, j]
 
 
-if _nb is not None:
-    _rotation_matrix = _nb.njit(cache=True, inline="always")(_rotation_matrix)
-    _compose_one = _nb.njit(cache=True)(_compose_one)
 
-    @_nb.njit(cache=True)
-    def _compose_batch_jit(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
-        for n in range(ta.shape[0]):
-            k = n if has_cross else 0  # without cross terms Cab is one unused zero matrix
-            _compose_one(
-                ta[n], qa[n], Ca[n], tb[n], qb[n], Cb[n], Cab[k], has_cross, t[n], q[n],
-                C[n], Ja[n], Jb[n],
-            )  # fmt: skip
-
-    @_nb.njit(cache=True)
-    def _compose_single_jit(ta, qa, Ca, tb, qb, Cb):
-        t = np.empty(3)
-        q = np.empty(4)
-        C = np.empty((6, 6))
-        Ja = np.empty((6, 6))
-        Jb = np.empty((6, 6))
-        _compose_one(ta, qa, Ca, tb, qb, Cb, Ca, False, t, q, C, Ja, Jb)
-        return t, q, C, Ja, Jb
+def compose_batch(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
+    """:func:`compose_one` over a flat batch (``Cab`` is one unused matrix without cross terms)."""
+    for n in range(ta.shape[0]):
+        k = n if has_cross else 0
+        compose_one(
+            ta[n], qa[n], Ca[n], tb[n], qb[n], Cb[n], Cab[k], has_cross, t[n], q[n],
+            C[n], Ja[n], Jb[n],
+        )  # fmt: skip
 
 
-def _covariance_code(c):
+def compose_single(ta, qa, Ca, tb, qb, Cb):
+    """:func:`compose_one` for one pair, allocating the outputs."""
+    t = np.empty(3)
+    q = np.empty(4)
+    C = np.empty((6, 6))
+    Ja = np.empty((6, 6))
+    Jb = np.empty((6, 6))
+    compose_one(ta, qa, Ca, tb, qb, Cb, Ca, False, t, q, C, Ja, Jb)
+    return t, q, C, Ja, Jb
+
+
+def covariance_code(c):
     """0: finite, exactly symmetric and PSD; 1: not finite; 2: not symmetric; 3: maybe not PSD.
 
     The PSD test is a Cholesky factorisation that treats pivots below a relative tolerance as
@@ -252,18 +164,29 @@ def _covariance_code(c):
     return 0
 
 
-if _nb is not None:
-    _covariance_code_jit = _nb.njit(cache=True)(_covariance_code)
-
 
 def covariance_is_plainly_valid(c: np.ndarray) -> bool:
     """Fast check of one (n, n) float matrix: finite, exactly symmetric and PSD.
 
     ``False`` means "look closer" (the caller runs the detailed checks that name the problem).
+    Both backends answer ``True`` for finite, exactly symmetric positive-definite matrices; the
+    compiled one also for singular PSD ones, which the NumPy path leaves to the closer look.
     """
-    if _backend == "numba" and c.ndim == 2:
-        return _covariance_code_jit(c) == 0
-    return False
+    if c.ndim != 2:
+        return False
+    if get_backend() == "numba":
+        return kernels(_self()).covariance_code(c) == 0
+    if not (np.isfinite(c).all() and np.array_equal(c, c.T)):
+        return False
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _self():
+    return sys.modules[__name__]
 
 
 _ZERO66 = np.zeros((1, 6, 6))
@@ -274,13 +197,16 @@ def compose(ta, qa, Ca, tb, qb, Cb, Cab=None):
 
     Inputs broadcast over leading dimensions; ``Cab`` is the optional cross-covariance.
     """
-    if _backend == "numpy":
-        return _compose_numpy(ta, qa, Ca, tb, qb, Cb, Cab)
+    if get_backend() == "numpy":
+        J_c_a, J_c_b = jacobians_compose(ta, qa, tb, qb)
+        c = propagate_covariance(J_c_a, Ca, J_c_b, Cb, Cab)
+        return ta + quat_rotate(qa, tb), quat_multiply(qa, qb), c, J_c_a, J_c_b
+    k = kernels(_self())
     if Cab is None and ta.ndim == 1 and qa.ndim == 1 and tb.ndim == 1 and qb.ndim == 1:
         # Single poses skip all batching overhead. Arrays held by Pose/UncertainPose are
         # always C-contiguous writable float64, so this compiles one specialisation.
         if Ca.ndim == 2 and Cb.ndim == 2:
-            return _compose_single_jit(ta, qa, Ca, tb, qb, Cb)
+            return k.compose_single(ta, qa, Ca, tb, qb, Cb)
     shape = np.broadcast_shapes(
         ta.shape[:-1], qa.shape[:-1], Ca.shape[:-2], tb.shape[:-1], qb.shape[:-1], Cb.shape[:-2]
     )
@@ -300,7 +226,7 @@ def compose(ta, qa, Ca, tb, qb, Cb, Cab=None):
     Ja = np.empty((n, 6, 6))
     Jb = np.empty((n, 6, 6))
     cab = flat(Cab, (6, 6)) if Cab is not None else _ZERO66
-    _compose_batch_jit(
+    k.compose_batch(
         flat(ta, (3,)), flat(qa, (4,)), flat(Ca, (6, 6)), flat(tb, (3,)), flat(qb, (4,)),
         flat(Cb, (6, 6)), cab, Cab is not None, t, q, C, Ja, Jb,
     )  # fmt: skip
