@@ -26,8 +26,8 @@ import time
 import numpy as np
 
 from trackflow import Pose, UncertainPose
-from trackflow.filters import MotionModel, PoseKalmanFilter, _core, run_filter
-from trackflow.filters._backend import kernels
+from trackflow.filters import FilterStatus, MotionModel, PoseKalmanFilter, run_filter
+from trackflow.filters.derivative.streaming import kernels
 
 DT = 0.01
 NOISE = (0.0, 0.0, 5.0, 0.0, 3.0)
@@ -240,7 +240,7 @@ def stability(steps: int) -> dict:
             st, _ = k.step(
                 x, p, 1e-3, n_dp, n_do, add, kind, sp, so, 0, 0, pos[i], quat[i], C6, 1e9, 50.0
             )
-            gated += st != _core.ACCEPTED
+            gated += st != FilterStatus.ACCEPTED
         done += m
         worst_sym = max(worst_sym, float(np.max(np.abs(p - p.T))))
         min_eig = min(min_eig, float(np.linalg.eigvalsh(p).min()))

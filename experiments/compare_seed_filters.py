@@ -66,9 +66,9 @@ from scipy.stats import chi2
 
 from trackflow import Pose, UncertainPose
 from trackflow.filters import MotionModel, PoseKalmanFilter, run_filter
-from trackflow.filters.camera_features import CameraObservation, PinholeCamera
-from trackflow.filters.manifold_gn import QuaternionSpaceFilter, estimate_pose
-from trackflow.filters.relative_motion import (
+from trackflow.filters.quaternion_space.camera_features import CameraObservation, PinholeCamera
+from trackflow.filters.quaternion_space.gauss_newton import QuaternionSpaceFilter, estimate_pose
+from trackflow.filters.relative_motion.ekf import (
     RelativeMotionEKF,
     RelativeMotionState,
     predict_pose,

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from trackflow import Pose, UncertainPose
-from trackflow.filters.relative_motion import (
+from trackflow.filters.relative_motion.ekf import (
     RelativeMotionEKF,
     RelativeMotionState,
     motion_matrices,

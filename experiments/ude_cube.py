@@ -28,14 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from trackflow.filters.camera_features import (
+from trackflow.filters.quaternion_space.camera_features import (
     CameraObservation,
     PinholeCamera,
     anisotropic_endpoint_covariance,
     segment_covariance,
     segment_parameters,
 )
-from trackflow.filters.manifold_gn import (
+from trackflow.filters.quaternion_space.gauss_newton import (
     QuaternionSpaceFilter,
     adjust_state,
     estimate_pose,

@@ -1,4 +1,5 @@
-"""The seed papers' filters as dataflow filters (``trackflow.filters.seed_adapters``, issue 6).
+"""The seed papers' filters as dataflow filters (``trackflow.filters.relative_motion`` /
+``quaternion_space`` streaming adapters and ``factory``, issue 6).
 
 Each adapter is plugged into a planned network through ``filter_factory`` (the synthetic
 tracker + camera world of ``_scenario``), run, and compared with the default pose Kalman filter
@@ -16,14 +17,14 @@ from _scenario import T_A_M, graph, sensors
 
 from trackflow import Pose, UncertainPose
 from trackflow.dataflow import KalmanFilter, Network, PullSink, RecordingPlayer, plan_query
-from trackflow.filters.seed_adapters import (
+from trackflow.filters import (
     QuaternionSpacePoseFilter,
     RelativeMotionPoseFilter,
-    _PoseTerm,
     constant_velocity_densities,
     quaternion_space_factory,
     relative_motion_factory,
 )
+from trackflow.filters.quaternion_space.streaming import _PoseTerm
 from trackflow.graph import MotionSpec, Query
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import trackflow.filters.camera_features as cf
+import trackflow.filters.quaternion_space.camera_features as cf
 from trackflow import Pose
 from trackflow.math import quat_exp, quat_multiply, quat_normalize
 

@@ -13,8 +13,8 @@ from scipy.integrate import quad_vec
 from scipy.optimize import least_squares
 
 from trackflow import UncertainPose
-from trackflow.filters.camera_features import CameraObservation, PinholeCamera
-from trackflow.filters.manifold_gn import (
+from trackflow.filters.quaternion_space.camera_features import CameraObservation, PinholeCamera
+from trackflow.filters.quaternion_space.gauss_newton import (
     QuaternionSpaceFilter,
     QuaternionSpaceState,
     adjust_state,

@@ -11,7 +11,7 @@ import pytest
 from scipy.linalg import expm
 
 from trackflow import Pose, UncertainPose
-from trackflow.filters.relative_motion import (
+from trackflow.filters.relative_motion.ekf import (
     RelativeMotionEKF,
     RelativeMotionState,
     motion_jacobians_omega,

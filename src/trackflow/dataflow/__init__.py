@@ -5,12 +5,13 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 ``docs/conventions.md``.
 """
 
+from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
 from ._demo import DemoConfig, demo_json, run_demo
 from ._events import ComponentStats, Measurement
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
-from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler, make_filter
+from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
 from ._sources import NO_ORIGIN, RecordingPlayer, SimulatedSensor, StaticPose

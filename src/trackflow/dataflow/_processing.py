@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from ..filters import make_filter
 from ..graph import MotionSpec
 from ..math import UncertainPose
 from ._component import Component
 from ._events import Measurement
 from ._sources import NO_ORIGIN
 
-__all__ = ["Inference", "Inversion", "KalmanFilter", "LatestValue", "Sampler", "make_filter"]
+__all__ = ["Inference", "Inversion", "KalmanFilter", "LatestValue", "Sampler"]
 
 
 class Inversion(Component):
@@ -79,41 +80,6 @@ class Inference(Component):
             self.emit(out)
 
 
-def filter_noise(motion: MotionSpec) -> tuple[float, ...] | None:
-    """Per-level process noise for :class:`trackflow.filters.MotionModel` from a MotionSpec.
-
-    A scalar or a pair ``(position, orientation)`` drives the highest derivative level of
-    each part (white-noise spectral densities, lower levels zero); a full tuple of
-    ``(n_dp + 1) + (n_do + 1)`` values is passed unchanged.
-    """
-    noise = motion.noise
-    levels = (motion.n_dp + 1, motion.n_do + 1)
-    if isinstance(noise, (int, float)):
-        noise = (float(noise), float(noise))
-    noise = tuple(float(v) for v in noise)
-    if len(noise) == sum(levels):
-        return noise
-    if len(noise) != 2:
-        raise ValueError(
-            f"motion noise must be a scalar, a (position, orientation) pair or {sum(levels)} "
-            f"values, got {noise}"
-        )
-    return (0.0,) * motion.n_dp + (noise[0],) + (0.0,) * motion.n_do + (noise[1],)
-
-
-def make_filter(motion: MotionSpec, history_s: float):
-    """A :class:`trackflow.filters.PoseKalmanFilter` for a relationship's motion model."""
-    try:
-        from ..filters import MotionModel, PoseKalmanFilter
-    except ImportError as exc:  # the filter package is a hard requirement of this component
-        raise RuntimeError(f"the pose Kalman filter is unavailable: {exc}") from exc
-    if motion.static:
-        model = MotionModel.static()
-    else:
-        model = MotionModel(motion.n_dp, motion.n_do, noise=filter_noise(motion))
-    return PoseKalmanFilter(model, history=history_s)
-
-
 class KalmanFilter(Component):
     """A pose Kalman filter turning pushed measurements into a pull output valid at any time.
 
@@ -140,7 +106,7 @@ class KalmanFilter(Component):
     filter_factory : callable, optional
         ``filter_factory(motion, history_s)`` building an object with ``update_pose(t_s,
         UncertainPose) -> bool`` and ``predict(t_s) -> UncertainPose``; default
-        :func:`make_filter`.
+        :func:`trackflow.filters.make_filter`.
     """
 
     push_in = -1

@@ -1,38 +1,46 @@
-"""Pose filters.
+"""Pose filters, one folder per family, all behind one contract.
 
-* The thesis's pose Kalman filter built from motion models (Pustka, chapters 5.3, 6.2, 6.3):
-  ``PoseKalmanFilter`` (streaming: predict, interpolate, fuse, estimate static poses),
-  ``MotionModel`` (state layout and process noise) and ``run_filter`` (whole recordings).
-  See ``docs/filters.md``.
-* Dorfmueller-Ulhaas's EKF on relative rigid-body motion: ``RelativeMotionEKF``
-  (module ``relative_motion``; ``docs/seed_filter_relative_motion.md``).
-* Ude's filter in the unit-quaternion space, adjusted by Gauss-Newton on the manifold:
-  ``QuaternionSpaceFilter`` with ``PinholeCamera`` / ``CameraObservation`` features
-  (modules ``manifold_gn`` and ``camera_features``; ``docs/seed_filter_quaternion_space.md``).
+* ``contract``: :class:`PoseFilter` (the streaming protocol the dataflow relies on),
+  :class:`FilterStatus` (one status code set) and :class:`MeasurementFunction` (user-defined
+  measurements with their Jacobian, thesis 7.3.2).
+* ``gating``: one gate and reset policy (:class:`GatePolicy`) for every family and both
+  drivers (streaming and offline).
+* ``derivative``: the thesis's pose Kalman filter built from motion models (chapters 5.3, 6.2,
+  6.3): :class:`PoseKalmanFilter`, :class:`MotionModel`, :func:`run_filter`.
+* ``twist_ar``: a Kalman filter on learned dynamics (:class:`TwistARModel`, a vector
+  autoregression of body-frame pose increments fitted to a recording; :func:`run_twist_ar`).
+* ``relative_motion``: Dorfmueller-Ulhaas's EKF on relative rigid-body motion
+  (:class:`RelativeMotionEKF`, :class:`RelativeMotionPoseFilter`).
+* ``quaternion_space``: Ude's filter in the unit-quaternion space, adjusted by Gauss-Newton on
+  the manifold (:class:`QuaternionSpaceFilter`, :class:`QuaternionSpacePoseFilter`, with
+  :class:`PinholeCamera` / :class:`CameraObservation` features).
+* ``factory``: the filter the dataflow builds for a relationship (:func:`make_filter`, and the
+  seed filters' factories).
 
-``RelativeMotionPoseFilter`` and ``QuaternionSpacePoseFilter`` give the two seed filters the
-streaming protocol of ``PoseKalmanFilter`` (``update_pose``/``predict``), so the dataflow can use
-them through ``filter_factory`` (``relative_motion_factory``, ``quaternion_space_factory``).
-* A Kalman filter on learned dynamics: ``TwistARModel`` (a vector autoregression of
-  body-frame pose increments, fitted to a recording) and ``run_twist_ar`` (module
-  ``twist_ar``; ``docs/filters.md``), which the evaluation's tuning uses where it predicts
-  better than the derivative models.
-
-All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``.
+All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``;
+``docs/architecture.md`` maps the package.
 """
 
-from ._kalman import PoseKalmanFilter, chi2_gate
-from ._model import FORMULATIONS, MotionModel
-from ._offline import FilterResult, run_filter
-from .camera_features import CameraObservation, PinholeCamera
-from .manifold_gn import QuaternionSpaceFilter, QuaternionSpaceState, estimate_pose
-from .relative_motion import RelativeMotionEKF, RelativeMotionState
-from .seed_adapters import (
-    QuaternionSpacePoseFilter,
-    RelativeMotionPoseFilter,
+from .contract import STATS_KEYS, FilterStatus, MeasurementFunction, PoseFilter
+from .derivative import FORMULATIONS, FilterResult, MotionModel, PoseKalmanFilter, run_filter
+from .factory import (
+    constant_velocity_densities,
+    filter_noise,
+    make_filter,
     quaternion_space_factory,
     relative_motion_factory,
 )
+from .gating import GatePolicy, chi2_gate
+from .measurements import numerical_jacobian
+from .quaternion_space import (
+    CameraObservation,
+    PinholeCamera,
+    QuaternionSpaceFilter,
+    QuaternionSpacePoseFilter,
+    QuaternionSpaceState,
+    estimate_pose,
+)
+from .relative_motion import RelativeMotionEKF, RelativeMotionPoseFilter, RelativeMotionState
 from .twist_ar import (
     TwistARModel,
     TwistARResult,
@@ -43,10 +51,15 @@ from .twist_ar import (
 
 __all__ = [
     "FORMULATIONS",
+    "STATS_KEYS",
     "CameraObservation",
     "FilterResult",
+    "FilterStatus",
+    "GatePolicy",
+    "MeasurementFunction",
     "MotionModel",
     "PinholeCamera",
+    "PoseFilter",
     "PoseKalmanFilter",
     "QuaternionSpaceFilter",
     "QuaternionSpacePoseFilter",
@@ -57,9 +70,13 @@ __all__ = [
     "TwistARModel",
     "TwistARResult",
     "body_increments",
-    "excitation_ratios",
     "chi2_gate",
+    "constant_velocity_densities",
     "estimate_pose",
+    "excitation_ratios",
+    "filter_noise",
+    "make_filter",
+    "numerical_jacobian",
     "quaternion_space_factory",
     "relative_motion_factory",
     "run_filter",

@@ -3,6 +3,8 @@
 Conventions (frames, quaternion order, error model) are in ``docs/conventions.md``.
 """
 
+from ._backend import get_backend, numba_available, set_backend, use_backend
+from ._backend import kernels as kernels_for
 from ._checks import UNIT_TOLERANCE, check_covariance, check_position, check_quaternion
 from ._covariance import (
     cov_from_additive_quaternion,
@@ -23,7 +25,6 @@ from ._jacobians import (
     jacobians_transform_point,
     propagate_covariance,
 )
-from ._backend import get_backend, numba_available, set_backend, use_backend
 from ._pose import Pose
 from ._quaternion import (
     quat_align_sign,
@@ -64,6 +65,7 @@ __all__ = [
     "evaluate_covariance",
     "get_backend",
     "jacobian_inverse",
+    "kernels_for",
     "jacobians_between",
     "jacobians_compose",
     "jacobians_interpolate",

@@ -98,7 +98,6 @@ def compose_one(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
             C[j, i] = C[i, j]
 
 
-
 def compose_batch(ta, qa, Ca, tb, qb, Cb, Cab, has_cross, t, q, C, Ja, Jb):
     """:func:`compose_one` over a flat batch (``Cab`` is one unused matrix without cross terms)."""
     for n in range(ta.shape[0]):
@@ -162,7 +161,6 @@ def covariance_code(c):
                 s -= low[i, k] * low[j, k]
             low[i, j] = s / r
     return 0
-
 
 
 def covariance_is_plainly_valid(c: np.ndarray) -> bool:

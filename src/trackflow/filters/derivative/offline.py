@@ -10,10 +10,10 @@ import numpy as np
 
 from trackflow.math import Pose, UncertainPose
 
-from . import _core
-from ._backend import kernels
-from ._kalman import PoseKalmanFilter, chi2_gate
-from ._model import MotionModel
+from ..contract import FilterStatus
+from ..gating import chi2_gate
+from .model import MotionModel
+from .streaming import PoseKalmanFilter, kernels
 
 __all__ = ["FilterResult", "run_filter"]
 
@@ -82,8 +82,8 @@ def run_filter(
         Prediction horizons (s) evaluated after every measurement.
     covariance : bool
         ``False``: compute the same filter but output the means only (``Pose`` instead of
-        ``UncertainPose``). With the error-state formulation this runs a compiled loop that
-        allocates nothing per measurement, about ten times faster (for parameter searches).
+        ``UncertainPose``); the compiled loop then allocates nothing per measurement, about ten
+        times faster (for parameter searches).
     max_gap : float, optional
         A measurement more than ``max_gap`` seconds after the previous one restarts the filter
         from scratch (status 4, initialised) instead of predicting across the dropout; the
@@ -129,11 +129,10 @@ def run_filter(
         raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap}")
     n = t.size
     nh = h.size
-    means_only = not covariance and not add
     out_t, out_q = np.zeros((n, 3)), np.zeros((n, 4))
     pred_t, pred_q = np.zeros((nh, n, 3)), np.zeros((nh, n, 4))
-    if not means_only:
-        out_c, pred_c = np.zeros((n, 6, 6)), np.zeros((nh, n, 6, 6))
+    m = n if covariance else 0  # the loop leaves the covariance outputs alone without them
+    out_c, pred_c = np.zeros((m, 6, 6)), np.zeros((nh, m, 6, 6))
     nis = np.full(n, math.nan)
     status = np.zeros(n, dtype=np.int8)
     dof = 3 if (n_dp < 0 or n_do < 0) else 6
@@ -146,19 +145,13 @@ def run_filter(
     for a, b in zip(cuts[:-1], cuts[1:]):
         x, p = kf._x0.copy(), kf._p0.copy()
         seg = slice(a, b)
-        if means_only:
-            k.run_means(
-                ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, kind, sp, so,
-                gate, float(max_angular_velocity), int(reset_after),
-                out_t[seg], out_q[seg], pred_t[:, seg], pred_q[:, seg], nis[seg], status[seg],
-            )  # fmt: skip
-        else:
-            k.run(
-                ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
-                gate, float(max_angular_velocity), int(reset_after), out_t[seg], out_q[seg],
-                out_c[seg], pred_t[:, seg], pred_q[:, seg], pred_c[:, seg], nis[seg],
-                status[seg],
-            )  # fmt: skip
+        cseg = seg if covariance else slice(0, 0)
+        k.run(
+            ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
+            gate, float(max_angular_velocity), int(reset_after), bool(covariance), out_t[seg],
+            out_q[seg], out_c[cseg], pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg], nis[seg],
+            status[seg],
+        )  # fmt: skip
     if sort:
         inv = np.empty_like(order)
         inv[order] = np.arange(n)
@@ -167,14 +160,14 @@ def run_filter(
     counts = np.bincount(status, minlength=6)
     stats = {
         "updates": int(
-            counts[_core.ACCEPTED]
-            + counts[_core.INITIALIZED]
-            + counts[_core.RESET]
-            + counts[_core.DIVERGED]
+            counts[FilterStatus.ACCEPTED]
+            + counts[FilterStatus.INITIALIZED]
+            + counts[FilterStatus.RESET]
+            + counts[FilterStatus.DIVERGED]
         ),
-        "rejected_gate": int(counts[_core.GATED]),
-        "rejected_invalid": int(counts[_core.INVALID]),
-        "resets": int(counts[_core.RESET] + counts[_core.DIVERGED]),
+        "rejected_gate": int(counts[FilterStatus.GATED]),
+        "rejected_invalid": int(counts[FilterStatus.INVALID]),
+        "resets": int(counts[FilterStatus.RESET] + counts[FilterStatus.DIVERGED]),
         "out_of_order": out_of_order,
     }
     if covariance:

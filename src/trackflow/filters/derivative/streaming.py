@@ -7,15 +7,22 @@ import logging
 import math
 
 import numpy as np
-from scipy.special import chdtri
 
-from trackflow.math import UncertainPose, check_covariance, check_quaternion
+from trackflow.math import Pose, UncertainPose, check_covariance, check_quaternion, kernels_for
 
-from . import _core
-from ._backend import kernels
-from ._model import MotionModel, _additive
+from .. import gating
+from ..contract import FilterStatus, MeasurementFunction
+from ..gating import GatePolicy, chi2_gate
+from . import kernels as _source
+from .model import MotionModel, _additive
 
 __all__ = ["PoseKalmanFilter", "chi2_gate"]
+
+
+def kernels():
+    """The derivative-model kernels for the active backend."""
+    return kernels_for(_source)
+
 
 log = logging.getLogger("trackflow.filters")
 
@@ -23,25 +30,17 @@ _PRIOR_SIGMA_POSITION = 10.0  # m, m/s, m/s^2, ... for parts no measurement has 
 _PRIOR_SIGMA_ANGLE = math.pi  # rad
 _PRIOR_SIGMA_RATE = 10.0  # rad/s, rad/s^2, ...
 # statuses after which the state does not continue the previous one (no smoothing across)
-_SEGMENT_START = (_core.INITIALIZED, _core.RESET, _core.DIVERGED)
-
-
-def chi2_gate(probability: float | None, dof: int) -> float:
-    """Mahalanobis (NIS) threshold passing ``probability`` of consistent innovations."""
-    if probability is None or probability >= 1.0:
-        return math.inf
-    # chdtri is the inverse survival function of chi-square; it avoids importing scipy.stats
-    # (about a second at every command-line start).
-    return float(chdtri(dof, 1.0 - probability))
+_SEGMENT_START = (FilterStatus.INITIALIZED, FilterStatus.RESET, FilterStatus.DIVERGED)
 
 
 class _Entry:
     """One logged measurement and the filter state right after it."""
 
-    __slots__ = ("t", "lp", "lo", "zp", "zo", "r", "status", "nis", "x", "p", "gated_run")
+    __slots__ = ("t", "lp", "lo", "zp", "zo", "r", "fn", "status", "nis", "x", "p", "gated_run")
 
-    def __init__(self, t, lp, lo, zp, zo, r):
+    def __init__(self, t, lp, lo, zp, zo, r, fn=None):
         self.t, self.lp, self.lo, self.zp, self.zo, self.r = t, lp, lo, zp, zo, r
+        self.fn = fn  # a MeasurementFunction (lp = lo = -1), or None for a built-in measurement
         self.status = -1
         self.nis = math.nan
         self.x = self.p = None
@@ -100,28 +99,23 @@ class PoseKalmanFilter:
             raise ValueError(f"model must be a MotionModel, got {type(model).__name__}")
         if not (math.isfinite(history) and history >= 0):
             raise ValueError(f"history must be finite and >= 0 seconds, got {history}")
-        if gate_probability is not None and not (0.0 < gate_probability <= 1.0):
-            raise ValueError(f"gate_probability must be in (0, 1] or None, got {gate_probability}")
         if not (math.isfinite(max_angular_velocity) and max_angular_velocity >= 0):
             raise ValueError(f"max_angular_velocity must be >= 0, got {max_angular_velocity}")
-        if int(reset_after) < 1:
-            raise ValueError(f"reset_after must be >= 1, got {reset_after}")
         self._model = model
         self._formulation = formulation
         self._params = model._params(formulation)
         self._additive = _additive(formulation)
         self._history = float(history)
-        self._gate_probability = gate_probability
-        self._gates = {m: chi2_gate(gate_probability, m) for m in (3, 6)}
+        self._policy = GatePolicy(gate_probability, reset_after)
+        self._gates = {m: self._policy.threshold(m) for m in (3, 6)}
         self._wmax = float(max_angular_velocity)
-        self._reset_after = int(reset_after)
         self._x0, self._p0 = self._prior()
         self.reset()
 
     # -- state -----------------------------------------------------------------------------
     def _prior(self):
         n_dp, n_do, add = self._params[:3]
-        npl, nol, nx, nc = _core.dims(n_dp, n_do, add)
+        npl, nol, nx, nc = _source.dims(n_dp, n_do, add)
         x = self._model.initial_state()
         var = [_PRIOR_SIGMA_POSITION**2] * (3 * npl)
         for lvl in range(nol):
@@ -141,7 +135,7 @@ class PoseKalmanFilter:
         self._times: list[float] = []
         self._base: _Entry | None = None  # state before the oldest logged measurement
         self._smooth_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._counts = {"rejected_old": 0, "out_of_order": 0}
+        self._counts = {"rejected_old": 0, "out_of_order": 0, "rejected_uninitialized": 0}
         self._pruned = dict.fromkeys(range(6), 0)
 
     @property
@@ -176,19 +170,22 @@ class PoseKalmanFilter:
     def stats(self) -> dict:
         """Counters: ``updates`` (integrated, including (re)initialisations),
         ``rejected_gate``, ``rejected_old`` (older than the history window), ``resets``,
-        ``out_of_order`` (inserted by re-filtering)."""
+        ``out_of_order`` (inserted by re-filtering), ``rejected_invalid`` and
+        ``rejected_uninitialized`` (measurement functions, :meth:`update_measurement`)."""
         c = dict(self._pruned)
         for e in self._log:
             c[e.status] += 1
         return {
-            "updates": c[_core.ACCEPTED]
-            + c[_core.INITIALIZED]
-            + c[_core.RESET]
-            + c[_core.DIVERGED],
-            "rejected_gate": c[_core.GATED],
+            "updates": c[FilterStatus.ACCEPTED]
+            + c[FilterStatus.INITIALIZED]
+            + c[FilterStatus.RESET]
+            + c[FilterStatus.DIVERGED],
+            "rejected_gate": c[FilterStatus.GATED],
             "rejected_old": self._counts["rejected_old"],
-            "resets": c[_core.RESET] + c[_core.DIVERGED],
+            "resets": c[FilterStatus.RESET] + c[FilterStatus.DIVERGED],
             "out_of_order": self._counts["out_of_order"],
+            "rejected_invalid": c[FilterStatus.INVALID],
+            "rejected_uninitialized": self._counts["rejected_uninitialized"],
         }
 
     # -- measurements ------------------------------------------------------------------------
@@ -257,18 +254,51 @@ class PoseKalmanFilter:
             return self._measure(t, lp, -1, v, np.zeros(4), c)
         return self._measure(t, -1, lo, np.zeros(3), np.concatenate([v, [0.0]]), c)
 
-    def _measure(self, t, lp, lo, zp, zo, r) -> bool:
+    def update_measurement(self, t: float, measurement: MeasurementFunction) -> bool:
+        """Integrate a user-defined measurement of the pose at time ``t`` (thesis 7.3.2).
+
+        ``measurement`` meets :class:`~trackflow.filters.MeasurementFunction`: ``residual(T)``
+        gives ``y = z - h(T)`` and ``J_h_pose`` (m, 6) over the pose error ``(dt, dtheta)``,
+        ``covariance`` gives ``R`` (m, m). The update is the extended Kalman filter's with
+        ``H = J_h_pose`` placed on the state's pose columns and the gate of the filter's policy
+        at ``m`` degrees of freedom.
+
+        Returns
+        -------
+        bool
+            ``True`` if integrated; ``False`` for a counted rejection: gated, older than the
+            history, before the first absolute measurement (``rejected_uninitialized``: a
+            measurement function cannot initialise the pose) or a singular innovation
+            covariance (``rejected_invalid``; the state stays the prediction).
+        """
+        if not isinstance(measurement, MeasurementFunction):
+            raise ValueError(
+                "measurement must have residual(pose) -> (y, J_h_pose) and covariance, got "
+                f"{type(measurement).__name__}"
+            )
+        if self._additive:
+            raise ValueError("measurement functions need the error_state formulation")
+        if self._params[0] < 0 or self._params[1] < 0:
+            raise ValueError(
+                "measurement functions need a model estimating position and orientation"
+            )
+        if self._t is None:
+            self._counts["rejected_uninitialized"] += 1
+            return False
+        return self._measure(t, -1, -1, np.zeros(3), np.zeros(4), np.zeros((0, 0)), measurement)
+
+    def _measure(self, t, lp, lo, zp, zo, r, fn=None) -> bool:
         t = float(t)
         if not math.isfinite(t):
             raise ValueError(f"measurement time must be finite, got {t}")
-        e = _Entry(t, lp, lo, np.array(zp, dtype=float), np.array(zo, dtype=float), np.array(r))
+        e = _Entry(t, lp, lo, np.array(zp, dtype=float), np.array(zo, dtype=float), np.array(r), fn)
         self._smooth_cache = {}
         if self._t is None or t >= self._t:
             self._apply(e)
             self._log.append(e)
             self._times.append(t)
             self._prune()
-            return e.status != _core.GATED
+            return e.status != FilterStatus.GATED
         oldest = self._base.t if self._base is not None else -math.inf
         if t < self._t - self._history or t < oldest:
             self._counts["rejected_old"] += 1
@@ -282,7 +312,7 @@ class PoseKalmanFilter:
         for entry in self._log[i:]:
             self._apply(entry)
         self._counts["out_of_order"] += 1
-        return e.status != _core.GATED
+        return e.status != FilterStatus.GATED
 
     def _restore(self, i: int) -> None:
         src = self._log[i - 1] if i > 0 else self._base
@@ -303,16 +333,49 @@ class PoseKalmanFilter:
         if why:
             log.warning("pose Kalman filter reset at t=%.6f s: %s", e.t, why)
 
+    def _apply_function(self, e: _Entry) -> None:
+        """Predict to ``e.t`` and integrate the measurement function ``e.fn``."""
+        n_dp, n_do, add, kind, sp, so = self._params
+        k = kernels()
+        x, p = k.predict(self._x, self._p, e.t - self._t, n_dp, n_do, add, kind, sp, so)
+        qo = 3 * (n_dp + 1)
+        y, J = e.fn.residual(Pose(x[:3], x[qo : qo + 4]))
+        y = np.ascontiguousarray(y, dtype=float).reshape(-1)
+        m = y.size
+        J = np.asarray(J, dtype=float)
+        if J.shape != (m, 6) or not (np.all(np.isfinite(y)) and np.all(np.isfinite(J))):
+            raise ValueError(
+                f"measurement residual must be finite y (m,) and J_h_pose (m, 6); got y "
+                f"{y.shape}, J {J.shape}"
+            )
+        r = check_covariance(e.fn.covariance, name="measurement covariance", size=m)
+        h = np.zeros((m, p.shape[0]))
+        h[:, :3] = J[:, :3]
+        h[:, qo : qo + 3] = J[:, 3:]
+        xp, pp = x.copy(), p.copy()
+        gate = self._policy.threshold(m)
+        status, nis = k.update(
+            x, p, y, h, np.ascontiguousarray(r), gate, n_dp, n_do, add, self._wmax
+        )
+        e.status, e.nis = int(status), float(nis)
+        if status == FilterStatus.DIVERGED:  # cannot re-initialise from h: keep the prediction
+            x, p = xp, pp
+            e.status = int(FilterStatus.INVALID)
+        self._x, self._p = x, p
+        self._gated_run = gating.next_gated_run(e.status, self._gated_run)
+
     def _apply(self, e: _Entry) -> None:
         n_dp, n_do, add, kind, sp, so = self._params
         absolute = e.lp == 0 or e.lo == 0
-        if self._t is None:
+        if e.fn is not None and self._t is not None:
+            self._apply_function(e)
+        elif self._t is None:
             self._reinit(e, "")
-            e.status, e.nis = _core.INITIALIZED, math.nan
+            e.status, e.nis = FilterStatus.INITIALIZED, math.nan
             self._gated_run = 0
-        elif absolute and self._gated_run >= self._reset_after:
+        elif absolute and gating.reset_due(True, self._gated_run, self._policy.reset_after):
             self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
-            e.status, e.nis = _core.RESET, math.nan
+            e.status, e.nis = FilterStatus.RESET, math.nan
             self._gated_run = 0
         else:
             gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
@@ -321,13 +384,9 @@ class PoseKalmanFilter:
                 e.lp, e.lo, e.zp, e.zo, e.r, gate, self._wmax,
             )  # fmt: skip
             e.status, e.nis = int(status), float(nis)
-            if status == _core.GATED:
-                self._gated_run += 1
-            elif status == _core.DIVERGED:
+            if status == FilterStatus.DIVERGED:
                 self._reinit(e, "singular innovation covariance or non-finite state")
-                self._gated_run = 0
-            else:
-                self._gated_run = 0
+            self._gated_run = gating.next_gated_run(e.status, self._gated_run)
         self._t = e.t
         e.x, e.p, e.gated_run = self._x.copy(), self._p.copy(), self._gated_run
 
@@ -355,39 +414,48 @@ class PoseKalmanFilter:
         k = kernels()
         if t >= self._t:
             return k.predict(self._x, self._p, t - self._t, n_dp, n_do, add, kind, sp, so)
-        states = ([self._base] if self._base is not None else []) + self._log
-        if t < states[0].t:
+        # stored nodes: the base state (if any) then the logged ones, indexed without copying
+        off = 1 if self._base is not None else 0
+        oldest = self._node(0).t
+        if t < oldest:
             raise ValueError(
                 f"t={t:.6f} s is older than the stored history (oldest state at "
-                f"{states[0].t:.6f} s; history={self._history} s)"
+                f"{oldest:.6f} s; history={self._history} s)"
             )
-        i = bisect.bisect_right([s.t for s in states], t) - 1
-        a = states[i]
-        if states[i + 1].status in _SEGMENT_START:
+        i = bisect.bisect_right(self._times, t) - 1 + off
+        a, b = self._node(i), self._node(i + 1)
+        if b.status in _SEGMENT_START:
             return k.predict(a.x, a.p, t - a.t, n_dp, n_do, add, kind, sp, so)
-        xb, pb = self._smoothed(states, i + 1)
-        b = states[i + 1]
+        xb, pb = self._smoothed(i + 1)
         return k.smooth(a.x, a.p, a.t, xb, pb, b.t, t, n_dp, n_do, add, kind, sp, so)
 
-    def _smoothed(self, states: list[_Entry], j: int) -> tuple[np.ndarray, np.ndarray]:
+    def _node(self, j: int) -> _Entry:
+        """Stored node ``j``: the base state first (if any), then the logged entries."""
+        if self._base is not None:
+            return self._base if j == 0 else self._log[j - 1]
+        return self._log[j]
+
+    def _smoothed(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         """Rauch-Tung-Striebel smoothed state at stored node ``j`` (cached until new data)."""
         if j in self._smooth_cache:
             return self._smooth_cache[j]
         n_dp, n_do, add, kind, sp, so = self._params
         k = kernels()
+        count = len(self._log) + (1 if self._base is not None else 0)
         top = j
-        while top + 1 < len(states) and states[top + 1].status not in _SEGMENT_START:
+        while top + 1 < count and self._node(top + 1).status not in _SEGMENT_START:
             if top + 1 in self._smooth_cache:
                 break
             top += 1
-        if top + 1 < len(states) and top + 1 in self._smooth_cache:
+        if top + 1 < count and top + 1 in self._smooth_cache:
             xs, ps = self._smooth_cache[top + 1]
         else:  # newest node of a segment: smoothed = filtered
-            xs, ps = states[top].x, states[top].p
+            node = self._node(top)
+            xs, ps = node.x, node.p
             self._smooth_cache[top] = (xs, ps)
             top -= 1
         for m in range(top, j - 1, -1):
-            a, b = states[m], states[m + 1]
+            a, b = self._node(m), self._node(m + 1)
             xs, ps = k.smooth(a.x, a.p, a.t, xs, ps, b.t, a.t, n_dp, n_do, add, kind, sp, so)
             self._smooth_cache[m] = (xs, ps)
         return self._smooth_cache[j]

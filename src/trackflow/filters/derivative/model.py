@@ -7,7 +7,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._backend import kernels
+from trackflow.math import kernels_for
+
+from . import kernels as _source
 
 __all__ = ["MotionModel", "FORMULATIONS"]
 
@@ -121,12 +123,12 @@ class MotionModel:
     @property
     def state_size(self) -> int:
         """Length of the nominal state vector, ``7 + 3 (n_dp + n_do)`` with both parts."""
-        return kernels().dims(self._n_dp, self._n_do, 1)[2]
+        return kernels_for(_source).dims(self._n_dp, self._n_do, 1)[2]
 
     @property
     def error_size(self) -> int:
         """Size of the error-state covariance, ``3 (n_dp + 1) + 3 (n_do + 1)``."""
-        return kernels().dims(self._n_dp, self._n_do, 0)[3]
+        return kernels_for(_source).dims(self._n_dp, self._n_do, 0)[3]
 
     def __repr__(self) -> str:
         return (
@@ -184,7 +186,7 @@ class MotionModel:
             additive; ``n = state_size`` for ``"additive"``: ``x_true = x + dx``).
         """
         n_dp, n_do, add, _, _, _ = self._params(formulation)
-        return kernels().transition(self._check_state(x), float(dt), n_dp, n_do, add)
+        return kernels_for(_source).transition(self._check_state(x), float(dt), n_dp, n_do, add)
 
     def process_noise(self, dt: float, x=None, formulation: str = "error_state") -> np.ndarray:
         """Process-noise covariance ``Q(dt)`` in the covariance coordinates of ``formulation``.
@@ -196,19 +198,30 @@ class MotionModel:
         x = self.initial_state() if x is None else self._check_state(x)
         if not (math.isfinite(dt) and dt >= 0):
             raise ValueError(f"dt must be finite and >= 0, got {dt}")
-        return kernels().process_noise(x, float(dt), n_dp, n_do, add, kind, sp, so)
+        return kernels_for(_source).process_noise(x, float(dt), n_dp, n_do, add, kind, sp, so)
 
     def retract(self, x, delta, formulation: str = "error_state") -> np.ndarray:
         """``x [+] delta``: apply a covariance-coordinate correction (quaternion re-normalised)."""
         n_dp, n_do, add, _, _, _ = self._params(formulation)
         out = self._check_state(x).copy()
-        kernels().inject(out, np.ascontiguousarray(delta, dtype=float), n_dp, n_do, add, 0.0)
+        kernels_for(_source).inject(
+            out,
+            np.ascontiguousarray(delta, dtype=float),
+            n_dp,
+            n_do,
+            add,
+            0.0,
+            np.empty(4),
+            np.empty(4),
+        )
         return out
 
     def local(self, x1, x0, formulation: str = "error_state") -> np.ndarray:
         """``x1 [-] x0`` in the covariance coordinates (``Log(q0^* q1)`` for the error state)."""
         n_dp, n_do, add, _, _, _ = self._params(formulation)
-        return kernels().local(self._check_state(x1), self._check_state(x0), n_dp, n_do, add)
+        return kernels_for(_source).local(
+            self._check_state(x1), self._check_state(x0), n_dp, n_do, add
+        )
 
     def residual(
         self,
@@ -240,6 +253,6 @@ class MotionModel:
         )
         if zo.shape == (3,):
             zo = np.concatenate([zo, [0.0]])
-        return kernels().residual(
+        return kernels_for(_source).residual(
             self._check_state(x), n_dp, n_do, add, position_level, orientation_level, zp, zo
         )

@@ -37,9 +37,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from trackflow.math import (
+    kernels_for,
+    quat_conjugate,
+    quat_exp,
+    quat_log,
+    quat_multiply,
+    quat_rotate,
+)
 
-from ._backend import kernels
+from ..gating import GatePolicy
+from . import kernels as _source
 
 __all__ = [
     "TwistARModel",
@@ -432,7 +440,7 @@ class TwistARModel:
         """
         q = np.ascontiguousarray(quaternion, dtype=float)
         h = np.ascontiguousarray(history, dtype=float).reshape(-1)
-        _, top, jn = kernels().twist_ar_top(q, h, self._a_cat())
+        _, top, jn = kernels_for(_source).twist_ar_top(q, h, self._a_cat())
         n = self.state_dim
         j = np.zeros((n, n))
         j[:12] = top
@@ -464,6 +472,9 @@ class TwistARResult:
         Normalised innovation squared (NaN where the filter (re)started).
     restarts : int
         Times the filter started afresh (first sample, after gaps).
+    status : ndarray of int8, shape (N,)
+        :class:`~trackflow.filters.FilterStatus` of each measurement (initialised, accepted,
+        gated or reset).
     """
 
     position: np.ndarray
@@ -473,6 +484,7 @@ class TwistARResult:
     predictions: dict = field(repr=False)
     nis: np.ndarray = field(repr=False)
     restarts: int = 0
+    status: np.ndarray | None = field(default=None, repr=False)
 
 
 def run_twist_ar(
@@ -484,6 +496,7 @@ def run_twist_ar(
     ori_sigma: float,
     horizons: Sequence[float] = (),
     max_gap: float | None = None,
+    gate: GatePolicy | None = None,
 ) -> TwistARResult:
     """Run the autoregressive-twist Kalman filter over a recording.
 
@@ -506,6 +519,9 @@ def run_twist_ar(
         Prediction horizons [s] (means only).
     max_gap : float, optional
         [s]; default none: the filter starts once, at the first sample.
+    gate : GatePolicy, optional
+        Innovation gate and reset policy shared by every filter family; default none: every
+        measurement is integrated.
 
     Returns
     -------
@@ -521,12 +537,15 @@ def run_twist_ar(
         raise ValueError(f"horizons must be >= 0 seconds, got {hz.tolist()}")
     gap = np.inf if max_gap is None else float(max_gap)
 
+    policy = gate if gate is not None else GatePolicy(gate_probability=None)
     r_diag = np.array([pos_sigma**2] * 3 + [ori_sigma**2] * 3)
-    out_p, out_q, out_h, out_c, nis, restarts = kernels().twist_ar_run(
+    status = np.zeros(n_s, dtype=np.int8)
+    out_p, out_q, out_h, out_c, nis, restarts = kernels_for(_source).twist_ar_run(
         np.ascontiguousarray(t), np.ascontiguousarray(pm), np.ascontiguousarray(qm),
         model._a_cat(), np.ascontiguousarray(model.noise),
         np.ascontiguousarray(model.twist_covariance), r_diag, float(model.dt), gap,
+        policy.threshold(6), policy.reset_after, status,
     )  # fmt: skip
     out_h = out_h.reshape(n_s, model.order, 6)
     preds = model.predict_many(out_p, out_q, out_h, hz) if hz.size else {}
-    return TwistARResult(out_p, out_q, out_h, out_c, preds, nis, int(restarts))
+    return TwistARResult(out_p, out_q, out_h, out_c, preds, nis, int(restarts), status)

@@ -1,0 +1,13 @@
+"""The thesis's pose Kalman filter on derivative motion models (Pustka, chapters 5.3, 6.2, 6.3).
+
+``model`` (:class:`MotionModel`: state layout and process noise), ``kernels`` (the compiled
+prediction, update and offline loop), ``streaming`` (:class:`PoseKalmanFilter`: predict,
+interpolate, fuse, estimate static poses) and ``offline`` (:func:`run_filter` over whole
+recordings). See ``docs/filters.md``.
+"""
+
+from .model import FORMULATIONS, MotionModel
+from .offline import FilterResult, run_filter
+from .streaming import PoseKalmanFilter
+
+__all__ = ["FORMULATIONS", "FilterResult", "MotionModel", "PoseKalmanFilter", "run_filter"]

@@ -1,0 +1,942 @@
+"""Kernels of the thesis's pose Kalman filter on derivative motion models, written once.
+
+A kernel source for :mod:`trackflow.math._backend` (plain Python on NumPy arrays, compiled by
+numba when that backend is active; keep it numba-compatible: explicit loops, contiguous float64
+arrays, no Python objects). Scalar SO(3) and small linear algebra come from
+:mod:`trackflow.math._scalar`, the gate and reset decisions from :mod:`trackflow.filters.gating`.
+Every allocating kernel is a thin wrapper of its in-place ``*_into`` twin, and one offline loop
+(:func:`run`) serves both formulations with or without covariance output.
+
+State layout (``n_dp`` position and ``n_do`` orientation derivatives, ``-1`` = not estimated):
+
+* nominal vector ``x``: ``t, t', ..., t^(n_dp)`` (3 each, frame a), then ``q`` (4, ``(x, y, z, w)``)
+  and ``w, w', ..., w^(n_do - 1)`` (3 each, body frame b, rad/s^k); length
+  ``3 (n_dp + 1) + 4 + 3 n_do`` = the thesis's ``7 + 3 (n_dp + n_do)``.
+* error-state covariance (``additive = 0``): over ``dt^(i)`` (additive) and ``dtheta`` with
+  ``R_true = R Exp(dtheta)`` (right perturbation, ``docs/conventions.md``) then the additive
+  angular-derivative errors; size ``3 (n_dp + 1) + 3 (n_do + 1)``.
+* additive formulation (``additive = 1``, thesis 6.2): covariance over the nominal vector itself,
+  ``q_true = q + dq``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from trackflow.filters.gating import (
+    ACCEPTED,
+    DIVERGED,
+    GATED,
+    INITIALIZED,
+    INVALID,
+    RESET,
+    is_gated,
+    next_gated_run,
+    reset_due,
+)
+from trackflow.math._scalar import (
+    TINY,
+    chol,
+    chol_into,
+    chol_solve,
+    chol_solve_rows,
+    exp_jac,
+    fact,
+    joseph_selection,
+    left_mult,
+    qexp_into,
+    qlog,
+    qmul,
+    qmul_into,
+    right_jac,
+    right_mult,
+    rotmat,
+    sandwich_into,
+    sym,
+)
+
+KERNELS = (
+    "dims",
+    "level_noise_into",
+    "level_noise",
+    "mean_transition_into",
+    "transition_matrix_into",
+    "transition",
+    "process_noise_into",
+    "process_noise",
+    "predict_scratch",
+    "predict_into",
+    "predict",
+    "residual_into",
+    "residual_size",
+    "residual",
+    "meas_cov",
+    "gain_into",
+    "inject",
+    "state_is_valid",
+    "update_scratch",
+    "selection_rows",
+    "update_into",
+    "update",
+    "local",
+    "initialize",
+    "pose_of",
+    "pose_mean_into",
+    "predict_pose",
+    "smooth",
+    "step",
+    "measurement_cov",
+    "row_is_finite",
+    "run",
+)
+KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
+
+UNKNOWN_VARIANCE = 1e12  # reported for a pose part the model does not estimate
+
+
+def dims(n_dp, n_do, additive):
+    """(position levels, orientation levels, nominal size, covariance size)."""
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    nol = n_do + 1 if n_do >= 0 else 0
+    nx = 3 * npl + (4 + 3 * n_do if n_do >= 0 else 0)
+    nc = nx if additive else 3 * npl + 3 * nol
+    return npl, nol, nx, nc
+
+
+# -- quaternion helpers (scalar, (x, y, z, w)) -----------------------------------------------
+
+
+def level_noise_into(n, sig, dt, kind, m):
+    """:func:`level_noise` written into ``m`` (at least ``n x n``)."""
+    for i in range(n):
+        for j in range(n):
+            m[i, j] = 0.0
+    if kind == 1:
+        for i in range(n):
+            m[i, i] = (sig[i] * dt) ** 2
+        return
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for lvl in range(max(i, j), n):
+                e = 2 * lvl - i - j + 1
+                s += sig[lvl] ** 2 * dt**e / (fact(lvl - i) * fact(lvl - j) * e)
+            m[i, j] = s
+
+
+def level_noise(n, sig, dt, kind):
+    """Process-noise matrix over derivative levels ``0..n-1`` for one axis.
+
+    ``kind = 0``: continuous white noise of spectral density ``sig[l]^2`` driving level ``l``,
+    integrated exactly over ``dt`` (Ude eq. 23 generalised). ``kind = 1``: thesis eq. 6.21,
+    ``diag((sig[l] dt)^2)``.
+    """
+    m = np.empty((n, n))
+    level_noise_into(n, sig, dt, kind, m)
+    return m
+
+
+# -- motion model -------------------------------------------------------------------------------
+
+
+def mean_transition_into(x, dt, n_dp, n_do, out, cf, b, d):
+    """``out`` = nominal part of :func:`transition` (both formulations); returns nothing.
+
+    ``cf`` (>= max levels + 1), ``b`` (3) and ``d`` (4) are scratch; ``d`` holds ``Exp(b)``
+    and ``b`` the rotation increment afterwards.
+    """
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    cf[0] = 1.0
+    for i in range(1, cf.shape[0]):
+        cf[i] = cf[i - 1] * dt / i
+    for i in range(npl):
+        for k in range(3):
+            v = 0.0
+            for j in range(i, npl):
+                v += cf[j - i] * x[3 * j + k]
+            out[3 * i + k] = v
+    if n_do < 0:
+        return
+    qo = 3 * npl
+    b[0] = 0.0
+    b[1] = 0.0
+    b[2] = 0.0
+    for lv in range(1, n_do + 1):
+        c = cf[lv]
+        for k in range(3):
+            b[k] += c * x[qo + 4 + 3 * (lv - 1) + k]
+    qexp_into(b, d)
+    qmul_into(x[qo : qo + 4], d, out[qo : qo + 4])
+    for lv in range(1, n_do + 1):
+        for k in range(3):
+            v = 0.0
+            for j in range(lv, n_do + 1):
+                v += cf[j - lv] * x[qo + 4 + 3 * (j - 1) + k]
+            out[qo + 4 + 3 * (lv - 1) + k] = v
+
+
+def transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a):
+    """``a`` = Jacobian ``A`` of :func:`transition` in the covariance coordinates.
+
+    Needs ``cf``, ``b`` and ``d`` as left by :func:`mean_transition_into` for the same state and
+    ``dt``. Error state: ``dtheta_new = Exp(b)^T dtheta + Jr(b) db``; additive: the thesis's
+    ``A_R`` with ``M(d)`` and ``B = L(q) dExp/db``.
+    """
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    nc = a.shape[0]
+    for i in range(nc):
+        for j in range(nc):
+            a[i, j] = 0.0
+    for i in range(npl):
+        for j in range(i, npl):
+            c = cf[j - i]
+            for k in range(3):
+                a[3 * i + k, 3 * j + k] = c
+    if n_do < 0:
+        return
+    qo = 3 * npl
+    if additive:
+        a[qo : qo + 4, qo : qo + 4] = right_mult(d)
+        bm = left_mult(x[qo : qo + 4]) @ exp_jac(b)
+        for lv in range(1, n_do + 1):
+            c = cf[lv]
+            a[qo : qo + 4, qo + 4 + 3 * (lv - 1) : qo + 4 + 3 * lv] = c * bm
+        base = qo + 4 - 3  # angular level lv sits at base + 3 lv
+    else:
+        r = rotmat(d)
+        jr = right_jac(b)
+        for i in range(3):
+            for j in range(3):
+                a[qo + i, qo + j] = r[j, i]
+        for lv in range(1, n_do + 1):
+            c = cf[lv]
+            for i in range(3):
+                for j in range(3):
+                    a[qo + i, qo + 3 * lv + j] = c * jr[i, j]
+        base = qo
+    for lv in range(1, n_do + 1):
+        for j in range(lv, n_do + 1):
+            c = cf[j - lv]
+            for k in range(3):
+                a[base + 3 * lv + k, base + 3 * j + k] = c
+
+
+def transition(x, dt, n_dp, n_do, additive):
+    """Motion-model prediction over ``dt``: returns ``(x_new, A)`` as new arrays.
+
+    Position: Taylor series (thesis eq. 6.18). Orientation: ``q_new = q * Exp(b)`` with
+    ``b = sum_l w^(l-1) dt^l / l!`` (eq. 6.19). ``A``: see :func:`transition_matrix_into`.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    xn = np.empty(nx)
+    a = np.empty((nc, nc))
+    cf = np.empty(max(npl, nol) + 1)
+    b = np.empty(3)
+    d = np.empty(4)
+    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
+    return xn, a
+
+
+def process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv):
+    """``qm`` = process-noise covariance ``Q`` in the covariance coordinates (:func:`level_noise`).
+
+    The additive formulation maps the rotation-vector noise onto the quaternion with
+    ``dq = L(q)[:, :3] dtheta / 2`` and adds the same variance along ``q`` itself, which makes the
+    quaternion block isotropic (``(sig dt / 2)^2 I_4`` for the thesis's diagonal model).
+    ``lv`` (levels x levels) is scratch.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    for i in range(nc):
+        for j in range(nc):
+            qm[i, j] = 0.0
+    if npl > 0:
+        level_noise_into(npl, sig_p, dt, kind, lv)
+        for i in range(npl):
+            for j in range(npl):
+                for k in range(3):
+                    qm[3 * i + k, 3 * j + k] = lv[i, j]
+    if nol == 0:
+        return
+    mo = lv
+    level_noise_into(nol, sig_o, dt, kind, mo)
+    eo = 3 * npl
+    if not additive:
+        for i in range(nol):
+            for j in range(nol):
+                for k in range(3):
+                    qm[eo + 3 * i + k, eo + 3 * j + k] = mo[i, j]
+        return
+    g = 0.5 * left_mult(x[eo : eo + 4])[:, :3]
+    q = x[eo : eo + 4]
+    qq = g @ g.T * mo[0, 0]
+    for r in range(4):
+        for c in range(4):
+            qq[r, c] += 0.25 * mo[0, 0] * q[r] * q[c]
+    qm[eo : eo + 4, eo : eo + 4] = qq
+    for j in range(1, nol):
+        col = eo + 4 + 3 * (j - 1)
+        blk = g * mo[0, j]
+        qm[eo : eo + 4, col : col + 3] = blk
+        qm[col : col + 3, eo : eo + 4] = blk.T
+        for i in range(1, nol):
+            row = eo + 4 + 3 * (i - 1)
+            for k in range(3):
+                qm[row + k, col + k] = mo[i, j]
+
+
+def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """:func:`process_noise_into` as a new array."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qm = np.empty((nc, nc))
+    nlev = max(npl, nol, 1)
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, np.empty((nlev, nlev)))
+    return qm
+
+
+def predict_scratch(n_dp, n_do, additive):
+    """Scratch arrays for :func:`predict_into`."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    nlev = max(npl, nol, 1)
+    return (
+        np.empty(nlev + 1), np.empty(3), np.empty(4), np.empty(nx), np.empty((nc, nc)),
+        np.empty((nc, nc)), np.empty((nlev, nlev)), np.empty((nc, nc)), np.empty((nc, nc)),
+    )  # fmt: skip
+
+
+def predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws):
+    """Time update in place: ``x = f(x)``, ``P = A P A^T + Q`` (thesis eqs. 5.59-5.60).
+
+    ``ws`` is a tuple of scratch arrays from :func:`predict_scratch`.
+    """
+    cf, b, d, xn, a, qm, lv, tmp, out = ws
+    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
+    sandwich_into(a, p, qm, tmp, out)
+    for i in range(x.shape[0]):
+        x[i] = xn[i]
+
+
+def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """:func:`predict_into` on copies: returns the new ``(x, P)``."""
+    xn = x.copy()
+    pn = p.copy()
+    predict_into(
+        xn, pn, dt, n_dp, n_do, additive, kind, sig_p, sig_o, predict_scratch(n_dp, n_do, additive)
+    )
+    return xn, pn
+
+
+# -- measurements ----------------------------------------------------------------------------
+
+
+def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h):
+    """``y`` = innovation ``z - h(x)``, ``h`` = measurement Jacobian ``H`` (``y ~ H e + v``).
+
+    ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
+    not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
+    ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    for i in range(y.shape[0]):
+        y[i] = 0.0
+        for j in range(nc):
+            h[i, j] = 0.0
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            y[k] = zp[k] - x[3 * lp + k]
+            h[k, 3 * lp + k] = 1.0
+        r = 3
+    if lo < 0:
+        return
+    qo = 3 * npl
+    q = x[qo : qo + 4]
+    if lo >= 1:
+        xo = qo + 4 + 3 * (lo - 1)
+        co = xo if additive else qo + 3 * lo
+        for k in range(3):
+            y[r + k] = zo[k] - x[xo + k]
+            h[r + k, co + k] = 1.0
+        return
+    if not additive:
+        qc = np.empty(4)
+        qc[0], qc[1], qc[2], qc[3] = -q[0], -q[1], -q[2], q[3]
+        e = qlog(qmul(qc, zo))
+        for k in range(3):
+            y[r + k] = e[k]
+            h[r + k, qo + k] = 1.0
+        return
+    dd = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+    ll = math.sqrt(dd)
+    s = 1.0
+    if zo[0] * q[0] + zo[1] * q[1] + zo[2] * q[2] + zo[3] * q[3] < 0.0:
+        s = -1.0
+    for i in range(4):
+        y[r + i] = s * zo[i] - q[i] / ll
+        for j in range(4):
+            h[r + i, qo + j] = ((dd if i == j else 0.0) - q[i] * q[j]) / (ll * dd)
+
+
+def residual_size(additive, lp, lo):
+    """Number of innovation rows of a measurement of levels ``lp`` / ``lo``."""
+    m = 3 if lp >= 0 else 0
+    if lo >= 0:
+        m += 4 if (additive and lo == 0) else 3
+    return m
+
+
+def residual(x, n_dp, n_do, additive, lp, lo, zp, zo):
+    """:func:`residual_into` into new arrays: returns ``(y, H)``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = residual_size(additive, lp, lo)
+    y = np.empty(m)
+    h = np.empty((m, nc))
+    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+    return y, h
+
+
+def meas_cov(c, q, lp, lo, additive):
+    """Measurement noise in residual coordinates from the caller's covariance ``c``.
+
+    ``c`` is 3x3 (one part) or 6x6 (position and orientation, conventions.md order). For the
+    additive orientation it becomes 4x4 / 7x7 via ``V [[C, 0], [0, 1]] V^T`` (eqs. 6.24-6.25),
+    ``V`` mapping ``dtheta`` to ``dq = L(q)[:, :3] dtheta / 2`` and the unit scalar along ``q``.
+    """
+    if not (additive and lo == 0):
+        return c.copy()
+    m = c.shape[0] + 1
+    v = np.zeros((m, c.shape[0] + 1))
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            v[k, k] = 1.0
+        r = 3
+    lq = left_mult(q)
+    for i in range(4):
+        for j in range(3):
+            v[r + i, r + j] = 0.5 * lq[i, j]
+        v[r + i, r + 3] = q[i]
+    ce = np.zeros((m, m))
+    ce[: c.shape[0], : c.shape[0]] = c
+    ce[m - 1, m - 1] = 1.0
+    return sym(v @ ce @ v.T)
+
+
+def gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta):
+    """Kalman gain from ``H P`` and ``S = H P H^T + R``: returns ``(status, nis)``.
+
+    On ACCEPTED ``kt`` holds ``K^T = S^-1 H P``, ``kr`` holds ``K R`` and ``delta`` the
+    correction ``K y``; GATED (``nis > gate``) and DIVERGED (``S`` not positive definite or a
+    non-finite NIS) leave them undefined. ``lo`` and ``sy`` are scratch.
+    """
+    nc = hp.shape[1]
+    m = y.shape[0]
+    if not chol_into(s, lo):
+        return DIVERGED, np.nan
+    for i in range(m):
+        sy[i, 0] = y[i]
+    chol_solve_rows(lo, sy)
+    nis = 0.0
+    for i in range(m):
+        nis += y[i] * sy[i, 0]
+    if not np.isfinite(nis):
+        return DIVERGED, nis
+    if is_gated(nis, gate):
+        return GATED, nis
+    for a_ in range(m):
+        for j in range(nc):
+            kt[a_, j] = hp[a_, j]
+    chol_solve_rows(lo, kt)
+    for i in range(nc):
+        delta[i] = 0.0
+    for a_ in range(m):
+        for i in range(nc):
+            delta[i] += kt[a_, i] * y[a_]
+    for i in range(nc):
+        for b_ in range(m):
+            kr[i, b_] = 0.0
+    for i in range(nc):
+        for a_ in range(m):
+            for b_ in range(m):
+                kr[i, b_] += kt[a_, i] * r[a_, b_]
+    return ACCEPTED, nis
+
+
+def inject(x, delta, n_dp, n_do, additive, wmax, d4, q4):
+    """Apply a correction in the covariance coordinates (``x <- x [+] delta``) in place.
+
+    Error state: ``q <- q Exp(dtheta)``; additive: ``q <- q + dq``; then ``q`` is normalised and
+    the angular velocity clipped to ``|w| <= wmax`` (if ``wmax > 0``), which changes the mean
+    only: the covariance stays symmetric positive definite. ``d4`` and ``q4`` are scratch (4,).
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    for i in range(qo):
+        x[i] += delta[i]
+    if n_do < 0:
+        return
+    if additive:
+        for i in range(qo, nx):
+            x[i] += delta[i]
+    else:
+        qexp_into(delta[qo : qo + 3], d4)
+        for k in range(4):
+            q4[k] = x[qo + k]
+        qmul_into(q4, d4, x[qo : qo + 4])
+        for i in range(qo + 4, nx):
+            x[i] += delta[i - 1]
+    n = math.sqrt(x[qo] ** 2 + x[qo + 1] ** 2 + x[qo + 2] ** 2 + x[qo + 3] ** 2)
+    for i in range(4):
+        x[qo + i] /= n
+    if n_do >= 1 and wmax > 0.0:
+        wn = math.sqrt(x[qo + 4] ** 2 + x[qo + 5] ** 2 + x[qo + 6] ** 2)
+        if wn > wmax:
+            for i in range(3):
+                x[qo + 4 + i] *= wmax / wn
+
+
+def state_is_valid(x, p):
+    """Whether the state is finite and every variance positive."""
+    for i in range(p.shape[0]):
+        if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
+            return False
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return False
+    return True
+
+
+def update_scratch(m, nc):
+    """Scratch arrays for :func:`update_into` (``m`` measured rows, ``nc`` error size)."""
+    return (
+        np.empty((m, nc)), np.empty((m, m)), np.empty((m, m)), np.empty((m, 1)),
+        np.empty((m, nc)), np.empty((nc, m)), np.empty(nc), np.empty(m), np.empty(nc),
+        np.empty((nc, nc)), np.empty(4), np.empty(4),
+    )  # fmt: skip
+
+
+def selection_rows(h, idx):
+    """Whether ``H`` selects one state entry per row (writing them to ``idx``)."""
+    m, nc = h.shape
+    selection = True
+    for row in range(m):
+        idx[row] = -1
+        for c in range(nc):
+            if h[row, c] != 0.0:
+                if h[row, c] == 1.0 and idx[row] < 0:
+                    idx[row] = c
+                else:
+                    selection = False
+        if idx[row] < 0:
+            selection = False
+    return selection
+
+
+def update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws):
+    """EKF update (thesis eqs. 5.61-5.63) for a selection ``H`` (rows ``idx``), in place.
+
+    Returns ``(status, nis)``: ACCEPTED, GATED (state untouched) or DIVERGED (the caller
+    re-initialises). ``ws`` is a tuple of scratch arrays from :func:`update_scratch`.
+    """
+    hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
+    nc = p.shape[0]
+    m = y.shape[0]
+    for a_ in range(m):
+        for j in range(nc):
+            hp[a_, j] = p[idx[a_], j]
+    for a_ in range(m):
+        for b_ in range(m):
+            s[a_, b_] = 0.5 * (hp[a_, idx[b_]] + hp[b_, idx[a_]]) + 0.5 * (r[a_, b_] + r[b_, a_])
+    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta)
+    if status != ACCEPTED:
+        return status, nis
+    joseph_selection(p, kt, kr, hp, idx, mp, g, acc)
+    inject(x, delta, n_dp, n_do, additive, wmax, d4, q4)
+    if not state_is_valid(x, p):
+        return DIVERGED, nis
+    return ACCEPTED, nis
+
+
+def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
+    """EKF update in place for any ``H``; returns ``(status, nis)`` as :func:`update_into`.
+
+    A selection ``H`` (error state, additive non-quaternion parts) runs :func:`update_into`;
+    otherwise (the additive quaternion normalisation, user measurements) dense products.
+    """
+    nc = p.shape[0]
+    m = y.shape[0]
+    ws = update_scratch(m, nc)
+    idx = np.empty(m, np.int64)
+    if selection_rows(h, idx):
+        return update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws)
+    hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
+    hp[:, :] = h @ p
+    s[:, :] = sym(hp @ h.T + r)
+    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta)
+    if status != ACCEPTED:
+        return status, nis
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
+    # when K is not exactly optimal (rounding, gating, clipped angular velocity).
+    mm = np.eye(nc) - kt.T @ h
+    pn = mm @ p @ mm.T
+    for i in range(nc):
+        for j in range(i, nc):
+            w = 0.5 * (pn[i, j] + pn[j, i])
+            for b_ in range(m):
+                w += kr[i, b_] * kt[b_, j]
+            if abs(w) < TINY:
+                w = 0.0
+            p[i, j] = w
+            p[j, i] = w
+    inject(x, delta, n_dp, n_do, additive, wmax, d4, q4)
+    if not state_is_valid(x, p):
+        return DIVERGED, nis
+    return ACCEPTED, nis
+
+
+def local(x1, x0, n_dp, n_do, additive):
+    """``x1 [-] x0`` in the covariance coordinates (inverse of :func:`inject` for small steps)."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    d = np.zeros(nc)
+    for i in range(qo):
+        d[i] = x1[i] - x0[i]
+    if n_do < 0:
+        return d
+    if additive:
+        s = 1.0
+        if (
+            x1[qo] * x0[qo]
+            + x1[qo + 1] * x0[qo + 1]
+            + x1[qo + 2] * x0[qo + 2]
+            + x1[qo + 3] * x0[qo + 3]
+            < 0.0
+        ):
+            s = -1.0
+        for i in range(4):
+            d[qo + i] = s * x1[qo + i] - x0[qo + i]
+        for i in range(qo + 4, nx):
+            d[i] = x1[i] - x0[i]
+        return d
+    qc = x0[qo : qo + 4].copy()
+    qc[0], qc[1], qc[2] = -qc[0], -qc[1], -qc[2]
+    d[qo : qo + 3] = qlog(qmul(qc, x1[qo : qo + 4]))
+    for i in range(qo + 4, nx):
+        d[i - 1] = x1[i] - x0[i]
+    return d
+
+
+def initialize(x, p, n_dp, n_do, additive, lp, lo, zp, zo, r):
+    """First measurement: copy the measured part into the state, its noise into ``P``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    idx = np.zeros(8, np.int64)
+    m = 0
+    if lp >= 0:
+        for k in range(3):
+            x[3 * lp + k] = zp[k]
+            idx[m] = 3 * lp + k
+            m += 1
+    if lo == 0:
+        s = 1.0 if zo[3] >= 0.0 else -1.0
+        for k in range(4):
+            x[qo + k] = s * zo[k]
+        for k in range(4 if additive else 3):
+            idx[m] = qo + k
+            m += 1
+    elif lo >= 1:
+        xo = qo + 4 + 3 * (lo - 1)
+        co = xo if additive else qo + 3 * lo
+        for k in range(3):
+            x[xo + k] = zo[k]
+            idx[m] = co + k
+            m += 1
+    for i in range(m):
+        for j in range(nc):
+            p[idx[i], j] = 0.0
+            p[j, idx[i]] = 0.0
+    for i in range(m):
+        for j in range(m):
+            p[idx[i], idx[j]] = r[i, j]
+
+
+def pose_of(x, p, n_dp, n_do, additive):
+    """Pose part of a state: ``(t (3), q (4), C (6x6))`` in trackflow's convention."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    qo = 3 * npl
+    t = np.zeros(3)
+    q = np.zeros(4)
+    q[3] = 1.0
+    c = np.zeros((6, 6))
+    j = np.zeros((6, nc))  # d (dt, dtheta) / d covariance coordinates
+    if npl > 0:
+        for k in range(3):
+            t[k] = x[k]
+            j[k, k] = 1.0
+    if nol > 0:
+        q[:] = x[qo : qo + 4]
+        if additive:
+            n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+            q /= n
+            lt = left_mult(q).T  # L(q^*)
+            for a in range(3):
+                for b in range(4):
+                    j[3 + a, qo + b] = 2.0 * lt[a, b] / n
+        else:
+            for k in range(3):
+                j[3 + k, qo + k] = 1.0
+    if additive:
+        c[:, :] = j @ p @ j.T
+    else:
+        sel = np.empty(6, np.int64)
+        for k in range(3):
+            sel[k] = k if npl > 0 else -1
+            sel[3 + k] = qo + k if nol > 0 else -1
+        for a in range(6):
+            for b in range(6):
+                if sel[a] >= 0 and sel[b] >= 0:
+                    c[a, b] = p[sel[a], sel[b]]
+    if npl == 0:
+        for k in range(3):
+            c[k, k] = UNKNOWN_VARIANCE
+    if nol == 0:
+        for k in range(3, 6):
+            c[k, k] = UNKNOWN_VARIANCE
+    return t, q, sym(c)
+
+
+def pose_mean_into(x, n_dp, n_do, additive, pos, quat):
+    """Pose part of a nominal state into ``pos`` (3) and ``quat`` (4), as :func:`pose_of`."""
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    for k in range(3):
+        pos[k] = x[k] if npl > 0 else 0.0
+    if n_do >= 0:
+        qo = 3 * npl
+        for k in range(4):
+            quat[k] = x[qo + k]
+        if additive:
+            n = math.sqrt(quat[0] ** 2 + quat[1] ** 2 + quat[2] ** 2 + quat[3] ** 2)
+            for k in range(4):
+                quat[k] /= n
+    else:
+        quat[0], quat[1], quat[2], quat[3] = 0.0, 0.0, 0.0, 1.0
+
+
+def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """Pose part of the prediction over ``dt``: ``(t, q, C)`` as :func:`pose_of` of
+    :func:`predict`, computing only the pose rows of ``A P A^T + Q``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    if additive:
+        xn, pn = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+        return pose_of(xn, pn, n_dp, n_do, additive)
+    xn, a = transition(x, dt, n_dp, n_do, additive)
+    qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    qo = 3 * npl
+    sel = np.empty(6, np.int64)
+    for k in range(3):
+        sel[k] = k if npl > 0 else 0
+        sel[3 + k] = qo + k if nol > 0 else 0
+    t = np.zeros((6, nc))
+    for r in range(6):
+        for k in range(nc):
+            v = a[sel[r], k]
+            if v != 0.0:
+                for j in range(nc):
+                    t[r, j] += v * p[k, j]
+    c = np.zeros((6, 6))
+    for r in range(6):
+        for col in range(r, 6):
+            w = qm[sel[r], sel[col]]
+            for k in range(nc):
+                w += t[r, k] * a[sel[col], k]
+            c[r, col] = w
+            c[col, r] = w
+    pos = np.zeros(3)
+    q = np.zeros(4)
+    q[3] = 1.0
+    if npl > 0:
+        pos[:] = xn[:3]
+    else:
+        for k in range(3):
+            for j in range(6):
+                c[k, j] = 0.0
+                c[j, k] = 0.0
+            c[k, k] = UNKNOWN_VARIANCE
+    if nol > 0:
+        q[:] = xn[qo : qo + 4]
+    else:
+        for k in range(3, 6):
+            for j in range(6):
+                c[k, j] = 0.0
+                c[j, k] = 0.0
+            c[k, k] = UNKNOWN_VARIANCE
+    return pos, q, c
+
+
+def smooth(x0, p0, t0, x1, p1, t1, t, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """State at ``t0 <= t <= t1`` from the filtered states at ``t0`` and ``t1``.
+
+    One Rauch-Tung-Striebel step: predict forward ``t0 -> t`` (``x_f, P_f``) and ``t -> t1``
+    (``x_m, P_m``, Jacobian ``A``), then ``x = x_f [+] G (x1 [-] x_m)``,
+    ``P = P_f + G (P1 - P_m) G^T`` with ``G = P_f A^T P_m^-1``. The motion model only runs
+    forwards in time.
+    """
+    xf, pf = predict(x0, p0, t - t0, n_dp, n_do, additive, kind, sig_p, sig_o)
+    xm, a = transition(xf, t1 - t, n_dp, n_do, additive)
+    pm = a @ pf @ a.T + process_noise(xf, t1 - t, n_dp, n_do, additive, kind, sig_p, sig_o)
+    pm = sym(pm)
+    lo, ok = chol(pm)
+    if not ok:
+        return xf, pf
+    g = chol_solve(lo, (pf @ a.T).T).T
+    d = local(x1, xm, n_dp, n_do, additive)
+    xs = xf.copy()
+    inject(xs, g @ d, n_dp, n_do, additive, 0.0, np.empty(4), np.empty(4))
+    ps = pf + g @ (p1 - pm) @ g.T
+    return xs, sym(ps)
+
+
+def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax):
+    """Streaming predict + update in place; returns ``(status, nis)``.
+
+    On GATED ``x, p`` hold the prediction to the measurement time; on DIVERGED they are
+    undefined (the caller resets the filter).
+    """
+    ws = predict_scratch(n_dp, n_do, additive)
+    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws)
+    y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
+    return update(
+        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive, wmax
+    )
+
+
+def measurement_cov(r, x, n_dp, lp, lo, additive):
+    """Noise of a measurement in residual coordinates at the state ``x`` (:func:`meas_cov`)."""
+    if not (additive and lo == 0):
+        return r
+    q = x[3 * (n_dp + 1 if n_dp >= 0 else 0) :][:4]
+    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    return meas_cov(r, q / n, lp, lo, additive)
+
+
+def row_is_finite(pos, quat, cov, i):
+    """Whether measurement row ``i`` (position, quaternion and covariance) is all finite."""
+    for k in range(3):
+        if not np.isfinite(pos[i, k]):
+            return False
+    for k in range(4):
+        if not np.isfinite(quat[i, k]):
+            return False
+    for a in range(6):
+        for b in range(6):
+            if not np.isfinite(cov[i, a, b]):
+                return False
+    return True
+
+
+def run(
+    times, pos, quat, cov, horizons, x, p, n_dp, n_do, additive, kind, sig_p, sig_o,
+    gate, wmax, reset_after, covariance, out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status,
+):  # fmt: skip
+    """Offline run over time-sorted pose measurements; fills the output arrays.
+
+    ``x, p`` hold the initial (uninitialised) state. Rows with non-finite values are skipped
+    (status INVALID) and get the prediction; gating and resets follow
+    :mod:`trackflow.filters.gating`. With ``covariance = False`` the pose covariances are not
+    computed (``out_c`` and ``pred_c`` are not touched and may be empty) and the loop allocates
+    nothing per measurement, which makes parameter searches over whole recordings cheap.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    lp = 0 if n_dp >= 0 else -1
+    lo = 0 if n_do >= 0 else -1
+    m = residual_size(additive, lp, lo)
+    mr = (3 if lp >= 0 else 0) + (3 if lo >= 0 else 0)  # rows of the measured block of cov[i]
+    roff = 0 if lp >= 0 else 3
+    x0 = x.copy()
+    p0 = p.copy()
+    pws = predict_scratch(n_dp, n_do, additive)
+    uws = update_scratch(m, nc)
+    y = np.empty(m)
+    h = np.empty((m, nc))
+    idx = np.empty(m, np.int64)
+    r = np.empty((mr, mr))
+    xs = np.empty(nx)
+    ps = np.empty((nc, nc))
+    initialized = False
+    t_state = 0.0
+    gated_run = 0
+    for i in range(times.shape[0]):
+        zp = pos[i]
+        zo = quat[i]
+        for k in range(mr):
+            for j in range(mr):
+                r[k, j] = cov[i, roff + k, roff + j]
+        xs[:] = x
+        ps[:, :] = p
+        if not row_is_finite(pos, quat, cov, i):
+            status[i] = INVALID
+            if initialized and covariance:
+                predict_into(
+                    xs, ps, times[i] - t_state, n_dp, n_do, additive, kind, sig_p, sig_o, pws
+                )
+            elif initialized:
+                mean_transition_into(x, times[i] - t_state, n_dp, n_do, xs, pws[0], pws[1], pws[2])
+        elif reset_due(initialized, gated_run, reset_after):
+            status[i] = RESET if initialized else INITIALIZED
+            x[:] = x0
+            p[:, :] = p0
+            initialize(
+                x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+            )
+            t_state = times[i]
+            initialized = True
+            gated_run = 0
+            nis[i] = np.nan
+        else:
+            predict_into(x, p, times[i] - t_state, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
+            residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+            rr = measurement_cov(r, x, n_dp, lp, lo, additive)
+            if selection_rows(h, idx):
+                st, v = update_into(x, p, y, rr, idx, gate, n_dp, n_do, additive, wmax, uws)
+            else:
+                st, v = update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
+            t_state = times[i]
+            status[i] = st
+            nis[i] = v
+            if st == DIVERGED:
+                x[:] = x0
+                p[:, :] = p0
+                initialize(
+                    x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+                )
+            gated_run = next_gated_run(st, gated_run)
+        if status[i] != INVALID:
+            xs[:] = x
+            ps[:, :] = p
+        if covariance:
+            t, q, c = pose_of(xs, ps, n_dp, n_do, additive)
+            out_t[i] = t
+            out_q[i] = q
+            out_c[i] = c
+        else:
+            pose_mean_into(xs, n_dp, n_do, additive, out_t[i], out_q[i])
+        for hz in range(horizons.shape[0]):
+            if not initialized:
+                pred_t[hz, i] = out_t[i]
+                pred_q[hz, i] = out_q[i]
+                if covariance:
+                    pred_c[hz, i] = out_c[i]
+                continue
+            dt = times[i] - t_state + horizons[hz]
+            if covariance:
+                t, q, c = predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+                pred_t[hz, i] = t
+                pred_q[hz, i] = q
+                pred_c[hz, i] = c
+            else:
+                mean_transition_into(x, dt, n_dp, n_do, xs, pws[0], pws[1], pws[2])
+                pose_mean_into(xs, n_dp, n_do, additive, pred_t[hz, i], pred_q[hz, i])
