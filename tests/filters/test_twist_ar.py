@@ -31,6 +31,7 @@ from scipy.linalg import block_diag, solve_discrete_lyapunov
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from trackflow.filters import FilterStatus, GatePolicy
 from trackflow.filters.twist_ar import TwistARModel, run_twist_ar
 from trackflow.math import (
     numba_available,
@@ -714,3 +715,33 @@ def test_fit_names_non_finite_input(fit_data):
     p[100, 1] = np.nan
     with pytest.raises(ValueError, match="(position|input|sample).*finite|finite.*position"):
         TwistARModel.fit(d["t"][:500], p, d["quats"][:500], order=2)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gate_rejects_outliers_and_resets_after_a_run(backend):
+    """The shared gate policy (``trackflow.filters.gating``) in the twist-AR loop: an outlier
+    is gated and leaves the state as if it never came; ``reset_after`` consecutive outliers
+    re-initialise the filter from the next one; no gate (the default) integrates everything."""
+    model, _, _, zp, zq = simulated_recording(62, 300)
+    t = DT * np.arange(300)
+    bad = zp.copy()
+    bad[100] += 0.5  # one 50 cm outlier
+    bad[200:203] += 0.5  # three in a row
+    policy = GatePolicy(gate_probability=0.999, reset_after=3)
+    with use_backend(backend):
+        clean = run_twist_ar(t[:100], zp[:100], zq[:100], model, 1e-3, 2e-3)
+        gated = run_twist_ar(t, bad, zq, model, 1e-3, 2e-3, gate=policy)
+        plain = run_twist_ar(t, bad, zq, model, 1e-3, 2e-3)
+    st = gated.status
+    assert st[0] == FilterStatus.INITIALIZED
+    assert st[100] == FilterStatus.GATED
+    assert st[200:203].tolist() == [int(FilterStatus.GATED)] * 3
+    assert st[203] == FilterStatus.RESET
+    others = np.setdiff1d(np.arange(1, 300), [100, 200, 201, 202, 203])
+    assert np.all(st[others] == int(FilterStatus.ACCEPTED))
+    # the gated sample's output is the prediction: the clean run's prediction to that time
+    np.testing.assert_allclose(gated.position[:100], clean.position, atol=1e-12)
+    assert np.linalg.norm(gated.position[100] - zp[100]) < 0.05
+    assert np.linalg.norm(plain.position[100] - zp[100]) > 0.05  # without the gate: pulled
+    assert np.all(plain.status[1:] == int(FilterStatus.ACCEPTED))
+    assert gated.restarts == plain.restarts == 1
