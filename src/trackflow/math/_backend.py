@@ -38,9 +38,11 @@ import types
 from pathlib import Path
 
 __all__ = [
+    "cache_is_warm",
     "get_backend",
     "kernels",
     "numba_available",
+    "set_compile_notice",
     "set_backend",
     "use_backend",
 ]
@@ -186,12 +188,41 @@ def _drop_stale_cache(name: str, path: str) -> None:
         stamp.write_text(fingerprint)
 
 
+_notice = None  # called once with a kernel source's name before its first cold compile
+
+
+def set_compile_notice(callback) -> None:
+    """Call ``callback(source_name)`` before compiling a kernel source with an empty cache.
+
+    The command line uses it to say why the first run waits; the library stays silent.
+    ``None`` removes it.
+    """
+    global _notice
+    _notice = callback
+
+
+def cache_is_warm(source: types.ModuleType) -> bool:
+    """Whether compiled code of ``source`` (a kernel source module) is in the cache."""
+    if not numba_available():
+        return False
+    path = source.__file__
+    cache_dir = Path(cache_root()) / _locator_class().get_suitable_cache_subpath(path)
+    stamp = cache_dir / f"{Path(path).stem}.sources.sha256"
+    try:
+        fresh = stamp.read_text() == _fingerprint(source.__name__)
+    except OSError:
+        return False
+    return fresh and any(cache_dir.glob(f"{Path(path).stem}.*.nbi"))
+
+
 @functools.cache
 def _compiled(name: str) -> types.ModuleType:
     import numba
 
     source = importlib.import_module(name)
     deps = {dep: (importlib.import_module(dep), _compiled(dep)) for dep in source.KERNEL_SOURCES}
+    if _notice is not None and not cache_is_warm(source):
+        _notice(name)
     _drop_stale_cache(name, source.__file__)
     jit_name = f"{name}__compiled"
     spec = importlib.util.spec_from_file_location(jit_name, source.__file__)
