@@ -426,6 +426,9 @@ class PoseKalmanFilter:
         a, b = self._node(i), self._node(i + 1)
         if b.status in _SEGMENT_START:
             return k.predict(a.x, a.p, t - a.t, n_dp, n_do, add, kind, sp, so)
+        if t == a.t:  # at a stored node the smoothed state is the answer (the same RTS step)
+            xs, ps = self._smoothed(i)
+            return xs.copy(), ps.copy()
         xb, pb = self._smoothed(i + 1)
         return k.smooth(a.x, a.p, a.t, xb, pb, b.t, t, n_dp, n_do, add, kind, sp, so)
 
