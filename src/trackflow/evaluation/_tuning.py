@@ -13,9 +13,9 @@ from ..filters import MotionModel
 from ..filters.twist_ar import TwistARModel, excitation_ratios
 from ..math import quat_angle
 from ._baselines import predict_linear
-from ._evaluate import PredictionReport, _as_arrays, evaluate_predictors
+from ._evaluate import PredictionReport, evaluate_predictors
 from ._predictor import KalmanPredictor, PartwisePredictor, TwistARPredictor, default_predictor
-from ._targets import default_gap, interpolate_poses, scored_mask
+from ._trajectory import Trajectory
 
 __all__ = ["LEARNED_ORDERS", "TuneResult", "tune_model", "evaluate_recording"]
 
@@ -146,14 +146,11 @@ def _grid_then_powell(cost, starts, options, n_starts: int = 2) -> np.ndarray:
 
 
 def tune_model(
-    t,
-    position,
-    quaternion,
+    recording: Trajectory,
     horizons=(0.05, 0.1),
     pos_derivatives=(1, 2, 3),
     ori_derivatives=(1, 2),
     start: KalmanPredictor | None = None,
-    gap_s: float | None = None,
     holdout: float = 0.25,
     max_evaluations: int = 15,
     ar_orders=LEARNED_ORDERS,
@@ -183,16 +180,14 @@ def tune_model(
 
     Parameters
     ----------
-    t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
-        Tuning data ``T_a_b``: times [s], positions [m], quaternions ``(x, y, z, w)``.
+    recording : Trajectory
+        Tuning data ``T_a_b``; its ``gap_s`` marks the gaps.
     horizons : sequence of float
         Horizons [s] the cost is taken at.
     pos_derivatives, ori_derivatives : sequence of int
         Candidate derivative counts (>= 0) of the two parts.
     start : KalmanPredictor, optional
         Measurement noise and gate to keep (default :func:`default_predictor`).
-    gap_s : float, optional
-        Default :func:`default_gap`.
     holdout : float in [0, 0.5]
         Fraction of the tuning duration (at its end) used only to choose the derivative counts;
         0 chooses on the search cost.
@@ -219,13 +214,13 @@ def tune_model(
     -------
     TuneResult
     """
-    t, p, q = _as_arrays(t, position, quaternion)
+    data = recording
+    t, p, q = data.t, data.position, data.quaternion
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
     if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
         raise ValueError(f"horizons must be positive seconds, got {h.tolist()}")
     if not 0.0 <= holdout <= 0.5:
         raise ValueError(f"holdout must be in [0, 0.5], got {holdout}")
-    gap = default_gap(t) if gap_s is None else float(gap_s)
     if start is not None and not isinstance(start, KalmanPredictor):
         raise ValueError(
             f"start must be a KalmanPredictor (its measurement noise and gate are kept), got "
@@ -239,16 +234,15 @@ def tune_model(
     for part, ds in cands.items():
         if not ds or any(d < 0 for d in ds):
             raise ValueError(f"{part} derivative counts must be >= 0, got {ds}")
-    meas = base.measurements(p, q)
     t_hold = float(t[0] + (1.0 - holdout) * (t[-1] - t[0])) if holdout > 0 else np.inf
     # per part and horizon: (search mask, hold mask, target, Huber threshold, linear costs)
     targets = {"position": [], "orientation": []}
     for hs in h:
-        m = scored_mask(t, hs, gap)
+        m = data.scored(hs)
         search, hold = m & (t < t_hold), m & (t >= t_hold)
         if np.count_nonzero(search) < 10:
             raise ValueError(f"too few scorable samples for horizon {hs} s in the tuning data")
-        ip, iq = interpolate_poses(t, p, q, t + hs)
+        ip, iq = data.target(hs)
         lp, lq = predict_linear(t, p, q, hs)
         for part, err, tgt in (
             ("position", np.linalg.norm(lp - ip, axis=1), ip),
@@ -273,7 +267,7 @@ def tune_model(
     check = np.asarray(check_horizons, dtype=float).reshape(-1)
     if np.any(~np.isfinite(check)) or np.any(check <= 0):
         raise ValueError(f"check_horizons must be positive seconds, got {check.tolist()}")
-    step = float(np.median(np.diff(t)))
+    step = data.step
     total = n_cand * (2 * max_evaluations + n_grid + 1) + max_evaluations
     total += len(ar_orders) * len(_AR_STRUCTURES) + 2 * (len(_AR_SCALES) - 1)
     bar = _Progress(progress, total=total)
@@ -295,11 +289,9 @@ def tune_model(
         else:
             model = MotionModel(-1, nd, levels(lx, nd), kind=base.model.kind)
         # no gate during the search: the cost stays smooth in the parameters
-        res = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, None).run(
-            t, meas, h, max_gap=gap
-        )
-        costs = part_costs(part, {v: (res.predictions[v].position, res.predictions[v].quaternion)
-                                  for v in res.predictions})  # fmt: skip
+        res = KalmanPredictor(model, base.pos_sigma, base.ori_sigma, None).predict(data, h)
+        costs = part_costs(part, {float(v): (res.position[i], res.quaternion[i])
+                                  for i, v in enumerate(h)})  # fmt: skip
         bar.step(costs[0])
         return costs
 
@@ -398,9 +390,7 @@ def tune_model(
         hc = np.unique(np.r_[h, check]).astype(float)
         guard = []
         for v in hc:
-            m = scored_mask(t, v, gap)
-            ip, iq = interpolate_poses(t, p, q, t + v)
-            guard.append((float(v), m, ip, iq))
+            guard.append((float(v), data.scored(v), *data.target(v)))
 
         def worse_than_holding(part, preds):
             """Validation spans where some check horizon's RMS error exceeds holding's."""
@@ -434,10 +424,10 @@ def tune_model(
                     seg = slice(lo, int(rows[-1]) + 1)
                     pred = TwistARPredictor(fitted, base.pos_sigma * scale,
                                             base.ori_sigma * scale)  # fmt: skip
-                    out = pred.run(t[seg], p[seg], q[seg], hc, max_gap=gap)
-                    for v in hc:
-                        preds[float(v)][0][rows] = out[float(v)][0][rows - lo]
-                        preds[float(v)][1][rows] = out[float(v)][1][rows - lo]
+                    out = pred.predict(data.select(seg), hc)
+                    for j, v in enumerate(hc):
+                        preds[float(v)][0][rows] = out.position[j][rows - lo]
+                        preds[float(v)][1][rows] = out.quaternion[j][rows - lo]
             except ValueError as exc:  # too little regular data for this order
                 summary["twist_ar"][key] = {"skipped": str(exc)}
                 bar.step(np.inf)
@@ -489,9 +479,7 @@ def tune_model(
 
 
 def evaluate_recording(
-    t,
-    position,
-    quaternion,
+    recording: Trajectory,
     horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     tune_fraction: float = 0.5,
     tune_horizons=(0.05, 0.1),
@@ -508,8 +496,8 @@ def evaluate_recording(
 
     Parameters
     ----------
-    t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
-        The recording ``T_a_b`` [s, m, (x, y, z, w)].
+    recording : Trajectory
+        The checked recording ``T_a_b``; its gaps hold for the tuning and the scoring.
     horizons, tune_horizons : sequence of float
         Scored and tuned horizons [s].
     tune_fraction : float in [0, 1)
@@ -526,22 +514,25 @@ def evaluate_recording(
     PredictionReport
         ``tuning`` holds the :class:`TuneResult` summary when tuning ran.
     """
-    t, p, q = _as_arrays(t, position, quaternion)
+    rec = recording
+    t = rec.t
     if not 0.0 <= tune_fraction < 1.0:
         raise ValueError(f"tune_fraction must be in [0, 1), got {tune_fraction}")
-    gap = default_gap(t)
     if tune_fraction == 0.0:
-        m = predictor if predictor is not None else default_predictor(t, p, q)
-        return evaluate_predictors(t, p, q, m, horizons, None, gap)
+        m = (
+            predictor
+            if predictor is not None
+            else default_predictor(t, rec.position, rec.quaternion)
+        )
+        return evaluate_predictors(rec, m, horizons)
     split = float(t[0] + tune_fraction * (t[-1] - t[0]))
     train = t <= split
     if np.count_nonzero(train) < 20 or np.count_nonzero(~train) < 20:
         raise ValueError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
     res = tune_model(
-        t[train], p[train], q[train], tune_horizons, start=predictor, gap_s=gap,
-        ar_orders=ar_orders, check_horizons=horizons,
-        progress=progress,
+        rec.select(train), tune_horizons, start=predictor, ar_orders=ar_orders,
+        check_horizons=horizons, progress=progress,
     )  # fmt: skip
-    report = evaluate_predictors(t, p, q, res.predictor, horizons, split, gap)
+    report = evaluate_predictors(rec, res.predictor, horizons, split)
     report.tuning = res.as_dict()
     return report
