@@ -4,11 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ._baselines import LinearPredictor, NoPredictor
 from ._metrics import ErrorStats, error_stats, pose_errors
-from ._prediction import Predictor, predict_kalman
+from ._prediction import Predictor, positive_horizons, predict_kalman
 from ._trajectory import Trajectory
 
 __all__ = ["PREDICTORS", "PredictionReport", "evaluate_predictors"]
@@ -104,9 +102,7 @@ def evaluate_predictors(
     PredictionReport
     """
     r = recording
-    h = np.asarray(horizons, dtype=float).reshape(-1)
-    if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
-        raise ValueError(f"horizons must be positive seconds, got {h.tolist()}")
+    h = positive_horizons(horizons)
     start = float(r.t[0]) if scored_from is None else float(scored_from)
     runs = {"kalman": predict_kalman(r, predictor, h), "linear": LinearPredictor().predict(r, h),
             "none": NoPredictor().predict(r, h)}  # fmt: skip

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._trajectory import Trajectory
 
-__all__ = ["Prediction", "Predictor", "predict_kalman", "stack_predictions"]
+__all__ = ["Prediction", "Predictor", "positive_horizons", "predict_kalman", "stack_predictions"]
 
 
 class Prediction(NamedTuple):
@@ -54,6 +54,15 @@ def stack_predictions(per_horizon: dict, horizons: np.ndarray, n: int) -> tuple:
     pp = np.stack([per_horizon[float(v)][0] for v in horizons])
     pq = np.stack([per_horizon[float(v)][1] for v in horizons])
     return pp, pq
+
+
+def positive_horizons(horizons, name: str = "horizons") -> np.ndarray:
+    """``horizons`` as an array (H,) of seconds; ``ValueError`` unless H > 0 and all are finite
+    and > 0."""
+    h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
+    if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
+        raise ValueError(f"{name} must be positive seconds, got {h.tolist()}")
+    return h
 
 
 def predict_kalman(recording: Trajectory, predictor: Predictor, horizons) -> Prediction:
