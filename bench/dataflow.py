@@ -21,8 +21,9 @@ import time
 
 import numpy as np
 
-from trackflow.dataflow import DemoConfig, plan_query
-from trackflow.dataflow._demo import (
+from trackflow.dataflow import plan_query
+from trackflow.demo import (
+    DemoConfig,
     demo_frames,
     demo_graph,
     demo_sensors,
