@@ -11,15 +11,8 @@ import numpy as np
 from ..dataflow import plan_query
 from ..graph import Query
 from ..math import Pose, UncertainPose, quat_angle
+from . import simulation as sim
 from .report import plot_errors
-from .simulation import (
-    DemoConfig,
-    demo_frames,
-    demo_graph,
-    demo_sensors,
-    demo_truth,
-    load_demo_motion,
-)
 
 __all__ = ["pose_errors", "run_demo"]
 
@@ -42,22 +35,22 @@ def _rms(x: np.ndarray) -> float:
 class _World:
     """The true motion, the true static frames and the time span of one demo run."""
 
-    cfg: DemoConfig
+    cfg: sim.DemoConfig
     truth: object
     fixed: dict
     t0: float
     t1: float
 
     @classmethod
-    def make(cls, cfg: DemoConfig) -> _World:
-        t_rec, poses = load_demo_motion()
-        truth = demo_truth(t_rec, poses, cfg.truth_lowpass_hz)
+    def make(cls, cfg: sim.DemoConfig) -> _World:
+        t_rec, poses = sim.load_demo_motion()
+        truth = sim.demo_truth(t_rec, poses, cfg.truth_lowpass_hz)
         t0, t1 = float(t_rec[0]), float(t_rec[-1])
-        return cls(cfg, truth, demo_frames(truth, t0, t1), t0, t1)
+        return cls(cfg, truth, sim.demo_frames(truth, t0, t1), t0, t1)
 
     def sensors(self) -> dict:
         """Fresh simulated sensors (the same seed gives the same data every time)."""
-        return demo_sensors(self.cfg, self.truth, self.fixed, self.t0, self.t1)
+        return sim.demo_sensors(self.cfg, self.truth, self.fixed, self.t0, self.t1)
 
 
 def _estimate_static_edge(world: _World, filter_factory) -> tuple[UncertainPose, dict]:
@@ -65,7 +58,7 @@ def _estimate_static_edge(world: _World, filter_factory) -> tuple[UncertainPose,
     estimator, the unknown edge itself excluded from the search. Returns the estimate and the
     rejections per component."""
     unknown = UncertainPose(Pose.identity(), np.eye(6))
-    g0 = demo_graph(world.cfg, world.fixed, unknown)
+    g0 = sim.demo_graph(world.cfg, world.fixed, unknown)
     q_cal = Query("T", "C", static=True, exclude=("target_camera",), name="calibration")
     net, sink = plan_query(g0, q_cal).build(world.sensors(), filter_factory=filter_factory)
     net.run()
@@ -82,7 +75,7 @@ def _track(world: _World, T_T_C: UncertainPose, filter_factory) -> tuple[dict, d
     the sensors' filters (a filter's state does not depend on who asks it, so sharing changes
     no result). Returns ``(sinks, networks, wrong camera detections)`` by variant."""
     cfg = world.cfg
-    graph = demo_graph(cfg, world.fixed, T_T_C)
+    graph = sim.demo_graph(cfg, world.fixed, T_T_C)
     sinks, nets, shared, wrong = {}, {}, None, 0
     for label, (align, offset) in _VARIANTS.items():
         offset = cfg.aligned_offset_s if offset is None else offset
@@ -130,7 +123,7 @@ def _score(world: _World, sinks: dict, nets: dict) -> tuple[dict, dict, dict]:
 
 def run_demo(
     out: str | Path = "out/demo.png",
-    cfg: DemoConfig | None = None,
+    cfg: sim.DemoConfig | None = None,
     filter_factory=None,
     plot: bool = True,
 ) -> dict:
@@ -143,7 +136,7 @@ def run_demo(
         "static_edge_error": {"pos_mm", "ori_deg"}, "plot": path}`` plus, under ``"details"``,
         counts and the estimated edge.
     """
-    world = _World.make(cfg or DemoConfig())
+    world = _World.make(cfg or sim.DemoConfig())
     T_T_C_est, cal_rejections = _estimate_static_edge(world, filter_factory)
     e_pos, e_ori = pose_errors(T_T_C_est.pose, world.fixed["T_T_C"])
     sinks, nets, wrong = _track(world, T_T_C_est, filter_factory)

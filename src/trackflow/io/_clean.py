@@ -28,7 +28,7 @@ import numpy as np
 
 from ..math import UNIT_TOLERANCE
 from ._report import ReadReport
-from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
+from ._stream import PoseStream, present_fields
 
 __all__ = ["finish_stream", "locate", "fmt_ns"]
 
@@ -140,11 +140,7 @@ def finish_stream(
     if m == rows.n:  # nothing dropped: keep the arrays, avoid gathering copies of large batches
         kidx = slice(None)
     if flags is None:
-        f = FLAG_POSITION | FLAG_ORIENTATION
-        if covariance is not None:
-            f |= FLAG_COVARIANCE
-        if confidence is not None:
-            f |= FLAG_CONFIDENCE
+        f = present_fields(covariance is not None, confidence is not None)
         fl = np.full(m, f, dtype=np.uint32)
     else:
         fl = np.asarray(flags, dtype=np.uint32)[kidx]
