@@ -54,16 +54,17 @@ class _ForwardValidation:
     def worse_than_holding(self, part: str, preds: dict) -> list[int]:
         """Validation spans where some check horizon's RMS error exceeds holding's."""
         out = set()
-        d = self.data
+        k = PARTS.index(part)
+        held = (self.data.position, self.data.quaternion)[k]
         for v in self.horizons:
-            pp, pq = preds[float(v)]
-            m, target = d.scored(v), d.target(v)[PARTS.index(part)]
+            pred = preds[float(v)][k]
+            m, target = self.data.scored(v), self.data.target(v)[k]
             for b in range(1, _FOLDS):
                 s = m & (self.block == b)
                 if not np.any(s):
                     continue
-                e = part_error(part, pp[s], pq[s], target[s])
-                e0 = part_error(part, d.position[s], d.quaternion[s], target[s])
+                e = part_error(part, pred[s], target[s])
+                e0 = part_error(part, held[s], target[s])
                 if np.mean(e * e) > np.mean(e0 * e0):
                     out.add(b)
         return sorted(out)

@@ -14,12 +14,12 @@ __all__ = ["PARTS", "TuningCost", "part_error"]
 PARTS = ("position", "orientation")
 
 
-def part_error(part: str, position: np.ndarray, quaternion: np.ndarray, target: np.ndarray):
-    """Errors of one part, shape (M,): position distance [m] (``target`` (M, 3)) or rotation
-    angle [rad] (``target`` (M, 4))."""
+def part_error(part: str, predicted: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Errors of one part, shape (M,): position distance [m] (both (M, 3)) or rotation angle
+    [rad] (quaternions, both (M, 4))."""
     if part == "position":
-        return np.linalg.norm(position - target, axis=1)
-    return quat_angle(quaternion, target)
+        return np.linalg.norm(predicted - target, axis=1)
+    return quat_angle(predicted, target)
 
 
 class TuningCost:
@@ -59,8 +59,8 @@ class TuningCost:
                 raise ValueError(f"too few scorable samples for horizon {hs} s in the tuning data")
             ip, iq = data.target(hs)
             lp, lq = predict_linear(t, p, q, hs)
-            for part, tgt in zip(PARTS, (ip, iq)):
-                err = part_error(part, lp, lq, tgt)
+            for part, lin_pred, tgt in zip(PARTS, (lp, lq), (ip, iq)):
+                err = part_error(part, lin_pred, tgt)
                 c = 3.0 * float(np.median(err[search])) + 1e-12
                 sets = (search, hold, search | hold)
                 lin = [np.mean(huber(err[s], c)) + 1e-300 if np.any(s) else np.nan
@@ -77,8 +77,9 @@ class TuningCost:
         become 1e6.
         """
         costs = np.zeros(3)  # search, held-out, all tuning data
+        k = PARTS.index(part)
         for i, (sets, tgt, c, lin, lin_err) in enumerate(self.targets[part]):
-            pk_p, pk_q = preds[float(self.horizons[i])]
+            pred = preds[float(self.horizons[i])][k]
             for j, s in enumerate(sets):
                 norm = lin[j]
                 if only is not None:
@@ -86,7 +87,7 @@ class TuningCost:
                     norm = np.mean(huber(lin_err[s], c)) + 1e-300 if np.any(s) else np.nan
                 if not np.any(s):
                     continue
-                e = part_error(part, pk_p[s], pk_q[s], tgt[s])
+                e = part_error(part, pred[s], tgt[s])
                 costs[j] += np.mean(huber(e, c)) / norm
         costs /= self.horizons.size
         costs[~np.isfinite(costs)] = 1e6
