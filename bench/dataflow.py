@@ -21,28 +21,22 @@ import time
 
 import numpy as np
 
-from trackflow.dataflow import DemoConfig, plan_query
-from trackflow.dataflow._demo import (
-    demo_frames,
-    demo_graph,
-    demo_sensors,
-    demo_truth,
-    load_demo_motion,
-)
+from trackflow import demo
+from trackflow.dataflow import plan_query
 from trackflow.graph import Query
 from trackflow.math import UncertainPose
 
 
 def build():
-    cfg = DemoConfig()
-    t, poses = load_demo_motion()
-    truth = demo_truth(t, poses, cfg.truth_lowpass_hz)
-    fixed = demo_frames(truth, t[0], t[-1])
+    cfg = demo.DemoConfig()
+    t, poses = demo.load_demo_motion()
+    truth = demo.demo_truth(t, poses, cfg.truth_lowpass_hz)
+    fixed = demo.demo_frames(truth, t[0], t[-1])
     calib = UncertainPose(fixed["T_T_C"], np.diag([1e-6] * 6))
-    g = demo_graph(cfg, fixed, calib)
+    g = demo.demo_graph(cfg, fixed, calib)
     q = Query("P", "M", mode="push", rate_hz=60, time_offset_s=0.0, exclude=("marker",))
     plan = plan_query(g, q)
-    return plan, (lambda: demo_sensors(cfg, truth, fixed, t[0], t[-1]))
+    return plan, (lambda: demo.demo_sensors(cfg, truth, fixed, t[0], t[-1]))
 
 
 def main() -> None:

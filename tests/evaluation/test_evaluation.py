@@ -7,6 +7,7 @@ import pytest
 
 from trackflow.evaluation import (
     KalmanPredictor,
+    Trajectory,
     evaluate_predictors,
     evaluate_recording,
     interpolate_poses,
@@ -67,7 +68,9 @@ def test_interpolation_handles_sign_flips():
 def test_kalman_beats_linear_on_noisy_smooth_motion(rng):
     t, p, q, zp, zq = _noisy(rng)
     model = MotionModel(2, 2, noise=(0, 0, 3.0, 0, 0, 3.0))
-    kp, kq, _ = predict_kalman(t, zp, zq, KalmanPredictor(model, 5e-4, 2e-3), (0.05,))
+    kp, kq, _ = predict_kalman(
+        Trajectory.check(t, zp, zq), KalmanPredictor(model, 5e-4, 2e-3), (0.05,)
+    )
     lp, lq = predict_linear(t, zp, zq, 0.05)
     k = np.arange(200, len(t) - 6)
     e_k = np.linalg.norm(kp[0][k] - p[k + 6], axis=1)
@@ -82,9 +85,9 @@ def test_parts_are_the_full_filter_without_a_gate(rng):
     # block-diagonal noise: position and orientation parts of the error-state filter decouple
     t, _, _, zp, zq = _noisy(rng, 600)
     full = KalmanPredictor(MotionModel(2, 2, noise=(1e-4, 0, 3.0, 1e-4, 0, 3.0)), 5e-4, 2e-3, None)
-    fp, fq, _ = predict_kalman(t, zp, zq, full, (0.05, 0.1))
-    pp, _, _ = predict_kalman(t, zp, zq, full.part("position"), (0.05, 0.1))
-    _, pq, _ = predict_kalman(t, zp, zq, full.part("orientation"), (0.05, 0.1))
+    fp, fq, _ = predict_kalman(Trajectory.check(t, zp, zq), full, (0.05, 0.1))
+    pp, _, _ = predict_kalman(Trajectory.check(t, zp, zq), full.part("position"), (0.05, 0.1))
+    _, pq, _ = predict_kalman(Trajectory.check(t, zp, zq), full.part("orientation"), (0.05, 0.1))
     assert np.allclose(fp, pp, rtol=0, atol=1e-12)
     assert quat_angle(fq, pq).max() < 1e-10
 
@@ -95,8 +98,10 @@ def test_gate_rejects_a_single_spike():
     spiky[300] += 0.05
     model = MotionModel(2, 1, noise=(0, 0, 3.0, 0, 3.0))
     gated = KalmanPredictor(model, 1e-4, 1e-3, gate_probability=0.999)
-    kp, _, n_gated = predict_kalman(t, spiky, q, gated, (0.0,))
-    lp, _, _ = predict_kalman(t, spiky, q, KalmanPredictor(model, 1e-4, 1e-3, None), (0.0,))
+    kp, _, n_gated = predict_kalman(Trajectory.check(t, spiky, q), gated, (0.0,))
+    lp, _, _ = predict_kalman(
+        Trajectory.check(t, spiky, q), KalmanPredictor(model, 1e-4, 1e-3, None), (0.0,)
+    )
     assert n_gated >= 1
     err = lambda x: np.abs(x[0][300:330] - p[300:330]).max()  # noqa: E731
     assert err(kp) < 0.2 * err(lp)
@@ -105,9 +110,11 @@ def test_gate_rejects_a_single_spike():
 def test_tuning_improves_on_a_bad_start_and_reports_counts(rng):
     t, _, _, zp, zq = _noisy(rng, 900, 3e-4, 1e-3)
     bad = KalmanPredictor(MotionModel(2, 1, noise=(0, 0, 1e4, 0, 1e4)), 3e-4, 1e-3, None)
-    res = tune_model(t, zp, zq, start=bad, pos_derivatives=(1, 2), max_evaluations=25)
-    before = evaluate_predictors(t, zp, zq, bad, (0.05,))
-    after = evaluate_predictors(t, zp, zq, res.predictor, (0.05,))
+    res = tune_model(
+        Trajectory.check(t, zp, zq), start=bad, pos_derivatives=(1, 2), max_evaluations=25
+    )
+    before = evaluate_predictors(Trajectory.check(t, zp, zq), bad, (0.05,))
+    after = evaluate_predictors(Trajectory.check(t, zp, zq), res.predictor, (0.05,))
     assert after.stats["kalman"][50].pos_rms_mm < before.stats["kalman"][50].pos_rms_mm
     assert after.stats["kalman"][50].ori_rms_deg < before.stats["kalman"][50].ori_rms_deg
     assert res.cost_position < 1.0 and res.n_evaluations > 10
@@ -116,8 +123,8 @@ def test_tuning_improves_on_a_bad_start_and_reports_counts(rng):
 
 def test_evaluate_recording_scores_only_the_second_part(rng):
     t, _, q, zp, _ = _noisy(rng, 1200, 3e-4)
-    rep = evaluate_recording(t, zp, q, horizons=(0.02, 0.1), tune_fraction=0.5)
-    d = rep.to_dict()
+    rep = evaluate_recording(Trajectory.check(t, zp, q), horizons=(0.02, 0.1), tune_fraction=0.5)
+    d = rep.as_dict()
     assert d["scored_from_s"] == pytest.approx(t[-1] / 2)
     n = d["predictors"]["none"]["100"]["n"]
     assert 0 < n < 600
@@ -129,9 +136,9 @@ def test_bad_input_is_a_value_error():
     t, p, q = _smooth(20)
     pred = KalmanPredictor(MotionModel(), 1e-3, 1e-3)
     with pytest.raises(ValueError, match="increase"):
-        evaluate_predictors(t[::-1], p, q, pred)
+        evaluate_predictors(Trajectory.check(t[::-1], p, q), pred)
     with pytest.raises(ValueError, match="horizons"):
-        evaluate_predictors(t, p, q, pred, horizons=(-0.1,))
+        evaluate_predictors(Trajectory.check(t, p, q), pred, horizons=(-0.1,))
     with pytest.raises(ValueError, match="pos_sigma"):
         KalmanPredictor(MotionModel(), 0.0, 1e-3)
     with pytest.raises(ValueError, match="part"):

@@ -33,8 +33,8 @@ from scipy.spatial.transform import Rotation
 from trackflow.evaluation import (
     KalmanPredictor,
     PartwisePredictor,
+    Trajectory,
     TwistARPredictor,
-    default_gap,
     default_predictor,
     evaluate_predictors,
     evaluate_recording,
@@ -137,11 +137,11 @@ def _parts(predictor):
 
 def _tune_half(t, p, q, ar_orders, **kwargs):
     """``evaluate_recording(tune_fraction=0.5)`` with a chosen ``ar_orders``: tune, then score."""
-    gap = default_gap(t)
+    rec = Trajectory.check(t, p, q)
     split = float(t[0] + 0.5 * (t[-1] - t[0]))
     train = t <= split
-    res = tune_model(t[train], p[train], q[train], gap_s=gap, ar_orders=ar_orders, **kwargs)
-    return res, evaluate_predictors(t, p, q, res.predictor, SCORED, split, gap)
+    res = tune_model(rec.select(train), ar_orders=ar_orders, **kwargs)
+    return res, evaluate_predictors(rec, res.predictor, SCORED, split)
 
 
 def _rms(report, h_ms: int) -> np.ndarray:
@@ -160,7 +160,9 @@ def orbit():
 
 @pytest.fixture(scope="module")
 def orbit_report(orbit):
-    return evaluate_recording(*orbit, horizons=(0.01, 0.05, 0.1), tune_fraction=0.5)
+    return evaluate_recording(
+        Trajectory.check(*orbit), horizons=(0.01, 0.05, 0.1), tune_fraction=0.5
+    )
 
 
 @pytest.fixture(scope="module")
@@ -190,9 +192,11 @@ def test_partwise_takes_each_part_from_its_own_filter(two_filters, arrangement):
     (t, p, q), kalman, learned = two_filters
     a, b = (kalman, learned) if arrangement == "kalman_position" else (learned, kalman)
     h = (0.0, 0.03, 0.1)
-    pa, qa, _ = predict_kalman(t, p, q, a, h)
-    pb, qb, _ = predict_kalman(t, p, q, b, h)
-    pp, pq, n_gated = predict_kalman(t, p, q, PartwisePredictor(position=a, orientation=b), h)
+    pa, qa, _ = predict_kalman(Trajectory.check(t, p, q), a, h)
+    pb, qb, _ = predict_kalman(Trajectory.check(t, p, q), b, h)
+    pp, pq, n_gated = predict_kalman(
+        Trajectory.check(t, p, q), PartwisePredictor(position=a, orientation=b), h
+    )
     assert pp.shape == (3, t.size, 3) and pq.shape == (3, t.size, 4)
     np.testing.assert_array_equal(pp, pa)
     np.testing.assert_array_equal(pq, qb)
@@ -204,11 +208,11 @@ def test_partwise_takes_each_part_from_its_own_filter(two_filters, arrangement):
 
 def test_horizon_zero_gives_the_filtered_poses(two_filters):
     (t, p, q), kalman, learned = two_filters
-    pk, qk, _ = predict_kalman(t, p, q, kalman, (0.0,))
+    pk, qk, _ = predict_kalman(Trajectory.check(t, p, q), kalman, (0.0,))
     ref = kalman.run(t, kalman.measurements(p, q), ())
     np.testing.assert_allclose(pk[0], ref.filtered.position, rtol=0, atol=1e-12)
     np.testing.assert_allclose(qk[0], ref.filtered.quaternion, rtol=0, atol=1e-12)
-    pl, ql, _ = predict_kalman(t, p, q, learned, (0.0,))
+    pl, ql, _ = predict_kalman(Trajectory.check(t, p, q), learned, (0.0,))
     ref = run_twist_ar(t, p, q, learned.model, learned.pos_sigma, learned.ori_sigma)
     np.testing.assert_allclose(pl[0], ref.position, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ql[0], ref.quaternion, rtol=0, atol=1e-12)
@@ -220,7 +224,7 @@ def test_anything_else_is_not_a_predictor(two_filters):
     (t, p, q), kalman, learned = two_filters
     for bad in (kalman.model, learned.model, None, "kalman"):
         with pytest.raises(ValueError, match="not a predictor"):
-            predict_kalman(t, p, q, bad, (0.05,))
+            predict_kalman(Trajectory.check(t, p, q), bad, (0.05,))
     with pytest.raises(ValueError, match="orientation"):
         PartwisePredictor(position=kalman, orientation=learned.model)
     with pytest.raises(ValueError, match="position"):
@@ -317,8 +321,8 @@ def test_full_coupling_only_with_persistent_excitation(
             assert ratio < 0.01  # only the 10 um / 10 urad measurement noise
         else:  # independent axes: about the relative spread (15 s of lightly damped motion)
             assert 0.5 * spread < ratio < min(1.5 * spread, 1.0)
-    res = tune_model(t, p, q, pos_derivatives=(2,), ori_derivatives=(1,), max_evaluations=4,
-                     ar_orders=(3,))  # fmt: skip
+    res = tune_model(Trajectory.check(t, p, q), pos_derivatives=(2,), ori_derivatives=(1,),
+                     max_evaluations=4, ar_orders=(3,))  # fmt: skip
     ar = res.candidates["twist_ar"]
     assert ar["excitation"] == {"translation": ratios[0], "rotation": ratios[1]}
     assert (min(ratios) >= 0.25) == full_tried
@@ -358,14 +362,14 @@ def test_no_orders_is_exactly_the_derivative_only_tuning(orbit_report, orbit_der
 def test_invalid_orders_raise(rng, orders):
     t, p, q = orbit_recording(rng, 3.0)
     with pytest.raises(ValueError, match="ar_orders"):
-        tune_model(t, p, q, ar_orders=orders)
+        tune_model(Trajectory.check(t, p, q), ar_orders=orders)
 
 
 @pytest.mark.parametrize("check", [(-0.01,), (0.0,), (float("nan"),)])
 def test_invalid_check_horizons_raise(rng, check):
     t, p, q = orbit_recording(rng, 3.0)
     with pytest.raises(ValueError, match="check_horizons"):
-        tune_model(t, p, q, check_horizons=check)
+        tune_model(Trajectory.check(t, p, q), check_horizons=check)
 
 
 def test_every_learned_candidate_records_the_never_worse_check(orbit_report):
@@ -382,13 +386,13 @@ def test_a_learned_start_point_is_refused_by_name(two_filters):
     (t, p, q), kalman, learned = two_filters
     for bad in (learned, PartwisePredictor(kalman, learned)):
         with pytest.raises(ValueError, match="start must be a KalmanPredictor"):
-            tune_model(t, p, q, start=bad)
+            tune_model(Trajectory.check(t, p, q), start=bad)
 
 
 def test_no_horizons_give_empty_arrays_of_the_documented_shape(two_filters):
     (t, p, q), kalman, learned = two_filters
     for pred in (kalman, learned, PartwisePredictor(kalman, learned)):
-        pp, pq, _ = predict_kalman(t, p, q, pred, ())
+        pp, pq, _ = predict_kalman(Trajectory.check(t, p, q), pred, ())
         assert pp.shape == (0, t.size, 3) and pq.shape == (0, t.size, 4)
 
 
@@ -402,7 +406,7 @@ def test_report_names_the_learned_and_the_partwise_model(two_filters, orbit_repo
         "partwise": PartwisePredictor(position=learned, orientation=kalman),
     }
     for kind, predictor in cases.items():
-        d = evaluate_predictors(t, p, q, predictor, (0.02, 0.05)).to_dict()
+        d = evaluate_predictors(Trajectory.check(t, p, q), predictor, (0.02, 0.05)).as_dict()
         back = json.loads(json.dumps(d))
         assert back["motion_model"]["kind"] == kind
         assert back["motion_model"] == d["motion_model"]
@@ -410,7 +414,7 @@ def test_report_names_the_learned_and_the_partwise_model(two_filters, orbit_repo
     assert mm["position"]["kind"] == "twist_ar" and mm["position"]["order"] == 3
     assert mm["orientation"] == kalman.as_dict()
     # the tuned report of the coupled recording, with its whole tuning summary
-    d = json.loads(json.dumps(orbit_report.to_dict()))
+    d = json.loads(json.dumps(orbit_report.as_dict()))
     expected = "twist_ar" if isinstance(orbit_report.predictor, TwistARPredictor) else "partwise"
     assert d["motion_model"]["kind"] == expected
     ar = d["tuning"]["candidates"]["twist_ar"]
@@ -441,7 +445,8 @@ def test_real_hand_held_recording(shared_data):
     t = np.asarray(stream.times_s)
     keep = t <= t[0] + 60.0
     rep = evaluate_recording(
-        t[keep], np.asarray(stream.position)[keep], np.asarray(stream.quaternion)[keep],
+        Trajectory.check(t[keep], np.asarray(stream.position)[keep],
+                         np.asarray(stream.quaternion)[keep]),
         horizons=(0.01, 0.02, 0.05, 0.1, 0.2), tune_fraction=0.5,
     )  # fmt: skip
     k, lin, none = (rep.stats[name] for name in ("kalman", "linear", "none"))
@@ -460,17 +465,18 @@ def test_a_part_whose_learned_candidates_are_all_rejected_keeps_its_derivative_m
     learned candidate is worse than holding the last sample for orientation (and rejected
     there) while position keeps a learned model; the measurement-noise refinement of the
     position's best candidate must not trip over the part that has none."""
-    original = TwistARPredictor.run
+    original = TwistARPredictor.predict
     turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(20.0)])
 
     def turned(self, *args, **kwargs):
         out = original(self, *args, **kwargs)
-        return {h: (pp, (Rotation.from_quat(pq) * turn).as_quat()) for h, (pp, pq) in out.items()}
+        q = [(Rotation.from_quat(pq) * turn).as_quat() for pq in out.quaternion]
+        return out._replace(quaternion=np.stack(q))
 
-    monkeypatch.setattr(TwistARPredictor, "run", turned)
+    monkeypatch.setattr(TwistARPredictor, "predict", turned)
     t, p, q = orbit
     half = t <= t[0] + 0.5 * (t[-1] - t[0])
-    res = tune_model(t[half], p[half], q[half], ar_orders=(3,))
+    res = tune_model(Trajectory.check(t[half], p[half], q[half]), ar_orders=(3,))
     pos, ori = _parts(res.predictor)
     assert isinstance(ori, KalmanPredictor) and isinstance(pos, TwistARPredictor)
     scored = [v for k, v in res.candidates["twist_ar"].items()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackflow.evaluation._tuning import _grid_then_powell
+from trackflow.evaluation._search import grid_then_powell
 
 
 def _two_basins(z):
@@ -24,7 +24,7 @@ def test_refines_the_best_basins_not_only_the_best_grid_point():
     vals = [_two_basins(g) for g in grid]
     best_grid = grid[int(np.argmin(vals))]
     assert best_grid == (-3.5, 0.5)  # the grid's best point is in the wide basin
-    x = _grid_then_powell(_two_basins, grid, {"xtol": 0.01, "ftol": 1e-6, "maxfev": 200})
+    x = grid_then_powell(_two_basins, grid, {"xtol": 0.01, "ftol": 1e-6, "maxfev": 200})
     assert abs(x[1] - x[0] - 3.0) < 0.1
     assert _two_basins(x) < _two_basins(best_grid) - 0.3
 
@@ -34,5 +34,5 @@ def test_never_returns_worse_than_the_best_grid_point():
         return 1.0 if z[0] < 0.7 else 0.5
 
     grid = [(a,) for a in (-1.0, 0.0, 1.0)]
-    x = _grid_then_powell(flat_then_cliff, grid, {"maxfev": 20})
+    x = grid_then_powell(flat_then_cliff, grid, {"maxfev": 20})
     assert flat_then_cliff(x) == 0.5

@@ -9,7 +9,7 @@ import numpy as np
 from ..evaluation import LEARNED_ORDERS
 from ..io import FORMATS, PoseStream, read_stream
 
-__all__ = ["add_input", "load", "parse_horizons", "parse_ints", "stream_arrays"]
+__all__ = ["add_input", "load", "parse_horizons", "parse_ints", "parse_orders"]
 
 
 def add_input(parser: argparse.ArgumentParser, name: str = "file") -> None:
@@ -68,9 +68,3 @@ def add_learned_orders(p) -> None:
 def parse_orders(text: str) -> tuple[int, ...]:
     """``"3,5,10"`` -> ``(3, 5, 10)``; ``"none"`` -> ``()`` (no learned models)."""
     return () if text.strip().lower() == "none" else parse_ints(text)
-
-
-def stream_arrays(stream: PoseStream):
-    """Times [s] relative to the first sample, positions (N, 3), quaternions (N, 4)."""
-    t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
-    return t, np.asarray(stream.position, float), np.asarray(stream.quaternion, float)

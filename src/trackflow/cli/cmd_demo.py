@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..dataflow import DemoConfig, demo_json, run_demo
+from ..demo import DemoConfig, demo_json, run_demo
 from ..math import use_backend
 
 

@@ -5,15 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
-from ..evaluation import evaluate_recording
-from ._common import (
-    add_input,
-    add_learned_orders,
-    load,
-    parse_horizons,
-    parse_orders,
-    stream_arrays,
-)
+from ..evaluation import Trajectory, evaluate_recording
+from ._common import add_input, add_learned_orders, load, parse_horizons, parse_orders
 
 
 def register(subparsers):
@@ -41,12 +34,9 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    stream = load(args.file, args.format, args.clean)
-    t, pos, quat = stream_arrays(stream)
+    recording = Trajectory.from_stream(load(args.file, args.format, args.clean))
     report = evaluate_recording(
-        t,
-        pos,
-        quat,
+        recording,
         horizons=parse_horizons(args.horizons),
         tune_fraction=args.tune_fraction,
         tune_horizons=parse_horizons(args.tune_horizons),
@@ -54,7 +44,7 @@ def run(args) -> int:
         progress=None if args.quiet else sys.stderr,
     )
     if args.json:
-        print(json.dumps(report.to_dict(), indent=2))
+        print(json.dumps(report.as_dict(), indent=2))
     else:
         print(report.table())
     return 0

@@ -8,7 +8,7 @@ from ..evaluation import default_predictor
 from ..filters import MotionModel, run_filter
 from ..io import PoseStream, write_stream
 from ..math import Pose, UncertainPose
-from ._common import add_input, load, stream_arrays
+from ._common import add_input, load
 from .cmd_convert import add_output
 
 
@@ -36,13 +36,13 @@ def run(args) -> int:
     else:
         noise = [float(v) for v in args.noise.split(",")]
     model = MotionModel(args.n_dp, args.n_do, noise=noise, kind="white_noise")
+    times = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
     if stream.covariance is None:
-        t, p, q = stream_arrays(stream)
-        cov = np.broadcast_to(default_predictor(t, p, q).measurement_covariance(), (len(t), 6, 6))
+        guess = default_predictor(times, stream.position, stream.quaternion)
+        cov = np.broadcast_to(guess.measurement_covariance(), (len(times), 6, 6))
     else:
         cov = stream.covariance
     poses = UncertainPose(Pose(stream.position, stream.quaternion), np.array(cov))
-    times = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
     h = args.horizon / 1e3
     res = run_filter(times, poses, model, horizons=(h,))
     out = res.predictions[h] if h > 0 else res.filtered

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..evaluation import evaluate_recording
+from ..evaluation import Trajectory, evaluate_recording
 from ..plotting import plot_error_vs_horizon, plot_sequence
-from ._common import add_input, load, parse_horizons, stream_arrays
+from ._common import add_input, load, parse_horizons
 
 
 def register(subparsers):
@@ -23,13 +23,14 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    t, pos, quat = stream_arrays(load(args.file, args.format, args.clean))
+    recording = Trajectory.from_stream(load(args.file, args.format, args.clean))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report = evaluate_recording(t, pos, quat, parse_horizons(args.horizons), args.tune_fraction)
-    start = t[-1] * max(args.tune_fraction, 0.0) if args.start is None else args.start
+    report = evaluate_recording(recording, parse_horizons(args.horizons), args.tune_fraction)
+    t_end = recording.t[-1]
+    start = t_end * max(args.tune_fraction, 0.0) if args.start is None else args.start
     stem = Path(args.file).stem
-    plot_sequence(out / f"{stem}_sequence.png", t, pos, quat, report.predictor,
+    plot_sequence(out / f"{stem}_sequence.png", recording, report.predictor,
                   args.horizon / 1e3, (start, start + args.length))  # fmt: skip
     plot_error_vs_horizon(out / f"{stem}_error_vs_horizon.png", report)
     print(out / f"{stem}_sequence.png")

@@ -5,16 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
-from ..evaluation import tune_model
-from ._common import (
-    add_input,
-    add_learned_orders,
-    load,
-    parse_horizons,
-    parse_ints,
-    parse_orders,
-    stream_arrays,
-)
+from ..evaluation import Trajectory, tune_model
+from ._common import add_input, add_learned_orders, load, parse_horizons, parse_ints, parse_orders
 
 
 def register(subparsers):
@@ -30,9 +22,9 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    t, pos, quat = stream_arrays(load(args.file, args.format, args.clean))
+    recording = Trajectory.from_stream(load(args.file, args.format, args.clean))
     res = tune_model(
-        t, pos, quat, parse_horizons(args.horizons), parse_ints(args.pos_derivatives),
+        recording, parse_horizons(args.horizons), parse_ints(args.pos_derivatives),
         parse_ints(args.ori_derivatives), ar_orders=parse_orders(args.learned_orders),
         progress=None if args.quiet else sys.stderr,
     )  # fmt: skip

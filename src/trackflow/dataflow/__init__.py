@@ -7,7 +7,6 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 
 from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
-from ._demo import DemoConfig, demo_json, run_demo
 from ._events import ComponentStats, Measurement
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
@@ -21,7 +20,6 @@ __all__ = [
     "CallbackSink",
     "Component",
     "ComponentStats",
-    "DemoConfig",
     "Inference",
     "Inversion",
     "KalmanFilter",
@@ -37,10 +35,8 @@ __all__ = [
     "Setup",
     "SimulatedSensor",
     "StaticPose",
-    "demo_json",
     "load_setup",
     "make_filter",
     "parse_setup",
     "plan_query",
-    "run_demo",
 ]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from os import PathLike
 
 from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
+from ..math import UncertainPose
 from ._network import Network
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._sinks import PullSink, Recorder
@@ -227,30 +228,47 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
     """
     paths = select_paths(graph, query)
     scores = [query.evaluate(p) for p in paths]
-    motions = [infer_motion(p) for p in paths]
     # A relationship is static if the query says so or if any path consists of static edges
     # only (a rigid chain pins it down).
-    rel_static = query.static or any(m.static for m in motions)
-    nodes: list[PlanNode] = []
-    ids: set[str] = set()
+    rel_static = query.static or any([infer_motion(p).static for p in paths])
+    b = _PlanBuilder(query, align, rel_static)
+    path_nodes = [b.path(p, f"p{i + 1}" if len(paths) > 1 else "path") for i, p in enumerate(paths)]
+    end = b.meeting(paths, path_nodes)
+    return Plan(query, paths, scores, b.nodes, b.delivery(end), rel_static)
 
-    def add(node: PlanNode) -> str:
+
+def _compose(edges) -> UncertainPose:
+    """The product of static edges' values, in order."""
+    value = None
+    for e in edges:
+        value = e.value() if value is None else value.compose(e.value())
+    return value
+
+
+class _PlanBuilder:
+    """The nodes of one plan, added rule by rule (module docstring); ids are unique."""
+
+    def __init__(self, query: Query, align: bool, relationship_static: bool):
+        self.query, self.align, self.rel_static = query, align, relationship_static
+        self.nodes: list[PlanNode] = []
+        self.ids: set[str] = set()
+        self.sensor_term: dict[str, str] = {}  # measured edge -> its filter (or buffer) node
+
+    def add(self, node: PlanNode) -> str:
+        """Append ``node`` (its id made unique with a ``_2``, ``_3``... suffix); its id."""
         base, k = node.id, 1
-        while node.id in ids:
+        while node.id in self.ids:
             k += 1
             node.id = f"{base}_{k}"
-        ids.add(node.id)
-        nodes.append(node)
+        self.ids.add(node.id)
+        self.nodes.append(node)
         return node.id
 
-    offset = query.time_offset_s
-    sensor_term: dict[str, str] = {}
-
-    def sensor(edge) -> str:
-        """Source + filter (or naive buffer) of one measured edge, created once."""
-        if edge.name in sensor_term:
-            return sensor_term[edge.name]
-        src = add(
+    def sensor(self, edge) -> str:
+        """Rule 1: source + filter (or naive buffer) of one measured edge, created once."""
+        if edge.name in self.sensor_term:
+            return self.sensor_term[edge.name]
+        src = self.add(
             PlanNode(
                 f"src_{edge.name}",
                 "source",
@@ -258,8 +276,8 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
                 why=f"measured edge {edge.source}->{edge.target}",
             )
         )
-        if not align:
-            node = add(
+        if not self.align:
+            node = self.add(
                 PlanNode(
                     f"latest_{edge.name}",
                     "latest",
@@ -269,67 +287,54 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
                 )
             )
         else:
-            if edge.motion.static:
-                role = "buffer"
-            elif rel_static or offset < 0:
-                role = "interpolator"
-            else:
-                role = "predictor"
+            node = self.add(self._sensor_filter(edge, src))
+        self.sensor_term[edge.name] = node
+        return node
+
+    def _sensor_filter(self, edge, src: str) -> PlanNode:
+        """The Kalman filter behind a sensor, in the role the query needs of it."""
+        if edge.motion.static:
+            role = "buffer"
+            why = "buffer for a sensor measuring a static relationship"
+        else:
+            role = (
+                "interpolator" if self.rel_static or self.query.time_offset_s < 0 else "predictor"
+            )
             why = (
                 f"a dynamic sensor must be valid at any requested time (7.4, rule 1); "
                 f"{edge.latency_s * 1e3:g} ms latency"
             )
-            if edge.motion.static:
-                why = "buffer for a sensor measuring a static relationship"
-            if edge.stamp_offset_s:
-                why += f"; corrects the {edge.stamp_offset_s * 1e3:+g} ms timestamp offset"
-            node = add(
-                PlanNode(
-                    f"kf_{edge.name}",
-                    "kalman",
-                    {
-                        "edge": edge.name,
-                        "motion": edge.motion,
-                        "role": role,
-                        "stamp_offset_ns": _stamp_offset_ns(edge),
-                    },
-                    [(src, "push")],
-                    why=why,
-                )
+        if edge.stamp_offset_s:
+            why += f"; corrects the {edge.stamp_offset_s * 1e3:+g} ms timestamp offset"
+        params = {
+            "edge": edge.name,
+            "motion": edge.motion,
+            "role": role,
+            "stamp_offset_ns": _stamp_offset_ns(edge),
+        }
+        return PlanNode(f"kf_{edge.name}", "kalman", params, [(src, "push")], why=why)
+
+    def static(self, edges, inverted: bool = False) -> str:
+        """Rules 2 and 3: a run of static edges chained (and inverted) once at planning time."""
+        value = _compose(edges)
+        names = "+".join(e.name for e in edges)
+        if inverted:
+            why = "inverted static edge(s): inverted once at planning time (rule 3)"
+            return self.add(
+                PlanNode(f"static_{names}_inv", "static", {"value": value.inverse()}, why=why)
             )
-        sensor_term[edge.name] = node
-        return node
+        why = (
+            "static edge"
+            if len(edges) == 1
+            else "static edges chained once at planning time (static . static = static)"
+        )
+        return self.add(PlanNode(f"static_{names}", "static", {"value": value}, why=why))
 
-    def chain(steps, tag: str) -> tuple[str, str]:
-        """Terms of forward (non-inverted) steps, statics folded; returns (node, text)."""
-        terms: list[str] = []
-        static_run: list = []
-
-        def flush():
-            if not static_run:
-                return
-            value = None
-            for e in static_run:
-                value = e.value() if value is None else value.compose(e.value())
-            names = "+".join(e.name for e in static_run)
-            why = (
-                "static edge"
-                if len(static_run) == 1
-                else ("static edges chained once at planning time (static . static = static)")
-            )
-            terms.append(add(PlanNode(f"static_{names}", "static", {"value": value}, why=why)))
-            static_run.clear()
-
-        for e in steps:
-            if e.kind == "static":
-                static_run.append(e)
-            else:
-                flush()
-                terms.append(sensor(e))
-        flush()
+    def inference(self, terms: list[str], tag: str) -> str:
+        """Rule 4: one inference chaining ``terms`` (a single term needs none)."""
         if len(terms) == 1:
-            return terms[0], ""
-        node = add(
+            return terms[0]
+        return self.add(
             PlanNode(
                 f"inference_{tag}",
                 "inference",
@@ -338,149 +343,135 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
                 why="chains the terms of the path at one common time (rule 4)",
             )
         )
-        return node, ""
 
-    def plan_path(path: Path, tag: str) -> str:
-        # Split the path into runs of equal direction.
+    def chain(self, edges, tag: str) -> str:
+        """Forward (non-inverted) edges: sensors and folded static runs, chained (rule 4)."""
+        terms: list[str] = []
+        static_run: list = []
+        for e in edges:
+            if e.kind == "static":
+                static_run.append(e)
+                continue
+            if static_run:
+                terms.append(self.static(static_run))
+                static_run = []
+            terms.append(self.sensor(e))
+        if static_run:
+            terms.append(self.static(static_run))
+        return self.inference(terms, tag)
+
+    def inverted(self, edges, tag: str) -> str:
+        """Rule 3: a run of edges walked against their direction, inverted once: its product
+        in forward order, then one inversion (``B^-1 A^-1 = (A B)^-1``)."""
+        forward = list(reversed(edges))
+        if all(e.kind == "static" for e in forward):
+            return self.static(forward, inverted=True)
+        inner = self.chain(forward, tag)
+        what = (
+            "the product of a run of inverted edges"
+            if len(forward) > 1
+            else f"edge {forward[0].name} walked against its direction"
+        )
+        return self.add(
+            PlanNode(
+                f"inv_{inner}",
+                "inversion",
+                {},
+                [(inner, "pull")],
+                why=f"{what}: one inversion at the cheapest place (rule 3)",
+            )
+        )
+
+    def path(self, path: Path, tag: str) -> str:
+        """One path: runs of equal direction, each chained or inverted, then chained."""
         runs: list[tuple[bool, list]] = []
         for s in path.steps:
             if runs and runs[-1][0] == s.inverted:
                 runs[-1][1].append(s.edge)
             else:
                 runs.append((s.inverted, [s.edge]))
-        terms: list[str] = []
-        for k, (inverted, edges) in enumerate(runs):
-            if not inverted:
-                if len(runs) == 1:
-                    return chain(edges, tag)[0]
-                terms.append(chain(edges, f"{tag}_{k}")[0])
-                continue
-            forward = list(reversed(edges))
-            if all(e.kind == "static" for e in forward):
-                value = None
-                for e in forward:
-                    value = e.value() if value is None else value.compose(e.value())
-                names = "+".join(e.name for e in forward)
-                terms.append(
-                    add(
-                        PlanNode(
-                            f"static_{names}_inv",
-                            "static",
-                            {"value": value.inverse()},
-                            why="inverted static edge(s): inverted once at planning time (rule 3)",
-                        )
+        if len(runs) == 1:
+            inverted, edges = runs[0]
+            return self.inverted(edges, tag) if inverted else self.chain(edges, tag)
+        terms = [
+            self.inverted(edges, f"{tag}_{k}") if inverted else self.chain(edges, f"{tag}_{k}")
+            for k, (inverted, edges) in enumerate(runs)
+        ]
+        return self.inference(terms, tag)
+
+    def meeting(self, paths: list[Path], path_nodes: list[str]) -> str:
+        """Rules 5 and 6: where the paths end: a static estimator, a fusion filter, or the
+        (single) path itself."""
+        dynamic = [(p, n) for p, n in zip(paths, path_nodes) if p.sensors]
+        if self.rel_static and dynamic:
+            why = (
+                "the queried relationship is static: a Kalman filter with a static motion "
+                "model averages all inferred measurements (rule 6, 7.4.1)"
+            )
+            end = self.estimator(
+                dynamic, MotionSpec.make_static(), "static_estimator", "static estimator", why
+            )
+            static_paths = [p for p in paths if not p.sensors]
+            if static_paths:
+                est = self.nodes[-1]
+                est.params["prior"] = static_paths[0].value()
+                est.why += f"; the static path {static_paths[0]} enters as its prior"
+            return end
+        if len(dynamic) > 1:
+            why = f"{len(paths)} independent paths meet: one fusion filter (rule 5)"
+            return self.estimator(dynamic, infer_motion(dynamic[0][0]), "fusion", "fusion", why)
+        return path_nodes[0]
+
+    def estimator(self, dynamic_paths, motion, node_id, role, why) -> str:
+        """A filter fed by push-triggered path inferences (fusion or static estimation): each
+        path is evaluated whenever its slowest sensor delivers."""
+        inputs = []
+        by_id = {n.id: n for n in self.nodes}
+        for p, n in dynamic_paths:
+            slowest = min(
+                (s.edge for s in p.steps if s.edge.kind == "measured"),
+                key=lambda e: (e.rate_hz, e.name),
+            )
+            term = self.sensor_term[slowest.name]
+            trig = term if by_id[term].kind == "kalman" else by_id[term].inputs[0][0]
+            node = by_id[n]
+            note = f"; triggered whenever its slowest sensor {slowest.name} delivers"
+            if node.kind == "inference":
+                node.inputs.append((trig, "push"))
+                node.why += note
+                trigger = n
+            else:
+                trigger = self.add(
+                    PlanNode(
+                        f"trigger_{n}",
+                        "inference",
+                        {},
+                        [(n, "pull"), (trig, "push")],
+                        why="evaluates the path" + note,
                     )
                 )
-                continue
-            inner, _ = chain(forward, f"{tag}_{k}" if len(runs) > 1 else tag)
-            what = (
-                "the product of a run of inverted edges"
-                if len(forward) > 1
-                else (f"edge {forward[0].name} walked against its direction")
-            )
-            inv = add(
+            inputs.append((trigger, "push"))
+        return self.add(
+            PlanNode(node_id, "kalman", {"motion": motion, "role": role}, inputs, why=why)
+        )
+
+    def delivery(self, end: str) -> str:
+        """Rule 7: a sampler and the application's recorder (push), or a pull sink."""
+        q = self.query
+        if q.mode == "push":
+            offset_ns = int(round(q.time_offset_s * 1e9))
+            s = self.add(
                 PlanNode(
-                    f"inv_{inner}",
-                    "inversion",
-                    {},
-                    [(inner, "pull")],
-                    why=f"{what}: one inversion at the cheapest place (rule 3)",
+                    "sampler",
+                    "sampler",
+                    {"rate_hz": float(q.rate_hz), "offset_ns": offset_ns},
+                    [(end, "pull")],
+                    why="push delivery at a fixed rate (rule 7)",
                 )
             )
-            terms.append(inv)
-        if len(terms) == 1:
-            return terms[0]
-        return add(
-            PlanNode(
-                f"inference_{tag}",
-                "inference",
-                {},
-                [(t, "pull") for t in terms],
-                why="chains the terms of the path at one common time (rule 4)",
-            )
-        )
-
-    path_nodes = [
-        plan_path(p, f"p{i + 1}" if len(paths) > 1 else "path") for i, p in enumerate(paths)
-    ]
-    dynamic_paths = [(p, n) for p, n in zip(paths, path_nodes) if p.sensors]
-    end = path_nodes[0]
-    if rel_static and dynamic_paths:
-        end = _estimator(
-            add,
-            nodes,
-            sensor_term,
-            dynamic_paths,
-            MotionSpec.make_static(),
-            "static_estimator",
-            "static estimator",
-            "the queried relationship is static: a Kalman filter with a static "
-            "motion model averages all inferred measurements (rule 6, 7.4.1)",
-        )
-        static_paths = [p for p in paths if not p.sensors]
-        if static_paths:
-            est = nodes[-1]
-            est.params["prior"] = static_paths[0].value()
-            est.why += f"; the static path {static_paths[0]} enters as its prior"
-
-    elif len(dynamic_paths) > 1:
-        end = _estimator(
-            add,
-            nodes,
-            sensor_term,
-            dynamic_paths,
-            infer_motion(dynamic_paths[0][0]),
-            "fusion",
-            "fusion",
-            f"{len(paths)} independent paths meet: one fusion filter (rule 5)",
-        )
-    if query.mode == "push":
-        offset_ns = int(round(query.time_offset_s * 1e9))
-        s = add(
-            PlanNode(
-                "sampler",
-                "sampler",
-                {"rate_hz": float(query.rate_hz), "offset_ns": offset_ns},
-                [(end, "pull")],
-                why="push delivery at a fixed rate (rule 7)",
-            )
-        )
-        out = add(PlanNode("app", "recorder", {}, [(s, "push")], why="the application"))
-    else:
-        out = add(
+            return self.add(PlanNode("app", "recorder", {}, [(s, "push")], why="the application"))
+        return self.add(
             PlanNode(
                 "app", "pull sink", {}, [(end, "pull")], why="the application pulls get(t) (rule 7)"
             )
         )
-    return Plan(query, paths, scores, nodes, out, rel_static)
-
-
-def _estimator(add, nodes, sensor_term, dynamic_paths, motion, node_id, role, why) -> str:
-    """A filter fed by push-triggered path inferences (fusion or static estimation)."""
-    inputs = []
-    by_id = {n.id: n for n in nodes}
-    for p, n in dynamic_paths:
-        slowest = min(
-            (s.edge for s in p.steps if s.edge.kind == "measured"),
-            key=lambda e: (e.rate_hz, e.name),
-        )
-        term = sensor_term[slowest.name]
-        trig = term if by_id[term].kind == "kalman" else by_id[term].inputs[0][0]
-        node = by_id[n]
-        note = f"; triggered whenever its slowest sensor {slowest.name} delivers"
-        if node.kind == "inference":
-            node.inputs.append((trig, "push"))
-            node.why += note
-            trigger = n
-        else:
-            trigger = add(
-                PlanNode(
-                    f"trigger_{n}",
-                    "inference",
-                    {},
-                    [(n, "pull"), (trig, "push")],
-                    why="evaluates the path" + note,
-                )
-            )
-        inputs.append((trigger, "push"))
-    return add(PlanNode(node_id, "kalman", {"motion": motion, "role": role}, inputs, why=why))

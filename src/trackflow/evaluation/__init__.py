@@ -1,23 +1,26 @@
 """Prediction-error evaluation and automatic Kalman filter tuning (PoseTool, thesis 8.1, 9.2.1).
 
-``evaluate_recording`` tunes on the first part of a recording and scores the tuned Kalman
-predictor, linear extrapolation and no prediction on the rest (thesis tables 9.2-9.5).
+A recording is checked once into a :class:`Trajectory` (times, positions, quaternions, gap
+threshold) that every step takes. ``evaluate_recording`` tunes on the first part of it and
+scores the tuned Kalman predictor, linear extrapolation and no prediction on the rest (thesis
+tables 9.2-9.5); each is a :class:`Predictor`.
 See ``docs/posetool.md``.
 """
 
-from ._baselines import predict_linear, predict_none
+from ._baselines import LinearPredictor, NoPredictor, predict_linear, predict_none
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
+from ._prediction import Prediction, Predictor, predict_kalman
 from ._predictor import (
     KalmanPredictor,
     PartwisePredictor,
     TwistARPredictor,
     default_predictor,
     estimate_noise,
-    predict_kalman,
 )
 from ._targets import default_gap, interpolate_poses, scored_mask
+from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 
 __all__ = [
@@ -25,9 +28,14 @@ __all__ = [
     "PREDICTORS",
     "ErrorStats",
     "KalmanPredictor",
+    "LinearPredictor",
+    "NoPredictor",
     "PartwisePredictor",
+    "Prediction",
     "PredictionReport",
+    "Predictor",
     "TuneResult",
+    "Trajectory",
     "TwistARPredictor",
     "default_gap",
     "default_predictor",

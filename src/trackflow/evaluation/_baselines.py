@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..math import quat_conjugate, quat_exp, quat_log, quat_multiply
+from ._prediction import Prediction, stack_predictions
+from ._trajectory import Trajectory
 
-__all__ = ["predict_none", "predict_linear"]
+__all__ = ["LinearPredictor", "NoPredictor", "predict_none", "predict_linear"]
 
 
 def predict_none(
@@ -51,3 +53,33 @@ def predict_linear(
     d = quat_log(quat_multiply(quat_conjugate(quaternion[:-1]), quaternion[1:]))
     q[1:] = quat_multiply(quaternion[1:], quat_exp(s[:, None] * d))
     return p, q
+
+
+class _Baseline:
+    """A reference predictor as a :class:`~trackflow.evaluation.Predictor`: its function at
+    every horizon, stacked."""
+
+    family: str
+    _function = staticmethod(predict_none)
+
+    def predict(self, recording: Trajectory, horizons: np.ndarray) -> Prediction:
+        r = recording
+        per_h = {float(h): self._function(r.t, r.position, r.quaternion, float(h))
+                 for h in horizons}  # fmt: skip
+        return Prediction(*stack_predictions(per_h, horizons, len(r)))
+
+    def as_dict(self) -> dict:
+        return {"family": self.family}
+
+
+class NoPredictor(_Baseline):
+    """No prediction (:func:`predict_none`): the last measurement."""
+
+    family = "none"
+
+
+class LinearPredictor(_Baseline):
+    """Linear extrapolation from the last two samples (:func:`predict_linear`)."""
+
+    family = "linear"
+    _function = staticmethod(predict_linear)

@@ -4,35 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from ._baselines import predict_linear, predict_none
+from ._baselines import LinearPredictor, NoPredictor
 from ._metrics import ErrorStats, error_stats, pose_errors
-from ._predictor import predict_kalman
-from ._targets import default_gap, interpolate_poses, scored_mask
+from ._prediction import Predictor, positive_horizons, predict_kalman
+from ._trajectory import Trajectory
 
 __all__ = ["PREDICTORS", "PredictionReport", "evaluate_predictors"]
 
 PREDICTORS = ("kalman", "linear", "none")
-
-
-def _as_arrays(t, position, quaternion):
-    t = np.ascontiguousarray(t, dtype=float).reshape(-1)
-    p = np.ascontiguousarray(position, dtype=float)
-    q = np.ascontiguousarray(quaternion, dtype=float)
-    if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
-        raise ValueError(
-            f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, {p.shape}, "
-            f"{q.shape}"
-        )
-    if t.shape[0] < 4:
-        raise ValueError(f"need at least 4 samples, got {t.shape[0]}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        raise ValueError("times, positions and quaternions must be finite (clean the recording)")
-    if np.any(np.diff(t) <= 0):
-        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise ValueError(f"times must increase strictly (sample {k}: {t[k]} after {t[k - 1]})")
-    return t, p, q
 
 
 @dataclass
@@ -53,7 +32,7 @@ class PredictionReport:
     n_gated: int
     tuning: dict = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def as_dict(self) -> dict:
         """JSON-ready dictionary; horizon keys are strings in milliseconds."""
         return {
             "scored_from_s": self.scored_from_s,
@@ -93,57 +72,47 @@ class PredictionReport:
 
 
 def evaluate_predictors(
-    t,
-    position,
-    quaternion,
-    predictor,
+    recording: Trajectory,
+    predictor: Predictor,
     horizons=(0.01, 0.02, 0.05, 0.1, 0.2),
     scored_from: float | None = None,
-    gap_s: float | None = None,
 ) -> PredictionReport:
     """Score the Kalman, linear and no-prediction predictors on one recording.
 
     For every sample ``k`` (with ``t[k] >= scored_from``) each predictor predicts the pose at
     ``t[k] + h`` from samples ``0..k``; the target is the recording interpolated there (linear
     position, slerp orientation). Samples whose window ``[t[k-1], t[k] + h]`` contains a gap
-    longer than ``gap_s`` are skipped (``n`` in the result says how many were scored). The
-    Kalman filter (:func:`trackflow.filters.run_filter` configured by ``predictor``) runs over
-    the whole recording, so it is warmed up when scoring starts, and restarts after gaps.
+    (an interval longer than ``recording.gap_s``) are skipped (``n`` in the result says how
+    many were scored). The Kalman filter (``predictor``) runs over the whole recording, so it
+    is warmed up when scoring starts, and restarts after gaps.
 
     Parameters
     ----------
-    t, position, quaternion : array_like, shapes (N,), (N, 3), (N, 4)
-        The recording ``T_a_b``: times [s], positions [m], quaternions ``(x, y, z, w)``.
-    predictor : KalmanPredictor
+    recording : Trajectory
+        The checked recording ``T_a_b``.
+    predictor : Predictor
+        The filter scored as ``kalman`` (e.g. a :class:`KalmanPredictor`).
     horizons : sequence of float
         Horizons [s]; reported in whole milliseconds.
     scored_from : float, optional
         First scored time [s]; default the first sample.
-    gap_s : float, optional
-        Default :func:`default_gap`.
 
     Returns
     -------
     PredictionReport
     """
-    t, p, q = _as_arrays(t, position, quaternion)
-    h = np.asarray(horizons, dtype=float).reshape(-1)
-    if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
-        raise ValueError(f"horizons must be positive seconds, got {h.tolist()}")
-    gap = default_gap(t) if gap_s is None else float(gap_s)
-    start = float(t[0]) if scored_from is None else float(scored_from)
-    kp, kq, n_gated = predict_kalman(t, p, q, predictor, h, max_gap=gap)
+    r = recording
+    h = positive_horizons(horizons)
+    start = float(r.t[0]) if scored_from is None else float(scored_from)
+    runs = {"kalman": predict_kalman(r, predictor, h), "linear": LinearPredictor().predict(r, h),
+            "none": NoPredictor().predict(r, h)}  # fmt: skip
     h_ms = tuple(int(round(v * 1e3)) for v in h)
     stats: dict[str, dict[int, ErrorStats]] = {name: {} for name in PREDICTORS}
     for i, (hs, hm) in enumerate(zip(h, h_ms)):
-        mask = scored_mask(t, hs, gap) & (t >= start)
-        tp, tq = interpolate_poses(t, p, q, t + hs)
-        preds = {
-            "kalman": (kp[i], kq[i]),
-            "linear": predict_linear(t, p, q, hs),
-            "none": predict_none(t, p, q, hs),
-        }
-        for name, (pp, pq) in preds.items():
+        mask = r.scored(hs) & (r.t >= start)
+        tp, tq = r.target(hs)
+        for name, run in runs.items():
+            pp, pq = run.position[i], run.quaternion[i]
             e_p, e_q = pose_errors(pp[mask], pq[mask], tp[mask], tq[mask])
             stats[name][hm] = error_stats(e_p, e_q)
     return PredictionReport(
@@ -151,8 +120,8 @@ def evaluate_predictors(
         horizons_ms=h_ms,
         stats=stats,
         predictor=predictor,
-        n_samples=int(t.shape[0]),
-        n_gaps=int(np.count_nonzero(np.diff(t) > gap)),
-        gap_s=gap,
-        n_gated=n_gated,
+        n_samples=len(r),
+        n_gaps=r.n_gaps,
+        gap_s=r.gap_s,
+        n_gated=runs["kalman"].n_gated,
     )

@@ -1,14 +1,20 @@
-"""The evaluation's Kalman predictor: a configuration of ``trackflow.filters.run_filter``."""
+"""The PoseTool's filter predictors: derivative-model, learned-increment and partwise.
+
+Each implements :class:`~trackflow.evaluation.Predictor` (``predict(recording, horizons)``).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ..filters import MotionModel, run_filter
 from ..filters.twist_ar import TwistARModel, run_twist_ar
 from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ._prediction import Prediction, stack_predictions
+from ._trajectory import Trajectory
 
 __all__ = [
     "KalmanPredictor",
@@ -16,7 +22,6 @@ __all__ = [
     "TwistARPredictor",
     "default_predictor",
     "estimate_noise",
-    "predict_kalman",
 ]
 
 
@@ -54,6 +59,7 @@ class KalmanPredictor:
         Outlier gate of the filter (chi-square quantile of the NIS); ``None`` = no gate.
     """
 
+    family: ClassVar[str] = "derivative"
     model: MotionModel
     pos_sigma: float
     ori_sigma: float
@@ -84,7 +90,7 @@ class KalmanPredictor:
         return KalmanPredictor(sub, self.pos_sigma, self.ori_sigma, self.gate_probability)
 
     def measurements(self, position, quaternion) -> UncertainPose:
-        """The recording as filter input: poses with :meth:`measurement_covariance`, (N,)."""
+        """Samples as filter input: poses with :meth:`measurement_covariance`, (N,)."""
         p = np.ascontiguousarray(position, dtype=float)
         q = np.ascontiguousarray(quaternion, dtype=float)
         c = np.broadcast_to(self.measurement_covariance(), (p.shape[0], 6, 6))
@@ -97,9 +103,18 @@ class KalmanPredictor:
             covariance=covariance, max_gap=max_gap,
         )  # fmt: skip
 
+    def predict(self, recording: Trajectory, horizons: np.ndarray) -> Prediction:
+        """:meth:`run` over the recording; the filter restarts after its gaps."""
+        meas = recording.measurements(self.measurement_covariance())
+        res = self.run(recording.t, meas, horizons, recording.max_gap)
+        per_h = {v: (res.predictions[v].position, res.predictions[v].quaternion)
+                 for v in res.predictions}  # fmt: skip
+        return Prediction(*stack_predictions(per_h, horizons, len(recording)),
+                          int(res.stats["rejected_gate"]))  # fmt: skip
+
     def as_dict(self) -> dict:
         return {
-            "family": "derivative",
+            "family": self.family,
             "n_dp": self.model.n_dp,
             "n_do": self.model.n_do,
             "noise": list(self.model.noise),
@@ -125,6 +140,7 @@ class TwistARPredictor:
         (``R_true = R Exp(dtheta)``).
     """
 
+    family: ClassVar[str] = "twist_ar"
     model: TwistARModel
     pos_sigma: float
     ori_sigma: float
@@ -134,16 +150,19 @@ class TwistARPredictor:
             raise ValueError(f"model must be a TwistARModel, got {type(self.model).__name__}")
         _check_sigmas(self)
 
-    def run(self, t, position, quaternion, horizons, max_gap=None) -> dict:
-        """Predicted means ``{h: (position (N, 3), quaternion (N, 4))}`` for every horizon."""
-        return run_twist_ar(
-            t, position, quaternion, self.model, self.pos_sigma, self.ori_sigma, horizons,
-            max_gap=max_gap,
+    def predict(self, recording: Trajectory, horizons: np.ndarray) -> Prediction:
+        """:func:`~trackflow.filters.twist_ar.run_twist_ar` over the recording (restarting
+        after its gaps); the learned filter has no gate."""
+        r = recording
+        per_h = run_twist_ar(
+            r.t, r.position, r.quaternion, self.model, self.pos_sigma, self.ori_sigma, horizons,
+            max_gap=r.max_gap,
         ).predictions  # fmt: skip
+        return Prediction(*stack_predictions(per_h, horizons, len(r)))
 
     def as_dict(self) -> dict:
         return {
-            "family": "twist_ar",
+            "family": self.family,
             **self.model.as_dict(),
             "pos_sigma": float(self.pos_sigma),
             "ori_sigma": float(self.ori_sigma),
@@ -163,6 +182,7 @@ class PartwisePredictor:
     position, orientation : KalmanPredictor or TwistARPredictor
     """
 
+    family: ClassVar[str] = "partwise"
     position: KalmanPredictor | TwistARPredictor
     orientation: KalmanPredictor | TwistARPredictor
 
@@ -174,9 +194,18 @@ class PartwisePredictor:
                     f"{name} must be a KalmanPredictor or TwistARPredictor, got {type(v).__name__}"
                 )
 
+    def predict(self, recording: Trajectory, horizons: np.ndarray) -> Prediction:
+        """Positions from :attr:`position`'s predictions, quaternions from
+        :attr:`orientation`'s (one run when both are the same filter); gated counts add."""
+        pos = self.position.predict(recording, horizons)
+        if self.orientation is self.position:
+            return pos
+        ori = self.orientation.predict(recording, horizons)
+        return Prediction(pos.position, ori.quaternion, pos.n_gated + ori.n_gated)
+
     def as_dict(self) -> dict:
         return {
-            "family": "partwise",
+            "family": self.family,
             "kind": "partwise",
             "position": self.position.as_dict(),
             "orientation": self.orientation.as_dict(),
@@ -193,58 +222,6 @@ def default_predictor(t, position, quaternion) -> KalmanPredictor:
     ps, os_ = estimate_noise(t, position, quaternion)
     model = MotionModel(2, 1, noise=(ps, 0.0, 30.0, os_, 30.0), kind="white_noise")
     return KalmanPredictor(model, ps, os_, None)
-
-
-def predict_kalman(
-    t, position, quaternion, predictor, horizons, max_gap: float | None = None
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Kalman-filter predictions ``horizons`` ahead of every sample.
-
-    Parameters
-    ----------
-    t : array_like, shape (N,)
-        Strictly increasing times [s].
-    position, quaternion : array_like, shape (N, 3) and (N, 4)
-        Measured ``T_a_b`` [m], ``(x, y, z, w)``.
-    predictor : KalmanPredictor, TwistARPredictor or PartwisePredictor
-    horizons : sequence of float, length H
-        Horizons [s] (0 gives the filtered poses).
-    max_gap : float, optional
-        The filter restarts after a larger sample interval [s]; default never.
-
-    Returns
-    -------
-    position : ndarray, shape (H, N, 3)
-        ``position[h, k]``: predicted for ``t[k] + horizons[h]`` from samples ``0..k``.
-    quaternion : ndarray, shape (H, N, 4)
-    n_gated : int
-        Measurements the outlier gate of a derivative-model filter rejected.
-    """
-    h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
-    if isinstance(predictor, PartwisePredictor):
-        parts = [predictor.position, predictor.orientation]
-    elif isinstance(predictor, (KalmanPredictor, TwistARPredictor)):
-        parts = [predictor, predictor]
-    else:
-        raise ValueError(f"not a predictor: {type(predictor).__name__}")
-    runs, n_gated = [], 0
-    for i, part in enumerate(parts):
-        if i == 1 and part is parts[0]:
-            runs.append(runs[0])
-            continue
-        if isinstance(part, KalmanPredictor):
-            res = part.run(t, part.measurements(position, quaternion), h, max_gap)
-            n_gated += int(res.stats["rejected_gate"])
-            runs.append({v: (res.predictions[v].position, res.predictions[v].quaternion)
-                         for v in res.predictions})  # fmt: skip
-        else:
-            runs.append(part.run(t, position, quaternion, h, max_gap))
-    if h.size == 0:
-        n = np.shape(position)[0]
-        return np.empty((0, n, 3)), np.empty((0, n, 4)), n_gated
-    pp = np.stack([runs[0][float(v)][0] for v in h])
-    pq = np.stack([runs[1][float(v)][1] for v in h])
-    return pp, pq, n_gated
 
 
 def estimate_noise(t, position, quaternion) -> tuple[float, float]:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..math import UNIT_TOLERANCE
 from ._report import ReadReport
-from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
+from ._stream import PoseStream, present_fields
 
 __all__ = ["finish_stream", "locate", "fmt_ns"]
 
@@ -126,157 +126,21 @@ def finish_stream(
     check_covariance_psd : bool
         Check symmetry and positive semi-definiteness (readers of trusted binary data skip it).
     """
-    n = len(t_ns)
-    where = np.asarray(where, dtype=np.int64)
-    keep = np.ones(n, dtype=bool)
-
-    def drop_tail() -> None:
-        keep[n - 1] = False
-        report.drop(TRUNCATED, int(where[n - 1]))
-        report.notes.append(f"last line ({locate(report, int(where[n - 1]))}) is incomplete")
-
-    def reject(reason: str, bad: np.ndarray, detail: Callable[[int], str]) -> None:
-        bad = bad & keep
-        if not np.any(bad):
-            return
-        idx = np.flatnonzero(bad)
-        if tail_unterminated and idx[-1] == n - 1:
-            drop_tail()
-            idx = idx[:-1]
-            if not idx.size:
-                return
-        if not clean:
-            i = int(idx[0])
-            raise ValueError(
-                f"{locate(report, int(where[i]))}: {detail(i)} "
-                f"({len(idx)} such rows; read with clean=True to drop them)"
-            )
-        keep[idx] = False
-        report.drop(reason, where[idx])
-
-    # 1. non-finite values
-    finite = _finite_rows(position) & _finite_rows(quaternion)
-    if covariance is not None:
-        finite &= _finite_rows(covariance)
-    if confidence is not None:
-        finite &= np.isfinite(confidence)
-    reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
-    if confidence is not None:
-        conf_ok = (confidence >= 0.0) & (confidence <= 1.0)
-        reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")
-
-    # 2./3. quaternion length
-    with np.errstate(invalid="ignore"):
-        norm = np.sqrt(np.einsum("ij,ij->i", quaternion, quaternion))
-    reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
-    off = np.abs(norm - 1.0)
-    cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
-    if cand.size:
-        tol = np.full(n, UNIT_TOLERANCE)
-        if quat_tolerance is not None:
-            tol[cand] = quat_tolerance(cand)
-        over = off[cand] > tol[cand]
-        bad_idx = cand[over]
-        if np.any(~over):
-            report.notes.append(
-                f"{int(np.sum(~over))} quaternion(s) off unit length by up to "
-                f"{float(np.max(off[cand[~over]])):.2g} (within the rounding tolerance of the "
-                "printed digits) were normalised"
-            )
-        if bad_idx.size:
-            bad = np.zeros(n, dtype=bool)
-            bad[bad_idx] = True
-            if not clean:
-                reject(
-                    "non-unit quaternion",
-                    bad,
-                    lambda i: (
-                        f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
-                        f"{norm[i]:.9g}, not unit (allowed deviation {tol[i]:.2g})"
-                    ),
-                )
-            else:
-                if tail_unterminated and bad[n - 1]:
-                    drop_tail()
-                report.normalized.extend(int(w) for w in where[bad & keep])
-    # rescale only rows visibly off unit length, so exact values survive write/read round trips
-    rescale = np.abs(norm - 1.0) > 1e-12
-    if np.any(rescale):
-        quaternion = quaternion.copy()
-        quaternion[rescale] /= np.where(norm[rescale] > 1e-12, norm[rescale], 1.0)[:, None]
-
-    # 4. covariance
-    if covariance is not None and check_covariance_psd and n:
-        c = covariance
-        ct = np.swapaxes(c, 1, 2)
-        scale = np.max(np.abs(c), axis=(1, 2))
-        asym = np.max(np.abs(c - ct), axis=(1, 2))
-        sym_ok = asym <= 1e-9 * np.maximum(scale, 1e-300)
-        reject(
-            "asymmetric covariance", ~sym_ok, lambda i: f"covariance not symmetric ({asym[i]:.3g})"
-        )
-        c = 0.5 * (c + ct)
-        c_fin = np.where(np.isfinite(c), c, 0.0)
-        eig = np.linalg.eigvalsh(c_fin)
-        psd = eig[:, 0] >= -1e-9 * np.maximum(eig[:, -1], 1e-300)
-        reject(
-            "covariance not positive semi-definite",
-            ~psd,
-            lambda i: f"covariance not positive semi-definite (eigenvalue {eig[i, 0]:.3g})",
-        )
-        covariance = c
-
-    # 5. timestamps
-    all_kept = bool(keep.all())
-    kidx = np.flatnonzero(keep)
-    tk = t_ns if all_kept else t_ns[kidx]
-    if tk.size > 1 and np.any(np.diff(tk) <= 0):
-        d = np.diff(tk)
-        if not clean:
-            j = int(np.argmax(d <= 0)) + 1
-            i, p = int(kidx[j]), int(kidx[j - 1])
-            what = "duplicated timestamp" if d[j - 1] == 0 else "timestamp goes back in time"
-            raise ValueError(
-                f"{locate(report, int(where[i]))}: {what}: {fmt_ns(t_ns[i])} after "
-                f"{fmt_ns(t_ns[p])} ({locate(report, int(where[p]))}); "
-                "read with clean=True to drop such rows"
-            )
-        # drop exact repeats of the previous row's stamp first (keeps the first of a run)
-        dup = np.concatenate([[False], d == 0])
-        rest = kidx[~dup]
-        lis = rest[_longest_increasing(t_ns[rest])]
-        dropped = np.setdiff1d(kidx, lis)
-        kept_times = set(t_ns[lis].tolist())
-        is_dup = np.array([t in kept_times for t in t_ns[dropped].tolist()], dtype=bool)
-        report.drop("duplicated timestamp", where[dropped[is_dup]])
-        report.drop("non-increasing timestamp", where[dropped[~is_dup]])
-        keep[dropped] = False
-        kidx = lis
-        all_kept = False
-
-    # 6. sign flips (never an error)
-    q = quaternion if all_kept else quaternion[kidx]
-    if len(kidx) > 1:
-        flip = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0.0
-        if np.any(flip):
-            report.sign_flips.extend(int(w) for w in where[kidx[1:][flip]])
-            if clean:
-                sign = np.where(np.cumsum(np.concatenate([[False], flip])) % 2 == 1, -1.0, 1.0)
-                q = q * sign[:, None]
-                report.signs_fixed = True
-
+    rows = _Rows(report, where, len(t_ns), clean, tail_unterminated)
+    _reject_non_finite(rows, position, quaternion, covariance, confidence)
+    quaternion = _unit_quaternions(rows, quaternion, quat_tolerance)
+    if covariance is not None and check_covariance_psd and rows.n:
+        covariance = _valid_covariances(rows, covariance)
+    kidx = _increasing_times(rows, t_ns)
+    q = _continuous_signs(rows, quaternion, kidx)
     if report.normalized:  # list only repaired rows that made it into the stream
-        kept_where = set(where[kidx].tolist())
+        kept_where = set(rows.where[kidx].tolist())
         report.normalized[:] = [w for w in report.normalized if w in kept_where]
     m = len(kidx)
-    if m == n:  # nothing dropped: keep the arrays, avoid gathering copies of large batches
+    if m == rows.n:  # nothing dropped: keep the arrays, avoid gathering copies of large batches
         kidx = slice(None)
     if flags is None:
-        f = FLAG_POSITION | FLAG_ORIENTATION
-        if covariance is not None:
-            f |= FLAG_COVARIANCE
-        if confidence is not None:
-            f |= FLAG_CONFIDENCE
+        f = present_fields(covariance is not None, confidence is not None)
         fl = np.full(m, f, dtype=np.uint32)
     else:
         fl = np.asarray(flags, dtype=np.uint32)[kidx]
@@ -292,3 +156,166 @@ def finish_stream(
         conf,
         fl,
     )
+
+
+class _Rows:
+    """The rows under validation: which are still kept, and what a rejection does (raise
+    naming the first bad row, or drop and count them with ``clean``)."""
+
+    def __init__(self, report: ReadReport, where, n: int, clean: bool, tail_unterminated: bool):
+        self.report, self.n, self.clean = report, n, clean
+        self.where = np.asarray(where, dtype=np.int64)
+        self.tail_unterminated = tail_unterminated
+        self.keep = np.ones(n, dtype=bool)
+
+    def drop_tail(self) -> None:
+        """Drop the unterminated last row as a truncated tail."""
+        last = int(self.where[self.n - 1])
+        self.keep[self.n - 1] = False
+        self.report.drop(TRUNCATED, last)
+        self.report.notes.append(f"last line ({locate(self.report, last)}) is incomplete")
+
+    def reject(self, reason: str, bad: np.ndarray, detail: Callable[[int], str]) -> None:
+        """Rows ``bad`` (bool, (N,)) fail a check: raise ``ValueError`` at the first one
+        (``detail(i)`` says why), or drop them with ``clean``; a bad unterminated last row is
+        always dropped as a truncated tail."""
+        bad = bad & self.keep
+        if not np.any(bad):
+            return
+        idx = np.flatnonzero(bad)
+        if self.tail_unterminated and idx[-1] == self.n - 1:
+            self.drop_tail()
+            idx = idx[:-1]
+            if not idx.size:
+                return
+        if not self.clean:
+            i = int(idx[0])
+            raise ValueError(
+                f"{locate(self.report, int(self.where[i]))}: {detail(i)} "
+                f"({len(idx)} such rows; read with clean=True to drop them)"
+            )
+        self.keep[idx] = False
+        self.report.drop(reason, self.where[idx])
+
+
+def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence) -> None:
+    """Check 1: NaN or inf in any field; confidences outside [0, 1]."""
+    finite = _finite_rows(position) & _finite_rows(quaternion)
+    if covariance is not None:
+        finite &= _finite_rows(covariance)
+    if confidence is not None:
+        finite &= np.isfinite(confidence)
+    rows.reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
+    if confidence is not None:
+        conf_ok = (confidence >= 0.0) & (confidence <= 1.0)
+        rows.reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")
+
+
+def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np.ndarray:
+    """Checks 2 and 3: zero quaternions, and lengths off 1 beyond the printed precision
+    (repaired with ``clean``). Returns the quaternions with every row visibly off unit length
+    rescaled (exact values survive write/read round trips)."""
+    report, n, keep = rows.report, rows.n, rows.keep
+    with np.errstate(invalid="ignore"):
+        norm = np.sqrt(np.einsum("ij,ij->i", quaternion, quaternion))
+    rows.reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
+    off = np.abs(norm - 1.0)
+    cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
+    if cand.size:
+        tol = np.full(n, UNIT_TOLERANCE)
+        if quat_tolerance is not None:
+            tol[cand] = quat_tolerance(cand)
+        over = off[cand] > tol[cand]
+        if np.any(~over):
+            report.notes.append(
+                f"{int(np.sum(~over))} quaternion(s) off unit length by up to "
+                f"{float(np.max(off[cand[~over]])):.2g} (within the rounding tolerance of the "
+                "printed digits) were normalised"
+            )
+        bad = np.zeros(n, dtype=bool)
+        bad[cand[over]] = True
+        if np.any(bad) and not rows.clean:
+            rows.reject(
+                "non-unit quaternion",
+                bad,
+                lambda i: (
+                    f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
+                    f"{norm[i]:.9g}, not unit (allowed deviation {tol[i]:.2g})"
+                ),
+            )
+        elif np.any(bad):
+            if rows.tail_unterminated and bad[n - 1]:
+                rows.drop_tail()
+            report.normalized.extend(int(w) for w in rows.where[bad & keep])
+    rescale = np.abs(norm - 1.0) > 1e-12
+    if np.any(rescale):
+        quaternion = quaternion.copy()
+        quaternion[rescale] /= np.where(norm[rescale] > 1e-12, norm[rescale], 1.0)[:, None]
+    return quaternion
+
+
+def _valid_covariances(rows: _Rows, c: np.ndarray) -> np.ndarray:
+    """Check 4: symmetric and positive semi-definite; returns them exactly symmetric."""
+    ct = np.swapaxes(c, 1, 2)
+    scale = np.max(np.abs(c), axis=(1, 2))
+    asym = np.max(np.abs(c - ct), axis=(1, 2))
+    sym_ok = asym <= 1e-9 * np.maximum(scale, 1e-300)
+    rows.reject(
+        "asymmetric covariance", ~sym_ok, lambda i: f"covariance not symmetric ({asym[i]:.3g})"
+    )
+    c = 0.5 * (c + ct)
+    eig = np.linalg.eigvalsh(np.where(np.isfinite(c), c, 0.0))
+    psd = eig[:, 0] >= -1e-9 * np.maximum(eig[:, -1], 1e-300)
+    rows.reject(
+        "covariance not positive semi-definite",
+        ~psd,
+        lambda i: f"covariance not positive semi-definite (eigenvalue {eig[i, 0]:.3g})",
+    )
+    return c
+
+
+def _increasing_times(rows: _Rows, t_ns: np.ndarray) -> np.ndarray:
+    """Check 5: strictly increasing stamps. With ``clean`` the fewest rows are dropped (exact
+    repeats of the previous stamp first, then outside a longest increasing subsequence).
+    Returns the indices of the kept rows (M,)."""
+    report, keep, where = rows.report, rows.keep, rows.where
+    kidx = np.flatnonzero(keep)
+    tk = t_ns if len(kidx) == rows.n else t_ns[kidx]  # no gathering copy of a whole batch
+    if tk.size < 2 or not np.any(np.diff(tk) <= 0):
+        return kidx
+    d = np.diff(tk)
+    if not rows.clean:
+        j = int(np.argmax(d <= 0)) + 1
+        i, p = int(kidx[j]), int(kidx[j - 1])
+        what = "duplicated timestamp" if d[j - 1] == 0 else "timestamp goes back in time"
+        raise ValueError(
+            f"{locate(report, int(where[i]))}: {what}: {fmt_ns(t_ns[i])} after "
+            f"{fmt_ns(t_ns[p])} ({locate(report, int(where[p]))}); "
+            "read with clean=True to drop such rows"
+        )
+    # drop exact repeats of the previous row's stamp first (keeps the first of a run)
+    dup = np.concatenate([[False], d == 0])
+    rest = kidx[~dup]
+    lis = rest[_longest_increasing(t_ns[rest])]
+    dropped = np.setdiff1d(kidx, lis)
+    kept_times = set(t_ns[lis].tolist())
+    is_dup = np.array([t in kept_times for t in t_ns[dropped].tolist()], dtype=bool)
+    report.drop("duplicated timestamp", where[dropped[is_dup]])
+    report.drop("non-increasing timestamp", where[dropped[~is_dup]])
+    keep[dropped] = False
+    return lis
+
+
+def _continuous_signs(rows: _Rows, quaternion: np.ndarray, kidx: np.ndarray) -> np.ndarray:
+    """Check 6: sign flips between consecutive kept rows (never an error): counted always,
+    made continuous with ``clean``. Returns the kept rows' quaternions (M, 4)."""
+    q = quaternion if len(kidx) == rows.n else quaternion[kidx]
+    if len(kidx) > 1:
+        flip = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0.0
+        if np.any(flip):
+            rows.report.sign_flips.extend(int(w) for w in rows.where[kidx[1:][flip]])
+            if rows.clean:
+                sign = np.where(np.cumsum(np.concatenate([[False], flip])) % 2 == 1, -1.0, 1.0)
+                q = q * sign[:, None]
+                rows.report.signs_fixed = True
+    return q

@@ -31,6 +31,16 @@ FLAG_COVARIANCE = np.uint32(4)
 FLAG_CONFIDENCE = np.uint32(8)
 
 
+def present_fields(covariance: bool, confidence: bool) -> int:
+    """Flags of a sample with position and orientation, and covariance / confidence if given."""
+    f = FLAG_POSITION | FLAG_ORIENTATION
+    if covariance:
+        f |= FLAG_COVARIANCE
+    if confidence:
+        f |= FLAG_CONFIDENCE
+    return f
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
@@ -148,12 +158,7 @@ class PoseStream:
                 i = int(np.argmax(bad))
                 raise ValueError(f"confidence must lie in [0, 1]: index {i} has {conf[i]}")
         if flags is None:
-            f = FLAG_POSITION | FLAG_ORIENTATION
-            if c is not None:
-                f |= FLAG_COVARIANCE
-            if confidence is not None:
-                f |= FLAG_CONFIDENCE
-            fl = np.full(n, f, dtype=np.uint32)
+            fl = np.full(n, present_fields(c is not None, confidence is not None), dtype=np.uint32)
         else:
             fl = np.asarray(flags)
             if fl.shape != (n,):

@@ -7,7 +7,7 @@ import logging
 import math
 
 from trackflow.cli.main import main
-from trackflow.dataflow import run_demo
+from trackflow.demo import run_demo
 from trackflow.math import use_backend
 
 
@@ -39,7 +39,7 @@ def test_demo_rejections_are_the_wrong_detections(tmp_path, caplog):
     """The low-noise tracker is never gated and no filter resets; the camera's filter rejects
     exactly its wrong detections (0.1 m / 17 deg off), another seed than the default."""
     with caplog.at_level(logging.WARNING, logger="trackflow.filters"), use_backend("numba"):
-        from trackflow.dataflow import DemoConfig
+        from trackflow.demo import DemoConfig
 
         result = run_demo(tmp_path / "d.png", DemoConfig(seed=3), plot=False)
     assert not [r for r in caplog.records if "reset" in r.getMessage()]
