@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import PoseStream
-from ..math import UncertainPose
+from ..math import UncertainPose, check_trajectory
 from ._targets import default_gap, interpolate_poses, scored_mask
 
 __all__ = ["Trajectory"]
@@ -57,23 +57,7 @@ class Trajectory:
             Wrong shapes, fewer than 4 samples, non-finite values, times not strictly
             increasing (naming the sample), or a gap threshold that is not > 0.
         """
-        t = np.ascontiguousarray(t, dtype=float).reshape(-1)
-        p = np.ascontiguousarray(position, dtype=float)
-        q = np.ascontiguousarray(quaternion, dtype=float)
-        if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
-            raise ValueError(
-                f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
-                f"{p.shape}, {q.shape}"
-            )
-        if t.shape[0] < 4:
-            raise ValueError(f"need at least 4 samples, got {t.shape[0]}")
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-            raise ValueError(
-                "times, positions and quaternions must be finite (clean the recording)"
-            )
-        if np.any(np.diff(t) <= 0):
-            k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-            raise ValueError(f"times must increase strictly (sample {k}: {t[k]} after {t[k - 1]})")
+        t, p, q = check_trajectory(t, position, quaternion, min_samples=4, what="the recording")
         gap = default_gap(t) if gap_s is None else float(gap_s)
         if not gap > 0:
             raise ValueError(f"gap_s must be > 0, got {gap_s!r}")

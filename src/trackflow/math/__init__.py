@@ -5,7 +5,13 @@ Conventions (frames, quaternion order, error model) are in ``docs/conventions.md
 
 from ._backend import get_backend, numba_available, set_backend, use_backend
 from ._backend import kernels as kernels_for
-from ._checks import UNIT_TOLERANCE, check_covariance, check_position, check_quaternion
+from ._checks import (
+    UNIT_TOLERANCE,
+    check_covariance,
+    check_position,
+    check_quaternion,
+    check_trajectory,
+)
 from ._covariance import (
     cov_from_additive_quaternion,
     cov_from_gtsam,
@@ -53,6 +59,7 @@ __all__ = [
     "check_covariance",
     "check_position",
     "check_quaternion",
+    "check_trajectory",
     "cov_from_additive_quaternion",
     "cov_from_gtsam",
     "cov_from_ros",

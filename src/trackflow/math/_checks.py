@@ -13,6 +13,7 @@ import numpy as np
 from ._kernels import covariance_is_plainly_valid
 
 __all__ = [
+    "check_trajectory",
     "check_position",
     "check_quaternion",
     "check_covariance",
@@ -117,3 +118,28 @@ def check_covariance(covariance, name: str = "covariance", size: int = 6) -> np.
                 f"{float(np.min(eig[..., 0])):.3g}"
             )
     return c
+
+
+def check_trajectory(t, position, quaternion, min_samples: int = 1, what: str = "the input"):
+    """Validate a sampled trajectory: ``(t (N,), p (N, 3), q (N, 4))`` as contiguous floats.
+
+    Raises ``ValueError`` naming the problem: wrong shapes, fewer than ``min_samples`` samples,
+    non-finite values, or times not strictly increasing (naming the sample and both times).
+    ``what`` names the data in the hint ("clean ...").
+    """
+    t = np.ascontiguousarray(t, dtype=float).reshape(-1)
+    p = np.ascontiguousarray(position, dtype=float)
+    q = np.ascontiguousarray(quaternion, dtype=float)
+    if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
+        raise ValueError(
+            f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
+            f"{p.shape}, {q.shape}"
+        )
+    if t.shape[0] < min_samples:
+        raise ValueError(f"need at least {min_samples} samples, got {t.shape[0]}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise ValueError(f"times, positions and quaternions must be finite (clean {what})")
+    if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise ValueError(f"times must increase strictly (sample {k}): {t[k]} after {t[k - 1]}")
+    return t, p, q

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from trackflow.math import (
+    check_trajectory,
     kernels_for,
     quat_conjugate,
     quat_exp,
@@ -89,20 +90,7 @@ def body_increments(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
 
 def _recording(t, position, quaternion):
     """The checked arrays ``(t (N,), p (N, 3), q (N, 4))``; ``ValueError`` naming the problem."""
-    t = np.asarray(t, dtype=float).reshape(-1)
-    p = np.asarray(position, dtype=float)
-    q = np.asarray(quaternion, dtype=float)
-    if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
-        raise ValueError(
-            f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
-            f"{p.shape}, {q.shape}"
-        )
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        raise ValueError("times, positions and quaternions must be finite (clean the input)")
-    if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
-        k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise ValueError(f"times must increase strictly (sample {k})")
-    return t, p, q
+    return check_trajectory(t, position, quaternion)
 
 
 def _regular(t, step):
