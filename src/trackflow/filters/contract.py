@@ -22,7 +22,7 @@ import numpy as np
 
 from trackflow.math import Pose, UncertainPose
 
-__all__ = ["STATS_KEYS", "FilterStatus", "MeasurementFunction", "PoseFilter"]
+__all__ = ["STATS_KEYS", "FilterClock", "FilterStatus", "MeasurementFunction", "PoseFilter"]
 
 
 class FilterStatus(enum.IntEnum):
@@ -81,3 +81,20 @@ class MeasurementFunction(Protocol):
     def covariance(self) -> np.ndarray: ...
 
     def residual(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class FilterClock:
+    """The ``initialized`` / ``time`` part of :class:`PoseFilter` for filters keeping the time
+    of their newest integrated measurement in ``self._t`` (``None`` before the first)."""
+
+    _t: float | None = None
+
+    @property
+    def initialized(self) -> bool:
+        """Whether at least one measurement has been integrated."""
+        return self._t is not None
+
+    @property
+    def time(self) -> float | None:
+        """Time [s] of the newest integrated measurement, ``None`` before the first."""
+        return self._t

@@ -29,6 +29,7 @@ import numpy as np
 from trackflow.math import UncertainPose
 
 from . import gating
+from .contract import FilterClock
 from .gating import GatePolicy
 
 __all__ = ["EstimateHistory", "GatedPoseFilter", "interpolate_estimates"]
@@ -116,7 +117,7 @@ class EstimateHistory:
         )
 
 
-class GatedPoseFilter:
+class GatedPoseFilter(FilterClock):
     """Validation, ordering, gating, resets and counters shared by both adapters."""
 
     _extra_counters: tuple[str, ...] = ()
@@ -140,16 +141,6 @@ class GatedPoseFilter:
             0,
         )
         self._restart()
-
-    @property
-    def initialized(self) -> bool:
-        """Whether at least one measurement has been integrated."""
-        return self._t is not None
-
-    @property
-    def time(self) -> float | None:
-        """Time [s] of the newest integrated measurement, ``None`` before the first."""
-        return self._t
 
     @property
     def stats(self) -> dict:

@@ -11,7 +11,7 @@ import numpy as np
 from trackflow.math import Pose, UncertainPose, check_covariance, check_quaternion, kernels_for
 
 from .. import gating
-from ..contract import FilterStatus, MeasurementFunction
+from ..contract import FilterClock, FilterStatus, MeasurementFunction
 from ..gating import GatePolicy, chi2_gate
 from . import kernels as _source
 from .model import MotionModel, _additive
@@ -47,7 +47,7 @@ class _Entry:
         self.gated_run = 0
 
 
-class PoseKalmanFilter:
+class PoseKalmanFilter(FilterClock):
     """Kalman filter of one spatial relationship ``T_a_b(t)`` built from a motion model.
 
     Serves prediction (``predict(t)`` in the future, covariance growing with the motion
@@ -145,16 +145,6 @@ class PoseKalmanFilter:
     @property
     def formulation(self) -> str:
         return self._formulation
-
-    @property
-    def initialized(self) -> bool:
-        """Whether at least one measurement has been integrated."""
-        return self._t is not None
-
-    @property
-    def time(self) -> float | None:
-        """Time (s) of the newest integrated measurement, ``None`` before the first."""
-        return self._t
 
     @property
     def nis(self) -> float:
