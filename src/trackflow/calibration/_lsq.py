@@ -21,8 +21,12 @@ __all__ = ["Solution", "autocorrelation_time", "robust_solve"]
 
 @dataclass(frozen=True)
 class Solution:
-    """``x`` (P,) estimate, ``cov`` (P, P), ``inliers`` (M,) mask over residual blocks,
-    ``residuals`` (M, B) unwhitened at ``x``, ``variance_factor`` and ``tau`` the inflation, ``sigma`` (B,) the final residual scales."""
+    """A solved problem.
+
+    ``x`` the estimate, ``cov`` (P, P) over the tangent step, ``inliers`` (M,) mask over
+    residual blocks, ``residuals`` (M, B) unwhitened at ``x``, ``variance_factor`` and ``tau``
+    the inflation, ``sigma`` (B,) the final residual scales.
+    """
 
     x: np.ndarray
     cov: np.ndarray
@@ -113,7 +117,9 @@ def robust_solve(
     max_rounds: int = 5,
     groups: tuple[tuple[int, ...], ...] | None = None,
 ) -> Solution:
-    """Minimise ``sum |r_i / sigma|^2`` with outlier rejection; ``fun(x) -> (r (M, B), J (M, B, P))``.
+    """Minimise ``sum |r_i / sigma|^2`` with outlier rejection.
+
+    ``fun(x) -> (r (M, B), J (M, B, P))`` gives residual blocks and their Jacobians.
 
     ``sigma`` (B,) is the prior residual scale of each block column (re-estimated per group of
     columns; with ``groups`` (tuples of column indices) each group's scale is re-estimated from
