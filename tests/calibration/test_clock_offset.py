@@ -7,7 +7,7 @@ import pytest
 
 from trackflow.calibration import estimate_clock_offset
 
-from ._synth import two_trackers
+from _synth import two_trackers
 
 
 @pytest.mark.parametrize("offset", [-0.31, 0.0, 0.25])

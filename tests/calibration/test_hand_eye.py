@@ -10,7 +10,7 @@ from trackflow.calibration import estimate_clock_offset, hand_eye_residuals, sol
 from trackflow.calibration.hand_eye import pair_residuals
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
 
-from ._synth import X_TRUE, Z_TRUE, two_trackers
+from _synth import X_TRUE, Z_TRUE, two_trackers
 
 
 def _err(est, true):

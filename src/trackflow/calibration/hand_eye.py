@@ -42,7 +42,10 @@ __all__ = [
 ]
 
 #: Smallest rotation between the two poses of a motion pair [deg].
-MIN_PAIR_ANGLE_DEG = 10.0
+MIN_PAIR_ANGLE_DEG = 5.0
+#: Longest time between the two poses of a motion pair [s]: short pairs are insensitive to a
+#: slowly drifting world frame (inside-out headsets), see docs/calibration.md.
+MAX_PAIR_SPAN_S = 2.0
 #: Smallest ratio of the second to the first singular value of the pairs' rotation axes.
 MIN_AXIS_SPREAD = 0.05
 
@@ -235,13 +238,13 @@ def _pairs(q: np.ndarray, min_angle: float, max_lag: int = 20) -> tuple[np.ndarr
     return np.concatenate(ii), np.concatenate(jj)
 
 
-def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=MIN_PAIR_ANGLE_DEG):
+def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=10.0, max_lag: int = 20):
     """Park-Martin: ``R_X`` from the rotation axes of motion pairs, ``t_X`` by least squares.
 
     Inputs are poses at common instants, (M, 3)/(M, 4), spread over the recording (stations).
     Raises ``ValueError`` when the motion does not determine X.
     """
-    i, j = _pairs(Aq, np.radians(min_pair_angle_deg))
+    i, j = _pairs(Aq, np.radians(min_pair_angle_deg), max_lag)
     if len(i) < 3:
         raise ValueError(
             f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
@@ -317,7 +320,8 @@ def solve_hand_eye(
     estimate_offset: bool = True,
     max_offset_s: float = 1.0,
     min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
-    station_spacing_s: float = 0.5,
+    max_pair_span_s: float = MAX_PAIR_SPAN_S,
+    station_spacing_s: float = 0.25,
 ) -> HandEyeResult:
     """Calibrate ``X = T_tool_body`` (and ``Z = T_base_world``) with covariance.
 
@@ -337,8 +341,9 @@ def solve_hand_eye(
         Refine the offset jointly with X (and Z).
     max_offset_s : float
         Search range of the coarse offset.
-    min_pair_angle_deg : float
-        Motion-pair selection: smallest relative rotation of a pair.
+    min_pair_angle_deg, max_pair_span_s : float
+        Motion-pair selection (hand-eye form): smallest relative rotation [deg] and longest
+        time between the two poses of a pair [s].
     station_spacing_s : float
         Spacing of the poses used for the closed-form start and for hand-eye motion pairs.
 
@@ -366,12 +371,13 @@ def solve_hand_eye(
     stations = np.unique(np.round((grid - grid[0]) / station_spacing_s), return_index=True)[1]
     B0 = tb.sample(grid[stations] - offset_s)
     As = (A.p[stations], A.q[stations])
-    X0, _ = closed_form_X(*As, B0.p, B0.q, min_pair_angle_deg)
+    X0, _ = closed_form_X(*As, B0.p, B0.q, max_lag=int(round(10.0 / station_spacing_s)))
     if form == "robot-world":
         Z0 = closed_form_Z(*As, B0.p, B0.q, X0)
         return _refine_robot_world(A, tb, grid, X0, Z0, offset_s, estimate_offset)
+    lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
     return _refine_hand_eye(ta, tb, grid[stations], X0, offset_s, estimate_offset,
-                            min_pair_angle_deg)  # fmt: skip
+                            min_pair_angle_deg, lag)  # fmt: skip
 
 
 def _result(form, sol, n_poses, offset_s, estimate, times, has_z):
@@ -415,9 +421,14 @@ def _refine_robot_world(A, tb, grid, X0, Z0, offset_s, estimate):
     return _result("robot-world", sol, 2, offset_s, estimate, grid, True)
 
 
-def _refine_hand_eye(ta, tb, stations, X0, offset_s, estimate, min_pair_angle_deg):
+def _refine_hand_eye(ta, tb, stations, X0, offset_s, estimate, min_pair_angle_deg, max_lag):
     A = ta.sample(stations)
-    i, j = _pairs(A.q, np.radians(min_pair_angle_deg))
+    i, j = _pairs(A.q, np.radians(min_pair_angle_deg), max_lag)
+    if len(i) < 3:
+        raise ValueError(
+            f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
+            f"{min_pair_angle_deg} deg within {max_lag} stations (need 3 or more)"
+        )
     a_p, a_q = _relative(A.p, A.q, i, j)
     h = 1e-3
 
@@ -458,8 +469,9 @@ def evaluate_hand_eye(
     X: Pose,
     Z: Pose | None,
     offset_s: float,
-    station_spacing_s: float = 0.5,
+    station_spacing_s: float = 0.25,
     min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
+    max_pair_span_s: float = MAX_PAIR_SPAN_S,
 ) -> dict:
     """Residual of a stored calibration on other recordings; nothing is re-estimated.
 
@@ -478,7 +490,8 @@ def evaluate_hand_eye(
     else:
         st = grid[np.unique(np.round((grid - grid[0]) / station_spacing_s), return_index=True)[1]]
         A, B = ta.sample(st), tb.sample(st - offset_s)
-        i, j = _pairs(A.q, np.radians(min_pair_angle_deg))
+        lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
+        i, j = _pairs(A.q, np.radians(min_pair_angle_deg), lag)
         ok = A.valid[i] & A.valid[j] & B.valid[i] & B.valid[j]
         r = pair_residuals(*_relative(A.p, A.q, i, j), *_relative(B.p, B.q, i, j), Xt)[ok]
     if len(r) == 0:
@@ -492,3 +505,44 @@ def evaluate_hand_eye(
         "median_ori_deg": float(np.median(da)),
         "n": len(r),
     }
+
+
+def evaluate_with_world_fit(
+    robot: PoseStream, sensor: PoseStream, X: Pose, offset_s: float
+) -> dict:
+    """Residual of ``A X = Z B`` with X and the offset fixed and only Z fitted to this run.
+
+    For trackers whose world frame changes between runs (a headset re-establishes its origin
+    each session) the stored Z does not carry over but X does; this fits Z alone (closed form,
+    then Gauss-Newton on Z) and reports the residual like :func:`evaluate_hand_eye`, plus
+    ``"Z"`` (position, quaternion).
+    """
+    epoch = common_epoch_ns(robot, sensor)
+    ta, tb = trajectory(robot, epoch), trajectory(sensor, epoch)
+    grid = _grid(ta, tb, offset_s, 3 * max(ta.period_s, tb.period_s))
+    A, B = ta.sample(grid), tb.sample(grid - offset_s)
+    ok = A.valid & B.valid
+    Ap, Aq, Bp, Bq = A.p[ok], A.q[ok], B.p[ok], B.q[ok]
+    Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
+    Z0 = closed_form_Z(Ap, Aq, Bp, Bq, Xt)
+
+    def fun(x):
+        r, _, J_Z, _ = hand_eye_residuals(Ap, Aq, Bp, Bq, Xt, (x[:3], x[3:7]), jacobians=True)
+        return r, J_Z
+
+    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
+    sol = robust_solve(
+        fun, np.concatenate(Z0), sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5))
+    )
+    r = sol.residuals
+    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
+    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
+    return {
+        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
+        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
+        "median_pos_mm": float(np.median(dp)),
+        "median_ori_deg": float(np.median(da)),
+        "n": len(r),
+        "Z": {"position": [float(v) for v in sol.x[:3]],
+              "quaternion": [float(v) for v in sol.x[3:7]]},
+    }  # fmt: skip

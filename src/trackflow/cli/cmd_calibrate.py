@@ -103,7 +103,10 @@ def _register_hand_eye(sub):
         help="evaluate a stored calibration (a --json output) on these recordings; "
         "nothing is re-estimated",
     )
-    p.add_argument("--min-pair-angle", type=float, default=10.0, help="degrees")
+    p.add_argument("--min-pair-angle", type=float, default=5.0, help="degrees (hand-eye form)")
+    p.add_argument(
+        "--max-pair-span", type=float, default=2.0, help="seconds (hand-eye form motion pairs)"
+    )
     p.set_defaults(func=run_hand_eye)
 
 
@@ -147,6 +150,7 @@ def run_hand_eye(args) -> int:
         estimate_offset=not args.fixed_offset,
         max_offset_s=args.max_offset,
         min_pair_angle_deg=args.min_pair_angle,
+        max_pair_span_s=args.max_pair_span,
     )
     if args.fragment:
         statics = [static_edge("hand_eye_X", robot.target, sensor.target, r.X)]
