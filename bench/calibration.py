@@ -23,11 +23,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from opencv_hand_eye import opencv_solutions, stations  # noqa: E402
-
-from trackflow.calibration import estimate_clock_offset, solve_hand_eye  # noqa: E402
-from trackflow.calibration.hand_eye import evaluate_with_world_fit  # noqa: E402
-from trackflow.io import read_stream  # noqa: E402
+from opencv_hand_eye import opencv_solutions, stations
+from trackflow.calibration import estimate_clock_offset, solve_hand_eye
+from trackflow.calibration.hand_eye import evaluate_with_world_fit
+from trackflow.io import read_stream
 
 
 def _data_dir() -> Path:

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _synth import two_trackers
 
 from trackflow.calibration import estimate_clock_offset
-
-from _synth import two_trackers
 
 
 @pytest.mark.parametrize("offset", [-0.31, 0.0, 0.25])

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _synth import X_TRUE, Z_TRUE, two_trackers
 from scipy import stats
 
 from trackflow.calibration import estimate_clock_offset, hand_eye_residuals, solve_hand_eye
 from trackflow.calibration.hand_eye import pair_residuals
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
-
-from _synth import X_TRUE, Z_TRUE, two_trackers
 
 
 def _err(est, true):

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from conftest import shared_data_dir
 from trackflow.calibration import estimate_clock_offset, solve_hand_eye
 from trackflow.calibration.hand_eye import evaluate_with_world_fit
 from trackflow.io import read_stream
-
-from conftest import shared_data_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = shared_data_dir() / "quest_ur5e" / "quest2"
