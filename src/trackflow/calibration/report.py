@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_residuals", "write_clock_report", "write_hand_eye_report"]
+__all__ = ["plot_residuals", "write_clock_report", "write_hand_eye_report", "write_json"]
 
 
 def _pyplot():
@@ -43,6 +43,14 @@ def plot_residuals(path, t, residuals, inliers, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def write_json(directory, data: dict) -> Path:
+    """``report.json`` in ``directory`` (created)."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "report.json").write_text(json.dumps(data, indent=2))
+    return d
 
 
 def write_clock_report(directory, result) -> Path:

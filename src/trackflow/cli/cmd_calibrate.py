@@ -23,6 +23,9 @@ def register(subparsers):
     sub.required = True
     _register_clock(sub)
     _register_hand_eye(sub)
+    _register_align(sub)
+    _register_noise(sub)
+    _register_pivot(sub)
     return p
 
 
@@ -41,6 +44,8 @@ def _print(d: dict, as_json: bool) -> None:
         print(json.dumps(d, indent=2))
         return
     for k, v in d.items():
+        if k == "covariance":
+            continue  # in --json and the fragment; too long for the text summary
         if isinstance(v, dict):
             v = ", ".join(f"{kk}={vv}" for kk, vv in v.items() if kk != "covariance")
         print(f"{k:<20} {v}")
@@ -165,4 +170,118 @@ def run_hand_eye(args) -> int:
     if args.report:
         write_hand_eye_report(args.report, r)
     _print(r.to_json(), args.json)
+    return 0
+
+
+# -- align ----------------------------------------------------------------------------------
+
+
+def _register_align(sub):
+    p = sub.add_parser(
+        "align",
+        help="align trajectory B to A (Umeyama + refinement) with covariance and offset",
+        description="p_A(t) = s R p_B(t - offset) + t for positions of the same point; "
+        "prints T_A_B with covariance, scale, offset and the RMSE after alignment.",
+    )
+    _add_pair(p)
+    p.add_argument("--scale", action="store_true", help="also estimate a scale")
+    p.add_argument("--offset", type=float, default=None, help="known clock offset, seconds")
+    p.add_argument("--fixed-offset", action="store_true", help="do not refine the offset")
+    p.set_defaults(func=run_align)
+
+
+def run_align(args) -> int:
+    from ..calibration import align_trajectories
+    from ..calibration.fragment import sensor_update, static_edge, write_fragment
+    from ..calibration.report import plot_residuals, write_json
+
+    a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
+    r = align_trajectories(
+        a, b, with_scale=args.scale, offset_s=args.offset,
+        estimate_offset=not args.fixed_offset, max_offset_s=args.max_offset,
+    )  # fmt: skip
+    if args.fragment:
+        write_fragment(
+            args.fragment,
+            statics=[static_edge("alignment", a.source, b.source, r.T)],
+            sensors=[sensor_update(args.sensor_name, r.offset_s)],
+            note=f"alignment of {args.b} to {args.a}",
+        )
+    if args.report:
+        import numpy as np
+
+        write_json(args.report, r.to_dict())
+        res6 = np.concatenate([r.residuals, np.zeros_like(r.residuals)], axis=1)
+        plot_residuals(args.report / "residuals.png", r.times_s, res6, r.inliers,
+                       f"alignment: {r.residual_rmse_mm:.2f} mm RMSE")  # fmt: skip
+    _print(r.to_dict(), args.json)
+    return 0
+
+
+# -- noise ----------------------------------------------------------------------------------
+
+
+def _register_noise(sub):
+    p = sub.add_parser(
+        "noise",
+        help="per-axis measurement noise covariance from static segments or moving data",
+    )
+    add_input(p)
+    p.add_argument("--method", choices=("static", "dynamic"), default="static")
+    p.add_argument("--max-speed", type=float, default=5.0, help="static: mm/s")
+    p.add_argument("--max-rate", type=float, default=1.0, help="static: deg/s")
+    p.add_argument("--min-segment", type=float, default=1.0, help="static: seconds")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--fragment", type=Path, help="write the sensor's covariance as a fragment")
+    p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
+    p.set_defaults(func=run_noise)
+
+
+def run_noise(args) -> int:
+    from ..calibration import estimate_noise
+    from ..calibration.fragment import sensor_update, write_fragment
+
+    r = estimate_noise(
+        load(args.file, args.format, args.clean), args.method,
+        max_speed=args.max_speed * 1e-3, max_rate_deg=args.max_rate,
+        min_segment_s=args.min_segment,
+    )  # fmt: skip
+    if args.fragment:
+        write_fragment(
+            args.fragment,
+            sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
+            note=f"{args.method} noise of {args.file}",
+        )
+    _print(r.to_dict(), args.json)
+    return 0
+
+
+# -- pivot ----------------------------------------------------------------------------------
+
+
+def _register_pivot(sub):
+    p = sub.add_parser("pivot", help="tip offset of a pointer tool pivoted about its tip")
+    add_input(p)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--fragment", type=Path, help="write the tip as a static edge (fragment)")
+    p.add_argument("--tip-frame", default="tip", help="frame name of the tip in the fragment")
+    p.set_defaults(func=run_pivot)
+
+
+def run_pivot(args) -> int:
+    import numpy as np
+
+    from ..calibration import pivot_calibration
+    from ..calibration.fragment import static_edge, write_fragment
+    from ..math import Pose, UncertainPose
+
+    stream = load(args.file, args.format, args.clean)
+    r = pivot_calibration(stream)
+    if args.fragment:
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = r.covariance[:3, :3]
+        tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
+        write_fragment(args.fragment, statics=[static_edge("tip", stream.target, args.tip_frame,
+                       tip)], note=f"pivot calibration of {args.file}")  # fmt: skip
+    _print(r.to_dict(), args.json)
     return 0
