@@ -34,16 +34,17 @@ def static_edge(name: str, source: str, target: str, pose: UncertainPose) -> dic
 
 
 def sensor_update(
-    name: str, stamp_offset_s: float | None = None, covariance: np.ndarray | None = None
+    name: str, clock_offset_s: float | None = None, covariance: np.ndarray | None = None
 ) -> dict:
-    """A ``sensors`` entry of a fragment: new stamp offset [s] and/or 6x6 noise covariance.
+    """A ``sensors`` entry of a fragment: the sensor's stamp offset and/or noise covariance.
 
-    ``stamp_offset_s`` is added to the sensor's timestamps to put them on the reference
-    clock (the ``offset_s`` of the clock-offset and hand-eye results for the sensor stream).
+    ``clock_offset_s`` is the ``offset_s`` of the clock-offset / hand-eye / alignment results
+    (``t_reference = t_sensor + offset_s``). The setup's ``stamp_offset_ms`` follows the
+    thesis (9.2.2): ``stamp = true time + stamp_offset``, so it is ``-offset_s`` in ms.
     """
     out: dict = {"name": name}
-    if stamp_offset_s is not None:
-        out["stamp_offset_ms"] = float(stamp_offset_s) * 1e3
+    if clock_offset_s is not None:
+        out["stamp_offset_ms"] = -float(clock_offset_s) * 1e3
     if covariance is not None:
         out["covariance"] = _matrix(covariance)
     return out
