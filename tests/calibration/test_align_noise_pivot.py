@@ -9,8 +9,8 @@ from scipy import stats
 
 from trackflow.calibration import (
     align_trajectories,
-    estimate_noise,
     pivot_calibration,
+    sensor_noise,
     umeyama,
 )
 from trackflow.io import PoseStream
@@ -99,7 +99,7 @@ def _static_stream(seed, sigma_p, sigma_r, n_rest=3):
 
 def test_static_noise_recovers_the_sigma():
     s = _static_stream(1, sigma_p=2e-4, sigma_r=np.radians(0.05))
-    r = estimate_noise(s, "static")
+    r = sensor_noise(s, "static")
     assert r.n_segments == 3
     np.testing.assert_allclose(r.sigma_pos_mm, 0.2, rtol=0.15)
     np.testing.assert_allclose(r.sigma_ori_deg, 0.05, rtol=0.15)
@@ -110,7 +110,7 @@ def test_dynamic_noise_recovers_the_sigma():
     t = np.arange(0, 30, 0.01)
     p, q = motion(t, 2)
     p, q = perturb(p, q, 3e-4, np.radians(0.1), rng)
-    r = estimate_noise(PoseStream.from_seconds("w", "b", t, p, q), "dynamic")
+    r = sensor_noise(PoseStream.from_seconds("w", "b", t, p, q), "dynamic")
     np.testing.assert_allclose(r.sigma_pos_mm, 0.3, rtol=0.15)
     np.testing.assert_allclose(r.sigma_ori_deg, 0.1, rtol=0.15)
 
@@ -119,7 +119,7 @@ def test_noise_without_rest_is_a_clear_error():
     t = np.arange(0, 10, 0.01)
     p, q = motion(t, 3)
     with pytest.raises(ValueError, match="no static segment"):
-        estimate_noise(PoseStream.from_seconds("w", "b", t, p, q), "static")
+        sensor_noise(PoseStream.from_seconds("w", "b", t, p, q), "static")
 
 
 def _pivot_stream(seed, tip, pivot, sigma, axes=(1, 1, 0)):

@@ -15,7 +15,7 @@ from .hand_eye import (
     hand_eye_residuals,
     solve_hand_eye,
 )
-from .noise import NoiseResult, estimate_noise
+from .noise import NoiseResult, sensor_noise
 from .pivot import PivotResult, pivot_calibration
 
 __all__ = [
@@ -26,7 +26,7 @@ __all__ = [
     "PivotResult",
     "align_trajectories",
     "estimate_clock_offset",
-    "estimate_noise",
+    "sensor_noise",
     "evaluate_hand_eye",
     "evaluate_with_world_fit",
     "hand_eye_residuals",

@@ -10,8 +10,10 @@ error on the right [rad]):
   by ``1 - h`` (the centre's leverage), estimates the white measurement noise. Motion must be
   smooth at the scale of the window (a few tens of milliseconds for 100 Hz trackers).
 
-The result can be written into a setup as the sensor's ``covariance``
-(:func:`trackflow.calibration.fragment.sensor_update`).
+``trackflow.evaluation.estimate_noise`` is a different, scalar tool (one isotropic sigma per
+part from second differences, the starting point of filter tuning); this module gives the full
+per-axis covariance for a setup. The result can be written into a setup as the sensor's
+``covariance`` (:func:`trackflow.calibration.fragment.sensor_update`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from ..io import PoseStream
 from ..math import quat_conjugate, quat_log, quat_make_continuous, quat_multiply
 from ._geometry import mean_rotation
 
-__all__ = ["NoiseResult", "estimate_noise"]
+__all__ = ["NoiseResult", "sensor_noise"]
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ def _dynamic(t, p, q, k):
     return e.T @ e / len(e), len(e), 1
 
 
-def estimate_noise(
+def sensor_noise(
     stream: PoseStream,
     method: str = "static",
     *,

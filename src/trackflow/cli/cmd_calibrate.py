@@ -238,10 +238,10 @@ def _register_noise(sub):
 
 
 def run_noise(args) -> int:
-    from ..calibration import estimate_noise
+    from ..calibration import sensor_noise
     from ..calibration.fragment import sensor_update, write_fragment
 
-    r = estimate_noise(
+    r = sensor_noise(
         load(args.file, args.format, args.clean), args.method,
         max_speed=args.max_speed * 1e-3, max_rate_deg=args.max_rate,
         min_segment_s=args.min_segment,
