@@ -162,3 +162,15 @@ def test_no_overlap_is_a_clear_error():
     later = b.with_(t_ns=b.t_ns + 10**12)
     with pytest.raises(ValueError, match="overlap"):
         solve_hand_eye(a, later)
+
+
+@pytest.mark.parametrize("form", ["robot-world", "hand-eye"])
+def test_clock_drift_is_estimated_jointly(form):
+    a, b = two_trackers(2, duration=40.0, offset=0.2)
+    t = b.t_ns.astype(np.int64)
+    mid = t[len(t) // 2]
+    # b's clock runs 200 ppm fast: t_a = t_b + offset + drift (t_a - ref) with drift = -2e-4
+    fast = b.with_(t_ns=mid + np.round((t - mid) * (1 + 2e-4)).astype(np.int64))
+    r = solve_hand_eye(a, fast, form=form, estimate_drift=True)
+    assert abs(r.drift + 2e-4) < 4 * r.drift_sigma
+    assert abs(r.offset_s - 0.2) < 0.1 / 30.0

@@ -61,9 +61,15 @@ class HandEyeResult:
     Z : UncertainPose or None
         ``T_base_world`` for the robot-world form, else None.
     offset_s, offset_sigma_s : float
-        Clock offset ``t_a = t_b + offset_s`` [s] and its standard error (0 when fixed).
+        Clock offset ``t_a = t_b + offset_s`` [s] and its standard error (0 when fixed); with
+        drift, the offset at ``reference_time_s``.
+    drift, drift_sigma : float or None
+        Clock drift [s/s] (``t_a = t_b + offset + drift (t_a - reference)``) when estimated.
+    reference_time_s : float
+        a-clock time [s from the streams' common epoch] where the drift term is zero.
     covariance : ndarray, shape (P, P)
-        Joint covariance over ``(X (6), Z (6) if present, offset (1) if estimated)``.
+        Joint covariance over ``(X (6), Z (6) if present, offset (1) and drift (1) if
+        estimated)``.
     form : str
         ``"robot-world"`` or ``"hand-eye"``.
     residual_pos_mm, residual_ori_deg : float
@@ -88,6 +94,9 @@ class HandEyeResult:
     times_s: np.ndarray
     residuals: np.ndarray
     inliers: np.ndarray
+    drift: float | None = None
+    drift_sigma: float | None = None
+    reference_time_s: float = 0.0
 
     @property
     def X_sigma_mm(self) -> float:
@@ -318,6 +327,7 @@ def solve_hand_eye(
     form: str = "auto",
     offset_s: float | None = None,
     estimate_offset: bool = True,
+    estimate_drift: bool = False,
     max_offset_s: float = 1.0,
     min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
     max_pair_span_s: float = MAX_PAIR_SPAN_S,
@@ -339,6 +349,8 @@ def solve_hand_eye(
         :func:`~trackflow.calibration.estimate_clock_offset` when None.
     estimate_offset : bool
         Refine the offset jointly with X (and Z).
+    estimate_drift : bool
+        Also estimate a linear clock drift (needs ``estimate_offset``).
     max_offset_s : float
         Search range of the coarse offset.
     min_pair_angle_deg, max_pair_span_s : float
@@ -356,6 +368,8 @@ def solve_hand_eye(
         form = "robot-world" if robot.source != sensor.source else "hand-eye"
     if form not in ("robot-world", "hand-eye"):
         raise ValueError(f"form must be 'auto', 'robot-world' or 'hand-eye', got {form!r}")
+    if estimate_drift and not estimate_offset:
+        raise ValueError("estimate_drift needs estimate_offset")
     epoch = common_epoch_ns(robot, sensor)
     ta = trajectory(robot, epoch, f"robot {robot.source}->{robot.target}")
     tb = trajectory(sensor, epoch, f"sensor {sensor.source}->{sensor.target}")
@@ -374,18 +388,45 @@ def solve_hand_eye(
     X0, _ = closed_form_X(*As, B0.p, B0.q, max_lag=int(round(10.0 / station_spacing_s)))
     if form == "robot-world":
         Z0 = closed_form_Z(*As, B0.p, B0.q, X0)
-        return _refine_robot_world(A, tb, grid, X0, Z0, offset_s, estimate_offset)
+        clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+        return _refine_robot_world(A, tb, grid, X0, Z0, clock)
     lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
-    return _refine_hand_eye(ta, tb, grid[stations], X0, offset_s, estimate_offset,
-                            min_pair_angle_deg, lag)  # fmt: skip
+    clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+    return _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
 
 
-def _result(form, sol, n_poses, offset_s, estimate, times, has_z):
+@dataclass(frozen=True)
+class _Clock:
+    """The clock unknowns: offset (and drift about ``t_ref``, a-clock seconds)."""
+
+    offset: float
+    estimate: bool
+    drift: bool
+    t_ref: float
+
+    @property
+    def n(self) -> int:
+        return int(self.estimate) + int(self.drift)
+
+    def x0(self) -> list[float]:
+        return ([self.offset] if self.estimate else []) + ([0.0] if self.drift else [])
+
+    def b_times(self, t: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """b-clock times of the a-clock instants ``t`` for clock unknowns ``xc``."""
+        off = xc[0] if self.estimate else self.offset
+        d = xc[1] if self.drift else 0.0
+        return t - off - d * (t - self.t_ref)
+
+
+def _result(form, sol, n_poses, clock: _Clock, times, has_z):
     x, cov = sol.x, sol.cov
     X = UncertainPose(Pose(x[:3], x[3:7], normalize=True), cov[:6, :6])
     Z = UncertainPose(Pose(x[7:10], x[10:14], normalize=True), cov[6:12, 6:12]) if has_z else None
-    off = float(x[7 * n_poses]) if estimate else float(offset_s)
-    off_sigma = float(np.sqrt(cov[6 * n_poses, 6 * n_poses])) if estimate else 0.0
+    k, c = 7 * n_poses, 6 * n_poses
+    off = float(x[k]) if clock.estimate else float(clock.offset)
+    off_sigma = float(np.sqrt(cov[c, c])) if clock.estimate else 0.0
+    drift = float(x[k + 1]) if clock.drift else None
+    drift_sigma = float(np.sqrt(cov[c + 1, c + 1])) if clock.drift else None
     r = sol.residuals[sol.inliers]
     return HandEyeResult(
         X=X,
@@ -401,27 +442,32 @@ def _result(form, sol, n_poses, offset_s, estimate, times, has_z):
         times_s=times,
         residuals=sol.residuals,
         inliers=sol.inliers,
+        drift=drift,
+        drift_sigma=drift_sigma,
+        reference_time_s=clock.t_ref,
     )
 
 
-def _refine_robot_world(A, tb, grid, X0, Z0, offset_s, estimate):
+def _refine_robot_world(A, tb, grid, X0, Z0, clock: _Clock):
     def fun(x):
         X, Z = (x[:3], x[3:7]), (x[7:10], x[10:14])
-        off = x[14] if estimate else offset_s
-        B = tb.sample(grid - off)
-        v, w = velocities(tb, grid - off, 2.0 * tb.period_s) if estimate else (B.v, B.w)
+        s = clock.b_times(grid, x[14:])
+        B = tb.sample(s)
+        v, w = velocities(tb, s, 2.0 * tb.period_s) if clock.estimate else (B.v, B.w)
         r, J_X, J_Z, J_off = hand_eye_residuals(A.p, A.q, B.p, B.q, X, Z, v, w, True)
-        J = [J_X, J_Z] + ([J_off[:, :, None]] if estimate else [])
+        J = [J_X, J_Z] + ([J_off[:, :, None]] if clock.estimate else [])
+        if clock.drift:  # ds/d(drift) = -(t - t_ref) = (t - t_ref) ds/d(offset)
+            J.append(J_off[:, :, None] * (grid - clock.t_ref)[:, None, None])
         r = np.where((A.valid & B.valid)[:, None], r, np.nan)
         return r, np.concatenate(J, axis=2)
 
-    x0 = np.concatenate([X0[0], X0[1], Z0[0], Z0[1], [offset_s] if estimate else []])
+    x0 = np.concatenate([X0[0], X0[1], Z0[0], Z0[1], clock.x0()])
     sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
     sol = robust_solve(fun, x0, sigma, update=_manifold_step(2), groups=((0, 1, 2), (3, 4, 5)))
-    return _result("robot-world", sol, 2, offset_s, estimate, grid, True)
+    return _result("robot-world", sol, 2, clock, grid, True)
 
 
-def _refine_hand_eye(ta, tb, stations, X0, offset_s, estimate, min_pair_angle_deg, max_lag):
+def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, max_lag):
     A = ta.sample(stations)
     i, j = _pairs(A.q, np.radians(min_pair_angle_deg), max_lag)
     if len(i) < 3:
@@ -430,25 +476,28 @@ def _refine_hand_eye(ta, tb, stations, X0, offset_s, estimate, min_pair_angle_de
             f"{min_pair_angle_deg} deg within {max_lag} stations (need 3 or more)"
         )
     a_p, a_q = _relative(A.p, A.q, i, j)
-    h = 1e-3
 
-    def rel_b(off):
-        B = tb.sample(stations - off)
+    def rel_b(xc):
+        B = tb.sample(clock.b_times(stations, xc))
         bp, bq = _relative(B.p, B.q, i, j)
         return bp, bq, B.valid[i] & B.valid[j] & A.valid[i] & A.valid[j]
 
     def fun(x):
         X = (x[:3], x[3:7])
-        off = x[7] if estimate else offset_s
-        bp, bq, ok = rel_b(off)
+        xc = x[7:]
+        bp, bq, ok = rel_b(xc)
         r, J = pair_residuals(a_p, a_q, bp, bq, X, True)
-        if estimate:  # offset column by a central difference of the interpolated motion
-            rp = pair_residuals(a_p, a_q, *rel_b(off + h)[:2], X)
-            rm = pair_residuals(a_p, a_q, *rel_b(off - h)[:2], X)
-            J = np.concatenate([J, ((rp - rm) / (2 * h))[:, :, None]], axis=2)
-        return np.where(ok[:, None], r, np.nan), J
+        cols = [J]
+        # clock columns by central differences of the interpolated motion
+        for c, h in enumerate((1e-3, 1e-5)[: clock.n]):
+            d = np.zeros(clock.n)
+            d[c] = h
+            rp = pair_residuals(a_p, a_q, *rel_b(xc + d)[:2], X)
+            rm = pair_residuals(a_p, a_q, *rel_b(xc - d)[:2], X)
+            cols.append(((rp - rm) / (2 * h))[:, :, None])
+        return np.where(ok[:, None], r, np.nan), np.concatenate(cols, axis=2)
 
-    x0 = np.concatenate([X0[0], X0[1], [offset_s] if estimate else []])
+    x0 = np.concatenate([X0[0], X0[1], clock.x0()])
     sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
     sol = robust_solve(
         fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)), correlated=False
@@ -460,7 +509,7 @@ def _refine_hand_eye(ta, tb, stations, X0, offset_s, estimate, min_pair_angle_de
     used = np.unique(np.concatenate([i[sol.inliers], j[sol.inliers]]))
     share = 2.0 * sol.inliers.sum() / max(len(used), 1)
     sol = replace(sol, cov=sol.cov * share, tau=share)
-    return _result("hand-eye", sol, 1, offset_s, estimate, stations[j], False)
+    return _result("hand-eye", sol, 1, clock, stations[j], False)
 
 
 def evaluate_hand_eye(

@@ -77,7 +77,8 @@ def write_hand_eye_report(directory, result) -> Path:
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     out = result.to_json()
-    out.update(form=result.form, n_used=result.n_used, n_outliers=result.n_outliers)
+    out.update(form=result.form, n_used=result.n_used, n_outliers=result.n_outliers,
+               drift=result.drift, drift_sigma=result.drift_sigma)  # fmt: skip
     (d / "report.json").write_text(json.dumps(out, indent=2))
     plot_residuals(
         d / "residuals.png",

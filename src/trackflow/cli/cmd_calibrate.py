@@ -102,6 +102,7 @@ def _register_hand_eye(sub):
     p.add_argument(
         "--fixed-offset", action="store_true", help="do not refine the offset (needs --offset)"
     )
+    p.add_argument("--drift", action="store_true", help="also estimate a linear clock drift")
     p.add_argument(
         "--use",
         type=Path,
@@ -153,6 +154,7 @@ def run_hand_eye(args) -> int:
         form=args.form,
         offset_s=args.offset,
         estimate_offset=not args.fixed_offset,
+        estimate_drift=args.drift,
         max_offset_s=args.max_offset,
         min_pair_angle_deg=args.min_pair_angle,
         max_pair_span_s=args.max_pair_span,
