@@ -255,6 +255,13 @@ def main(argv=None) -> int:
             if summary["quest_calib"][f][k] is not None:
                 summary["quest_calib"][f][k].pop("covariance")
     he = res["hand-eye"]
+    for f in ("robot-world", "hand-eye"):
+        rd = solve_hand_eye(robot, quest, form=f, estimate_drift=True)
+        summary[f"quest_calib_{f}_with_drift"] = {
+            "offset_s": rd.offset_s, "offset_sigma_s": rd.offset_sigma_s, "drift": rd.drift,
+            "drift_sigma": rd.drift_sigma, "X_mm": (rd.X.position * 1e3).tolist(),
+            "residual_pos_mm": rd.residual_pos_mm,
+        }  # fmt: skip
     # --- apply to traj1: X and offset from calib, the headset's world refitted --------------
     transfer = {f: evaluate_with_world_fit(robot1, quest1, r.X.pose, r.offset_s)
                 for f, r in res.items()}  # fmt: skip

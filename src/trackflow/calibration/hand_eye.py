@@ -475,6 +475,8 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
             f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
             f"{min_pair_angle_deg} deg within {max_lag} stations (need 3 or more)"
         )
+    order = np.lexsort((j, i))
+    i, j = i[order], j[order]
     a_p, a_q = _relative(A.p, A.q, i, j)
 
     def rel_b(xc):
@@ -499,16 +501,16 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
 
     x0 = np.concatenate([X0[0], X0[1], clock.x0()])
     sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
-    sol = robust_solve(
-        fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)), correlated=False
-    )
-    # Each station's noise enters every pair it belongs to: the pairs carry only as much
-    # information as the stations, so the covariance is inflated by the mean pair count per
-    # station (pairs sharing a station are correlated; the plain Gauss-Newton covariance
-    # would count them as independent).
+    # The pairs are not independent. Those sharing a station carry that station's noise, so
+    # they hold only as much information as the stations (factor: mean pairs per station);
+    # real trackers add errors correlated over seconds, which the integrated autocorrelation
+    # time of the time-ordered residuals measures (robust_solve, correlated=True). The
+    # covariance is inflated by the larger of the two.
+    sol = robust_solve(fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)))
     used = np.unique(np.concatenate([i[sol.inliers], j[sol.inliers]]))
     share = 2.0 * sol.inliers.sum() / max(len(used), 1)
-    sol = replace(sol, cov=sol.cov * share, tau=share)
+    if share > sol.tau:
+        sol = replace(sol, cov=sol.cov * (share / sol.tau), tau=share)
     return _result("hand-eye", sol, 1, clock, stations[j], False)
 
 
