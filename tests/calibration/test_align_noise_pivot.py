@@ -145,3 +145,33 @@ def test_pivot_recovers_tip_and_pivot():
 def test_pivot_single_axis_is_a_clear_error():
     with pytest.raises(ValueError, match="one axis"):
         pivot_calibration(_pivot_stream(0, np.array([0, 0, 0.1]), np.zeros(3), 1e-4, (1, 0, 0)))
+
+
+def test_cli_pivot_and_noise_write_reports_and_fragments(tmp_path, capsys):
+    import json
+
+    import yaml
+
+    from trackflow.cli.main import main
+    from trackflow.io import write_stream
+
+    tip, piv = np.array([0.01, -0.02, 0.15]), np.array([0.3, 0.1, -0.2])
+    write_stream(tmp_path / "pivot.txt", _pivot_stream(0, tip, piv, 5e-4))
+    extra = ["--report", str(tmp_path / "rep"), "--fragment", str(tmp_path / "tip.yaml")]
+    rc = main(["calibrate", "pivot", str(tmp_path / "pivot.txt"), "--json", *extra])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    np.testing.assert_allclose(out["tip"], tip, atol=1e-3)
+    assert (tmp_path / "rep" / "residuals.png").is_file()
+    frag = yaml.safe_load((tmp_path / "tip.yaml").read_text())
+    np.testing.assert_allclose(frag["statics"][0]["position"], out["tip"])
+    write_stream(tmp_path / "rest.txt", _static_stream(1, 2e-4, np.radians(0.05)))
+    rc = main(["calibrate", "noise", str(tmp_path / "rest.txt"), "--json", "--sensor-name",
+               "art", "--fragment", str(tmp_path / "noise.yaml"),
+               "--report", str(tmp_path / "nrep")])  # fmt: skip
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    sensors = yaml.safe_load((tmp_path / "noise.yaml").read_text())["sensors"]
+    assert sensors[0]["name"] == "art"
+    np.testing.assert_allclose(sensors[0]["covariance"], out["covariance"])
+    assert (tmp_path / "nrep" / "residuals.png").is_file()

@@ -37,6 +37,7 @@ class NoiseResult:
     n_samples: int
     n_segments: int
     method: str
+    errors: np.ndarray | None = None  # (M, 6) the error samples pooled, for plots
 
     @property
     def sigma_pos_mm(self) -> np.ndarray:
@@ -86,7 +87,7 @@ def _static(t, p, q, max_speed, max_rate, min_segment_s):
             f"mm/s and < {np.degrees(max_rate):.1f} deg/s): use method='dynamic'"
         )
     e = np.concatenate(errs)
-    return e.T @ e / len(e), len(e), n_seg
+    return e.T @ e / len(e), len(e), n_seg, e
 
 
 def _dynamic(t, p, q, k):
@@ -115,7 +116,7 @@ def _dynamic(t, p, q, k):
     # robust: drop the largest 1 % (jumps) before the covariance
     m = np.sum((e / e.std(axis=0)) ** 2, axis=1)
     e = e[m <= np.quantile(m, 0.99)]
-    return e.T @ e / len(e), len(e), 1
+    return e.T @ e / len(e), len(e), 1, e
 
 
 def sensor_noise(
@@ -143,9 +144,9 @@ def sensor_noise(
     p = np.asarray(stream.position, float)
     q = quat_make_continuous(np.asarray(stream.quaternion, float))
     if method == "static":
-        C, n, seg = _static(t, p, q, max_speed, np.radians(max_rate_deg), min_segment_s)
+        C, n, seg, e = _static(t, p, q, max_speed, np.radians(max_rate_deg), min_segment_s)
     elif method == "dynamic":
-        C, n, seg = _dynamic(t, p, q, int(half_window))
+        C, n, seg, e = _dynamic(t, p, q, int(half_window))
     else:
         raise ValueError(f"method must be 'static' or 'dynamic', got {method!r}")
-    return NoiseResult(0.5 * (C + C.T), n, seg, method)
+    return NoiseResult(0.5 * (C + C.T), n, seg, method, e)

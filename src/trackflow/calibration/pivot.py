@@ -33,6 +33,8 @@ class PivotResult:
     residual_rms_mm: float
     n_used: int
     n_outliers: int
+    residuals: np.ndarray | None = None  # (N, 3) metres, for plots
+    inliers: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         sig = np.sqrt(np.diag(self.covariance)) * 1e3
@@ -86,4 +88,6 @@ def pivot_calibration(stream: PoseStream) -> PivotResult:
         residual_rms_mm=float(np.sqrt(np.mean(np.sum(r**2, axis=1))) * 1e3),
         n_used=int(sol.inliers.sum()),
         n_outliers=int((~sol.inliers).sum()),
+        residuals=sol.residuals,
+        inliers=sol.inliers,
     )

@@ -19,7 +19,7 @@ def _pyplot():
     return plt
 
 
-def plot_residuals(path, t, residuals, inliers, title: str) -> None:
+def plot_residuals(path, t, residuals, inliers, title: str, xlabel: str = "time [s]") -> None:
     """Position [mm] and rotation [deg] residual norms over time; outliers in grey.
 
     ``t`` (M,) seconds, ``residuals`` (M, 6) as ``(dp [m], dtheta [rad])``, ``inliers`` (M,).
@@ -35,10 +35,10 @@ def plot_residuals(path, t, residuals, inliers, title: str) -> None:
             a.plot(t[~inliers], y[~inliers], ".", ms=2, color="0.6", label="rejected")
         a.set_ylabel(lab)
         hi = np.nanpercentile(y[inliers], 99.5) if inliers.any() else 1.0
-        a.set_ylim(0, 1.5 * hi)
+        a.set_ylim(0, 1.5 * hi if hi > 0 else 1.0)
         a.grid(alpha=0.3)
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[1].set_xlabel("time [s]")
+    ax[1].set_xlabel(xlabel)
     ax[0].set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

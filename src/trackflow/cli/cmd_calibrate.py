@@ -51,6 +51,22 @@ def _print(d: dict, as_json: bool) -> None:
         print(f"{k:<20} {v}")
 
 
+def _residual_report(directory, data, residuals, inliers, title, times=None) -> None:
+    """``report.json`` and ``residuals.png`` for residuals (M, 3) or (M, 6) [m, rad]."""
+    import numpy as np
+
+    from ..calibration.report import plot_residuals, write_json
+
+    write_json(directory, data)
+    r = np.asarray(residuals, float)
+    if r.shape[1] == 3:
+        r = np.concatenate([r, np.zeros_like(r)], axis=1)
+    ok = np.ones(len(r), bool) if inliers is None else np.asarray(inliers)
+    t = np.arange(len(r), dtype=float) if times is None else np.asarray(times)
+    xlabel = "sample" if times is None else "time [s]"
+    plot_residuals(Path(directory) / "residuals.png", t, r, ok, title, xlabel)
+
+
 # -- clock-offset ---------------------------------------------------------------------------
 
 
@@ -195,7 +211,6 @@ def _register_align(sub):
 def run_align(args) -> int:
     from ..calibration import align_trajectories
     from ..calibration.fragment import sensor_update, static_edge, write_fragment
-    from ..calibration.report import plot_residuals, write_json
 
     a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
     r = align_trajectories(
@@ -210,12 +225,8 @@ def run_align(args) -> int:
             note=f"alignment of {args.b} to {args.a}",
         )
     if args.report:
-        import numpy as np
-
-        write_json(args.report, r.to_dict())
-        res6 = np.concatenate([r.residuals, np.zeros_like(r.residuals)], axis=1)
-        plot_residuals(args.report / "residuals.png", r.times_s, res6, r.inliers,
-                       f"alignment: {r.residual_rmse_mm:.2f} mm RMSE")  # fmt: skip
+        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+                         f"alignment: {r.residual_rmse_mm:.2f} mm RMSE", r.times_s)  # fmt: skip
     _print(r.to_dict(), args.json)
     return 0
 
@@ -236,6 +247,7 @@ def _register_noise(sub):
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--fragment", type=Path, help="write the sensor's covariance as a fragment")
     p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
+    p.add_argument("--report", type=Path, help="write report.json and an error plot here")
     p.set_defaults(func=run_noise)
 
 
@@ -254,6 +266,8 @@ def run_noise(args) -> int:
             sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
             note=f"{args.method} noise of {args.file}",
         )
+    if args.report:
+        _residual_report(args.report, r.to_dict(), r.errors, None, f"{args.method} noise samples")
     _print(r.to_dict(), args.json)
     return 0
 
@@ -267,6 +281,7 @@ def _register_pivot(sub):
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--fragment", type=Path, help="write the tip as a static edge (fragment)")
     p.add_argument("--tip-frame", default="tip", help="frame name of the tip in the fragment")
+    p.add_argument("--report", type=Path, help="write report.json and a residual plot here")
     p.set_defaults(func=run_pivot)
 
 
@@ -285,5 +300,8 @@ def run_pivot(args) -> int:
         tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
         write_fragment(args.fragment, statics=[static_edge("tip", stream.target, args.tip_frame,
                        tip)], note=f"pivot calibration of {args.file}")  # fmt: skip
+    if args.report:
+        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+                         f"pivot: {r.residual_rms_mm:.2f} mm RMS")  # fmt: skip
     _print(r.to_dict(), args.json)
     return 0
