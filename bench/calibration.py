@@ -28,7 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from opencv_hand_eye import opencv_solutions, stations
+from _opencv_hand_eye import opencv_solutions, stations
 from trackflow.calibration import estimate_clock_offset, solve_hand_eye
 from trackflow.calibration.hand_eye import evaluate_with_world_fit
 from trackflow.io import read_stream

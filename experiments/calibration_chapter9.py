@@ -284,7 +284,7 @@ def main(argv=None) -> int:
     # --- OpenCV on the same stations and offset ---------------------------------------------
     sys.path.insert(0, str(ROOT / "bench"))
     try:
-        from opencv_hand_eye import opencv_solutions, stations
+        from _opencv_hand_eye import opencv_solutions, stations
 
         off1 = clock1.offset_s
         scores = {f"trackflow {f}": evaluate_with_world_fit(robot1, quest1, r.X.pose, off1)[

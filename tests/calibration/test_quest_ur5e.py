@@ -49,7 +49,7 @@ def test_no_worse_than_the_best_opencv_method(runs):
     cv2 = pytest.importorskip("cv2")
     assert hasattr(cv2, "calibrateHandEye"), "OpenCV without calibrateHandEye (needs 4.x)"
     sys.path.insert(0, str(ROOT / "bench"))
-    from opencv_hand_eye import opencv_solutions, stations
+    from _opencv_hand_eye import opencv_solutions, stations
 
     (robot, quest), (robot1, quest1) = runs
     ours = solve_hand_eye(robot, quest, form="hand-eye")
