@@ -45,3 +45,17 @@ def test_offset_beyond_the_search_range_is_a_clear_error():
     a, b = two_trackers(3, duration=20.0, offset=0.9)
     with pytest.raises(ValueError, match="max_offset_s|correlate"):
         estimate_clock_offset(a, b, max_offset_s=0.5)
+
+
+def test_single_axis_rotation_falls_back_to_speed_magnitudes():
+    a, b = two_trackers(5, duration=20.0, axes=(0, 0, 1))
+    r = estimate_clock_offset(a, b)
+    assert abs(r.offset_s - 0.25) < 0.1 / 30.0
+    assert abs(r.offset_s - 0.25) < 4 * r.sigma_s
+
+
+def test_no_rotation_uses_linear_speed():
+    a, b = two_trackers(5, duration=20.0, rot_amp=0.0)
+    r = estimate_clock_offset(a, b)
+    assert r.signal == "linear"
+    assert abs(r.offset_s - 0.25) < 0.1 / 30.0

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import yaml
 from _synth import two_trackers
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from trackflow.calibration import sensor_update, solve_hand_eye, static_edge, write_fragment
 from trackflow.cli.main import main
@@ -106,3 +108,27 @@ def test_cli_reports_bad_input_without_traceback(tmp_path, capsys):
                "--use", str(tmp_path / "bad.json")])  # fmt: skip
     assert rc == 1
     assert "bad.json" in capsys.readouterr().err
+
+
+@given(
+    position=st.lists(st.floats(-10, 10), min_size=3, max_size=3),
+    rotvec=st.lists(st.floats(-3, 3), min_size=3, max_size=3),
+    sigmas=st.lists(st.floats(1e-6, 1e-1), min_size=6, max_size=6),
+    offset=st.floats(-5, 5),
+)
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+def test_fragment_round_trip(tmp_path, position, rotvec, sigmas, offset):
+    from trackflow.math import quat_exp
+
+    C = np.diag(np.square(sigmas))
+    X = UncertainPose(Pose(position, quat_exp(np.array(rotvec))), C)
+    write_fragment(tmp_path / "calib.yaml", statics=[static_edge("X", "T", "H", X)],
+                   sensors=[sensor_update("quest", clock_offset_s=offset)])  # fmt: skip
+    (tmp_path / "setup.yaml").write_text(yaml.safe_dump(SETUP))
+    edges = {e.name: e for e in load_setup(tmp_path / "setup.yaml").graph.edges}
+    np.testing.assert_array_equal(edges["X"].pose.position, X.position)
+    np.testing.assert_allclose(edges["X"].pose.quaternion, X.quaternion, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(edges["X"].covariance, C)
+    assert edges["quest"].stamp_offset_s == pytest.approx(-offset, abs=1e-12)
