@@ -115,6 +115,22 @@ def test_dynamic_noise_recovers_the_sigma():
     np.testing.assert_allclose(r.sigma_ori_deg, 0.1, rtol=0.15)
 
 
+@pytest.mark.slow
+def test_innovation_noise_of_a_tuned_filter():
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 30, 0.01)
+    p, q = motion(t, 2)
+    p, q = perturb(p, q, 3e-4, np.radians(0.1), rng)
+    s = PoseStream.from_seconds("w", "b", t, p, q)
+    r = sensor_noise(s, "innovation")
+    # Mehra's E[nu nu^T] = P^- + R holds for the optimal filter only: position to 10 %,
+    # orientation (whose tuned model is further from the truth) to 30 %
+    np.testing.assert_allclose(r.sigma_pos_mm, 0.3, rtol=0.1)
+    np.testing.assert_allclose(r.sigma_ori_deg, 0.1, rtol=0.3)
+    with pytest.raises(ValueError, match="motion model does not fit"):
+        sensor_noise(s, "innovation", tune=False)
+
+
 def test_noise_without_rest_is_a_clear_error():
     t = np.arange(0, 10, 0.01)
     p, q = motion(t, 3)

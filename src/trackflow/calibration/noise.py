@@ -5,6 +5,13 @@ error on the right [rad]):
 
 * ``static``: samples in segments where the body rests (smoothed speed below a threshold for
   at least ``min_segment_s``); the deviations from each segment's mean pose are pooled.
+* ``innovation``: moving data, thesis-style: a pose Kalman filter (``trackflow.evaluation``'s
+  tuning chooses its motion model on the recording; ``tune=False`` keeps the untuned default)
+  runs over the recording; the one-step innovations ``nu`` (measurement against the prediction
+  from the previous sample, in the error convention) satisfy ``E[nu nu^T] = P^- + R``, so
+  ``R = mean(nu nu^T) - mean(P^-)`` with the filter's own predicted covariance ``P^-``. The
+  filter is re-run with the new ``R`` until it settles (3 rounds). Samples after irregular
+  intervals (gaps, jitter above 5 %) are left out.
 * ``dynamic``: moving data; a local quadratic in time is fitted around every sample (a
   Savitzky-Golay window of ``2 k + 1`` samples) and the residual of the centre sample, divided
   by ``1 - h`` (the centre's leverage), estimates the white measurement noise. Motion must be
@@ -119,6 +126,42 @@ def _dynamic(t, p, q, k):
     return e.T @ e / len(e), len(e), 1, e
 
 
+def _innovation(t, p, q, tune: bool, rounds: int = 3):
+    from ..evaluation import KalmanPredictor, default_predictor, tune_model
+    from ..math import Pose, UncertainPose
+
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    regular = np.abs(dt - h) <= 0.05 * h
+    if regular.sum() < 50:
+        raise ValueError(
+            f"innovation noise needs at least 50 regular sample intervals, got {regular.sum()}"
+        )
+    pred = default_predictor(t, p, q)
+    if tune:
+        tuned = tune_model(t, p, q, horizons=(h, 2 * h), ar_orders=()).predictor
+        if isinstance(tuned, KalmanPredictor):
+            pred = tuned
+    R = pred.measurement_covariance()
+    for _ in range(rounds):
+        meas = UncertainPose(Pose(p, q), np.broadcast_to(R, (len(t), 6, 6)).copy())
+        res = pred.run(t, meas, (h,), max_gap=3 * h, covariance=True)
+        pr = res.predictions[h]
+        ok = regular & (res.status[1:] == 0) & (res.status[:-1] == 0)
+        e = np.concatenate([p[1:] - pr.position[:-1], quat_log(
+            quat_multiply(quat_conjugate(pr.quaternion[:-1]), q[1:]))], axis=1)[ok]  # fmt: skip
+        P = pr.covariance[:-1][ok]
+        C = e.T @ e / len(e) - P.mean(axis=0)
+        if np.any(np.diag(C) <= 0):
+            raise ValueError(
+                "the filter's predicted covariance exceeds the spread of its innovations: its "
+                "motion model does not fit this recording (use tune=True or method='dynamic')"
+            )
+        w, V = np.linalg.eigh(0.5 * (C + C.T))
+        R = (V * np.maximum(w, 1e-14)) @ V.T  # keep it positive definite
+    return R, len(e), 1, e
+
+
 def sensor_noise(
     stream: PoseStream,
     method: str = "static",
@@ -127,18 +170,21 @@ def sensor_noise(
     max_rate_deg: float = 1.0,
     min_segment_s: float = 1.0,
     half_window: int = 3,
+    tune: bool = True,
 ) -> NoiseResult:
     """6x6 measurement-noise covariance of ``stream`` (see the module docstring).
 
     Parameters
     ----------
-    method : {"static", "dynamic"}
+    method : {"static", "dynamic", "innovation"}
     max_speed, max_rate_deg : float
         Static segments: smoothed speed [m/s] and angular speed [deg/s] limits.
     min_segment_s : float
         Shortest static segment used [s].
     half_window : int
         Dynamic: the local quadratic spans ``2 half_window + 1`` samples.
+    tune : bool
+        Innovation: tune the filter's motion model on the recording first.
     """
     t = (np.asarray(stream.t_ns, np.int64) - int(stream.t_ns[0])) * 1e-9
     p = np.asarray(stream.position, float)
@@ -147,6 +193,8 @@ def sensor_noise(
         C, n, seg, e = _static(t, p, q, max_speed, np.radians(max_rate_deg), min_segment_s)
     elif method == "dynamic":
         C, n, seg, e = _dynamic(t, p, q, int(half_window))
+    elif method == "innovation":
+        C, n, seg, e = _innovation(t, p, q, tune)
     else:
-        raise ValueError(f"method must be 'static' or 'dynamic', got {method!r}")
+        raise ValueError(f"method must be 'static', 'dynamic' or 'innovation', got {method!r}")
     return NoiseResult(0.5 * (C + C.T), n, seg, method, e)

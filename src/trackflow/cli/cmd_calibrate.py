@@ -240,7 +240,7 @@ def _register_noise(sub):
         help="per-axis measurement noise covariance from static segments or moving data",
     )
     add_input(p)
-    p.add_argument("--method", choices=("static", "dynamic"), default="static")
+    p.add_argument("--method", choices=("static", "dynamic", "innovation"), default="static")
     p.add_argument("--max-speed", type=float, default=5.0, help="static: mm/s")
     p.add_argument("--max-rate", type=float, default=1.0, help="static: deg/s")
     p.add_argument("--min-segment", type=float, default=1.0, help="static: seconds")
