@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_from_matrix, quat_to_matrix, skew
+from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew
 from ._geometry import kabsch
 from ._lsq import robust_solve
 from ._sampling import Trajectory, body_rates, common_epoch_ns, speeds, trajectory
@@ -150,7 +150,7 @@ def coarse_offset(
         c0, c1, c2 = corr[k - 1 : k + 2]
         den = c0 - 2 * c1 + c2
         if den < 0:
-            off += 0.5 * (c0 - c2) / den * step
+            off += float(0.5 * (c0 - c2) / den * step)
     if peak < 0.3:
         raise ValueError(
             f"the {signal} speeds of {a.name} and {b.name} do not correlate (peak {peak:.2f} "
@@ -252,8 +252,6 @@ def estimate_clock_offset(
         return r, np.concatenate(J, axis=2)
 
     def update(x, dx):
-        from ..math import quat_exp, quat_multiply
-
         q = quat_multiply(x[:4], quat_exp(dx[:3]))
         return np.concatenate([q / np.linalg.norm(q), x[4:] + dx[3:]])
 
