@@ -11,6 +11,11 @@ Example (``examples/demo_setup.yaml`` is a complete one)::
          quaternion: [0, 0, 0, 1], sigma_pos_mm: 0.1, sigma_ori_deg: 0.01}
     queries:
       - {name: view, source: P, target: M, mode: push, rate_hz: 60, time_offset_ms: 0}
+    include: [calib/hand_eye.yaml]      # optional setup fragments (trackflow calibrate ...)
+
+A fragment (written by ``trackflow calibrate ... --fragment``) holds ``statics`` entries, which
+are added, and ``sensors`` entries that name an existing sensor and replace some of its keys
+(``stamp_offset_ms``, ``latency_ms``, ``covariance``, ``sigma_pos_mm``, ``sigma_ori_deg``).
 
 Everything a file can say can also be built in Python with
 :class:`trackflow.graph.SpatialRelationshipGraph` and :class:`trackflow.graph.Query`.
@@ -172,13 +177,81 @@ def _check_keys(src, item, allowed, what):
             raise _err(src, item, f"{what}: missing key {key!r}")
 
 
+_FRAGMENT_SENSOR_KEYS = {
+    "name",
+    "stamp_offset_ms",
+    "latency_ms",
+    "covariance",
+    "sigma_pos_mm",
+    "sigma_ori_deg",
+}
+
+
+def _read_yaml(path: Path):
+    try:
+        return yaml.load(path.read_text(), Loader=_LineLoader)  # a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: invalid YAML: {exc}") from exc
+
+
+def _copy_map(item):
+    if not isinstance(item, dict):
+        return item
+    m = _Map(item)
+    m.line = getattr(item, "line", 0)
+    return m
+
+
+def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
+    """Merge the fragments listed under ``include:`` into a copy of ``doc``."""
+    inc = doc.get("include") or []
+    if isinstance(inc, str):
+        inc = [inc]
+    if not isinstance(inc, list):
+        raise _err(source, doc, "include must be a file name or a list of file names")
+    out = dict(doc)
+    out.pop("include", None)
+    statics = list(out.get("statics") or [])
+    sensors = [_copy_map(s) for s in out.get("sensors") or []]
+    for name in inc:
+        path = Path(str(name))
+        path = path if path.is_absolute() or base_dir is None else base_dir / path
+        if not path.is_file():
+            raise _err(source, doc, f"include: fragment {path} not found")
+        frag = _read_yaml(path)
+        if not isinstance(frag, dict) or set(frag) - {"statics", "sensors"}:
+            raise ValueError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
+        statics += list(frag.get("statics") or [])
+        for i, upd in enumerate(frag.get("sensors") or []):
+            if not isinstance(upd, dict) or "name" not in upd:
+                raise _err(str(path), upd, f"sensors[{i}]: needs the name of a sensor to update")
+            unknown = set(upd) - _FRAGMENT_SENSOR_KEYS
+            if unknown:
+                allowed = sorted(_FRAGMENT_SENSOR_KEYS)
+                msg = f"sensors[{i}]: keys {sorted(unknown)} cannot be set by a fragment"
+                raise _err(str(path), upd, f"{msg} (allowed: {allowed})")
+            match = [s for s in sensors if isinstance(s, dict) and s.get("name") == upd["name"]]
+            if not match:
+                raise _err(str(path), upd, f"sensors[{i}]: no sensor named {upd['name']!r}")
+            if "covariance" in upd:  # a covariance replaces sigma_* and vice versa
+                for k in ("sigma_pos_mm", "sigma_ori_deg"):
+                    match[0].pop(k, None)
+            if {"sigma_pos_mm", "sigma_ori_deg"} & set(upd):
+                match[0].pop("covariance", None)
+            match[0].update({k: v for k, v in upd.items() if k != "name"})
+    out["statics"], out["sensors"] = statics, sensors
+    return out
+
+
 def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> Setup:
     """Build a :class:`Setup` from a parsed YAML document (a mapping)."""
     if not isinstance(doc, dict):
         raise ValueError(f"{source}: a setup must be a mapping with sensors/statics/queries")
-    unknown = set(doc) - {"frames", "sensors", "statics", "queries"}
+    unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include"}
     if unknown:
         raise _err(source, doc, f"unknown top-level keys {sorted(unknown)}")
+    if "include" in doc:
+        doc = _apply_includes(doc, source, base_dir)
     g = SpatialRelationshipGraph()
     for f in doc.get("frames") or []:
         g.add_frame(str(f))

@@ -1,0 +1,39 @@
+"""Calibration with uncertainty: clock offset, hand-eye, alignment, sensor noise, pivot.
+
+Every estimator is a typed library function returning a typed result with a covariance in the
+conventions of ``docs/conventions.md``; ``trackflow calibrate ...`` wraps them. Methods and
+measured figures: ``docs/calibration.md``.
+"""
+
+from .alignment import AlignmentResult, align_trajectories, umeyama
+from .clock_offset import ClockOffset, estimate_clock_offset
+from .fragment import sensor_update, static_edge, write_fragment
+from .hand_eye import (
+    HandEyeResult,
+    evaluate_hand_eye,
+    evaluate_with_world_fit,
+    hand_eye_residuals,
+    solve_hand_eye,
+)
+from .noise import NoiseResult, sensor_noise
+from .pivot import PivotResult, pivot_calibration
+
+__all__ = [
+    "AlignmentResult",
+    "ClockOffset",
+    "HandEyeResult",
+    "NoiseResult",
+    "PivotResult",
+    "align_trajectories",
+    "estimate_clock_offset",
+    "sensor_noise",
+    "evaluate_hand_eye",
+    "evaluate_with_world_fit",
+    "hand_eye_residuals",
+    "pivot_calibration",
+    "sensor_update",
+    "solve_hand_eye",
+    "static_edge",
+    "umeyama",
+    "write_fragment",
+]

@@ -1,0 +1,187 @@
+"""Alignment of two trajectories of the same point (absolute orientation) with covariance.
+
+``p_a(t) = s R p_b(t - offset) + t``: ``T_a_b = (t, R)`` maps trajectory b's world frame into
+a's (as ``evo --align`` / Umeyama do), optionally with a scale ``s`` and jointly with the clock
+offset (``t_a = t_b + offset``). A closed-form Umeyama start is refined by robust Gauss-Newton
+with analytic Jacobians; the covariance follows the conventions (translation error in frame a,
+rotation error on the right) and is inflated by the residual autocorrelation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..io import PoseStream
+from ..math import Pose, UncertainPose, quat_exp, quat_multiply, quat_to_matrix, skew
+from ._geometry import matrix_quaternion
+from ._lsq import robust_solve
+from ._sampling import common_epoch_ns, trajectory, velocities
+from .clock_offset import estimate_clock_offset
+
+__all__ = ["AlignmentResult", "align_trajectories", "umeyama"]
+
+
+@dataclass(frozen=True)
+class AlignmentResult:
+    """``T_a_b`` with covariance, scale (1 unless estimated), offset and residuals.
+
+    ``residual_rmse_mm`` is the RMS position error after alignment over the inliers (evo's
+    APE RMSE); ``times_s`` (M,), ``residuals`` (M, 3) [m] and ``inliers`` (M,) for plots.
+    """
+
+    T: UncertainPose
+    scale: float
+    scale_sigma: float
+    offset_s: float
+    offset_sigma_s: float
+    residual_rmse_mm: float
+    n_used: int
+    n_outliers: int
+    times_s: np.ndarray
+    residuals: np.ndarray
+    inliers: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {
+            "position": [float(v) for v in self.T.position],
+            "quaternion": [float(v) for v in self.T.quaternion],
+            "covariance": [[float(v) for v in row] for row in self.T.covariance],
+            "scale": self.scale,
+            "scale_sigma": self.scale_sigma,
+            "offset_s": self.offset_s,
+            "offset_sigma_s": self.offset_sigma_s,
+            "residual_rmse_mm": self.residual_rmse_mm,
+            "n_used": self.n_used,
+            "n_outliers": self.n_outliers,
+        }
+
+
+def umeyama(pa: np.ndarray, pb: np.ndarray, with_scale: bool = False):
+    """Closed-form ``(s, R, t)`` minimising ``sum |pa - (s R pb + t)|^2`` for (M, 3) points.
+
+    Raises ``ValueError`` when the points are (nearly) collinear, or when only a reflection
+    fits (the two trajectories have opposite handedness, e.g. a Unity left-handed frame).
+    """
+    ma, mb = pa.mean(axis=0), pb.mean(axis=0)
+    A, B = pa - ma, pb - mb
+    sv = np.linalg.svd(B, compute_uv=False)
+    if sv[1] < 0.01 * sv[0]:
+        raise ValueError(
+            "degenerate trajectory for alignment: the positions lie on a line (spread "
+            f"{sv[1] / max(sv[0], 1e-300):.4f} of the main direction); rotation about it is "
+            "unobservable"
+        )
+    U, D, Vt = np.linalg.svd(A.T @ B / len(pa))
+    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+    S = np.diag([1.0, 1.0, d])
+    R = U @ S @ Vt
+    if d < 0 and D[2] > 0.2 * D[1]:
+        raise ValueError(
+            "the trajectories have opposite handedness: only a reflection aligns them (is "
+            "one in a left-handed frame such as Unity's? mirror it first, docs/formats.md)"
+        )
+    s = float(np.trace(np.diag(D) @ S) / np.mean(np.sum(B * B, axis=1))) if with_scale else 1.0
+    return s, R, ma - s * R @ mb
+
+
+def align_trajectories(
+    a: PoseStream,
+    b: PoseStream,
+    *,
+    with_scale: bool = False,
+    offset_s: float | None = None,
+    estimate_offset: bool = True,
+    max_offset_s: float = 1.0,
+) -> AlignmentResult:
+    """Align trajectory ``b`` to ``a`` (positions of the same point) with covariance.
+
+    Parameters
+    ----------
+    a, b : PoseStream
+        Reference and aligned trajectory (only positions are used for the fit; orientations
+        help find the offset).
+    with_scale : bool
+        Estimate a scale too (monocular SLAM, unknown units).
+    offset_s : float, optional
+        Known clock offset ``t_a = t_b + offset``; else found from the speed profiles.
+    estimate_offset : bool
+        Refine the offset jointly with the alignment.
+
+    Raises
+    ------
+    ValueError
+        No overlap, no motion, collinear positions, opposite handedness.
+    """
+    epoch = common_epoch_ns(a, b)
+    ta, tb = trajectory(a, epoch, "a"), trajectory(b, epoch, "b")
+    if offset_s is None:
+        offset_s = estimate_clock_offset(a, b, max_offset_s=max_offset_s, refine=False).offset_s
+    margin = 3 * max(ta.period_s, tb.period_s) + (0.05 if estimate_offset else 0.0)
+    lo = max(ta.t[0], tb.t[0] + offset_s) + margin
+    hi = min(ta.t[-1], tb.t[-1] + offset_s) - margin
+    t = ta.t if ta.period_s >= tb.period_s else tb.t + offset_s
+    grid = t[(t >= lo) & (t <= hi)]
+    if len(grid) < 10:
+        raise ValueError(f"the trajectories overlap for {max(hi - lo, 0):.2f} s only")
+    A = ta.sample(grid)
+    B0 = tb.sample(grid - offset_s)
+    ok = A.valid & B0.valid
+    s0, R0, t0 = umeyama(A.p[ok], B0.p[ok], with_scale)
+
+    def fun(x):
+        R = quat_to_matrix(x[3:7])
+        k = 7
+        s = np.exp(x[k]) if with_scale else 1.0
+        k += int(with_scale)
+        off = x[k] if estimate_offset else offset_s
+        B = tb.sample(grid - off)
+        Rp = B.p @ R.T
+        r = A.p - (s * Rp + x[:3])
+        J = [np.broadcast_to(-np.eye(3), (len(r), 3, 3)), s * R @ skew(B.p)]
+        if with_scale:
+            J.append(-s * Rp[:, :, None])
+        if estimate_offset:
+            v, _ = velocities(tb, grid - off, 2.0 * tb.period_s)
+            J.append(s * (v @ R.T)[:, :, None])
+        r = np.where((A.valid & B.valid)[:, None], r, np.nan)
+        return r, np.concatenate(J, axis=2)
+
+    def update(x, dx):
+        x = x.copy()
+        x[:3] += dx[:3]
+        q = quat_multiply(x[3:7], quat_exp(dx[3:6]))
+        x[3:7] = q / np.linalg.norm(q)
+        x[7:] += dx[6:]
+        return x
+
+    x0 = np.concatenate(
+        [t0, matrix_quaternion(R0)]
+        + ([[np.log(s0)]] if with_scale else [])
+        + ([[offset_s]] if estimate_offset else [])
+    )
+    sol = robust_solve(fun, x0, np.full(3, 1e-3), update=update, groups=((0, 1, 2),))
+    cov = sol.cov
+    k = 6
+    scale, scale_sigma = 1.0, 0.0
+    if with_scale:
+        scale = float(np.exp(sol.x[7]))
+        scale_sigma = float(scale * np.sqrt(cov[k, k]))
+        k += 1
+    off, off_sigma = (float(sol.x[-1]), float(np.sqrt(cov[k, k]))) if estimate_offset else (
+        float(offset_s), 0.0)  # fmt: skip
+    r = sol.residuals[sol.inliers]
+    return AlignmentResult(
+        T=UncertainPose(Pose(sol.x[:3], sol.x[3:7], normalize=True), cov[:6, :6]),
+        scale=scale,
+        scale_sigma=scale_sigma,
+        offset_s=off,
+        offset_sigma_s=off_sigma,
+        residual_rmse_mm=float(np.sqrt(np.mean(np.sum(r**2, axis=1))) * 1e3),
+        n_used=int(sol.inliers.sum()),
+        n_outliers=int((~sol.inliers).sum()),
+        times_s=grid,
+        residuals=sol.residuals,
+        inliers=sol.inliers,
+    )

@@ -1,0 +1,599 @@
+"""Hand-eye ``A X = X B`` and robot-world-hand-eye ``A X = Z B`` calibration with covariance.
+
+``A`` is a robot's (or any tracker's) pose ``T_base_tool``, ``B`` the other tracker's pose
+``T_world_body`` of the rigidly attached body; ``X = T_tool_body`` and ``Z = T_base_world``, so
+``T_base_tool(t) X = Z T_world_body(t - offset)``. A closed-form start (the rotation from body
+angular rates or Park-Martin's axis fit, the translation by linear least squares, ``Z`` by
+averaging) is refined by robust Gauss-Newton on the manifold with analytic Jacobians, jointly
+with the clock offset when asked; outliers are rejected by a chi-square test and the covariance
+of ``(X, Z, offset)`` is the Gauss-Newton covariance inflated by the residual autocorrelation.
+Offset convention as in :mod:`trackflow.calibration.clock_offset`: ``t_a = t_b + offset``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..io import PoseStream
+from ..math import (
+    Pose,
+    UncertainPose,
+    quat_conjugate,
+    quat_exp,
+    quat_log,
+    quat_multiply,
+    quat_rotate,
+    quat_to_matrix,
+    skew,
+    so3_right_jacobian_inverse,
+)
+from ._geometry import kabsch, matrix_quaternion, mean_rotation, rotation_axis_spread
+from ._lsq import robust_solve
+from ._sampling import Trajectory, common_epoch_ns, trajectory, velocities
+from .clock_offset import estimate_clock_offset
+
+__all__ = [
+    "HandEyeResult",
+    "evaluate_hand_eye",
+    "hand_eye_residuals",
+    "solve_hand_eye",
+]
+
+#: Smallest rotation between the two poses of a motion pair [deg].
+MIN_PAIR_ANGLE_DEG = 5.0
+#: Longest time between the two poses of a motion pair [s]: short pairs are insensitive to a
+#: slowly drifting world frame (inside-out headsets), see docs/calibration.md.
+MAX_PAIR_SPAN_S = 2.0
+#: Smallest ratio of the second to the first singular value of the pairs' rotation axes.
+MIN_AXIS_SPREAD = 0.05
+
+
+@dataclass(frozen=True)
+class HandEyeResult:
+    """Result of :func:`solve_hand_eye`.
+
+    Attributes
+    ----------
+    X : UncertainPose
+        ``T_tool_body`` with its 6x6 covariance (conventions of ``docs/conventions.md``).
+    Z : UncertainPose or None
+        ``T_base_world`` for the robot-world form, else None.
+    offset_s, offset_sigma_s : float
+        Clock offset ``t_a = t_b + offset_s`` [s] and its standard error (0 when fixed); with
+        drift, the offset at ``reference_time_s``.
+    drift, drift_sigma : float or None
+        Clock drift [s/s] (``t_a = t_b + offset + drift (t_a - reference)``) when estimated.
+    reference_time_s : float
+        a-clock time [s from the streams' common epoch] where the drift term is zero.
+    covariance : ndarray, shape (P, P)
+        Joint covariance over ``(X (6), Z (6) if present, offset (1) and drift (1) if
+        estimated)``.
+    form : str
+        ``"robot-world"`` or ``"hand-eye"``.
+    residual_pos_mm, residual_ori_deg : float
+        RMS position and rotation residual over the inliers.
+    n_used, n_outliers : int
+        Residual blocks (samples or motion pairs) used and rejected.
+    times_s, residuals, inliers : ndarray
+        Residual blocks for plots: a-clock time (M,), residual (M, 6) ``(dp [m], dtheta
+        [rad])`` and the inlier mask (M,).
+    """
+
+    X: UncertainPose
+    Z: UncertainPose | None
+    offset_s: float
+    offset_sigma_s: float
+    covariance: np.ndarray
+    form: str
+    residual_pos_mm: float
+    residual_ori_deg: float
+    n_used: int
+    n_outliers: int
+    times_s: np.ndarray
+    residuals: np.ndarray
+    inliers: np.ndarray
+    drift: float | None = None
+    drift_sigma: float | None = None
+    reference_time_s: float = 0.0
+
+    @property
+    def X_sigma_mm(self) -> float:
+        """Root of the trace of X's position covariance, millimetres."""
+        return float(np.sqrt(np.trace(self.X.covariance[:3, :3])) * 1e3)
+
+    @property
+    def X_sigma_deg(self) -> float:
+        """Root of the trace of X's rotation covariance, degrees."""
+        return float(np.degrees(np.sqrt(np.trace(self.X.covariance[3:, 3:]))))
+
+    def to_json(self) -> dict:
+        """The keys of ``trackflow calibrate hand-eye --json`` (see ``docs/calibration.md``)."""
+        return {
+            "X": pose_to_json(self.X),
+            "Z": None if self.Z is None else pose_to_json(self.Z),
+            "offset_s": self.offset_s,
+            "offset_sigma_s": self.offset_sigma_s,
+            "residual_pos_mm": self.residual_pos_mm,
+            "residual_ori_deg": self.residual_ori_deg,
+            "X_sigma_mm": self.X_sigma_mm,
+            "X_sigma_deg": self.X_sigma_deg,
+        }
+
+
+def pose_to_json(p: UncertainPose) -> dict:
+    """``{"position": [m], "quaternion": [x, y, z, w], "covariance": 6x6}``."""
+    return {
+        "position": [float(v) for v in p.position],
+        "quaternion": [float(v) for v in p.quaternion],
+        "covariance": [[float(v) for v in row] for row in p.covariance],
+    }
+
+
+def pose_from_json(d, what: str) -> UncertainPose:
+    """Inverse of :func:`pose_to_json`; ``ValueError`` naming ``what`` on malformed input."""
+    if not isinstance(d, dict) or "position" not in d or "quaternion" not in d:
+        raise ValueError(f"{what}: expected a mapping with 'position' and 'quaternion'")
+    cov = np.asarray(d.get("covariance", np.zeros((6, 6))), float)
+    if cov.shape != (6, 6):
+        raise ValueError(f"{what}: covariance must be 6x6, got shape {cov.shape}")
+    return UncertainPose(Pose(d["position"], d["quaternion"], normalize=True), cov)
+
+
+# ---------------------------------------------------------------------------------------------
+# residuals and their Jacobians
+
+
+def _compose(pa, qa, pb, qb):
+    return pa + quat_rotate(qa, pb), quat_multiply(qa, qb)
+
+
+def hand_eye_residuals(A_p, A_q, B_p, B_q, X, Z, B_v=None, B_w=None, jacobians=False):
+    """Residuals of ``A X = Z B`` per sample and their Jacobians.
+
+    Parameters
+    ----------
+    A_p, A_q, B_p, B_q : ndarray, shapes (M, 3), (M, 4)
+        ``T_base_tool`` and ``T_world_body`` at the same instants.
+    X, Z : tuple (p (3,), q (4,))
+        ``T_tool_body`` and ``T_base_world``.
+    B_v, B_w : ndarray, shape (M, 3), optional
+        Velocity of B (world frame, m/s) and its body angular velocity (rad/s), for the
+        derivative with respect to the clock offset.
+
+    Returns
+    -------
+    r : ndarray, shape (M, 6)
+        ``(t_P - t_Q, Log(R_Q^T R_P))`` with ``P = A X`` and ``Q = Z B`` (metres in the base
+        frame, radians in the body frame).
+    J_r_X, J_r_Z : ndarray, shape (M, 6, 6)
+        With respect to X's and Z's errors ``(dt, dtheta)`` (conventions.md); when jacobians.
+    J_r_offset : ndarray, shape (M, 6)
+        With respect to the offset (needs ``B_v``, ``B_w``); when jacobians.
+    """
+    pP, qP = _compose(A_p, A_q, X[0], X[1])
+    pQ, qQ = _compose(Z[0], Z[1], B_p, B_q)
+    qE = quat_multiply(quat_conjugate(qQ), qP)
+    rR = quat_log(qE)
+    r = np.concatenate([pP - pQ, rR], axis=1)
+    if not jacobians:
+        return r
+    m = len(r)
+    Jinv = so3_right_jacobian_inverse(rR)
+    RA = quat_to_matrix(A_q)
+    RZ = quat_to_matrix(Z[1])
+    RB = quat_to_matrix(B_q)
+    RE = quat_to_matrix(qE)
+    J_X = np.zeros((m, 6, 6))
+    J_X[:, :3, :3] = RA
+    J_X[:, 3:, 3:] = Jinv
+    J_Z = np.zeros((m, 6, 6))
+    J_Z[:, :3, :3] = -np.eye(3)
+    J_Z[:, :3, 3:] = RZ @ skew(B_p)
+    EtBt = np.einsum("nji,nkj->nik", RE, RB)  # R_E^T R_B^T
+    J_Z[:, 3:, 3:] = -np.einsum("nij,njk->nik", Jinv, EtBt)
+    J_off = None
+    if B_v is not None:
+        J_off = np.zeros((m, 6))
+        J_off[:, :3] = B_v @ RZ.T
+        J_off[:, 3:] = np.einsum("nij,nkj,nk->ni", Jinv, RE, B_w)
+    return r, J_X, J_Z, J_off
+
+
+def _relative(p, q, i, j):
+    qi_inv = quat_conjugate(q[i])
+    return quat_rotate(qi_inv, p[j] - p[i]), quat_multiply(qi_inv, q[j])
+
+
+def pair_residuals(Ap, Aq, Bp, Bq, X, jacobians=False):
+    """Residuals of ``A_ij X = X B_ij`` for relative motions (M, 3)/(M, 4); see above.
+
+    Returns ``r`` (M, 6) with ``P = A_ij X`` and ``Q = X B_ij`` and, with jacobians,
+    ``J_r_X`` (M, 6, 6).
+    """
+    pP, qP = _compose(Ap, Aq, X[0], X[1])
+    pQ, qQ = _compose(X[0], X[1], Bp, Bq)
+    qE = quat_multiply(quat_conjugate(qQ), qP)
+    rR = quat_log(qE)
+    r = np.concatenate([pP - pQ, rR], axis=1)
+    if not jacobians:
+        return r
+    m = len(r)
+    Jinv = so3_right_jacobian_inverse(rR)
+    RA, RX, RB, RE = (quat_to_matrix(v) for v in (Aq, X[1], Bq, qE))
+    J = np.zeros((m, 6, 6))
+    J[:, :3, :3] = RA - np.eye(3)
+    J[:, :3, 3:] = RX @ skew(Bp)
+    EtBt = np.einsum("nji,nkj->nik", RE, RB)
+    J[:, 3:, 3:] = Jinv @ (np.eye(3) - EtBt)
+    return r, J
+
+
+# ---------------------------------------------------------------------------------------------
+# closed-form start
+
+
+def _pairs(q: np.ndarray, min_angle: float, max_lag: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, j), i < j <= i + max_lag, whose relative rotation exceeds ``min_angle``."""
+    ii, jj = [], []
+    n = len(q)
+    for lag in range(1, max_lag + 1):
+        i = np.arange(n - lag)
+        ang = np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[i]), q[i + lag])), axis=1)
+        ok = ang >= min_angle
+        ii.append(i[ok])
+        jj.append(i[ok] + lag)
+    return np.concatenate(ii), np.concatenate(jj)
+
+
+def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=10.0, max_lag: int = 20):
+    """Park-Martin: ``R_X`` from the rotation axes of motion pairs, ``t_X`` by least squares.
+
+    Inputs are poses at common instants, (M, 3)/(M, 4), spread over the recording (stations).
+    Raises ``ValueError`` when the motion does not determine X.
+    """
+    i, j = _pairs(Aq, np.radians(min_pair_angle_deg), max_lag)
+    if len(i) < 3:
+        raise ValueError(
+            f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
+            f"{min_pair_angle_deg} deg (need 3 or more)"
+        )
+    a_p, a_q = _relative(Ap, Aq, i, j)
+    b_p, b_q = _relative(Bp, Bq, i, j)
+    alpha, beta = quat_log(a_q), quat_log(b_q)
+    spread = rotation_axis_spread(alpha)
+    if spread < MIN_AXIS_SPREAD:
+        raise ValueError(
+            "degenerate motion for hand-eye: the robot rotated about a single axis only "
+            f"(axis spread {spread:.3f} < {MIN_AXIS_SPREAD}); X's translation along that axis "
+            "is unobservable - rotate about at least two different axes"
+        )
+    RX = kabsch(alpha, beta)
+    qX = matrix_quaternion(RX)
+    RA = quat_to_matrix(a_q)
+    M = (RA - np.eye(3)).reshape(-1, 3)
+    rhs = (b_p @ RX.T - a_p).reshape(-1)
+    tX = np.linalg.lstsq(M, rhs, rcond=None)[0]
+    return (tX, qX), (i, j)
+
+
+def closed_form_Z(Ap, Aq, Bp, Bq, X):
+    """``Z = mean(A_k X B_k^-1)``: rotation by the chordal mean, translation by the mean."""
+    pP, qP = _compose(Ap, Aq, X[0], X[1])
+    qBi = quat_conjugate(Bq)
+    qZ = quat_multiply(qP, qBi)
+    qZm = mean_rotation(qZ)
+    pZ = pP - quat_rotate(qZm, Bp)
+    return np.mean(pZ, axis=0), qZm
+
+
+# ---------------------------------------------------------------------------------------------
+# the estimator
+
+
+def _manifold_step(n_poses: int):
+    def update(x, dx):
+        x = x.copy()
+        for k in range(n_poses):
+            o, d = 7 * k, 6 * k
+            x[o : o + 3] += dx[d : d + 3]
+            q = quat_multiply(x[o + 3 : o + 7], quat_exp(dx[d + 3 : d + 6]))
+            x[o + 3 : o + 7] = q / np.linalg.norm(q)
+        x[7 * n_poses :] += dx[6 * n_poses :]
+        return x
+
+    return update
+
+
+def _grid(ta: Trajectory, tb: Trajectory, offset: float, margin: float) -> np.ndarray:
+    """a-clock instants: the slower stream's samples inside the overlap, ``margin`` inside."""
+    lo = max(ta.t[0], tb.t[0] + offset) + margin
+    hi = min(ta.t[-1], tb.t[-1] + offset) - margin
+    t = ta.t if ta.period_s >= tb.period_s else tb.t + offset
+    t = t[(t >= lo) & (t <= hi)]
+    if len(t) < 10:
+        raise ValueError(
+            f"the streams overlap for {max(hi - lo, 0):.2f} s only (offset {offset:.3f} s): "
+            "too few samples for hand-eye"
+        )
+    return t
+
+
+def solve_hand_eye(
+    robot: PoseStream,
+    sensor: PoseStream,
+    *,
+    form: str = "auto",
+    offset_s: float | None = None,
+    estimate_offset: bool = True,
+    estimate_drift: bool = False,
+    max_offset_s: float = 1.0,
+    min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
+    max_pair_span_s: float = MAX_PAIR_SPAN_S,
+    station_spacing_s: float = 0.25,
+) -> HandEyeResult:
+    """Calibrate ``X = T_tool_body`` (and ``Z = T_base_world``) with covariance.
+
+    Parameters
+    ----------
+    robot : PoseStream
+        ``T_base_tool`` (stream a).
+    sensor : PoseStream
+        ``T_world_body`` of the body rigidly attached to the tool (stream b).
+    form : {"auto", "robot-world", "hand-eye"}
+        ``A X = Z B`` on absolute poses, or ``A X = X B`` on motion pairs; auto picks the
+        robot-world form when the streams have different source (base) frames.
+    offset_s : float, optional
+        Known clock offset (``t_a = t_b + offset``); found by
+        :func:`~trackflow.calibration.estimate_clock_offset` when None.
+    estimate_offset : bool
+        Refine the offset jointly with X (and Z).
+    estimate_drift : bool
+        Also estimate a linear clock drift (needs ``estimate_offset``).
+    max_offset_s : float
+        Search range of the coarse offset.
+    min_pair_angle_deg, max_pair_span_s : float
+        Motion-pair selection (hand-eye form): smallest relative rotation [deg] and longest
+        time between the two poses of a pair [s].
+    station_spacing_s : float
+        Spacing of the poses used for the closed-form start and for hand-eye motion pairs.
+
+    Raises
+    ------
+    ValueError
+        Too little or single-axis rotation, too short an overlap, no motion for the offset.
+    """
+    if form == "auto":
+        form = "robot-world" if robot.source != sensor.source else "hand-eye"
+    if form not in ("robot-world", "hand-eye"):
+        raise ValueError(f"form must be 'auto', 'robot-world' or 'hand-eye', got {form!r}")
+    if estimate_drift and not estimate_offset:
+        raise ValueError("estimate_drift needs estimate_offset")
+    epoch = common_epoch_ns(robot, sensor)
+    ta = trajectory(robot, epoch, f"robot {robot.source}->{robot.target}")
+    tb = trajectory(sensor, epoch, f"sensor {sensor.source}->{sensor.target}")
+    if offset_s is None:
+        # The coarse search suffices as a start: the refinement below re-estimates the offset.
+        refine = not estimate_offset
+        offset_s = estimate_clock_offset(
+            robot, sensor, max_offset_s=max_offset_s, refine=refine
+        ).offset_s
+    margin = 3 * max(ta.period_s, tb.period_s) + (0.05 if estimate_offset else 0.0)
+    grid = _grid(ta, tb, offset_s, margin)
+    A = ta.sample(grid)
+    stations = np.unique(np.round((grid - grid[0]) / station_spacing_s), return_index=True)[1]
+    B0 = tb.sample(grid[stations] - offset_s)
+    As = (A.p[stations], A.q[stations])
+    X0, _ = closed_form_X(*As, B0.p, B0.q, max_lag=int(round(10.0 / station_spacing_s)))
+    if form == "robot-world":
+        Z0 = closed_form_Z(*As, B0.p, B0.q, X0)
+        clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+        return _refine_robot_world(A, tb, grid, X0, Z0, clock)
+    lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
+    clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+    return _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
+
+
+@dataclass(frozen=True)
+class _Clock:
+    """The clock unknowns: offset (and drift about ``t_ref``, a-clock seconds)."""
+
+    offset: float
+    estimate: bool
+    drift: bool
+    t_ref: float
+
+    @property
+    def n(self) -> int:
+        return int(self.estimate) + int(self.drift)
+
+    def x0(self) -> list[float]:
+        return ([self.offset] if self.estimate else []) + ([0.0] if self.drift else [])
+
+    def b_times(self, t: np.ndarray, xc: np.ndarray) -> np.ndarray:
+        """b-clock times of the a-clock instants ``t`` for clock unknowns ``xc``."""
+        off = xc[0] if self.estimate else self.offset
+        d = xc[1] if self.drift else 0.0
+        return t - off - d * (t - self.t_ref)
+
+
+def _result(form, sol, n_poses, clock: _Clock, times, has_z):
+    x, cov = sol.x, sol.cov
+    X = UncertainPose(Pose(x[:3], x[3:7], normalize=True), cov[:6, :6])
+    Z = UncertainPose(Pose(x[7:10], x[10:14], normalize=True), cov[6:12, 6:12]) if has_z else None
+    k, c = 7 * n_poses, 6 * n_poses
+    off = float(x[k]) if clock.estimate else float(clock.offset)
+    off_sigma = float(np.sqrt(cov[c, c])) if clock.estimate else 0.0
+    drift = float(x[k + 1]) if clock.drift else None
+    drift_sigma = float(np.sqrt(cov[c + 1, c + 1])) if clock.drift else None
+    r = sol.residuals[sol.inliers]
+    return HandEyeResult(
+        X=X,
+        Z=Z,
+        offset_s=off,
+        offset_sigma_s=off_sigma,
+        covariance=cov,
+        form=form,
+        residual_pos_mm=float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))) * 1e3),
+        residual_ori_deg=float(np.degrees(np.sqrt(np.mean(np.sum(r[:, 3:] ** 2, axis=1))))),
+        n_used=int(sol.inliers.sum()),
+        n_outliers=int((~sol.inliers).sum()),
+        times_s=times,
+        residuals=sol.residuals,
+        inliers=sol.inliers,
+        drift=drift,
+        drift_sigma=drift_sigma,
+        reference_time_s=clock.t_ref,
+    )
+
+
+def _refine_robot_world(A, tb, grid, X0, Z0, clock: _Clock):
+    def fun(x):
+        X, Z = (x[:3], x[3:7]), (x[7:10], x[10:14])
+        s = clock.b_times(grid, x[14:])
+        B = tb.sample(s)
+        v, w = velocities(tb, s, 2.0 * tb.period_s) if clock.estimate else (B.v, B.w)
+        r, J_X, J_Z, J_off = hand_eye_residuals(A.p, A.q, B.p, B.q, X, Z, v, w, True)
+        J = [J_X, J_Z] + ([J_off[:, :, None]] if clock.estimate else [])
+        if clock.drift:  # ds/d(drift) = -(t - t_ref) = (t - t_ref) ds/d(offset)
+            J.append(J_off[:, :, None] * (grid - clock.t_ref)[:, None, None])
+        r = np.where((A.valid & B.valid)[:, None], r, np.nan)
+        return r, np.concatenate(J, axis=2)
+
+    x0 = np.concatenate([X0[0], X0[1], Z0[0], Z0[1], clock.x0()])
+    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
+    sol = robust_solve(fun, x0, sigma, update=_manifold_step(2), groups=((0, 1, 2), (3, 4, 5)))
+    return _result("robot-world", sol, 2, clock, grid, True)
+
+
+def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, max_lag):
+    A = ta.sample(stations)
+    i, j = _pairs(A.q, np.radians(min_pair_angle_deg), max_lag)
+    if len(i) < 3:
+        raise ValueError(
+            f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
+            f"{min_pair_angle_deg} deg within {max_lag} stations (need 3 or more)"
+        )
+    order = np.lexsort((j, i))
+    i, j = i[order], j[order]
+    a_p, a_q = _relative(A.p, A.q, i, j)
+
+    def rel_b(xc):
+        B = tb.sample(clock.b_times(stations, xc))
+        bp, bq = _relative(B.p, B.q, i, j)
+        return bp, bq, B.valid[i] & B.valid[j] & A.valid[i] & A.valid[j]
+
+    def fun(x):
+        X = (x[:3], x[3:7])
+        xc = x[7:]
+        bp, bq, ok = rel_b(xc)
+        r, J = pair_residuals(a_p, a_q, bp, bq, X, True)
+        cols = [J]
+        # clock columns by central differences of the interpolated motion
+        for c, h in enumerate((1e-3, 1e-5)[: clock.n]):
+            d = np.zeros(clock.n)
+            d[c] = h
+            rp = pair_residuals(a_p, a_q, *rel_b(xc + d)[:2], X)
+            rm = pair_residuals(a_p, a_q, *rel_b(xc - d)[:2], X)
+            cols.append(((rp - rm) / (2 * h))[:, :, None])
+        return np.where(ok[:, None], r, np.nan), np.concatenate(cols, axis=2)
+
+    x0 = np.concatenate([X0[0], X0[1], clock.x0()])
+    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
+    # The pairs are not independent. Those sharing a station carry that station's noise, so
+    # they hold only as much information as the stations (factor: mean pairs per station);
+    # real trackers add errors correlated over seconds, which the integrated autocorrelation
+    # time of the time-ordered residuals measures (robust_solve, correlated=True). The
+    # covariance is inflated by the larger of the two.
+    sol = robust_solve(fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)))
+    used = np.unique(np.concatenate([i[sol.inliers], j[sol.inliers]]))
+    share = 2.0 * sol.inliers.sum() / max(len(used), 1)
+    if share > sol.tau:
+        sol = replace(sol, cov=sol.cov * (share / sol.tau), tau=share)
+    return _result("hand-eye", sol, 1, clock, stations[j], False)
+
+
+def evaluate_hand_eye(
+    robot: PoseStream,
+    sensor: PoseStream,
+    X: Pose,
+    Z: Pose | None,
+    offset_s: float,
+    station_spacing_s: float = 0.25,
+    min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
+    max_pair_span_s: float = MAX_PAIR_SPAN_S,
+) -> dict:
+    """Residual of a stored calibration on other recordings; nothing is re-estimated.
+
+    With ``Z`` the residual of ``A X = Z B`` at every sample of the slower stream, else that
+    of ``A_ij X = X B_ij`` on motion pairs. Returns ``{"residual_pos_mm", "residual_ori_deg",
+    "median_pos_mm", "median_ori_deg", "n"}`` (RMS and median over all valid blocks).
+    """
+    epoch = common_epoch_ns(robot, sensor)
+    ta, tb = trajectory(robot, epoch), trajectory(sensor, epoch)
+    grid = _grid(ta, tb, offset_s, 3 * max(ta.period_s, tb.period_s))
+    Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
+    if Z is not None:
+        A, B = ta.sample(grid), tb.sample(grid - offset_s)
+        Zt = (np.asarray(Z.position, float), np.asarray(Z.quaternion, float))
+        r = hand_eye_residuals(A.p, A.q, B.p, B.q, Xt, Zt)[A.valid & B.valid]
+    else:
+        st = grid[np.unique(np.round((grid - grid[0]) / station_spacing_s), return_index=True)[1]]
+        A, B = ta.sample(st), tb.sample(st - offset_s)
+        lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
+        i, j = _pairs(A.q, np.radians(min_pair_angle_deg), lag)
+        ok = A.valid[i] & A.valid[j] & B.valid[i] & B.valid[j]
+        r = pair_residuals(*_relative(A.p, A.q, i, j), *_relative(B.p, B.q, i, j), Xt)[ok]
+    if len(r) == 0:
+        raise ValueError("no valid residuals: the recordings do not overlap or do not rotate")
+    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
+    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
+    return {
+        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
+        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
+        "median_pos_mm": float(np.median(dp)),
+        "median_ori_deg": float(np.median(da)),
+        "n": len(r),
+    }
+
+
+def evaluate_with_world_fit(
+    robot: PoseStream, sensor: PoseStream, X: Pose, offset_s: float
+) -> dict:
+    """Residual of ``A X = Z B`` with X and the offset fixed and only Z fitted to this run.
+
+    For trackers whose world frame changes between runs (a headset re-establishes its origin
+    each session) the stored Z does not carry over but X does; this fits Z alone (closed form,
+    then Gauss-Newton on Z) and reports the residual like :func:`evaluate_hand_eye`, plus
+    ``"Z"`` (position, quaternion).
+    """
+    epoch = common_epoch_ns(robot, sensor)
+    ta, tb = trajectory(robot, epoch), trajectory(sensor, epoch)
+    grid = _grid(ta, tb, offset_s, 3 * max(ta.period_s, tb.period_s))
+    A, B = ta.sample(grid), tb.sample(grid - offset_s)
+    ok = A.valid & B.valid
+    Ap, Aq, Bp, Bq = A.p[ok], A.q[ok], B.p[ok], B.q[ok]
+    Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
+    Z0 = closed_form_Z(Ap, Aq, Bp, Bq, Xt)
+
+    def fun(x):
+        r, _, J_Z, _ = hand_eye_residuals(Ap, Aq, Bp, Bq, Xt, (x[:3], x[3:7]), jacobians=True)
+        return r, J_Z
+
+    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
+    sol = robust_solve(
+        fun, np.concatenate(Z0), sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5))
+    )
+    r = sol.residuals
+    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
+    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
+    return {
+        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
+        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
+        "median_pos_mm": float(np.median(dp)),
+        "median_ori_deg": float(np.median(da)),
+        "n": len(r),
+        "Z": {"position": [float(v) for v in sol.x[:3]],
+              "quaternion": [float(v) for v in sol.x[3:7]]},
+    }  # fmt: skip

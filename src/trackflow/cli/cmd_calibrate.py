@@ -1,0 +1,307 @@
+"""``trackflow calibrate``: clock offset, hand-eye, alignment, sensor noise and pivot calibration.
+
+Each action is a thin layer over one function of :mod:`trackflow.calibration`; results print
+as text or ``--json``, and ``--fragment OUT.yaml`` writes a setup fragment (``include:`` it
+from a setup), ``--report DIR`` a JSON report with residual plots.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ._common import add_input, load
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "calibrate",
+        help="calibrate with uncertainty: clock offset, hand-eye, align, noise, pivot",
+        description="Calibration from recordings, each result with its covariance.",
+    )
+    sub = p.add_subparsers(dest="action", metavar="ACTION")
+    sub.required = True
+    _register_clock(sub)
+    _register_hand_eye(sub)
+    _register_align(sub)
+    _register_noise(sub)
+    _register_pivot(sub)
+    return p
+
+
+def _add_pair(p, a="a", b="b"):
+    add_input(p, a)
+    p.add_argument(b, help="second recording (format guessed)")
+    p.add_argument("--max-offset", type=float, default=1.0, help="offset search range, seconds")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--fragment", type=Path, help="write a setup fragment (YAML) here")
+    p.add_argument("--report", type=Path, help="write report.json and residual plots here")
+    p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
+
+
+def _print(d: dict, as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(d, indent=2))
+        return
+    for k, v in d.items():
+        if k == "covariance":
+            continue  # in --json and the fragment; too long for the text summary
+        if isinstance(v, dict):
+            v = ", ".join(f"{kk}={vv}" for kk, vv in v.items() if kk != "covariance")
+        print(f"{k:<20} {v}")
+
+
+def _residual_report(directory, data, residuals, inliers, title, times=None) -> None:
+    """``report.json`` and ``residuals.png`` for residuals (M, 3) or (M, 6) [m, rad]."""
+    import numpy as np
+
+    from ..calibration.report import plot_residuals, write_json
+
+    write_json(directory, data)
+    r = np.asarray(residuals, float)
+    if r.shape[1] == 3:
+        r = np.concatenate([r, np.zeros_like(r)], axis=1)
+    ok = np.ones(len(r), bool) if inliers is None else np.asarray(inliers)
+    t = np.arange(len(r), dtype=float) if times is None else np.asarray(times)
+    xlabel = "sample" if times is None else "time [s]"
+    plot_residuals(Path(directory) / "residuals.png", t, r, ok, title, xlabel)
+
+
+# -- clock-offset ---------------------------------------------------------------------------
+
+
+def _register_clock(sub):
+    p = sub.add_parser(
+        "clock-offset",
+        help="offset (and drift) of B's clock to A's, with standard error",
+        description="t_A = t_B + offset_s. Cross-correlates angular speed (or speed), then "
+        "refines jointly with the rotation between the two bodies.",
+    )
+    _add_pair(p)
+    p.add_argument("--drift", action="store_true", help="also estimate a linear clock drift")
+    p.add_argument("--signal", choices=("auto", "angular", "linear"), default="auto")
+    p.set_defaults(func=run_clock)
+
+
+def run_clock(args) -> int:
+    from ..calibration import estimate_clock_offset
+    from ..calibration.fragment import sensor_update, write_fragment
+    from ..calibration.report import write_clock_report
+
+    a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
+    r = estimate_clock_offset(
+        a, b, max_offset_s=args.max_offset, drift=args.drift, signal=args.signal
+    )
+    if args.fragment:
+        write_fragment(args.fragment, sensors=[sensor_update(args.sensor_name, r.offset_s)],
+                       note=f"clock offset of {args.b} to {args.a}")  # fmt: skip
+    if args.report:
+        write_clock_report(args.report, r)
+    _print(r.to_dict(), args.json)
+    return 0
+
+
+# -- hand-eye -------------------------------------------------------------------------------
+
+
+def _register_hand_eye(sub):
+    p = sub.add_parser(
+        "hand-eye",
+        help="A X = X B / A X = Z B with covariance and the clock offset",
+        description="ROBOT is T_base_tool, SENSOR is T_world_body of a body rigidly attached "
+        "to the tool: X = T_tool_body, Z = T_base_world, t_robot = t_sensor + offset_s. The "
+        "robot-world form is used when the two streams have different base frames.",
+    )
+    _add_pair(p, "robot", "sensor")
+    p.add_argument("--form", choices=("auto", "robot-world", "hand-eye"), default="auto")
+    p.add_argument("--offset", type=float, default=None, help="known clock offset, seconds")
+    p.add_argument(
+        "--fixed-offset", action="store_true", help="do not refine the offset (needs --offset)"
+    )
+    p.add_argument("--drift", action="store_true", help="also estimate a linear clock drift")
+    p.add_argument(
+        "--use",
+        type=Path,
+        help="evaluate a stored calibration (a --json output) on these recordings; "
+        "nothing is re-estimated",
+    )
+    p.add_argument("--min-pair-angle", type=float, default=5.0, help="degrees (hand-eye form)")
+    p.add_argument(
+        "--max-pair-span", type=float, default=2.0, help="seconds (hand-eye form motion pairs)"
+    )
+    p.set_defaults(func=run_hand_eye)
+
+
+def load_calibration(path: Path) -> dict:
+    """Read a ``calibrate hand-eye --json`` file; ``ValueError`` naming the file if malformed."""
+    from ..calibration.hand_eye import pose_from_json
+
+    try:
+        d = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON: {exc}") from exc
+    if not isinstance(d, dict) or "X" not in d or "offset_s" not in d:
+        raise ValueError(f"{path}: expected the keys of 'calibrate hand-eye --json' (X, offset_s)")
+    X = pose_from_json(d["X"], f"{path}: X").pose
+    Z = None if d.get("Z") is None else pose_from_json(d["Z"], f"{path}: Z").pose
+    return {"X": X, "Z": Z, "offset_s": float(d["offset_s"])}
+
+
+def run_hand_eye(args) -> int:
+    from ..calibration import evaluate_hand_eye, solve_hand_eye
+    from ..calibration.fragment import sensor_update, static_edge, write_fragment
+    from ..calibration.report import write_hand_eye_report
+
+    robot, sensor = load(args.robot, args.format, args.clean), load(args.sensor, None, args.clean)
+    if args.use:
+        c = load_calibration(args.use)
+        offset = c["offset_s"] if args.offset is None else args.offset
+        out = evaluate_hand_eye(robot, sensor, c["X"], c["Z"], offset)
+        if c["Z"] is not None:
+            out["pairs"] = evaluate_hand_eye(robot, sensor, c["X"], None, offset)
+        out["offset_s"] = offset
+        _print(out, args.json)
+        return 0
+    if args.fixed_offset and args.offset is None:
+        raise ValueError("--fixed-offset needs --offset")
+    r = solve_hand_eye(
+        robot,
+        sensor,
+        form=args.form,
+        offset_s=args.offset,
+        estimate_offset=not args.fixed_offset,
+        estimate_drift=args.drift,
+        max_offset_s=args.max_offset,
+        min_pair_angle_deg=args.min_pair_angle,
+        max_pair_span_s=args.max_pair_span,
+    )
+    if args.fragment:
+        statics = [static_edge("hand_eye_X", robot.target, sensor.target, r.X)]
+        if r.Z is not None:
+            statics.append(static_edge("hand_eye_Z", robot.source, sensor.source, r.Z))
+        write_fragment(
+            args.fragment,
+            statics=statics,
+            sensors=[sensor_update(args.sensor_name, r.offset_s)],
+            note=f"hand-eye calibration from {args.robot} and {args.sensor}",
+        )
+    if args.report:
+        write_hand_eye_report(args.report, r)
+    _print(r.to_json(), args.json)
+    return 0
+
+
+# -- align ----------------------------------------------------------------------------------
+
+
+def _register_align(sub):
+    p = sub.add_parser(
+        "align",
+        help="align trajectory B to A (Umeyama + refinement) with covariance and offset",
+        description="p_A(t) = s R p_B(t - offset) + t for positions of the same point; "
+        "prints T_A_B with covariance, scale, offset and the RMSE after alignment.",
+    )
+    _add_pair(p)
+    p.add_argument("--scale", action="store_true", help="also estimate a scale")
+    p.add_argument("--offset", type=float, default=None, help="known clock offset, seconds")
+    p.add_argument("--fixed-offset", action="store_true", help="do not refine the offset")
+    p.set_defaults(func=run_align)
+
+
+def run_align(args) -> int:
+    from ..calibration import align_trajectories
+    from ..calibration.fragment import sensor_update, static_edge, write_fragment
+
+    a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
+    r = align_trajectories(
+        a, b, with_scale=args.scale, offset_s=args.offset,
+        estimate_offset=not args.fixed_offset, max_offset_s=args.max_offset,
+    )  # fmt: skip
+    if args.fragment:
+        write_fragment(
+            args.fragment,
+            statics=[static_edge("alignment", a.source, b.source, r.T)],
+            sensors=[sensor_update(args.sensor_name, r.offset_s)],
+            note=f"alignment of {args.b} to {args.a}",
+        )
+    if args.report:
+        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+                         f"alignment: {r.residual_rmse_mm:.2f} mm RMSE", r.times_s)  # fmt: skip
+    _print(r.to_dict(), args.json)
+    return 0
+
+
+# -- noise ----------------------------------------------------------------------------------
+
+
+def _register_noise(sub):
+    p = sub.add_parser(
+        "noise",
+        help="per-axis measurement noise covariance from static segments or moving data",
+    )
+    add_input(p)
+    p.add_argument("--method", choices=("static", "dynamic", "innovation"), default="static")
+    p.add_argument("--max-speed", type=float, default=5.0, help="static: mm/s")
+    p.add_argument("--max-rate", type=float, default=1.0, help="static: deg/s")
+    p.add_argument("--min-segment", type=float, default=1.0, help="static: seconds")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--fragment", type=Path, help="write the sensor's covariance as a fragment")
+    p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
+    p.add_argument("--report", type=Path, help="write report.json and an error plot here")
+    p.set_defaults(func=run_noise)
+
+
+def run_noise(args) -> int:
+    from ..calibration import sensor_noise
+    from ..calibration.fragment import sensor_update, write_fragment
+
+    r = sensor_noise(
+        load(args.file, args.format, args.clean), args.method,
+        max_speed=args.max_speed * 1e-3, max_rate_deg=args.max_rate,
+        min_segment_s=args.min_segment,
+    )  # fmt: skip
+    if args.fragment:
+        write_fragment(
+            args.fragment,
+            sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
+            note=f"{args.method} noise of {args.file}",
+        )
+    if args.report:
+        _residual_report(args.report, r.to_dict(), r.errors, None, f"{args.method} noise samples")
+    _print(r.to_dict(), args.json)
+    return 0
+
+
+# -- pivot ----------------------------------------------------------------------------------
+
+
+def _register_pivot(sub):
+    p = sub.add_parser("pivot", help="tip offset of a pointer tool pivoted about its tip")
+    add_input(p)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--fragment", type=Path, help="write the tip as a static edge (fragment)")
+    p.add_argument("--tip-frame", default="tip", help="frame name of the tip in the fragment")
+    p.add_argument("--report", type=Path, help="write report.json and a residual plot here")
+    p.set_defaults(func=run_pivot)
+
+
+def run_pivot(args) -> int:
+    import numpy as np
+
+    from ..calibration import pivot_calibration
+    from ..calibration.fragment import static_edge, write_fragment
+    from ..math import Pose, UncertainPose
+
+    stream = load(args.file, args.format, args.clean)
+    r = pivot_calibration(stream)
+    if args.fragment:
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = r.covariance[:3, :3]
+        tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
+        write_fragment(args.fragment, statics=[static_edge("tip", stream.target, args.tip_frame,
+                       tip)], note=f"pivot calibration of {args.file}")  # fmt: skip
+    if args.report:
+        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+                         f"pivot: {r.residual_rms_mm:.2f} mm RMS")  # fmt: skip
+    _print(r.to_dict(), args.json)
+    return 0

@@ -1,0 +1,176 @@
+"""Hand-eye / robot-world-hand-eye: Jacobians, consistency on synthetic truth, degenerate input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _synth import X_TRUE, Z_TRUE, two_trackers
+from scipy import stats
+
+from trackflow.calibration import estimate_clock_offset, hand_eye_residuals, solve_hand_eye
+from trackflow.calibration.hand_eye import pair_residuals
+from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
+
+
+def _err(est, true):
+    """Error of an estimate in the conventions: t_true = t + dt, R_true = R Exp(dtheta)."""
+    dt = true[0] - est.position
+    dth = quat_log(quat_multiply(quat_conjugate(est.quaternion), true[1]))
+    return np.concatenate([dt, dth])
+
+
+def _perturb(pose, d):
+    return pose[0] + d[:3], quat_multiply(pose[1], quat_exp(d[3:]))
+
+
+def _random_poses(rng, n):
+    return rng.normal(0, 0.5, (n, 3)), quat_exp(rng.normal(0, 1.0, (n, 3)))
+
+
+def test_robot_world_jacobians_match_finite_differences():
+    rng = np.random.default_rng(3)
+    Ap, Aq = _random_poses(rng, 5)
+    Bp, Bq = _random_poses(rng, 5)
+    X = (rng.normal(size=3), quat_exp(rng.normal(size=3)))
+    Z = (rng.normal(size=3), quat_exp(rng.normal(size=3)))
+    v, w = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    r0, J_X, J_Z, J_off = hand_eye_residuals(Ap, Aq, Bp, Bq, X, Z, v, w, jacobians=True)
+    h = 1e-6
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        fx = (
+            hand_eye_residuals(Ap, Aq, Bp, Bq, _perturb(X, d), Z)
+            - hand_eye_residuals(Ap, Aq, Bp, Bq, _perturb(X, -d), Z)
+        ) / (2 * h)
+        fz = (
+            hand_eye_residuals(Ap, Aq, Bp, Bq, X, _perturb(Z, d))
+            - hand_eye_residuals(Ap, Aq, Bp, Bq, X, _perturb(Z, -d))
+        ) / (2 * h)
+        np.testing.assert_allclose(J_X[:, :, k], fx, atol=1e-6)
+        np.testing.assert_allclose(J_Z[:, :, k], fz, atol=1e-6)
+
+    # a later offset samples B earlier: B(off + h) = (p - h v, q Exp(-h w))
+    def shifted(s):
+        return hand_eye_residuals(Ap, Aq, Bp - s * v, quat_multiply(Bq, quat_exp(-s * w)), X, Z)
+
+    np.testing.assert_allclose(J_off, (shifted(h) - shifted(-h)) / (2 * h), atol=1e-6)
+
+
+def test_hand_eye_pair_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(4)
+    Ap, Aq = _random_poses(rng, 6)
+    Bp, Bq = _random_poses(rng, 6)
+    X = (rng.normal(size=3), quat_exp(rng.normal(size=3)))
+    _, J = pair_residuals(Ap, Aq, Bp, Bq, X, jacobians=True)
+    h = 1e-6
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        f = (
+            pair_residuals(Ap, Aq, Bp, Bq, _perturb(X, d))
+            - pair_residuals(Ap, Aq, Bp, Bq, _perturb(X, -d))
+        ) / (2 * h)
+        np.testing.assert_allclose(J[:, :, k], f, atol=1e-6)
+
+
+RUNS = 10
+
+
+@pytest.fixture(scope="module")
+def robot_world_runs():
+    out = []
+    for seed in range(RUNS):
+        a, b = two_trackers(seed, duration=20.0)
+        out.append(solve_hand_eye(a, b))
+    return out
+
+
+def _band(dof_per_run, n):
+    lo, hi = stats.chi2.ppf([0.025, 0.975], dof_per_run * n)
+    return lo / n, hi / n
+
+
+def test_robot_world_is_consistent_and_unbiased(robot_world_runs):
+    eX = np.array([_err(r.X, X_TRUE) for r in robot_world_runs])
+    eZ = np.array([_err(r.Z, Z_TRUE) for r in robot_world_runs])
+    neesX = [e @ np.linalg.solve(r.X.covariance, e) for e, r in zip(eX, robot_world_runs)]
+    neesZ = [e @ np.linalg.solve(r.Z.covariance, e) for e, r in zip(eZ, robot_world_runs)]
+    lo, hi = _band(6, RUNS)
+    assert lo <= np.mean(neesX) <= hi, (np.mean(neesX), lo, hi)
+    assert lo <= np.mean(neesZ) <= hi, (np.mean(neesZ), lo, hi)
+    # unbiased: the mean error of each component within 4 standard errors of zero
+    for e in (eX, eZ):
+        se = e.std(axis=0, ddof=1) / np.sqrt(RUNS)
+        assert np.all(np.abs(e.mean(axis=0)) <= 4 * se), (e.mean(axis=0), se)
+
+
+def test_offset_within_a_tenth_of_the_slower_period(robot_world_runs):
+    err = np.array([r.offset_s - 0.25 for r in robot_world_runs])
+    sig = np.array([r.offset_sigma_s for r in robot_world_runs])
+    assert np.all(np.abs(err) < 0.1 / 30.0)
+    lo, hi = _band(1, RUNS)
+    assert lo <= np.mean((err / sig) ** 2) <= hi
+
+
+def test_hand_eye_form_recovers_X():
+    a, b = two_trackers(11, duration=30.0)
+    r = solve_hand_eye(a, b, form="hand-eye")
+    assert r.Z is None and r.form == "hand-eye"
+    e = _err(r.X, X_TRUE)
+    assert e @ np.linalg.solve(r.X.covariance, e) < stats.chi2.ppf(0.999, 6)
+    assert abs(r.offset_s - 0.25) < 0.1 / 30.0
+
+
+def test_gaps_and_outliers_are_handled():
+    a, b = two_trackers(12, duration=25.0, gap=(8.0, 9.5))
+    r = solve_hand_eye(a, b)
+    e = _err(r.X, X_TRUE)
+    assert e @ np.linalg.solve(r.X.covariance, e) < stats.chi2.ppf(0.999, 6)
+    # corrupt 2 % of the sensor samples by 5 cm jumps: rejected, estimate still consistent
+    rng = np.random.default_rng(0)
+    p = np.array(b.position)
+    bad = rng.choice(len(p), len(p) // 50, replace=False)
+    p[bad] += rng.normal(0, 0.05, (len(bad), 3))
+    r2 = solve_hand_eye(a, b.with_(position=p))
+    e2 = _err(r2.X, X_TRUE)
+    assert r2.n_outliers >= len(bad) // 3
+    assert e2 @ np.linalg.solve(r2.X.covariance, e2) < stats.chi2.ppf(0.999, 6)
+
+
+def test_single_axis_rotation_is_a_clear_error():
+    a, b = two_trackers(5, duration=20.0, axes=(0, 0, 1))
+    with pytest.raises(ValueError, match="single axis"):
+        solve_hand_eye(a, b, offset_s=0.25)
+
+
+def test_too_little_rotation_is_a_clear_error():
+    a, b = two_trackers(5, duration=20.0, rot_amp=0.02)
+    with pytest.raises(ValueError, match="rotation"):
+        solve_hand_eye(a, b, offset_s=0.25, estimate_offset=False)
+
+
+def test_no_motion_is_a_clear_error_for_the_offset():
+    a, b = two_trackers(5, duration=20.0, rot_amp=0.0)
+    still = a.with_(position=np.broadcast_to(a.position[0], a.position.shape).copy())
+    with pytest.raises(ValueError, match="no motion"):
+        estimate_clock_offset(still, b.with_(position=np.zeros(b.position.shape)))
+
+
+def test_no_overlap_is_a_clear_error():
+    a, b = two_trackers(5, duration=10.0)
+    later = b.with_(t_ns=b.t_ns + 10**12)
+    with pytest.raises(ValueError, match="overlap"):
+        solve_hand_eye(a, later)
+
+
+@pytest.mark.parametrize("form", ["robot-world", "hand-eye"])
+def test_clock_drift_is_estimated_jointly(form):
+    a, b = two_trackers(2, duration=40.0, offset=0.2)
+    t = b.t_ns.astype(np.int64)
+    mid = t[len(t) // 2]
+    # b's clock runs 200 ppm fast: t_a = t_b + offset + drift (t_a - ref) with drift = -2e-4
+    fast = b.with_(t_ns=mid + np.round((t - mid) * (1 + 2e-4)).astype(np.int64))
+    r = solve_hand_eye(a, fast, form=form, estimate_drift=True)
+    assert abs(r.drift + 2e-4) < 4 * r.drift_sigma
+    assert abs(r.offset_s - 0.2) < 0.1 / 30.0
