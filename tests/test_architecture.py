@@ -20,6 +20,7 @@ LAYERS = {
     "dataflow": 2,
     "evaluation": 2,
     "demo": 3,
+    "calibration": 3,
     "cli": 4,
 }
 #: imports allowed between packages of one layer (importer -> imported)
