@@ -9,8 +9,8 @@ from ._evaluation import EvaluationFunction, covariance_trace, latency_rate, res
 from ._paths import Path, PathStep, find_paths, infer_motion
 from ._query import Query, select_paths
 from ._search import best_paths, shortest_path
-from ._synthetic import random_graph
 from ._srg import Edge, MotionSpec, SpatialRelationshipGraph
+from ._synthetic import random_graph
 
 __all__ = [
     "Edge",
