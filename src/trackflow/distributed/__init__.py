@@ -11,7 +11,7 @@ Needs the ``eclipse-zenoh`` package (``pip install trackflow[distributed]``); im
 this package works without it, opening an agent does not.
 """
 
-from .agent import Agent, EdgePublisher, QueryState, RemoteSource, remote_get
+from .agent import Agent, EdgePublisher, QueryState, RemoteSource, remote_get, run_agent
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
 from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
@@ -35,6 +35,7 @@ __all__ = [
     "load_agent",
     "parse_fragment",
     "remote_get",
+    "run_agent",
     "time_error_covariance",
     "twist_between",
     "zenoh_config",

@@ -48,7 +48,7 @@ from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
 
-__all__ = ["Agent", "QueryState", "remote_get"]
+__all__ = ["Agent", "EdgePublisher", "QueryState", "RemoteSource", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
 
@@ -139,6 +139,7 @@ class Agent:
         self.lost_messages = 0
         self.late_events = 0
         self.missed_ticks = 0
+        self.skipped_samples = 0
         self._publishers: dict[str, EdgePublisher] = {}
         self._own: set[str] = set()
         self.queries = {n: QueryState(n) for n in self.setup.queries}
@@ -310,7 +311,13 @@ class Agent:
             src.deliver(Measurement(int(t_ns), pose, int(t_ns)))
 
     def _play(self, player: RecordingPlayer) -> None:
+        """Deliver each sample at its arrival time on this agent's clock; samples more than
+        0.1 s in the past when the agent starts (a restarted agent) are skipped, counted."""
+        first = self.now_ns() - 100_000_000
         for arrival, idx in player.events():
+            if arrival < first:
+                self.skipped_samples += 1
+                continue
             while not self._stop.is_set():
                 delay = (arrival - self.now_ns()) * 1e-9
                 if delay <= 0:
@@ -683,6 +690,7 @@ class Agent:
                 "lost_messages": self.lost_messages,
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
+                "skipped_samples": self.skipped_samples,
                 "clocks": {
                     n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
                     for n, r in self._remotes.items()
@@ -711,3 +719,32 @@ def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0)
             return wire.decode(reply.ok.payload.to_bytes())
         errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
     raise ValueError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))
+
+
+def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=None) -> dict:
+    """Run an agent until ``duration_s`` passes, or (without a duration) until its recordings
+    have played, or forever if it has none; SIGTERM and Ctrl-C stop it cleanly. Returns the
+    final :meth:`Agent.status`. ``on_ready(agent)`` is called once it is running."""
+    import signal
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    agent = Agent(config).start()
+    try:
+        if on_ready is not None:
+            on_ready(agent)
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        while not stop.is_set():
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            if (
+                deadline is None
+                and agent._players
+                and not any(th.is_alive() for _, th in agent._players)
+            ):
+                break
+            stop.wait(0.1)
+        return agent.status()
+    finally:
+        agent.close()
+        signal.signal(signal.SIGTERM, previous)
