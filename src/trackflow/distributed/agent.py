@@ -310,6 +310,18 @@ class Agent:
             self.net.clock.now_ns = self.now_ns()
             src.deliver(Measurement(int(t_ns), pose, int(t_ns)))
 
+    def get(self, query: str, t_ns: int) -> Measurement | None:
+        """``get(t)`` of one of this agent's pull queries (``None``: no path or no result;
+        the status says why)."""
+        st = self.queries.get(query)
+        if st is None:
+            raise ValueError(f"agent {self.name!r} has no query {query!r}")
+        with self._lock:
+            if not isinstance(st.sink, PullSink):
+                return None
+            self.net.clock.now_ns = self.now_ns()
+            return st.sink.get(int(t_ns))
+
     def _play(self, player: RecordingPlayer) -> None:
         """Deliver each sample at its arrival time on this agent's clock; samples more than
         0.1 s in the past when the agent starts (a restarted agent) are skipped, counted."""
