@@ -480,11 +480,13 @@ class Agent:
                 plans[name] = plan
                 st.state, st.reason, st.paths = "running", "", paths
                 changed = True
-            if not changed:
+            new_sources = [
+                e for e in graph.edges if e.kind == "measured" and e.name not in self._sources
+            ]
+            if not changed and not new_sources:
                 return
-            for edge in graph.edges:
-                if edge.kind == "measured" and edge.name not in self._sources:
-                    self._subscribe(edge)
+            for edge in new_sources:
+                self._subscribe(edge)  # every live sensor: filters warm for a later re-plan
             net = self._rebuild_base()
             for name, st in self.queries.items():
                 if st.state != "running":
