@@ -153,6 +153,7 @@ class Agent:
         self._seq = itertools.count()
         self._remotes: dict[str, _Remote] = {}
         self._live: dict[str, str] = {}  # live remote measured edge -> agent
+        self._seen: dict[str, set[str]] = {}  # agent -> edges whose tokens are alive
         self._statics: dict[str, Edge] = {}  # remote static edges (kept after their agent left)
         self._sources: dict[str, Component] = {}
         self._filters: dict[str, KalmanFilter] = {}
@@ -386,7 +387,10 @@ class Agent:
                     rem.clock.add_round_trip(t0, remote, t1)
 
     def _worker(self) -> None:
-        """Discovery events, one at a time: fetch fragments, update the live set, re-plan."""
+        """Discovery events, one at a time: fetch fragments, update the live set, re-plan.
+
+        A token whose fragment cannot be fetched yet (the agent is still starting, or busy)
+        is tried again every 0.5 s for 30 s, then counted as a rejection."""
         import zenoh
 
         while True:
@@ -397,29 +401,37 @@ class Agent:
             if kind == "replan":
                 self._replan(item[1], item[2])
                 continue
-            _, agent, edge, t_event = item
+            _, agent, edge, t_event, *attempt = item
             if kind == "delete":
-                if agent in self._remotes and edge in self._remotes[agent].edges:
-                    e = self._remotes[agent].edges[edge]
-                    if e.kind == "measured" and self._live.get(edge) == agent:
-                        del self._live[edge]
-                        self._replan(f"sensor {edge} of agent {agent} left", t_event)
+                self._seen.get(agent, set()).discard(edge)
+                rem = self._remotes.get(agent)
+                if rem is not None and self._live.get(edge) == agent:
+                    del self._live[edge]
+                    self._replan(f"sensor {edge} of agent {agent} left", t_event)
                 continue
+            if attempt and edge not in self._seen.get(agent, set()):
+                continue  # the token went away while we waited
+            self._seen.setdefault(agent, set()).add(edge)
             rem = self._remotes.get(agent)
             if rem is None or edge not in rem.edges:
                 try:
                     rem = self._fetch_fragment(agent)
-                except zenoh.ZError as exc:  # the other agent went away meanwhile
-                    self.rejections.add(f"fragment query failed: {type(exc).__name__}")
+                except zenoh.ZError:  # the other agent went away meanwhile
                     rem = None
                 if rem is None or edge not in rem.edges:
-                    self.rejections.add("token without fragment edge")
+                    n = attempt[0] if attempt else 0
+                    if n >= 60:
+                        self.rejections.add("token without fragment edge")
+                    else:
+                        retry = ("put", agent, edge, t_event, n + 1)
+                        threading.Timer(0.5, self._work.put, args=(retry,)).start()
                     continue
-            e = rem.edges[edge]
-            if e.kind == "static":
-                self._statics[edge] = e
-            else:
-                self._live[edge] = agent
+            for name in sorted(self._seen[agent] & set(rem.edges)):
+                e = rem.edges[name]
+                if e.kind == "static":
+                    self._statics[name] = e
+                else:
+                    self._live[name] = agent
             if self._work.empty():  # re-plan once after a burst of appearances
                 self._replan(f"edge {edge} of agent {agent} appeared", t_event)
 
@@ -459,10 +471,13 @@ class Agent:
         return g
 
     def _replan(self, reason: str, t_event_ns: int) -> None:
+        """Plan every query on the current union graph; rebuild the dataflow if a plan
+        changed. Remote sensors are subscribed when a plan first uses them (only the rates
+        the queries need cross the network) and stay subscribed, so a later switch back
+        finds their filters warm."""
         graph = self.union_graph()
         with self._lock:
-            changed = False
-            plans = {}
+            changed, plans, used, new_events = False, {}, set(), []
             for name, q in self.setup.queries.items():
                 st = self.queries[name]
                 try:
@@ -474,36 +489,33 @@ class Agent:
                         changed = True
                         st.events.append(self._event(reason, t_event_ns, st))
                     continue
+                plans[name] = plan
+                used |= {s for p in plan.paths for s in p.sensors}
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue
-                plans[name] = plan
                 st.state, st.reason, st.paths = "running", "", paths
+                new_events.append(self._event(reason, t_event_ns, st))
+                st.events.append(new_events[-1])
                 changed = True
-            new_sources = [
-                e for e in graph.edges if e.kind == "measured" and e.name not in self._sources
-            ]
-            if not changed and not new_sources:
+            if not changed:
                 return
-            for edge in new_sources:
-                self._subscribe(edge)  # every live sensor: filters warm for a later re-plan
+            for edge in sorted(used - set(self._sources)):
+                self._subscribe(graph.edge(edge))
             net = self._rebuild_base()
-            for name, st in self.queries.items():
-                if st.state != "running":
-                    continue
-                plan = plans.get(name) or plan_query(graph, self.setup.queries[name])
+            for name, plan in plans.items():
+                st = self.queries[name]
                 st.generation += 1
                 callback = self._result_callback(name) if plan.query.mode == "push" else None
-                _, sink = plan.build(
+                _, st.sink = plan.build(
                     self._sources,
                     network=net,
                     prefix=f"{name}_g{st.generation}_",
                     callback=callback,
                 )
-                st.sink = sink
                 st.sampler = net.components.get(f"{name}_g{st.generation}_sampler")
-                if name in plans:
-                    st.events.append(self._event(reason, t_event_ns, st))
+            for event in new_events:  # the time the new plans took effect
+                event["replan_ms"] = (time.perf_counter_ns() - t_event_ns) * 1e-6
 
     @staticmethod
     def _event(reason: str, t_event_ns: int, st: QueryState) -> dict:

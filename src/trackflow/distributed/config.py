@@ -17,7 +17,8 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
       clock_offset_ms: 0        # shifts this agent's clock (emulates another host's clock)
 
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
-``tcp/127.0.0.1:0`` (loopback, a free port) and multicast scouting off.
+``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts
+retried every 0.25-1 s (agents may start in any order).
 """
 
 from __future__ import annotations
@@ -47,6 +48,10 @@ _AGENT_KEYS = {
 DEFAULT_ZENOH = {
     "mode": "peer",
     "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
+    # agents may start in any order: retry connecting every 0.25 s .. 1 s
+    "connect": {
+        "retry": {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
+    },
     "scouting": {"multicast": {"enabled": False}},
 }
 
@@ -78,12 +83,20 @@ class AgentConfig:
             raise ValueError(f"reorder_ms must be >= 0, got {self.reorder_ms}")
 
 
-def _flatten(prefix: str, value, out: dict) -> None:
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _flatten(f"{prefix}/{k}" if prefix else str(k), v, out)
-    else:
-        out[prefix] = value
+def _insert(conf, key: str, value) -> None:
+    """Set ``key`` (a ``a/b/c`` path) to ``value``: mappings key by key (so the other keys
+    keep their defaults), or as a whole where Zenoh has no such sub-keys yet (a null
+    default such as ``connect/retry``)."""
+    import zenoh
+
+    if isinstance(value, dict) and value:
+        try:
+            for k, v in value.items():
+                _insert(conf, f"{key}/{k}", v)
+            return
+        except zenoh.ZError:
+            pass
+    conf.insert_json5(key, json.dumps(value))
 
 
 def zenoh_config(cfg: AgentConfig):
@@ -98,12 +111,10 @@ def zenoh_config(cfg: AgentConfig):
         conf = zenoh.Config()
         layers = [DEFAULT_ZENOH, cfg.zenoh]
     for layer in layers:
-        flat: dict = {}
-        _flatten("", layer, flat)
-        for key, value in flat.items():
+        for key, value in layer.items():
             try:
-                conf.insert_json5(key, json.dumps(value))
-            except Exception as exc:  # zenoh raises its own ZError type
+                _insert(conf, str(key), value)
+            except zenoh.ZError as exc:
                 raise ValueError(f"zenoh config key {key!r} = {value!r}: {exc}") from None
     return conf
 

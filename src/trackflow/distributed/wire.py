@@ -47,7 +47,11 @@ VERSION = 1
 _FLAG_COV = 0x01
 _HEAD = struct.Struct("<2sBBQqqq7d")
 _COV = struct.Struct("<21d")
+_STAMPS = struct.Struct("<2sBBQqqq")
 _IU = np.triu_indices(6)
+_SYM = np.zeros((6, 6), dtype=np.intp)  # index of each entry of the 6x6 in the upper triangle
+_SYM[_IU] = np.arange(21)
+_SYM.T[_IU] = np.arange(21)
 
 
 class WireError(ValueError):
@@ -132,16 +136,11 @@ def decode(buf) -> WireSample:
         raise WireError("truncated", f"{len(b)} of {want} bytes")
     if len(b) != want:
         raise WireError("wrong length", f"{len(b)} instead of {want} bytes")
-    _, _, _, seq, exposure, host, origin, *pq = _HEAD.unpack_from(b)
-    values = np.array(pq)
-    cov = np.zeros((6, 6))
-    if flags & _FLAG_COV:
-        upper = np.array(_COV.unpack_from(b, _HEAD.size))
-        cov[_IU] = upper
-        cov.T[_IU] = upper
-        values = np.concatenate([values, upper])
+    _, _, _, seq, exposure, host, origin = _STAMPS.unpack_from(b)
+    values = np.frombuffer(b, "<f8", count=(want - _STAMPS.size) // 8, offset=_STAMPS.size)
     if not np.isfinite(values).all():
         raise WireError("non-finite")
+    cov = values[7 + _SYM] if len(values) > 7 else np.zeros((6, 6))
     try:
         pose = Pose(values[:3], values[3:7])
     except ValueError as exc:
