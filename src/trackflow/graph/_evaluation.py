@@ -55,7 +55,7 @@ def covariance_trace(weights=None) -> EvaluationFunction:
 
     def step_cost(edge, inverted: bool = False) -> float:
         c = edge.covariance
-        return float(np.trace(c) if a is None else np.trace(a @ c @ a.T))
+        return float(c.trace() if a is None else (a @ c @ a.T).trace())
 
     evaluate.__name__ = "covariance_trace" if a is None else "covariance_trace(A)"
     # The squared evaluation is this sum when every pose is identity; lever arms make it a

@@ -11,9 +11,10 @@
   removed.
 * Larger graphs, any other evaluation function (eq. 6.26, the propagated covariance, or a
   callable): a pruned search. Dijkstra on the function's additive proxy (``step_cost``: the
-  edge covariance's weighted trace, exact for identity poses; one per step otherwise) gives a
-  first path; each of its edges in turn is removed to give alternatives; the true function
-  scores these candidates and the best wins. This is a heuristic: it finds the optimum
+  edge covariance's weighted trace, exact for identity poses; one per step otherwise) gives
+  the proxy's best path and, through every edge, the best path using that edge
+  (:func:`via_edge_paths`); the true function scores the cheapest of these candidates and
+  the best wins. This is a heuristic: it finds the optimum
   whenever the proxy orders paths like the true function, and always returns a valid path.
 """
 
@@ -26,11 +27,15 @@ from collections.abc import Callable, Iterable
 from ._paths import Path, PathStep
 from ._srg import Edge, SpatialRelationshipGraph
 
-__all__ = ["best_paths", "shortest_path", "DEFAULT_BUDGET"]
+__all__ = ["DEFAULT_BUDGET", "best_paths", "shortest_path", "via_edge_paths"]
 
 #: Search steps the exhaustive listing of simple paths may take before the scalable search
 #: takes over (a few milliseconds of work).
 DEFAULT_BUDGET = 2_000
+#: Graphs with more edges skip the exhaustive listing (it would exceed the budget anyway).
+EXHAUSTIVE_MAX_EDGES = 200
+#: Paths a non-additive evaluation function scores exactly on a large graph.
+NON_ADDITIVE_CANDIDATES = 16
 
 StepCost = Callable[[Edge, bool], float]
 
@@ -77,35 +82,34 @@ def _all_simple_paths(
 def _tree(graph, root: str, step_cost: StepCost, banned: set[str], stop: str | None = None):
     """Dijkstra from ``root``: ``{frame: (cost, hops)}`` and ``{frame: (previous, edge,
     inverted)}``; stops early once ``stop`` is settled. Ties: fewer hops, then edge order."""
-    counter = itertools.count()
-    best: dict[str, tuple[float, int]] = {root: (0.0, 0)}
+    counter = itertools.count(1)
+    dist: dict[str, float] = {root: 0.0}
+    hop: dict[str, int] = {root: 0}
     back: dict[str, tuple[str, Edge, bool]] = {}
     heap = [(0.0, 0, 0, root)]
     done: set[str] = set()
     incident = graph._incident
+    push, pop = heapq.heappush, heapq.heappop
     while heap:
-        cost, hops, _, frame = heapq.heappop(heap)
+        cost, hops, _, frame = pop(heap)
         if frame in done:
             continue
         done.add(frame)
         if frame == stop:
             break
+        hops += 1
         for edge, inverted in incident.get(frame, ()):
-            if edge.name in banned:
-                continue
             nxt = edge.source if inverted else edge.target
-            if nxt in done:
+            if nxt in done or edge.name in banned:
                 continue
-            c = float(step_cost(edge, inverted))
-            if not c >= 0.0:
-                raise ValueError(f"step cost of edge {edge.name!r} must be >= 0, got {c}")
-            new = (cost + c, hops + 1)
-            old = best.get(nxt)
-            if old is None or new < old:
-                best[nxt] = new
+            c = cost + step_cost(edge, inverted)
+            old = dist.get(nxt)
+            if old is None or c < old or (c == old and hops < hop[nxt]):
+                dist[nxt] = c
+                hop[nxt] = hops
                 back[nxt] = (frame, edge, inverted)
-                heapq.heappush(heap, (new[0], new[1], next(counter), nxt))
-    return best, back
+                push(heap, (c, hops, next(counter), nxt))
+    return {f: (dist[f], hop[f]) for f in dist}, back
 
 
 def _steps_from_root(back, frame: str) -> list[PathStep]:
@@ -140,47 +144,78 @@ def shortest_path(
         ``None`` when no such path exists (or none was found among the candidates).
     """
     banned = set(banned)
+    step_cost = _memo(step_cost)
     if not need_sensor:
         best, back = _tree(graph, source, step_cost, banned, stop=target)
         if target not in best:
             return None
         return Path(tuple(_steps_from_root(back, target)))
+    return next(via_edge_paths(graph, source, target, step_cost, banned, True, candidates), None)
+
+
+def via_edge_paths(
+    graph: SpatialRelationshipGraph,
+    source: str,
+    target: str,
+    step_cost: StepCost = _hop,
+    banned: Iterable[str] = (),
+    measured_only: bool = False,
+    candidates: int = 64,
+):
+    """Distinct simple paths ``source ~> u -> v ~> target``, cheapest first, where ``u -> v``
+    runs over the edges (only measured ones with ``measured_only``) and ``~>`` are shortest
+    paths: two Dijkstra trees (from ``source`` and from ``target``) and one pass over the
+    edges. The ``candidates`` cheapest joins are tried; joins that revisit a frame are
+    skipped. A cheap, diverse set of good paths for scoring with a non-additive function."""
+    banned = set(banned)
+    step_cost = _memo(step_cost)
     d_s, back_s = _tree(graph, source, step_cost, banned)
+    if target not in d_s:
+        return
     d_t, back_t = _tree(graph, target, step_cost, banned)
     options = []
     for order, edge in enumerate(graph.edges):
-        if edge.kind != "measured" or edge.name in banned:
+        if (measured_only and edge.kind != "measured") or edge.name in banned:
             continue
         for inverted in (False, True):
             u, v = (edge.target, edge.source) if inverted else (edge.source, edge.target)
             if u in d_s and v in d_t:
-                c = d_s[u][0] + float(step_cost(edge, inverted)) + d_t[v][0]
+                c = d_s[u][0] + step_cost(edge, inverted) + d_t[v][0]
                 options.append((c, d_s[u][1] + d_t[v][1] + 1, order, inverted, edge))
     options.sort(key=lambda o: o[:4])
+    seen: set[tuple] = set()
     for _, _, _, inverted, edge in options[:candidates]:
         head = _steps_from_root(back_s, edge.target if inverted else edge.source)
         tail = [
             PathStep(s.edge, not s.inverted)
             for s in _steps_from_root(back_t, edge.source if inverted else edge.target)[::-1]
         ]
-        steps = [*head, PathStep(edge, inverted), *tail]
-        path = Path(tuple(steps))
-        if len(set(path.frames)) == len(path.frames):
-            return path
-    return None
+        path = Path((*head, PathStep(edge, inverted), *tail))
+        key = tuple((st.edge.name, st.inverted) for st in path.steps)
+        if key in seen or len(set(path.frames)) != len(path.frames):
+            continue
+        seen.add(key)
+        yield path
 
 
 def _memo(step_cost: StepCost) -> StepCost:
-    """``step_cost`` computed once per (edge, direction) across the searches of one query."""
+    """``step_cost`` computed once per (edge, direction) across the searches of one query,
+    and checked to be >= 0."""
+    if getattr(step_cost, "_memo", False):
+        return step_cost
     cache: dict[tuple[int, bool], float] = {}
 
     def cost(edge: Edge, inverted: bool) -> float:
         key = (id(edge), inverted)
         c = cache.get(key)
         if c is None:
-            c = cache[key] = float(step_cost(edge, inverted))
+            c = float(step_cost(edge, inverted))
+            if not c >= 0.0:
+                raise ValueError(f"step cost of edge {edge.name!r} must be >= 0, got {c}")
+            cache[key] = c
         return c
 
+    cost._memo = True
     return cost
 
 
@@ -225,7 +260,9 @@ def best_paths(
     fuse : bool
         Also return every further path sharing no sensor with a better one.
     budget : int
-        Search steps of the exhaustive listing before switching to the scalable search.
+        Search steps of the exhaustive listing before switching to the scalable search
+        (graphs of more than ``EXHAUSTIVE_MAX_EDGES`` edges go straight to it unless the
+        budget is at least a million).
 
     Raises
     ------
@@ -238,10 +275,12 @@ def best_paths(
     if source == target:
         raise ValueError(f"query from frame {source!r} to itself: the relationship is identity")
     banned = set(exclude)
-    try:
-        paths = _all_simple_paths(graph, source, target, banned, budget)
-    except _BudgetExceeded:
-        paths = None
+    paths = None
+    if len(graph.edges) <= EXHAUSTIVE_MAX_EDGES or budget >= 10**6:
+        try:
+            paths = _all_simple_paths(graph, source, target, banned, budget)
+        except _BudgetExceeded:
+            paths = None
     if paths is not None:
         if not paths:
             _raise_no_path(graph, source, target, banned)
@@ -254,11 +293,13 @@ def best_paths(
     if first is None:
         _raise_no_path(graph, source, target, banned)
     if not additive:
-        candidates = [first]
-        for step in first.steps:
-            alt = shortest_path(graph, source, target, step_cost, banned=banned | {step.edge.name})
-            if alt is not None:
-                candidates.append(alt)
+        # pruned search: the true function scores the best paths of its additive proxy
+        candidates = [
+            first,
+            *itertools.islice(
+                via_edge_paths(graph, source, target, step_cost, banned), NON_ADDITIVE_CANDIDATES
+            ),
+        ]
         first = _rank(candidates, evaluate)[0]
     if not fuse:
         return [first]
