@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -63,8 +64,6 @@ def test_sensor_and_query_on_two_hosts(tmp_path, two_hosts):
     realm = "hosts"
     port = 7447
     rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=60, seed=3)
-    import time
-
     start_ns = time.time_ns()
     a = write_agent(
         tmp_path / "a.yaml",
@@ -120,8 +119,8 @@ def test_sensor_and_query_on_two_hosts(tmp_path, two_hosts):
         )
 
     status = tmp_path / "status.json"
-    pa = agent(ns_a, a, 40)
-    pc = agent(ns_b, c, 25, status)
+    pa = agent(ns_a, a, 25)
+    pc = agent(ns_b, c, 12, status)
     try:
         pc.wait(timeout=90)
     finally:
@@ -134,5 +133,5 @@ def test_sensor_and_query_on_two_hosts(tmp_path, two_hosts):
     q = st["queries"]["q"]
     assert st["live_edges"] == {"s1": "sensor_host"}
     assert q["state"] == "running" and q["paths"] == ["W->X[s1]"]
-    assert q["published"] > 50
+    assert q["published"] > 25
     assert "sensor_host" in st["clocks"]
