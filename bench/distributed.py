@@ -462,7 +462,35 @@ def single_process(recordings: dict[str, Path]):
     return {int(m.t_ns): m.pose for m in rec.events}
 
 
-def bench_demo(work: Path, seconds: float, clock_sync: str) -> dict:
+def _plot_demo(path: Path, ref: dict, results: dict, common: list, clock_sync: str) -> None:
+    """Position of the answer (single process vs three agents) and their difference."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.array(common) * 1e-9
+    a = np.array([ref[k].position for k in common])
+    b = np.array([results[k].position for k in common])
+    diff = np.linalg.norm(a - b, axis=1) * 1e3
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for i, axis in enumerate("xyz"):
+        ax1.plot(t, a[:, i], lw=2.5, alpha=0.4, label=f"{axis}, one process")
+        ax1.plot(t, b[:, i], lw=0.8, label=f"{axis}, three agents")
+    ax1.set_ylabel("T_P_M position [m]")
+    ax1.legend(ncol=3, fontsize=8)
+    ax1.set_title(f"thesis demo split over three agent processes (clock_sync: {clock_sync})")
+    ax2.semilogy(t, np.maximum(diff, 1e-9), ".", ms=3)
+    ax2.axhline(0.1, color="r", lw=1, label="0.1 mm")
+    ax2.set_ylabel("|difference| [mm]")
+    ax2.set_xlabel("recording time [s]")
+    ax2.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = None) -> dict:
     from trackflow.distributed.wire import decode
 
     recs = make_demo_recordings(work, seconds)
@@ -521,6 +549,8 @@ def bench_demo(work: Path, seconds: float, clock_sync: str) -> dict:
             stop(p)
     ref = single_process(recs)
     common = sorted(set(ref) & set(results))
+    if plot is not None:
+        _plot_demo(plot, ref, results, common, clock_sync)
     dp = np.array([np.linalg.norm(ref[t].position - results[t].position) for t in common])
     da = np.array([quat_angle(ref[t].quaternion, results[t].quaternion) for t in common])
     return {
@@ -554,6 +584,8 @@ def main() -> int:
     ap.add_argument("--demo", action="store_true", help="also run the three-agent demo")
     ap.add_argument("--demo-seconds", type=float, default=30.0)
     ap.add_argument("--latency-seconds", type=float, default=10.0)
+    ap.add_argument("--only-demo", action="store_true", help="skip the other measurements")
+    ap.add_argument("--plot", type=Path, help="write the demo comparison (clock_sync none) here")
     ap.add_argument("--role", choices=("sender",), help=argparse.SUPPRESS)
     ap.add_argument("--realm", help=argparse.SUPPRESS)
     ap.add_argument("--listen", help=argparse.SUPPRESS)
@@ -564,6 +596,11 @@ def main() -> int:
         return 0
     work = Path(tempfile.mkdtemp(prefix="trackflow-distributed-"))
     try:
+        if args.only_demo:
+            for sync in ("none", "estimate"):
+                plot = args.plot if sync == "none" else None
+                print(json.dumps(bench_demo(work, args.demo_seconds, sync, plot), indent=2))
+            return 0
         plan = bench_plan()
         lat = bench_latency(args.latency_seconds, work)
         rep = bench_replan(work)

@@ -98,3 +98,18 @@ def test_cli_reports_bad_agent_files(tmp_path, capsys):
     assert main(["agent", str(p)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("trackflow: error:") and "unknown keys" in err and str(p) in err
+
+
+def test_cli_reports_a_port_in_use(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        p = tmp_path / "a.yaml"
+        endpoints = f"['tcp/127.0.0.1:{port}']"
+        p.write_text(f"agent: {{name: a, zenoh: {{listen: {{endpoints: {endpoints}}}}}}}\n")
+        assert main(["agent", str(p), "--duration", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "cannot open the Zenoh session" in err

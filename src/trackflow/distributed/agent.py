@@ -174,16 +174,27 @@ class Agent:
     def start(self) -> Agent:
         import zenoh
 
-        self.session = zenoh.open(zenoh_config(self.cfg))
+        conf = zenoh_config(self.cfg)
+        try:
+            self.session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            listen = conf.get_json("listen/endpoints")
+            raise RuntimeError(
+                f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
+            ) from None
         s, r = self.session, self.realm
         self._own_sensors()
         self._decl = [
             s.declare_queryable(_key(r, "fragment", self.name), self._on_fragment_query),
             s.declare_queryable(_key(r, "clock", self.name), self._on_clock_query),
             s.declare_queryable(_key(r, "status", self.name), self._on_status_query),
-            s.declare_queryable(_key(r, "query", "**"), self._on_pull_query),
-            s.declare_queryable(_key(r, "get", "**"), self._on_edge_get),
         ]
+        self._decl += [  # only what this agent can answer
+            s.declare_queryable(_key(r, "query", n), self._on_pull_query)
+            for n, q in self.setup.queries.items()
+            if q.mode == "pull"
+        ]
+        self._decl += [s.declare_queryable(_key(r, "get", n), self._on_edge_get) for n in self._own]
         self._tokens = [
             s.liveliness().declare_token(_key(r, "alive", self.name, e.name))
             for e in self.setup.graph.edges
