@@ -93,3 +93,18 @@ def test_fragment_round_trip_and_rejections():
     del bad["motion"]
     with pytest.raises(ValueError, match="missing or malformed field"):
         edge_from_dict(bad)
+
+
+def test_setup_players_read_recordings(tmp_path):
+    # Setup.players() reads each sensor's recording (read_stream returns (stream, report))
+    from _agents import write_recording
+
+    setup = load_setup(ROOT / "examples" / "demo_setup.yaml")
+    setup.recordings = {
+        "art": write_recording(tmp_path / "art.tfrec", "A", "T", rate_hz=60, duration_s=1),
+        "artoolkit": write_recording(tmp_path / "cam.tfrec", "C", "M", rate_hz=30, duration_s=1),
+    }
+    players = setup.players()
+    assert sorted(players) == ["art", "artoolkit"]
+    assert len(players["art"].t_ns) == 60
+    assert players["artoolkit"].latency_ns == 50_000_000
