@@ -382,7 +382,8 @@ class Agent:
             rem = self._remotes.get(agent) or _Remote(agent)
             rem.edges = {e.name: e for e in edges}
             rem.frames = frames
-            self._remotes[agent] = rem
+            with self._lock:
+                self._remotes[agent] = rem
             self._ping(rem, 5)
             return rem
         return None
@@ -415,9 +416,11 @@ class Agent:
             _, agent, edge, t_event, *attempt = item
             if kind == "delete":
                 self._seen.get(agent, set()).discard(edge)
-                rem = self._remotes.get(agent)
-                if rem is not None and self._live.get(edge) == agent:
-                    del self._live[edge]
+                with self._lock:  # status() reads these from other threads
+                    gone = self._live.get(edge) == agent
+                    if gone:
+                        del self._live[edge]
+                if gone:
                     self._replan(f"sensor {edge} of agent {agent} left", t_event)
                 continue
             if attempt and edge not in self._seen.get(agent, set()):
@@ -437,12 +440,13 @@ class Agent:
                         retry = ("put", agent, edge, t_event, n + 1)
                         threading.Timer(0.5, self._work.put, args=(retry,)).start()
                     continue
-            for name in sorted(self._seen[agent] & set(rem.edges)):
-                e = rem.edges[name]
-                if e.kind == "static":
-                    self._statics[name] = e
-                else:
-                    self._live[name] = agent
+            with self._lock:
+                for name in sorted(self._seen[agent] & set(rem.edges)):
+                    e = rem.edges[name]
+                    if e.kind == "static":
+                        self._statics[name] = e
+                    else:
+                        self._live[name] = agent
             if self._work.empty():  # re-plan once after a burst of appearances
                 self._replan(f"edge {edge} of agent {agent} appeared", t_event)
 
@@ -450,12 +454,13 @@ class Agent:
         import zenoh
 
         while not self._stop.wait(2.0):
-            for rem in list(self._remotes.values()):
-                if any(a == rem.name for a in self._live.values()):
-                    try:
-                        self._ping(rem, 1)
-                    except zenoh.ZError:  # the remote may be gone; next round
-                        continue
+            with self._lock:
+                remotes = [r for r in self._remotes.values() if r.name in self._live.values()]
+            for rem in remotes:
+                try:
+                    self._ping(rem, 1)
+                except zenoh.ZError:  # the remote may be gone; next round
+                    continue
 
     # -- planning -------------------------------------------------------------------------------
     def union_graph(self) -> SpatialRelationshipGraph:
@@ -486,8 +491,8 @@ class Agent:
         changed. Remote sensors are subscribed when a plan first uses them (only the rates
         the queries need cross the network) and stay subscribed, so a later switch back
         finds their filters warm."""
-        graph = self.union_graph()
         with self._lock:
+            graph = self.union_graph()
             changed, plans, used, new_events = False, {}, set(), []
             for name, q in self.setup.queries.items():
                 st = self.queries[name]

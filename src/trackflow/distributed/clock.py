@@ -18,6 +18,7 @@ not tied to the sensors' exposure times, so trackflow maps stamps with this expl
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 
 import numpy as np
@@ -34,10 +35,14 @@ class ClockOffset:
     ----------
     window : int
         Round trips kept; the one with the smallest round-trip time gives the estimate.
+
+    Safe to update from one thread while others read the estimate.
     """
 
     def __init__(self, window: int = 32):
         self._trips: deque[tuple[int, int]] = deque(maxlen=int(window))  # (rtt, offset)
+        self._lock = threading.Lock()
+        self._best_trip: tuple[int, int] | None = None  # read without the lock (atomic)
 
     def add_round_trip(self, t0_local_ns: int, remote_ns: int, t1_local_ns: int) -> None:
         """One exchange: local clock before, remote reading, local clock after [ns]."""
@@ -45,16 +50,19 @@ class ClockOffset:
         if rtt < 0:
             raise ValueError(f"round trip ends before it starts ({rtt} ns)")
         offset = int(remote_ns) - (int(t0_local_ns) + int(t1_local_ns)) // 2
-        self._trips.append((rtt, offset))
+        with self._lock:
+            self._trips.append((rtt, offset))
+            self._best_trip = min(self._trips)
 
     @property
     def known(self) -> bool:
-        return bool(self._trips)
+        return self._best_trip is not None
 
     def _best(self) -> tuple[int, int]:
-        if not self._trips:
+        best = self._best_trip
+        if best is None:
             raise ValueError("no clock round trip yet")
-        return min(self._trips)
+        return best
 
     @property
     def offset_ns(self) -> int:
