@@ -21,6 +21,7 @@ token disappears the affected queries re-plan at once (or report "no path" with 
 
 from __future__ import annotations
 
+import gc
 import heapq
 import itertools
 import json
@@ -772,6 +773,9 @@ def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=Non
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     agent = Agent(config).start()
+    # this process is the agent: everything allocated so far (modules, setup, plans) lives as
+    # long as it does, so keep it out of the collector's scans that stall the data path
+    gc.freeze()
     try:
         if on_ready is not None:
             on_ready(agent)
