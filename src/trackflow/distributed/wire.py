@@ -141,14 +141,15 @@ def decode(buf) -> WireSample:
     if not np.isfinite(values).all():
         raise WireError("non-finite")
     cov = values[7 + _SYM] if len(values) > 7 else np.zeros((6, 6))
-    try:
-        pose = Pose(values[:3], values[3:7])
-    except ValueError as exc:
-        raise WireError("non-unit quaternion", str(exc)) from None
-    try:
-        up = UncertainPose(pose, cov)
-    except ValueError as exc:
-        raise WireError("invalid covariance", str(exc)) from None
+    with np.errstate(over="ignore", invalid="ignore"):  # finite but huge garbage: rejected
+        try:
+            pose = Pose(values[:3], values[3:7])
+        except ValueError as exc:
+            raise WireError("non-unit quaternion", str(exc)) from None
+        try:
+            up = UncertainPose(pose, cov)
+        except ValueError as exc:
+            raise WireError("invalid covariance", str(exc)) from None
     return WireSample(seq, exposure, host, origin, up)
 
 
