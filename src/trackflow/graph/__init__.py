@@ -8,7 +8,9 @@ follow the thesis: eq. 2.5 (latency and update rate) and eq. 6.26 (propagated co
 from ._evaluation import EvaluationFunction, covariance_trace, latency_rate, resolve_evaluation
 from ._paths import Path, PathStep, find_paths, infer_motion
 from ._query import Query, select_paths
+from ._search import best_paths, shortest_path
 from ._srg import Edge, MotionSpec, SpatialRelationshipGraph
+from ._synthetic import random_graph
 
 __all__ = [
     "Edge",
@@ -18,10 +20,13 @@ __all__ = [
     "PathStep",
     "Query",
     "SpatialRelationshipGraph",
+    "best_paths",
     "covariance_trace",
     "find_paths",
     "infer_motion",
     "latency_rate",
+    "random_graph",
     "resolve_evaluation",
     "select_paths",
+    "shortest_path",
 ]

@@ -1,4 +1,9 @@
-"""Evaluation functions: a scalar per path, lower is better (thesis 2.1.2 and 6.4)."""
+"""Evaluation functions: a scalar per path, lower is better (thesis 2.1.2 and 6.4).
+
+An evaluation function may carry ``step_cost(edge, inverted) -> float`` (an additive cost per
+step, >= 0) and ``additive`` (True when the evaluation *is* the sum of the step costs). The path
+search uses them to scale to large graphs (:func:`trackflow.graph.best_paths`).
+"""
 
 from __future__ import annotations
 
@@ -23,10 +28,15 @@ def latency_rate(lam: float = 1.0) -> EvaluationFunction:
     if not np.isfinite(lam) or lam < 0:
         raise ValueError(f"lambda must be finite and >= 0, got {lam}")
 
+    def step_cost(edge, inverted: bool = False) -> float:
+        return edge.latency_s + lam / edge.rate_hz
+
     def evaluate(path: Path) -> float:
-        return float(sum(s.edge.latency_s + lam / s.edge.rate_hz for s in path.steps))
+        return float(sum(step_cost(s.edge) for s in path.steps))
 
     evaluate.__name__ = f"latency_rate(lambda={lam:g})"
+    evaluate.step_cost = step_cost  # the evaluation is this sum: exact shortest-path search
+    evaluate.additive = True
     return evaluate
 
 
@@ -43,7 +53,15 @@ def covariance_trace(weights=None) -> EvaluationFunction:
     def evaluate(path: Path) -> float:
         return float(evaluate_covariance(path.value().covariance, a))
 
+    def step_cost(edge, inverted: bool = False) -> float:
+        c = edge.covariance
+        return float(c.trace() if a is None else (a @ c @ a.T).trace())
+
     evaluate.__name__ = "covariance_trace" if a is None else "covariance_trace(A)"
+    # The squared evaluation is this sum when every pose is identity; lever arms make it a
+    # proxy only (the path search prunes with it and scores candidates exactly).
+    evaluate.step_cost = step_cost
+    evaluate.additive = False
     return evaluate
 
 

@@ -6,7 +6,8 @@ import math
 from dataclasses import dataclass, field
 
 from ._evaluation import EvaluationFunction, resolve_evaluation
-from ._paths import Path, find_paths
+from ._paths import Path
+from ._search import best_paths
 from ._srg import SpatialRelationshipGraph
 
 __all__ = ["Query", "select_paths"]
@@ -71,28 +72,15 @@ def select_paths(graph: SpatialRelationshipGraph, query: Query) -> list[Path]:
     Without ``fuse`` the single best path under the query's evaluation function; with
     ``fuse`` greedily every path (best first) sharing no sensor with an already chosen one.
     Ties are broken by path length and then by the path's text, so the choice is
-    deterministic.
+    deterministic. Small graphs are searched exhaustively; large ones with Dijkstra on the
+    evaluation function where it is additive and a pruned search where it is not
+    (:func:`trackflow.graph.best_paths`).
     """
-    paths = [
-        p
-        for p in find_paths(graph, query.source, query.target)
-        if not any(s.edge.name in query.exclude for s in p.steps)
-    ]
-    if not paths:
-        raise ValueError(
-            f"no path from frame {query.source!r} to frame {query.target!r} without the "
-            f"excluded edges {list(query.exclude)}"
-        )
-    scored = sorted(paths, key=lambda p: (query.evaluate(p), len(p), str(p)))
-    if not query.fuse:
-        return scored[:1]
-    chosen: list[Path] = []
-    used: set[str] = set()
-    for p in scored:
-        if p.sensors & used:
-            continue
-        if not p.sensors and chosen:
-            continue  # a purely static path adds no independent information twice
-        chosen.append(p)
-        used |= p.sensors
-    return chosen
+    return best_paths(
+        graph,
+        query.source,
+        query.target,
+        query.evaluate,
+        exclude=query.exclude,
+        fuse=query.fuse,
+    )

@@ -154,6 +154,7 @@ class SpatialRelationshipGraph:
     def __init__(self):
         self._frames: set[str] = set()
         self._edges: dict[str, Edge] = {}
+        self._incident: dict[str, list[tuple[Edge, bool]]] = {}
 
     # -- construction ---------------------------------------------------------------------------
     def add_frame(self, name: str) -> None:
@@ -169,6 +170,8 @@ class SpatialRelationshipGraph:
         self.add_frame(edge.source)
         self.add_frame(edge.target)
         self._edges[edge.name] = edge
+        self._incident.setdefault(edge.source, []).append((edge, False))
+        self._incident.setdefault(edge.target, []).append((edge, True))
         return edge
 
     def add_measured(self, name: str, source: str, target: str, **attributes) -> Edge:
@@ -209,11 +212,7 @@ class SpatialRelationshipGraph:
 
     def incident(self, frame: str) -> list[tuple[Edge, bool]]:
         """Edges leaving ``frame`` as ``(edge, inverted)``: forward edges ``frame -> x`` and
-        edges ``x -> frame`` traversed backwards (``inverted=True``)."""
-        out = []
-        for e in self._edges.values():
-            if e.source == frame:
-                out.append((e, False))
-            elif e.target == frame:
-                out.append((e, True))
-        return out
+        edges ``x -> frame`` traversed backwards (``inverted=True``), in insertion order.
+
+        An index kept by :meth:`add_edge`: O(degree), not O(edges)."""
+        return list(self._incident.get(frame, ()))

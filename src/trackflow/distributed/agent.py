@@ -1,0 +1,796 @@
+"""A trackflow agent: one process's part of a distributed tracking setup on Eclipse Zenoh.
+
+Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
+
+    trackflow/<realm>/alive/<agent>/<edge>   liveliness token per edge the agent provides
+    trackflow/<realm>/fragment/<agent>       queryable: the agent's SRG fragment (JSON)
+    trackflow/<realm>/clock/<agent>          queryable: the agent's clock reading (int64 ns)
+    trackflow/<realm>/edge/<edge>            pub/sub: measurements of a sensor (docs/wire.md)
+    trackflow/<realm>/get/<edge>?t=<ns>      queryable: the sensor filter's get(t) (wire)
+    trackflow/<realm>/query/<query>?t=<ns>   queryable: a pull query's get(t) (wire)
+    trackflow/<realm>/result/<query>         pub/sub: a push query's results (wire)
+    trackflow/<realm>/status/<agent>         queryable: plans, re-plans and counters (JSON)
+
+Every agent assembles the union graph of the live fragments (discovered through the tokens,
+fetched from the fragment queryables) and plans its own queries with
+:func:`trackflow.dataflow.plan_query`. Measured edges of other agents enter its dataflow as
+remote sources fed by subscriptions; each sensor's Kalman filter runs where the sensor is
+(answering ``get/<edge>``) and, for time alignment, at each consumer of a push query. When a
+token disappears the affected queries re-plan at once (or report "no path" with the reason).
+"""
+
+from __future__ import annotations
+
+import gc
+import heapq
+import itertools
+import json
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..dataflow import (
+    Component,
+    KalmanFilter,
+    Measurement,
+    Network,
+    PullSink,
+    Recorder,
+    RecordingPlayer,
+    plan_query,
+)
+from ..graph import Edge, SpatialRelationshipGraph
+from ..math import UncertainPose
+from . import wire
+from .clock import ClockOffset, time_error_covariance, twist_between
+from .config import AgentConfig, zenoh_config
+from .fragment import fragment_json, parse_fragment
+
+__all__ = ["Agent", "EdgePublisher", "QueryState", "RemoteSource", "remote_get", "run_agent"]
+
+_SENSOR, _TICK = 0, 1
+
+
+def _key(realm: str, *parts: str) -> str:
+    return "/".join(("trackflow", realm, *parts))
+
+
+class RemoteSource(Component):
+    """A measured edge of another agent: pushes what its subscription receives."""
+
+    push_out = True
+    kind = "remote source"
+
+    def deliver(self, m: Measurement) -> None:
+        self.stats.events_in += 1
+        self.emit(m)
+
+
+class EdgePublisher(Component):
+    """Publishes every pushed measurement of an own sensor on ``edge/<name>`` (wire format);
+    the host stamp is the network clock at the push (the sample's arrival)."""
+
+    push_in = 1
+    kind = "edge publisher"
+
+    def __init__(self, name: str, publisher):
+        super().__init__(name)
+        self.publisher = publisher
+        self.seq = 0
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        self.stats.events_in += 1
+        self.seq += 1
+        buf = wire.encode(
+            m.pose,
+            seq=self.seq,
+            exposure_ns=m.t_ns,
+            host_ns=self.clock.now_ns,
+            origin_ns=m.origin_ns,
+        )
+        self.publisher.put(buf)
+        self.stats.events_out += 1
+
+
+@dataclass
+class QueryState:
+    """The current plan of one of the agent's queries and its history of re-plans."""
+
+    name: str
+    state: str = "waiting"  # "running", "no path"
+    reason: str = ""
+    paths: list[str] = field(default_factory=list)
+    sink: object = None
+    sampler: object = None
+    generation: int = 0
+    events: list[dict] = field(default_factory=list)
+    published: int = 0
+    last: Measurement | None = None
+
+
+@dataclass
+class _Remote:
+    """What the agent knows about another agent."""
+
+    name: str
+    edges: dict[str, Edge] = field(default_factory=dict)
+    frames: list[str] = field(default_factory=list)
+    clock: ClockOffset = field(default_factory=ClockOffset)
+
+
+class Agent:
+    """One agent (see the module docstring). Use as a context manager or call :meth:`start`
+    and :meth:`close`.
+
+    Parameters
+    ----------
+    config : AgentConfig
+        Name, realm, Zenoh configuration and the setup fragment (own sensors, statics, queries).
+    """
+
+    def __init__(self, config: AgentConfig):
+        self.cfg = config
+        self.name = config.name
+        self.realm = config.realm
+        self.setup = config.setup
+        self.rejections = wire.Rejections()
+        self.lost_messages = 0
+        self.late_events = 0
+        self.missed_ticks = 0
+        self.skipped_samples = 0
+        self._publishers: dict[str, EdgePublisher] = {}
+        self._own: set[str] = set()
+        self.queries = {n: QueryState(n) for n in self.setup.queries}
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._work: queue.Queue = queue.Queue()
+        self._clock_offset_ns = int(round(config.clock_offset_ms * 1e6))
+        self._reorder_ns = int(round(config.reorder_ms * 1e6))
+        self._heap: list = []
+        self._heap_cv = threading.Condition(self._lock)
+        self._seq = itertools.count()
+        self._remotes: dict[str, _Remote] = {}
+        self._live: dict[str, str] = {}  # live remote measured edge -> agent
+        self._seen: dict[str, set[str]] = {}  # agent -> edges whose tokens are alive
+        self._statics: dict[str, Edge] = {}  # remote static edges (kept after their agent left)
+        self._sources: dict[str, Component] = {}
+        self._filters: dict[str, KalmanFilter] = {}
+        self._last_seq: dict[str, int] = {}
+        self._last_pose: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
+        self._subs: dict[str, object] = {}
+        self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
+        self._threads: list[threading.Thread] = []
+        self.net = Network()
+        self.session = None
+
+    # -- clock ----------------------------------------------------------------------------------
+    def now_ns(self) -> int:
+        """This agent's clock [ns]: Unix time (plus the configured test offset)."""
+        return time.time_ns() + self._clock_offset_ns
+
+    # -- life cycle -----------------------------------------------------------------------------
+    def start(self) -> Agent:
+        import zenoh
+
+        conf = zenoh_config(self.cfg)
+        try:
+            self.session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            listen = conf.get_json("listen/endpoints")
+            raise RuntimeError(
+                f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
+            ) from None
+        s, r = self.session, self.realm
+        self._own_sensors()
+        self._decl = [
+            s.declare_queryable(_key(r, "fragment", self.name), self._on_fragment_query),
+            s.declare_queryable(_key(r, "clock", self.name), self._on_clock_query),
+            s.declare_queryable(_key(r, "status", self.name), self._on_status_query),
+        ]
+        self._decl += [  # only what this agent can answer
+            s.declare_queryable(_key(r, "query", n), self._on_pull_query)
+            for n, q in self.setup.queries.items()
+            if q.mode == "pull"
+        ]
+        self._decl += [s.declare_queryable(_key(r, "get", n), self._on_edge_get) for n in self._own]
+        self._tokens = [
+            s.liveliness().declare_token(_key(r, "alive", self.name, e.name))
+            for e in self.setup.graph.edges
+        ]
+        self._tokens.append(s.liveliness().declare_token(_key(r, "agent", self.name)))
+        self._results = {
+            n: s.declare_publisher(_key(r, "result", n))
+            for n, q in self.setup.queries.items()
+            if q.mode == "push"
+        }
+        for target in (self._worker, self._pump, self._clock_loop):
+            th = threading.Thread(target=target, name=f"{self.name}-{target.__name__}", daemon=True)
+            th.start()
+            self._threads.append(th)
+        self._work.put(("replan", "start", time.perf_counter_ns()))
+        self._discovery = s.liveliness().declare_subscriber(
+            _key(r, "alive", "**"), self._on_liveliness, history=True
+        )
+        for _, th in self._players:
+            th.start()
+        return self
+
+    def close(self) -> None:
+        """Stop every thread and close the Zenoh session (tokens disappear for the others)."""
+        self._stop.set()
+        with self._heap_cv:
+            self._heap_cv.notify_all()
+        self._work.put(("stop",))
+        for _, th in self._players:
+            if th.is_alive():
+                th.join(timeout=2.0)
+        for th in self._threads:
+            th.join(timeout=2.0)
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    def __enter__(self) -> Agent:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def wait(self, timeout_s: float | None = None) -> None:
+        """Block until the recordings have played (or ``timeout_s``; forever without
+        recordings and timeout)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        for _, th in self._players:
+            th.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        if not self._players:
+            self._stop.wait(timeout_s)
+
+    # -- own sensors ----------------------------------------------------------------------------
+    def _own_sensors(self) -> None:
+        """A source, its Kalman filter (answering get/<edge>) and a publisher per own sensor;
+        recordings are played in real time from ``start_ns``."""
+        from ..io import read_stream
+
+        for edge in self.setup.graph.edges:
+            if edge.kind != "measured":
+                continue
+            path = self.setup.recordings.get(edge.name)
+            if path is not None:
+                stream, _ = read_stream(path)
+                src = RecordingPlayer.from_stream(
+                    edge.name, stream, int(round(edge.latency_s * 1e9)), covariance=edge.covariance
+                )
+                src = RecordingPlayer(
+                    edge.name,
+                    src.t_ns + self.cfg.start_ns,
+                    src.position,
+                    src.quaternion,
+                    src.covariance,
+                    src.latency_ns,
+                )
+                th = threading.Thread(target=self._play, args=(src,), daemon=True)
+                self._players.append((src, th))
+            else:
+                src = RemoteSource(edge.name)
+                src.kind = "live source"
+            self._sources[edge.name] = src
+            self._filters[edge.name] = self._make_filter(edge)
+            self._own.add(edge.name)
+            self._publishers[edge.name] = EdgePublisher(
+                f"publish_{edge.name}",
+                self.session.declare_publisher(_key(self.realm, "edge", edge.name)),
+            )
+        with self._lock:
+            self._rebuild_base()
+
+    @staticmethod
+    def _make_filter(edge: Edge) -> KalmanFilter:
+        return KalmanFilter(
+            f"kf_{edge.name}",
+            edge.motion,
+            role="predictor",
+            stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9)),
+        )
+
+    def _rebuild_base(self) -> Network:
+        """A fresh network holding every source with its filter (kept across re-plans, so
+        their state survives) and the publishers of own sensors."""
+        net = Network()
+        for name, src in self._sources.items():
+            src.consumers = []
+            kf = self._filters[name]
+            kf.consumers = []
+            net.add(src)
+            net.add(kf)
+            net.connect(src, kf, mode="push")
+            pub = self._publishers.get(name)
+            if pub is not None:
+                pub.consumers = []
+                net.add(pub)
+                net.connect(src, pub, mode="push")
+        self.net = net
+        return net
+
+    def feed(self, edge: str, t_ns: int, pose: UncertainPose) -> None:
+        """Push a live measurement of an own sensor (stamped ``t_ns`` on this agent's clock)."""
+        src = self._sources.get(edge)
+        if not isinstance(src, RemoteSource):
+            raise ValueError(f"agent {self.name!r} has no live sensor {edge!r}")
+        with self._lock:
+            self.net.clock.now_ns = self.now_ns()
+            src.deliver(Measurement(int(t_ns), pose, int(t_ns)))
+
+    def get(self, query: str, t_ns: int) -> Measurement | None:
+        """``get(t)`` of one of this agent's pull queries (``None``: no path or no result;
+        the status says why)."""
+        st = self.queries.get(query)
+        if st is None:
+            raise ValueError(f"agent {self.name!r} has no query {query!r}")
+        with self._lock:
+            if not isinstance(st.sink, PullSink):
+                return None
+            self.net.clock.now_ns = self.now_ns()
+            return st.sink.get(int(t_ns))
+
+    def _play(self, player: RecordingPlayer) -> None:
+        """Deliver each sample at its arrival time on this agent's clock; samples more than
+        0.1 s in the past when the agent starts (a restarted agent) are skipped, counted."""
+        first = self.now_ns() - 100_000_000
+        for arrival, idx in player.events():
+            if arrival < first:
+                self.skipped_samples += 1
+                continue
+            while not self._stop.is_set():
+                delay = (arrival - self.now_ns()) * 1e-9
+                if delay <= 0:
+                    break
+                self._stop.wait(min(delay, 0.5))
+            if self._stop.is_set():
+                return
+            with self._lock:
+                self.net.clock.now_ns = arrival
+                player.deliver(idx)
+
+    # -- discovery ------------------------------------------------------------------------------
+    def _on_liveliness(self, sample) -> None:
+        import zenoh
+
+        parts = str(sample.key_expr).split("/")
+        if len(parts) != 5:
+            self.rejections.add("malformed liveliness key")
+            return
+        agent, edge = parts[3], parts[4]
+        if agent == self.name:
+            return
+        if sample.kind == zenoh.SampleKind.DELETE:
+            self._work.put(("delete", agent, edge, time.perf_counter_ns()))
+        else:
+            self._work.put(("put", agent, edge, time.perf_counter_ns()))
+
+    def _fetch_fragment(self, agent: str) -> _Remote | None:
+        replies = self.session.get(_key(self.realm, "fragment", agent), timeout=2.0)
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                name, frames, edges = parse_fragment(reply.ok.payload.to_bytes())
+            except ValueError:
+                self.rejections.add("malformed fragment")
+                continue
+            rem = self._remotes.get(agent) or _Remote(agent)
+            rem.edges = {e.name: e for e in edges}
+            rem.frames = frames
+            with self._lock:
+                self._remotes[agent] = rem
+            self._ping(rem, 5)
+            return rem
+        return None
+
+    def _ping(self, rem: _Remote, n: int) -> None:
+        for _ in range(n):
+            t0 = self.now_ns()
+            replies = list(self.session.get(_key(self.realm, "clock", rem.name), timeout=1.0))
+            t1 = self.now_ns()
+            for reply in replies:
+                if reply.ok is not None and len(reply.ok.payload.to_bytes()) == 8:
+                    remote = int.from_bytes(reply.ok.payload.to_bytes(), "little", signed=True)
+                    rem.clock.add_round_trip(t0, remote, t1)
+
+    def _worker(self) -> None:
+        """Discovery events, one at a time: fetch fragments, update the live set, re-plan.
+
+        A token whose fragment cannot be fetched yet (the agent is still starting, or busy)
+        is tried again every 0.5 s for 30 s, then counted as a rejection."""
+        import zenoh
+
+        while True:
+            item = self._work.get()
+            if item[0] == "stop" or self._stop.is_set():
+                return
+            kind = item[0]
+            if kind == "replan":
+                self._replan(item[1], item[2])
+                continue
+            _, agent, edge, t_event, *attempt = item
+            if kind == "delete":
+                self._seen.get(agent, set()).discard(edge)
+                with self._lock:  # status() reads these from other threads
+                    gone = self._live.get(edge) == agent
+                    if gone:
+                        del self._live[edge]
+                if gone:
+                    self._replan(f"sensor {edge} of agent {agent} left", t_event)
+                continue
+            if attempt and edge not in self._seen.get(agent, set()):
+                continue  # the token went away while we waited
+            self._seen.setdefault(agent, set()).add(edge)
+            rem = self._remotes.get(agent)
+            if rem is None or edge not in rem.edges:
+                try:
+                    rem = self._fetch_fragment(agent)
+                except zenoh.ZError:  # the other agent went away meanwhile
+                    rem = None
+                if rem is None or edge not in rem.edges:
+                    n = attempt[0] if attempt else 0
+                    if n >= 60:
+                        self.rejections.add("token without fragment edge")
+                    else:
+                        retry = ("put", agent, edge, t_event, n + 1)
+                        threading.Timer(0.5, self._work.put, args=(retry,)).start()
+                    continue
+            with self._lock:
+                for name in sorted(self._seen[agent] & set(rem.edges)):
+                    e = rem.edges[name]
+                    if e.kind == "static":
+                        self._statics[name] = e
+                    else:
+                        self._live[name] = agent
+            if self._work.empty():  # re-plan once after a burst of appearances
+                self._replan(f"edge {edge} of agent {agent} appeared", t_event)
+
+    def _clock_loop(self) -> None:
+        import zenoh
+
+        while not self._stop.wait(2.0):
+            with self._lock:
+                remotes = [r for r in self._remotes.values() if r.name in self._live.values()]
+            for rem in remotes:
+                try:
+                    self._ping(rem, 1)
+                except zenoh.ZError:  # the remote may be gone; next round
+                    continue
+
+    # -- planning -------------------------------------------------------------------------------
+    def union_graph(self) -> SpatialRelationshipGraph:
+        """Own edges, live remote sensors and every static edge learned so far."""
+        g = SpatialRelationshipGraph()
+        for f in self.setup.graph.frames:
+            g.add_frame(f)
+        names = set()
+        for e in self.setup.graph.edges:
+            g.add_edge(e)
+            names.add(e.name)
+        for e in self._statics.values():
+            if e.name not in names:
+                g.add_edge(e)
+                names.add(e.name)
+        for edge, agent in sorted(self._live.items()):
+            e = self._remotes[agent].edges[edge]
+            if e.name not in names:
+                g.add_edge(e)
+                names.add(e.name)
+        for rem in self._remotes.values():
+            for f in rem.frames:
+                g.add_frame(f)
+        return g
+
+    def _replan(self, reason: str, t_event_ns: int) -> None:
+        """Plan every query on the current union graph; rebuild the dataflow if a plan
+        changed. Remote sensors are subscribed when a plan first uses them (only the rates
+        the queries need cross the network) and stay subscribed, so a later switch back
+        finds their filters warm."""
+        with self._lock:
+            graph = self.union_graph()
+            changed, plans, used, new_events = False, {}, set(), []
+            for name, q in self.setup.queries.items():
+                st = self.queries[name]
+                try:
+                    plan = plan_query(graph, q)
+                except ValueError as exc:
+                    if st.state != "no path" or st.reason != str(exc):
+                        st.state, st.reason, st.paths = "no path", str(exc), []
+                        st.sink = st.sampler = None
+                        changed = True
+                        st.events.append(self._event(reason, t_event_ns, st))
+                    continue
+                plans[name] = plan
+                used |= {s for p in plan.paths for s in p.sensors}
+                paths = [str(p) for p in plan.paths]
+                if st.state == "running" and paths == st.paths:
+                    continue
+                st.state, st.reason, st.paths = "running", "", paths
+                new_events.append(self._event(reason, t_event_ns, st))
+                st.events.append(new_events[-1])
+                changed = True
+            if not changed:
+                return
+            for edge in sorted(used - set(self._sources)):
+                self._subscribe(graph.edge(edge))
+            net = self._rebuild_base()
+            for name, plan in plans.items():
+                st = self.queries[name]
+                st.generation += 1
+                callback = self._result_callback(name) if plan.query.mode == "push" else None
+                _, st.sink = plan.build(
+                    self._sources,
+                    network=net,
+                    prefix=f"{name}_g{st.generation}_",
+                    callback=callback,
+                )
+                st.sampler = net.components.get(f"{name}_g{st.generation}_sampler")
+            for event in new_events:  # the time the new plans took effect
+                event["replan_ms"] = (time.perf_counter_ns() - t_event_ns) * 1e-6
+
+    @staticmethod
+    def _event(reason: str, t_event_ns: int, st: QueryState) -> dict:
+        return {
+            "reason": reason,
+            "state": st.state,
+            "detail": st.reason,
+            "paths": list(st.paths),
+            "replan_ms": (time.perf_counter_ns() - t_event_ns) * 1e-6,
+        }
+
+    def _subscribe(self, edge: Edge) -> None:
+        if edge.name in self._sources:
+            return
+        self._sources[edge.name] = RemoteSource(edge.name)
+        self._filters[edge.name] = self._make_filter(edge)
+        self._subs[edge.name] = self.session.declare_subscriber(
+            _key(self.realm, "edge", edge.name),
+            lambda sample, name=edge.name: self._on_measurement(name, sample),
+        )
+
+    # -- data path ------------------------------------------------------------------------------
+    def _on_measurement(self, edge: str, sample) -> None:
+        try:
+            s = wire.decode(sample.payload.to_bytes())
+        except wire.WireError as exc:
+            self.rejections.add(exc.reason)
+            return
+        agent = self._live.get(edge)
+        rem = self._remotes.get(agent) if agent is not None else None
+        if rem is None:
+            self.rejections.add("sensor not live")
+            return
+        offset, sigma = 0, 0.0
+        if self.cfg.clock_sync == "estimate":
+            if not rem.clock.known:
+                self.rejections.add("clock offset not yet estimated")
+                return
+            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+        last = self._last_seq.get(edge)
+        if last is not None and s.seq > last + 1:
+            self.lost_messages += s.seq - last - 1
+        self._last_seq[edge] = s.seq
+        t = s.exposure_ns - offset
+        pose = s.pose
+        prev = self._last_pose.get(edge)
+        self._last_pose[edge] = (t, pose.position, pose.quaternion)
+        if sigma > 0 and prev is not None:
+            xi = twist_between(
+                prev[1], prev[2], pose.position, pose.quaternion, (t - prev[0]) * 1e-9
+            )
+            pose = UncertainPose(pose.pose, pose.covariance + time_error_covariance(xi, sigma))
+        m = Measurement(t, pose, s.origin_ns - offset)
+        arrival = s.host_ns - offset
+        if self._reorder_ns <= 0:
+            with self._lock:
+                self.net.clock.now_ns = self.now_ns()
+                self._deliver(edge, m)
+            return
+        with self._heap_cv:
+            if self.now_ns() > arrival + self._reorder_ns:
+                self.late_events += 1  # later than the jitter buffer: delivered out of order
+            heapq.heappush(self._heap, (arrival, _SENSOR, next(self._seq), (edge, m)))
+            self._heap_cv.notify()
+
+    def _deliver(self, edge: str, m: Measurement) -> None:
+        src = self._sources.get(edge)
+        if isinstance(src, RemoteSource):
+            src.deliver(m)
+
+    def _pump(self) -> None:
+        """Ticks push-query samplers on this agent's clock and releases reordered
+        measurements ``reorder_ms`` after their arrival stamp, in time order (sensor events
+        before ticks at equal times, as the single-process scheduler orders them)."""
+        period = {
+            n: int(round(1e9 / q.rate_hz))
+            for n, q in self.setup.queries.items()
+            if q.mode == "push"
+        }
+        with self._heap_cv:
+            now = self.now_ns()
+            for n, p in period.items():
+                heapq.heappush(self._heap, ((now // p + 1) * p, _TICK, next(self._seq), n))
+            while not self._stop.is_set():
+                if not self._heap:
+                    self._heap_cv.wait(0.05)
+                    continue
+                key, kind, _, payload = self._heap[0]
+                wait = (key + self._reorder_ns - self.now_ns()) * 1e-9
+                if wait > 0:
+                    self._heap_cv.wait(min(wait, 0.05))
+                    continue
+                heapq.heappop(self._heap)
+                self.net.clock.now_ns = key
+                if kind == _SENSOR:
+                    self._deliver(*payload)
+                    continue
+                p = period[payload]
+                now = self.now_ns()
+                if now - key - self._reorder_ns > max(p, 50_000_000):
+                    self.missed_ticks += 1  # the agent was stalled: skip to the present
+                    nxt = (now - self._reorder_ns) // p * p + p
+                else:
+                    self._tick(payload, key)
+                    nxt = key + p
+                heapq.heappush(self._heap, (nxt, _TICK, next(self._seq), payload))
+
+    def _tick(self, name: str, t_ns: int) -> None:
+        st = self.queries[name]
+        if st.sampler is not None:
+            st.sampler.tick(t_ns)
+
+    def _result_callback(self, name: str):
+        pub = self._results[name]
+        st = self.queries[name]
+
+        def publish(m: Measurement) -> None:
+            st.published += 1
+            st.last = m
+            if isinstance(st.sink, Recorder):
+                st.sink.events.clear()  # results leave on the network; keep memory flat
+            buf = wire.encode(
+                m.pose,
+                seq=st.published,
+                exposure_ns=m.t_ns,
+                host_ns=self.now_ns(),
+                origin_ns=m.origin_ns,
+            )
+            pub.put(buf)
+
+        return publish
+
+    # -- queryables -----------------------------------------------------------------------------
+    def _on_fragment_query(self, query) -> None:
+        query.reply(query.key_expr, fragment_json(self.name, self.setup.graph))
+
+    def _on_clock_query(self, query) -> None:
+        query.reply(query.key_expr, self.now_ns().to_bytes(8, "little", signed=True))
+
+    def _on_status_query(self, query) -> None:
+        query.reply(query.key_expr, json.dumps(self.status()).encode())
+
+    def _time_parameter(self, query) -> int | None:
+        try:
+            return int(str(query.parameters.get("t")))
+        except (TypeError, ValueError):
+            return None
+
+    def _on_pull_query(self, query) -> None:
+        name = str(query.key_expr).rsplit("/", 1)[-1]
+        st = self.queries.get(name)
+        if st is None:
+            return  # another agent's query
+        t = self._time_parameter(query)
+        if t is None:
+            query.reply_err(b"parameter t=<ns> missing or not an integer")
+            return
+        if st.state != "running" or not isinstance(st.sink, PullSink):
+            query.reply_err(f"query {name}: {st.state} {st.reason}".encode())
+            return
+        self._reply_measurement(query, lambda: st.sink.get(t))
+
+    def _on_edge_get(self, query) -> None:
+        name = str(query.key_expr).rsplit("/", 1)[-1]
+        src = self._sources.get(name)
+        if src is None or name not in self._own:
+            return  # not an own sensor
+        t = self._time_parameter(query)
+        if t is None:
+            query.reply_err(b"parameter t=<ns> missing or not an integer")
+            return
+        self._reply_measurement(query, lambda: self._filters[name].pull(t))
+
+    def _reply_measurement(self, query, get) -> None:
+        with self._lock:
+            self.net.clock.now_ns = self.now_ns()
+            m = get()
+        if m is None:
+            query.reply_err(b"no result at that time (see the status counters)")
+            return
+        query.reply(
+            query.key_expr,
+            wire.encode(
+                m.pose, seq=0, exposure_ns=m.t_ns, host_ns=self.now_ns(), origin_ns=m.origin_ns
+            ),
+        )
+
+    # -- status ---------------------------------------------------------------------------------
+    def status(self) -> dict:
+        """Plans, re-plan events, rejections and clock offsets, as plain JSON-able data."""
+        with self._lock:
+            out = {
+                "agent": self.name,
+                "realm": self.realm,
+                "live_edges": dict(sorted(self._live.items())),
+                "statics": sorted(self._statics),
+                "rejections": dict(self.rejections.counts),
+                "lost_messages": self.lost_messages,
+                "late_events": self.late_events,
+                "missed_ticks": self.missed_ticks,
+                "skipped_samples": self.skipped_samples,
+                "clocks": {
+                    n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
+                    for n, r in self._remotes.items()
+                    if r.clock.known
+                },
+                "queries": {},
+            }
+            for n, st in self.queries.items():
+                out["queries"][n] = {
+                    "state": st.state,
+                    "reason": st.reason,
+                    "paths": st.paths,
+                    "published": st.published,
+                    "events": st.events[-20:],
+                }
+            return out
+
+
+def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0):
+    """Ask ``trackflow/<realm>/<key>?t=<t_ns>`` (``query/<name>`` or ``get/<edge>``) over a
+    Zenoh session; returns a :class:`trackflow.distributed.wire.WireSample` or raises
+    ``ValueError`` with the remote's reason (or "no reply")."""
+    errors = []
+    for reply in session.get(f"{_key(realm, key)}?t={int(t_ns)}", timeout=timeout_s):
+        if reply.ok is not None:
+            return wire.decode(reply.ok.payload.to_bytes())
+        errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
+    raise ValueError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))
+
+
+def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=None) -> dict:
+    """Run an agent until ``duration_s`` passes, or (without a duration) until its recordings
+    have played, or forever if it has none; SIGTERM and Ctrl-C stop it cleanly. Returns the
+    final :meth:`Agent.status`. ``on_ready(agent)`` is called once it is running."""
+    import signal
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    agent = Agent(config).start()
+    # this process is the agent: everything allocated so far (modules, setup, plans) lives as
+    # long as it does, so keep it out of the collector's scans that stall the data path
+    gc.freeze()
+    try:
+        if on_ready is not None:
+            on_ready(agent)
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        while not stop.is_set():
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            if (
+                deadline is None
+                and agent._players
+                and not any(th.is_alive() for _, th in agent._players)
+            ):
+                break
+            stop.wait(0.1)
+        return agent.status()
+    finally:
+        agent.close()
+        signal.signal(signal.SIGTERM, previous)

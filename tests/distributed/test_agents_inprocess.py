@@ -1,0 +1,115 @@
+"""Two agents in one process (real Zenoh sessions on loopback sockets): a sensor leaves and
+the query reports "no path" with the reason, a new sensor joins the running plan, and the
+command line reports bad agent files through its one error boundary."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
+
+from _agents import endpoint, free_port, wait_for
+
+from trackflow.cli.main import main
+from trackflow.dataflow import parse_setup
+from trackflow.distributed import Agent, AgentConfig
+from trackflow.math import Pose, UncertainPose
+
+MOTION = {"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]}
+
+
+def _sensor(name, latency_ms):
+    return dict(
+        name=name,
+        source="W",
+        target="X",
+        rate_hz=100,
+        latency_ms=latency_ms,
+        sigma_pos_mm=1.0,
+        sigma_ori_deg=0.1,
+        motion=MOTION,
+    )
+
+
+def _feed(agent, edge, n=30):
+    for _ in range(n):
+        t = agent.now_ns()
+        agent.feed(edge, t, UncertainPose(Pose([0.1, 0.2, 1.0], [0, 0, 0, 1]), np.eye(6) * 1e-6))
+        time.sleep(0.01)
+
+
+@pytest.mark.slow
+def test_no_path_with_reason_then_a_new_sensor_joins():
+    realm = f"ip{free_port()}"
+    pa, pb, pc = free_port(), free_port(), free_port()
+    app = AgentConfig(
+        "app",
+        parse_setup({"frames": ["W", "X"], "queries": [dict(name="q", source="W", target="X")]}),
+        realm=realm,
+        zenoh={
+            "listen": {"endpoints": [endpoint(pc)]},
+            "connect": {"endpoints": [endpoint(pa), endpoint(pb)]},
+        },
+    )
+    slow = AgentConfig(
+        "slow",
+        parse_setup({"sensors": [_sensor("s_slow", 40)]}),
+        realm=realm,
+        zenoh={"listen": {"endpoints": [endpoint(pa)]}},
+    )
+    fast = AgentConfig(
+        "fast",
+        parse_setup({"sensors": [_sensor("s_fast", 2)]}),
+        realm=realm,
+        zenoh={"listen": {"endpoints": [endpoint(pb)]}},
+    )
+    with Agent(app) as c:
+        a = Agent(slow).start()
+        try:
+            wait_for(lambda: c.queries["q"].paths == ["W->X[s_slow]"], 30)
+            _feed(a, "s_slow")
+            m = wait_for(lambda: c.get("q", a.now_ns() - 20_000_000), 10)
+            assert np.allclose(m.pose.position, [0.1, 0.2, 1.0], atol=1e-3)
+        finally:
+            a.close()
+        st = wait_for(lambda: c.queries["q"].state == "no path" and c.queries["q"], 30)
+        assert "no path from frame 'W' to frame 'X'" in st.reason
+        assert st.events[-1]["reason"] == "sensor s_slow of agent slow left"
+        assert c.get("q", c.now_ns()) is None
+        # the sensor comes back; then a better sensor joins the running plan
+        with Agent(slow):
+            wait_for(lambda: c.queries["q"].paths == ["W->X[s_slow]"], 30)
+            with Agent(fast) as b:
+                st = wait_for(
+                    lambda: c.queries["q"].paths == ["W->X[s_fast]"] and c.queries["q"], 30
+                )
+                assert st.events[-1]["reason"] == "edge s_fast of agent fast appeared"
+                _feed(b, "s_fast")
+                assert wait_for(lambda: c.get("q", b.now_ns() - 20_000_000), 10) is not None
+                assert {"s_slow", "s_fast"} <= {e.name for e in c.union_graph().edges}
+
+
+def test_cli_reports_bad_agent_files(tmp_path, capsys):
+    p = tmp_path / "bad.yaml"
+    p.write_text("agent: {name: a, colour: red}\n")
+    assert main(["agent", str(p)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trackflow: error:") and "unknown keys" in err and str(p) in err
+
+
+def test_cli_reports_a_port_in_use(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        p = tmp_path / "a.yaml"
+        endpoints = f"['tcp/127.0.0.1:{port}']"
+        p.write_text(f"agent: {{name: a, zenoh: {{listen: {{endpoints: {endpoints}}}}}}}\n")
+        assert main(["agent", str(p), "--duration", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "cannot open the Zenoh session" in err

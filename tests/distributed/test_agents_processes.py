@@ -1,0 +1,227 @@
+"""Agents in separate processes on loopback: discovery, push and pull queries, kill -9 and
+re-planning, rejoining, garbage on the key space, late joiners, router-less and routed."""
+
+from __future__ import annotations
+
+import struct
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
+
+from _agents import (
+    AgentProcess,
+    endpoint,
+    free_port,
+    observer,
+    status,
+    wait_for,
+    write_agent,
+    write_recording,
+)
+
+from trackflow.distributed import remote_get
+from trackflow.distributed.wire import decode, encode
+from trackflow.math import Pose, UncertainPose
+
+pytestmark = pytest.mark.slow
+
+PERIOD_NS = 20_000_000  # the 50 Hz push query
+
+
+def _files(tmp_path, realm, zenoh_of, start_ns):
+    """Agent files: a (sensor s1: W->X, fast), b (sensor s2: W->Y, slow, static yx: Y->X),
+    c (push query W->X), d (late joiner, pull query W->X)."""
+    rec1 = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=60, seed=1)
+    rec2 = write_recording(tmp_path / "s2.tfrec", "W", "Y", rate_hz=100, duration_s=60, seed=2)
+    common = dict(
+        sigma_pos_mm=1.0, sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]}
+    )
+    files = {
+        "a": write_agent(
+            tmp_path / "a.yaml",
+            "a",
+            realm,
+            zenoh=zenoh_of("a"),
+            start_ns=start_ns,
+            sensors=[
+                dict(
+                    name="s1",
+                    source="W",
+                    target="X",
+                    rate_hz=100,
+                    latency_ms=5,
+                    recording=str(rec1),
+                    **common,
+                )
+            ],
+        ),
+        "b": write_agent(
+            tmp_path / "b.yaml",
+            "b",
+            realm,
+            zenoh=zenoh_of("b"),
+            start_ns=start_ns,
+            sensors=[
+                dict(
+                    name="s2",
+                    source="W",
+                    target="Y",
+                    rate_hz=100,
+                    latency_ms=20,
+                    recording=str(rec2),
+                    **common,
+                )
+            ],
+            statics=[dict(name="yx", source="Y", target="X", sigma_pos_mm=0.1, sigma_ori_deg=0.01)],
+        ),
+        "c": write_agent(
+            tmp_path / "c.yaml",
+            "c",
+            realm,
+            zenoh=zenoh_of("c"),
+            frames=["W", "X"],
+            queries=[dict(name="q", source="W", target="X", mode="push", rate_hz=50)],
+        ),
+        "d": write_agent(
+            tmp_path / "d.yaml",
+            "d",
+            realm,
+            zenoh=zenoh_of("d"),
+            frames=["W", "X"],
+            queries=[dict(name="qd", source="W", target="X", mode="pull")],
+        ),
+    }
+    return files
+
+
+def _query(st: dict | None, name: str) -> dict:
+    return (st or {}).get("queries", {}).get(name, {})
+
+
+def _running_on(session, realm, agent, query, sensor, min_published=0):
+    def check():
+        q = _query(status(session, realm, agent), query)
+        ok = q.get("state") == "running" and any(sensor in p for p in q.get("paths", []))
+        return q if ok and q.get("published", 0) >= min_published else None
+
+    return check
+
+
+@pytest.fixture
+def procs(tmp_path):
+    started: list[AgentProcess] = []
+
+    def start(path, *args):
+        p = AgentProcess(path, "--duration", "90", *args, log_dir=tmp_path)
+        started.append(p)
+        return p
+
+    yield start
+    for p in started:
+        p.stop()
+
+
+def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs):
+    realm = f"t{free_port()}"
+    ports = {n: free_port() for n in "abcd"}
+    others = {"a": [], "b": ["a"], "c": ["a", "b"], "d": ["a", "b", "c"]}
+
+    def zenoh_of(n):
+        return {
+            "listen": {"endpoints": [endpoint(ports[n])]},
+            "connect": {"endpoints": [endpoint(ports[o]) for o in others[n]]},
+        }
+
+    start_ns = (time.time_ns() // PERIOD_NS) * PERIOD_NS
+    files = _files(tmp_path, realm, zenoh_of, start_ns)
+    a, b, c = procs(files["a"]), procs(files["b"]), procs(files["c"])
+    for p in (a, b, c):
+        p.wait_ready()
+    session = observer([endpoint(ports[n]) for n in "abc"])
+    try:
+        results = []
+        sub = session.declare_subscriber(
+            f"trackflow/{realm}/result/q", lambda s: results.append(decode(s.payload.to_bytes()))
+        )
+        wait_for(_running_on(session, realm, "c", "q", "s1", min_published=20), 60)
+        wait_for(lambda: len(results) >= 10, 20)
+        r = results[-1]
+        assert r.pose.covariance.shape == (6, 6) and np.all(np.isfinite(r.pose.position))
+
+        # garbage and unknown versions on the key space are counted, nothing else happens
+        good = encode(
+            UncertainPose(Pose.identity(), np.eye(6) * 1e-6), seq=1, exposure_ns=0, host_ns=0
+        )
+        for _ in range(5):
+            session.put(f"trackflow/{realm}/edge/s1", b"garbage")
+            session.put(f"trackflow/{realm}/edge/s1", good[:2] + struct.pack("<B", 9) + good[3:])
+
+        def counted():
+            rej = (status(session, realm, "c") or {}).get("rejections", {})
+            return (
+                rej if rej.get("bad magic", 0) >= 5 and rej.get("unknown version", 0) >= 5 else None
+            )
+
+        wait_for(counted, 20)
+
+        # kill -9 the agent of the better path: the query re-plans through s2 and keeps going
+        a.kill9()
+        q = wait_for(_running_on(session, realm, "c", "q", "s2"), 30)
+        assert any("s1 of agent a left" in e["reason"] for e in q["events"])
+        before = q["published"]
+        wait_for(_running_on(session, realm, "c", "q", "s2", min_published=before + 20), 30)
+
+        # the restarted agent rejoins and the better path comes back
+        procs(files["a"]).wait_ready()
+        q = wait_for(_running_on(session, realm, "c", "q", "s1"), 30)
+        assert any("s1 of agent a appeared" in e["reason"] for e in q["events"])
+
+        # a late joiner learns the static edge and answers pull queries over Zenoh
+        procs(files["d"]).wait_ready()
+        st = wait_for(lambda: (s := status(session, realm, "d")) and "yx" in s["statics"] and s, 30)
+        assert _query(st, "qd")["state"] == "running"
+
+        def pulled():
+            try:
+                return remote_get(session, realm, "query/qd", time.time_ns() - 50_000_000)
+            except ValueError:
+                return None
+
+        sample = wait_for(pulled, 30)
+        assert abs(sample.pose.position[2] - 1.0) < 0.05  # the recordings hold z = 1 m
+        edge = remote_get(session, realm, "get/s2", time.time_ns() - 50_000_000)
+        assert abs(edge.pose.position[2] - 1.0) < 0.05
+        with pytest.raises(ValueError, match="missing or not an integer"):
+            for reply in session.get(f"trackflow/{realm}/query/qd?t=soon", timeout=3.0):
+                if reply.err is not None:
+                    raise ValueError(reply.err.payload.to_bytes().decode())
+        sub.undeclare()
+    finally:
+        session.close()
+
+
+def test_router_setup_with_clients(tmp_path, procs):
+    realm = f"r{free_port()}"
+    router_port = free_port()
+
+    def zenoh_of(n):
+        return {"mode": "client", "connect": {"endpoints": [endpoint(router_port)]}}
+
+    start_ns = (time.time_ns() // PERIOD_NS) * PERIOD_NS
+    files = _files(tmp_path, realm, zenoh_of, start_ns)
+    router = write_agent(tmp_path / "router.yaml", "router", realm, zenoh={})
+    procs(router, "--mode", "router", "--listen", endpoint(router_port)).wait_ready()
+    a, b, c = procs(files["a"]), procs(files["b"]), procs(files["c"])
+    for p in (a, b, c):
+        p.wait_ready()
+    session = observer([endpoint(router_port)])
+    try:
+        wait_for(_running_on(session, realm, "c", "q", "s1", min_published=20), 60)
+        a.kill9()
+        q = wait_for(_running_on(session, realm, "c", "q", "s2"), 30)
+        wait_for(_running_on(session, realm, "c", "q", "s2", min_published=q["published"] + 10), 30)
+    finally:
+        session.close()
