@@ -21,6 +21,7 @@ LAYERS = {
     "evaluation": 2,
     "demo": 3,
     "calibration": 3,
+    "distributed": 3,
     "cli": 4,
 }
 #: imports allowed between packages of one layer (importer -> imported)
