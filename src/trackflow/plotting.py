@@ -5,12 +5,30 @@ from __future__ import annotations
 import numpy as np
 
 from .evaluation import KalmanPredictor, PredictionReport, predict_kalman, predict_linear
+from .io import atomic_output
 from .math import quat_log, quat_make_continuous
 
-__all__ = ["plot_sequence", "plot_error_vs_horizon"]
+__all__ = ["plot_sequence", "plot_error_vs_horizon", "require_matplotlib", "save_figure"]
+
+
+def require_matplotlib() -> None:
+    """Raise ``ImportError`` naming the extra to install when matplotlib is missing."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ImportError(
+            "plots need matplotlib, which is not installed: pip install 'trackflow[plot]'"
+        ) from None
+
+
+def save_figure(fig, path, overwrite: bool = False, dpi: int = 110) -> None:
+    """Save a matplotlib figure as PNG under the output policy (atomic, no silent overwrite)."""
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
 
 
 def _pyplot():
+    require_matplotlib()
     import matplotlib
 
     matplotlib.use("Agg")
@@ -21,7 +39,7 @@ def _pyplot():
 
 def plot_sequence(
     path, t, position, quaternion, predictor: KalmanPredictor, horizon: float = 0.1,
-    window: tuple[float, float] | None = None,
+    window: tuple[float, float] | None = None, title: str | None = None, overwrite: bool = False,
 ) -> None:  # fmt: skip
     """Position and orientation over time: measured points, Kalman-filtered and predicted
     curves, linear extrapolation, and the measurements shifted by the horizon.
@@ -37,7 +55,16 @@ def plot_sequence(
     horizon : float
         Prediction horizon [s]; predictions are drawn at ``t + horizon``.
     window : (float, float), optional
-        Time range [s] to draw; default the first 3 s.
+        Time range [s] to draw; default the first 3 s. ``ValueError`` when it holds fewer
+        than two samples.
+    title : str, optional
+        Figure title (e.g. the recording's name).
+    overwrite : bool
+        Replace an existing ``path`` (see :func:`save_figure`).
+
+    Colours are the axes (x, y, z of the position or of the rotation vector); line styles are
+    the series, explained in a second legend. Measurements are drawn as small dots under the
+    curves so that the curves stay visible.
     """
     plt = _pyplot()
     t = np.asarray(t, float)
@@ -47,7 +74,12 @@ def plot_sequence(
     lp, lq = predict_linear(t, p, q, horizon)
     lo, hi = window if window is not None else (t[0], min(t[-1], t[0] + 3.0))
     m = (t >= lo) & (t <= hi)
-    first = np.flatnonzero(m)[0] if np.any(m) else 0
+    if np.count_nonzero(m) < 2:
+        raise ValueError(
+            f"the window {lo:g}..{hi:g} s holds {np.count_nonzero(m)} samples; the recording "
+            f"spans {t[0]:g}..{t[-1]:g} s"
+        )
+    first = np.flatnonzero(m)[0]
     ref, p0 = q[first], p[first]
     from .math import quat_conjugate, quat_multiply
 
@@ -67,24 +99,42 @@ def plot_sequence(
         (axes[1], rv(q), rv(kq[0]), rv(kq[1]), rv(lq), "rotation from start [deg]"),
     ):
         for a, c in zip(range(3), ("C0", "C1", "C2")):
-            ax.plot(t[m], meas[m, a], "x", ms=3, color=c, label="measured" if a == 0 else None)
-            ax.plot(t[m], filt[m, a], "-", lw=1, color=c, label="filtered" if a == 0 else None)
-            ax.plot(t[m] + horizon, pred[m, a], "--", lw=1, color=c,
-                    label=f"Kalman +{horizon * 1e3:.0f} ms" if a == 0 else None)  # fmt: skip
-            ax.plot(t[m] + horizon, lin[m, a], ":", lw=1, color=c,
-                    label=f"linear +{horizon * 1e3:.0f} ms" if a == 0 else None)  # fmt: skip
-            ax.plot(t[m] + horizon, meas[m, a], "-", lw=0.5, alpha=0.4, color=c,
-                    label="measured shifted (no prediction)" if a == 0 else None)  # fmt: skip
+            ax.plot(t[m], meas[m, a], ".", ms=2.5, color=c, alpha=0.5, zorder=1)
+            ax.plot(t[m] + horizon, meas[m, a], "-", lw=0.6, alpha=0.35, color=c, zorder=2)
+            ax.plot(t[m], filt[m, a], "-", lw=1.4, color=c, zorder=4)
+            ax.plot(t[m] + horizon, pred[m, a], "--", lw=1.2, color=c, zorder=5)
+            ax.plot(t[m] + horizon, lin[m, a], ":", lw=1.2, color=c, zorder=3)
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, ncol=3)
+    from matplotlib.lines import Line2D
+
+    ms = f"+{horizon * 1e3:.0f} ms"
+    styles = [
+        Line2D([], [], ls="", marker=".", color="k", label="measured"),
+        Line2D([], [], ls="-", lw=1.4, color="k", label="Kalman filtered"),
+        Line2D([], [], ls="--", lw=1.2, color="k", label=f"Kalman predicted {ms}"),
+        Line2D([], [], ls=":", lw=1.2, color="k", label=f"linear extrapolation {ms}"),
+        Line2D([], [], ls="-", lw=0.6, alpha=0.5, color="k", label=f"measured shifted {ms}"),
+    ]
+    colours = [Line2D([], [], color=c, lw=2, label=n) for c, n in zip(("C0", "C1", "C2"), "xyz")]
+    leg = axes[0].legend(handles=styles, fontsize=7, ncol=3, loc="upper left", title="series")
+    axes[0].add_artist(leg)
+    axes[0].legend(handles=colours, fontsize=7, loc="upper right", title="axis")
+    fig.suptitle(
+        f"{title + ': ' if title else ''}measured, filtered and predicted ({ms}) poses, "
+        f"{lo:.3g}..{hi:.3g} s"
+    )
     axes[1].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, overwrite)
+    finally:
+        plt.close(fig)
 
 
-def plot_error_vs_horizon(path, report: PredictionReport) -> None:
+def plot_error_vs_horizon(
+    path, report: PredictionReport, title: str | None = None, overwrite: bool = False
+) -> None:
     """RMS (solid) and average (dashed) prediction error vs horizon for every predictor."""
     plt = _pyplot()
     h = np.array(report.horizons_ms)
@@ -103,6 +153,9 @@ def plot_error_vs_horizon(path, report: PredictionReport) -> None:
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7)
+    fig.suptitle(f"{title + ': ' if title else ''}prediction error vs horizon")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, overwrite)
+    finally:
+        plt.close(fig)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import sys
 
-from ..evaluation import evaluate_recording
 from ._common import (
     add_input,
     add_learned_orders,
@@ -14,6 +13,7 @@ from ._common import (
     parse_orders,
     stream_arrays,
 )
+from ._progress import FinishingStream
 
 
 def register(subparsers):
@@ -35,13 +35,30 @@ def register(subparsers):
     p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning cost uses (ms)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     add_learned_orders(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
 
 
+def describe_model(d: dict) -> str:
+    """One line naming the chosen filter: family, derivative counts or learned order."""
+    fam = d.get("family") or d.get("kind")
+    if fam == "partwise":
+        return (
+            f"position: {describe_model(d['position'])}; "
+            f"orientation: {describe_model(d['orientation'])}"
+        )
+    if fam in ("twist_ar",) or d.get("kind") == "twist_ar":
+        return f"learned increment model of order {d.get('order')}"
+    return (
+        f"derivative model ({d.get('n_dp')} position, {d.get('n_do')} orientation "
+        f"derivatives, {d.get('kind')} noise)"
+    )
+
+
 def run(args) -> int:
-    stream = load(args.file, args.format, args.clean)
+    from ..evaluation import evaluate_recording
+
+    stream = load(args, min_samples=10)
     t, pos, quat = stream_arrays(stream)
     report = evaluate_recording(
         t,
@@ -51,10 +68,11 @@ def run(args) -> int:
         tune_fraction=args.tune_fraction,
         tune_horizons=parse_horizons(args.tune_horizons),
         ar_orders=parse_orders(args.learned_orders),
-        progress=None if args.quiet else sys.stderr,
+        progress=None if args.quiet else FinishingStream(sys.stderr),
     )
     if args.json:
         print(json.dumps(report.to_dict(), indent=2))
     else:
+        print(f"kalman = {describe_model(report.predictor.as_dict())}")
         print(report.table())
     return 0

@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..dataflow import load_setup
-from ..graph import Query
-
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -34,6 +31,9 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    from ..dataflow import load_setup
+    from ..graph import Query
+
     setup = load_setup(args.setup)
     if args.source or args.target:
         if not (args.source and args.target):

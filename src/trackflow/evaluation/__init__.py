@@ -8,6 +8,14 @@ See ``docs/posetool.md``.
 from ._baselines import predict_linear, predict_none
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
+from ._model_file import (
+    FilterRun,
+    filter_stream,
+    load_model,
+    predictor_from_dict,
+    predictor_to_dict,
+    save_model,
+)
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
 from ._predictor import (
     KalmanPredictor,
@@ -24,6 +32,7 @@ __all__ = [
     "LEARNED_ORDERS",
     "PREDICTORS",
     "ErrorStats",
+    "FilterRun",
     "KalmanPredictor",
     "PartwisePredictor",
     "PredictionReport",
@@ -35,6 +44,11 @@ __all__ = [
     "estimate_noise",
     "evaluate_predictors",
     "evaluate_recording",
+    "filter_stream",
+    "load_model",
+    "predictor_from_dict",
+    "predictor_to_dict",
+    "save_model",
     "interpolate_poses",
     "pose_errors",
     "predict_kalman",

@@ -55,7 +55,15 @@ def shift_stream(stream: PoseStream, offset_s: float) -> PoseStream:
     """Add ``offset_s`` seconds to every timestamp (a constant latency correction)."""
     if not np.isfinite(offset_s):
         raise ValueError(f"offset must be finite, got {offset_s}")
-    return stream.with_(t_ns=stream.t_ns + np.int64(round(offset_s * 1e9)))
+    off = round(offset_s * 1e9)  # exact Python integer: no wrap-around
+    if len(stream):
+        lo, hi = int(stream.t_ns[0]) + off, int(stream.t_ns[-1]) + off
+        if lo < -(2**63) or hi > 2**63 - 1:
+            raise ValueError(
+                f"offset {offset_s:g} s moves the timestamps out of the int64 nanosecond range "
+                f"(about +-292 years from 1970); first sample at {int(stream.t_ns[0]) * 1e-9:.9g} s"
+            )
+    return stream.with_(t_ns=stream.t_ns + np.int64(off))
 
 
 def scale_covariance(stream: PoseStream, factor: float) -> PoseStream:

@@ -60,8 +60,18 @@ def format_ns(t_ns: int, exponent: int = 9) -> str:
 
 
 def read_lines(path: Path) -> tuple[list[str], bool, int]:
-    """Lines of a text file, whether the last one is unterminated, and its byte length."""
+    """Lines of a text file, whether the last one is unterminated, and its byte length.
+
+    A leading UTF-8 byte order mark is skipped; NUL bytes (binary or zero-filled data) and
+    invalid UTF-8 raise ``ValueError`` naming file and line.
+    """
     raw = Path(path).read_bytes()
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        line = raw[:nul].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
+    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte order mark (Windows editors)
+        raw = raw[3:]
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

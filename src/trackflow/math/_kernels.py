@@ -8,6 +8,9 @@ The backend is chosen once at import (``TRACKFLOW_BACKEND=numpy`` forces NumPy) 
 switched for a block of code with :func:`use_backend`, which always restores the previous one.
 numba's compile cache goes to ``$NUMBA_CACHE_DIR`` if set, else to a per-user cache directory
 (``$XDG_CACHE_HOME/trackflow/numba`` or ``~/.cache/trackflow/numba``), never into the source tree.
+The choice is given to numba's configuration only (``numba.config.CACHE_DIR``); the process
+environment is left alone, so other numba users in the process and child processes keep their
+own settings.
 """
 
 from __future__ import annotations
@@ -45,12 +48,13 @@ def _cache_dir() -> str:
     return tempfile.mkdtemp(prefix="trackflow-numba-")
 
 
-os.environ.setdefault("NUMBA_CACHE_DIR", _cache_dir())
-
-try:  # numba is a runtime dependency, but the library must keep working without it
+try:  # numba is optional: the library must keep working without it
     import numba as _nb
 except ImportError:  # pragma: no cover - exercised only on installs without numba
     _nb = None
+else:
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        _nb.config.CACHE_DIR = _cache_dir()
 
 _backend = "numba" if _nb is not None else "numpy"
 if os.environ.get("TRACKFLOW_BACKEND", "").lower() == "numpy":

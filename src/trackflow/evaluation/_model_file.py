@@ -1,0 +1,216 @@
+"""The model file that ``tune`` writes and ``filter`` reads: any predictor family, as JSON.
+
+A model file holds one predictor of the evaluation (``KalmanPredictor`` on derivative motion
+models, ``TwistARPredictor`` on a learned increment model, or ``PartwisePredictor`` combining
+two of them), completely: a learned model keeps its coefficients, so ``filter --model`` runs
+exactly the filter that ``tune`` chose. Layout::
+
+    {"trackflow_model": 1, "predictor": {...}, "tuning": {...optional summary...}}
+
+``predictor`` is ``{"family": "derivative", "n_dp", "n_do", "noise", "kind", "pos_sigma",
+"ori_sigma", "gate_probability"}``, ``{"family": "twist_ar", "dt", "coefficients" (L x 6 x 6),
+"noise" (6 x 6), "twist_covariance" (6 x 6), "pos_sigma", "ori_sigma"}`` or ``{"family":
+"partwise", "position": {...}, "orientation": {...}}``; units are metres, radians and seconds.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..filters import MotionModel, TwistARModel, run_filter, run_twist_ar
+from ..io import PoseStream, atomic_output
+from ..math import Pose, UncertainPose
+from ._predictor import KalmanPredictor, PartwisePredictor, TwistARPredictor
+
+__all__ = [
+    "MODEL_FILE_VERSION",
+    "FilterRun",
+    "filter_stream",
+    "load_model",
+    "predictor_from_dict",
+    "predictor_to_dict",
+    "save_model",
+]
+
+MODEL_FILE_VERSION = 1
+
+
+def predictor_to_dict(pred) -> dict:
+    """Complete plain-data form of a predictor (JSON serialisable, learned coefficients kept)."""
+    if isinstance(pred, KalmanPredictor):
+        return pred.as_dict()
+    if isinstance(pred, TwistARPredictor):
+        m = pred.model
+        return {
+            "family": "twist_ar",
+            "dt": float(m.dt),
+            "coefficients": np.asarray(m.coefficients).tolist(),
+            "noise": np.asarray(m.noise).tolist(),
+            "twist_covariance": np.asarray(m.twist_covariance).tolist(),
+            "pos_sigma": float(pred.pos_sigma),
+            "ori_sigma": float(pred.ori_sigma),
+        }
+    if isinstance(pred, PartwisePredictor):
+        return {
+            "family": "partwise",
+            "position": predictor_to_dict(pred.position),
+            "orientation": predictor_to_dict(pred.orientation),
+        }
+    raise ValueError(f"not a predictor: {type(pred).__name__}")
+
+
+def _field(d: dict, key: str, where: str):
+    if key not in d:
+        raise ValueError(f"{where}: missing field {key!r}")
+    return d[key]
+
+
+def predictor_from_dict(d: dict, where: str = "model"):
+    """Inverse of :func:`predictor_to_dict`; ``ValueError`` naming ``where`` and the field."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
+    family = _field(d, "family", where)
+    try:
+        if family == "derivative":
+            model = MotionModel(
+                int(_field(d, "n_dp", where)),
+                int(_field(d, "n_do", where)),
+                noise=[float(v) for v in _field(d, "noise", where)],
+                kind=str(d.get("kind", "white_noise")),
+            )
+            g = d.get("gate_probability", 0.999)
+            return KalmanPredictor(
+                model,
+                float(_field(d, "pos_sigma", where)),
+                float(_field(d, "ori_sigma", where)),
+                None if g is None else float(g),
+            )
+        if family == "twist_ar":
+            model = TwistARModel(
+                float(_field(d, "dt", where)),
+                np.asarray(_field(d, "coefficients", where), dtype=float),
+                np.asarray(_field(d, "noise", where), dtype=float),
+                np.asarray(d["twist_covariance"], dtype=float) if "twist_covariance" in d else None,
+            )
+            return TwistARPredictor(
+                model, float(_field(d, "pos_sigma", where)), float(_field(d, "ori_sigma", where))
+            )
+        if family == "partwise":
+            return PartwisePredictor(
+                predictor_from_dict(_field(d, "position", where), f"{where}.position"),
+                predictor_from_dict(_field(d, "orientation", where), f"{where}.orientation"),
+            )
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    raise ValueError(f"{where}: unknown family {family!r} (derivative, twist_ar or partwise)")
+
+
+def save_model(path, pred, tuning: dict | None = None, overwrite: bool = False) -> None:
+    """Write a model file (atomic; an existing file only with ``overwrite``)."""
+    doc = {"trackflow_model": MODEL_FILE_VERSION, "predictor": predictor_to_dict(pred)}
+    if tuning:
+        doc["tuning"] = tuning
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+
+
+def load_model(path):
+    """Read a model file written by :func:`save_model` (``tune --output``)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}:{exc.lineno}: not a JSON model file ({exc.msg})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a JSON model file (not UTF-8 text)") from None
+    if not isinstance(doc, dict) or doc.get("trackflow_model") != MODEL_FILE_VERSION:
+        raise ValueError(
+            f"{path}: not a trackflow model file (write one with trackflow tune --output)"
+        )
+    return predictor_from_dict(doc.get("predictor"), str(path))
+
+
+@dataclass(frozen=True)
+class FilterRun:
+    """Filtered (or predicted) poses of a recording and how the filter fared.
+
+    Attributes
+    ----------
+    stream : PoseStream
+        ``T_source_target`` at the input times, with 6x6 covariances over ``(dt, dtheta)``.
+    nis : ndarray, shape (N,)
+        Normalised innovation squared per measurement (NaN where none was formed); 6 degrees of
+        freedom for derivative filters on whole poses.
+    rejected : int
+        Measurements the outlier gate refused.
+    resets : int
+        Times the filter started again (divergence, repeated gating; not the first sample).
+    """
+
+    stream: PoseStream
+    nis: np.ndarray
+    rejected: int
+    resets: int
+
+    def nis_band(self, probability: float = 0.99) -> tuple[float, float, float]:
+        """Mean NIS and its two-sided ``probability`` band for the number of measurements.
+
+        Under a consistent filter the mean of ``n`` NIS values of ``dof = 6`` lies in
+        ``chi2(n dof) / n`` at the given probability.
+        """
+        from scipy.stats import chi2
+
+        v = self.nis[np.isfinite(self.nis)]
+        n = max(len(v), 1)
+        lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 6 * n) / n
+        return float(np.mean(v)) if len(v) else float("nan"), float(lo), float(hi)
+
+
+def _run_part(pred, t, p, q, horizon: float):
+    """(position, quaternion, covariance, nis, rejected, resets) of one predictor."""
+    if isinstance(pred, KalmanPredictor):
+        res = run_filter(
+            t, pred.measurements(p, q), pred.model, (horizon,),
+            gate_probability=pred.gate_probability,
+        )  # fmt: skip
+        out = res.predictions[horizon] if horizon > 0 else res.filtered
+        st = res.stats
+        return (out.position, out.quaternion, out.covariance, res.nis,
+                int(st["rejected_gate"]), int(st["resets"]))  # fmt: skip
+    if horizon > 0:
+        raise ValueError(
+            "the learned (twist_ar) model predicts means only; filter with --horizon 0, "
+            "or tune with --learned-orders none for predictions with covariances"
+        )
+    res = run_twist_ar(t, p, q, pred.model, pred.pos_sigma, pred.ori_sigma)
+    return res.position, res.quaternion, res.covariance, res.nis, 0, max(res.restarts - 1, 0)
+
+
+def filter_stream(stream: PoseStream, pred, horizon: float = 0.0) -> FilterRun:
+    """Run ``pred`` (any family) over ``stream``; predictions ``horizon`` seconds ahead if > 0.
+
+    A partwise predictor takes the position (and its 3x3 covariance block) from its position
+    filter and the orientation from its orientation filter; the cross-covariance between the
+    two is zero, as the filters are independent.
+    """
+    t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
+    p = np.asarray(stream.position, float)
+    q = np.asarray(stream.quaternion, float)
+    if isinstance(pred, PartwisePredictor):
+        a = _run_part(pred.position, t, p, q, horizon)
+        b = _run_part(pred.orientation, t, p, q, horizon)
+        cov = np.zeros((len(t), 6, 6))
+        cov[:, :3, :3] = a[2][:, :3, :3]
+        cov[:, 3:, 3:] = b[2][:, 3:, 3:]
+        pos, quat = a[0], b[1]
+        nis = a[3] + b[3]
+        rejected, resets = a[4] + b[4], a[5] + b[5]
+    else:
+        pos, quat, cov, nis, rejected, resets = _run_part(pred, t, p, q, horizon)
+    poses = UncertainPose(Pose(pos, quat), np.array(cov))
+    out = PoseStream.from_poses(stream.source, stream.target, stream.t_ns, poses)
+    return FilterRun(out, np.asarray(nis, float), rejected, resets)
