@@ -159,3 +159,110 @@ def plot_error_vs_horizon(
         save_figure(fig, path, overwrite)
     finally:
         plt.close(fig)
+
+
+def plot_compare(folder, result, ref_name: str = "reference", est_name: str = "estimate",
+                 overwrite: bool = False) -> list:  # fmt: skip
+    """Two PNGs of a :class:`trackflow.evaluation.CompareResult` in ``folder``.
+
+    ``<est>_vs_<ref>_errors.png``: APE translation (with per-axis errors) and rotation, and RPE
+    over time, each with its RMSE. ``<est>_vs_<ref>_trajectories.png``: both associated
+    trajectories from above (x-y) and from the side (x-z), the estimate after alignment.
+    Returns the two paths.
+    """
+    from pathlib import Path
+
+    plt = _pyplot()
+    folder = Path(folder)
+    stem = f"{est_name}_vs_{ref_name}"
+    paths = [folder / f"{stem}_errors.png", folder / f"{stem}_trajectories.png"]
+    r = result
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    axes[0].plot(r.t, r.ape_trans * 1e3, color="k", lw=1.2, label="|error|")
+    for k, axis in enumerate("xyz"):
+        axes[0].plot(r.t, r.ape_axes[:, k] * 1e3, lw=0.8, color=f"C{k}", label=f"{axis} error")
+    axes[0].set_ylabel("APE translation [mm]")
+    axes[1].plot(r.t, r.ape_rot_deg, color="k", lw=1.0)
+    axes[1].set_ylabel("APE rotation [deg]")
+    axes[2].plot(r.rpe_t, r.rpe_trans * 1e3, color="C3", lw=1.0)
+    axes[2].set_ylabel(f"RPE translation [mm]\nper {r.delta} pair(s)")
+    axes[2].set_xlabel("time since the first reference sample [s]")
+    for ax, e in zip(axes, (r.ape_trans * 1e3, r.ape_rot_deg, r.rpe_trans * 1e3)):
+        rmse = float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
+        ax.axhline(rmse, color="gray", ls="--", lw=0.8, label=f"RMSE {rmse:.3g}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right", ncol=5)
+    fig.suptitle(f"{est_name} vs {ref_name}: pose errors (alignment {r.alignment['method']})")
+    fig.tight_layout()
+    try:
+        save_figure(fig, paths[0], overwrite)
+    finally:
+        plt.close(fig)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    for ax, (i, j), view in zip(axes, ((0, 1), (0, 2)), ("top (x-y)", "side (x-z)")):
+        ax.plot(r.ref_xyz[:, i], r.ref_xyz[:, j], "-", color="k", lw=1.2, label=ref_name)
+        ax.plot(r.est_xyz[:, i], r.est_xyz[:, j], "-", color="C1", lw=1.0, label=est_name)
+        ax.set_xlabel(f"{'xyz'[i]} [m]")
+        ax.set_ylabel(f"{'xyz'[j]} [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(view)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{est_name} (aligned: {r.alignment['method']}) and {ref_name}")
+    fig.tight_layout()
+    try:
+        save_figure(fig, paths[1], overwrite)
+    finally:
+        plt.close(fig)
+    return paths
+
+
+#: View name -> axes drawn (indices into x, y, z); ``"3d"`` draws all three.
+TRAJECTORY_VIEWS = {"top": (0, 1), "side": (0, 2), "front": (1, 2), "3d": (0, 1, 2)}
+
+
+def plot_trajectories(path, streams, names, views=("top", "side", "3d"),
+                      overwrite: bool = False) -> None:  # fmt: skip
+    """Positions of several recordings overlaid, one panel per view, start and end marked.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output PNG.
+    streams : sequence of PoseStream
+        ``T_world_body`` recordings in one world frame [m].
+    names : sequence of str
+        Legend labels.
+    views : sequence of {"top", "side", "front", "3d"}
+    """
+    unknown = [v for v in views if v not in TRAJECTORY_VIEWS]
+    if unknown or not views:
+        raise ValueError(f"views must be some of {list(TRAJECTORY_VIEWS)}, got {list(views)}")
+    plt = _pyplot()
+    fig = plt.figure(figsize=(5.5 * len(views), 5))
+    for k, view in enumerate(views):
+        axes_idx = TRAJECTORY_VIEWS[view]
+        ax = fig.add_subplot(1, len(views), k + 1, **({"projection": "3d"} if view == "3d" else {}))
+        for c, (s, name) in enumerate(zip(streams, names)):
+            p = np.asarray(s.position)
+            cols = [p[:, i] for i in axes_idx]
+            ax.plot(*cols, "-", lw=1.0, color=f"C{c}", label=name)
+            ax.plot(*[[v[0]] for v in cols], "o", ms=4, color=f"C{c}")
+            ax.plot(*[[v[-1]] for v in cols], "s", ms=4, color=f"C{c}")
+        ax.set_xlabel(f"{'xyz'[axes_idx[0]]} [m]")
+        ax.set_ylabel(f"{'xyz'[axes_idx[1]]} [m]")
+        if view == "3d":
+            ax.set_zlabel("z [m]")
+        else:
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.grid(alpha=0.3)
+        ax.set_title(f"{view} view" + ("" if view == "3d" else f" ({'xyz'[axes_idx[0]]}-"
+                                                             f"{'xyz'[axes_idx[1]]})"))  # fmt: skip
+        if k == 0:
+            ax.legend(fontsize=8, title="o start, \u25a1 end", title_fontsize=7)
+    fig.suptitle("trajectories: " + ", ".join(names))
+    fig.tight_layout()
+    try:
+        save_figure(fig, path, overwrite)
+    finally:
+        plt.close(fig)

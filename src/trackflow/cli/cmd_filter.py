@@ -34,6 +34,12 @@ def register(subparsers):
     p.add_argument("--horizon", type=float, default=0.0, help="predict this many ms ahead")
     p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning uses (ms)")
     add_learned_orders(p)
+    p.add_argument(
+        "--no-calibrate",
+        action="store_true",
+        help="keep the model's noise as it is (default: scale it so that the mean NIS on this "
+        "recording matches the measurement dimension, making the output sigmas honest)",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -54,7 +60,7 @@ def run(args) -> int:
             ar_orders=parse_orders(args.learned_orders) if args.horizon == 0 else (),
             progress=None if args.quiet else FinishingStream(sys.stderr),
         ).predictor  # fmt: skip
-    res = filter_stream(stream, pred, args.horizon / 1e3)
+    res = filter_stream(stream, pred, args.horizon / 1e3, calibrate=not args.no_calibrate)
     from ._common import save
 
     save(args, res.stream)
@@ -64,7 +70,8 @@ def run(args) -> int:
         print(
             f"filtered {len(stream)} samples ({pred.as_dict()['family']} model): "
             f"{res.rejected} rejected, {res.resets} resets, mean NIS {mean:.3g} "
-            f"({inside} the 99 % band {lo:.3g}..{hi:.3g})",
+            f"({inside} the 99 % band {lo:.3g}..{hi:.3g}); noise variance scale "
+            + ", ".join(f"{k:.3g}" for k in res.noise_scale),
             file=sys.stderr,
         )
     return 0

@@ -8,6 +8,7 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 from ._component import Component
 from ._demo import DemoConfig, demo_json, run_demo
 from ._events import ComponentStats, Measurement
+from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler, make_filter
@@ -25,6 +26,7 @@ __all__ = [
     "Inversion",
     "KalmanFilter",
     "LatestValue",
+    "LookupResult",
     "Measurement",
     "Network",
     "Plan",
@@ -38,8 +40,10 @@ __all__ = [
     "StaticPose",
     "demo_json",
     "load_setup",
+    "lookup",
     "make_filter",
     "parse_setup",
     "plan_query",
     "run_demo",
+    "rpy_deg",
 ]

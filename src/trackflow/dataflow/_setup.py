@@ -95,7 +95,7 @@ class Setup:
         out = {}
         for name, path in self.recordings.items():
             edge = self.graph.edge(name)
-            stream = read_stream(path)
+            stream, _ = read_stream(path)
             out[name] = RecordingPlayer.from_stream(
                 name, stream, int(round(edge.latency_s * 1e9)), covariance=edge.covariance
             )

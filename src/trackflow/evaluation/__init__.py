@@ -6,6 +6,7 @@ See ``docs/posetool.md``.
 """
 
 from ._baselines import predict_linear, predict_none
+from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories, umeyama
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
 from ._model_file import (
@@ -29,6 +30,12 @@ from ._targets import default_gap, interpolate_poses, scored_mask
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 
 __all__ = [
+    "ALIGNMENTS",
+    "CompareResult",
+    "Stats",
+    "associate",
+    "compare_trajectories",
+    "umeyama",
     "LEARNED_ORDERS",
     "PREDICTORS",
     "ErrorStats",

@@ -149,25 +149,66 @@ class FilterRun:
         Measurements the outlier gate refused.
     resets : int
         Times the filter started again (divergence, repeated gating; not the first sample).
+    noise_scale : tuple of float
+        Variance factor applied to the predictor's measurement and process noise by the
+        calibration (one per filter: position and orientation for a partwise predictor).
+    predictor : object
+        The predictor that produced ``stream`` (after calibration).
+    dof : int
+        Degrees of freedom of ``nis`` (6 for a whole pose, 3 + 3 for two independent parts,
+        more when a learned part measures the whole pose).
     """
 
     stream: PoseStream
     nis: np.ndarray
     rejected: int
     resets: int
+    noise_scale: tuple[float, ...] = (1.0,)
+    predictor: object = None
+    dof: int = 6
 
     def nis_band(self, probability: float = 0.99) -> tuple[float, float, float]:
         """Mean NIS and its two-sided ``probability`` band for the number of measurements.
 
-        Under a consistent filter the mean of ``n`` NIS values of ``dof = 6`` lies in
-        ``chi2(n dof) / n`` at the given probability.
+        Under a consistent filter the mean of ``n`` NIS values of ``dof`` degrees of freedom
+        lies in ``chi2(n dof) / n`` at the given probability.
         """
         from scipy.stats import chi2
 
         v = self.nis[np.isfinite(self.nis)]
         n = max(len(v), 1)
-        lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 6 * n) / n
+        lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], self.dof * n) / n
         return float(np.mean(v)) if len(v) else float("nan"), float(lo), float(hi)
+
+
+def scale_noise(pred, k: float):
+    """``pred`` with every noise variance (measurement and process) multiplied by ``k``.
+
+    For a linear Kalman filter this leaves the gain and so the estimates unchanged and scales
+    every covariance and the inverse NIS by ``k``; the error-state filters here are close to
+    linear over one step, so the means change only through the outlier gate.
+    """
+    if not (np.isfinite(k) and k > 0):
+        raise ValueError(f"noise scale must be > 0, got {k!r}")
+    r = float(np.sqrt(k))
+    if isinstance(pred, KalmanPredictor):
+        m = pred.model
+        model = MotionModel(m.n_dp, m.n_do, noise=np.asarray(m.noise) * r, kind=m.kind)
+        return KalmanPredictor(model, pred.pos_sigma * r, pred.ori_sigma * r,
+                               pred.gate_probability)  # fmt: skip
+    if isinstance(pred, TwistARPredictor):
+        m = pred.model
+        model = TwistARModel(m.dt, m.coefficients, np.asarray(m.noise) * k,
+                             np.asarray(m.twist_covariance) * k)  # fmt: skip
+        return TwistARPredictor(model, pred.pos_sigma * r, pred.ori_sigma * r)
+    raise ValueError(f"cannot scale {type(pred).__name__}")
+
+
+def _dof(pred) -> int:
+    """Measurement dimension of one filter (position-only / orientation-only parts: 3)."""
+    if isinstance(pred, KalmanPredictor) and min(pred.model.n_dp, pred.model.n_do) < 0:
+        return 3
+    return 6
 
 
 def _run_part(pred, t, p, q, horizon: float):
@@ -190,27 +231,51 @@ def _run_part(pred, t, p, q, horizon: float):
     return res.position, res.quaternion, res.covariance, res.nis, 0, max(res.restarts - 1, 0)
 
 
-def filter_stream(stream: PoseStream, pred, horizon: float = 0.0) -> FilterRun:
+def _calibrated(pred, t, p, q, horizon: float, calibrate: bool):
+    """Run one filter; with ``calibrate`` once more with its noise scaled to mean NIS = dof."""
+    out = _run_part(pred, t, p, q, horizon)
+    if not calibrate:
+        return pred, 1.0, out
+    nis = out[3][np.isfinite(out[3])]
+    if not nis.size:
+        return pred, 1.0, out
+    k = float(np.mean(nis)) / _dof(pred)
+    pred = scale_noise(pred, k)
+    return pred, k, _run_part(pred, t, p, q, horizon)
+
+
+def filter_stream(
+    stream: PoseStream, pred, horizon: float = 0.0, calibrate: bool = False
+) -> FilterRun:
     """Run ``pred`` (any family) over ``stream``; predictions ``horizon`` seconds ahead if > 0.
 
     A partwise predictor takes the position (and its 3x3 covariance block) from its position
     filter and the orientation from its orientation filter; the cross-covariance between the
     two is zero, as the filters are independent.
+
+    With ``calibrate`` each filter's noise (measurement and process together, see
+    :func:`scale_noise`) is scaled so that its mean NIS over the recording equals its
+    measurement dimension, and the filter is run again: the reported covariances then match the
+    size of the innovations actually seen (a covariance-matching step on the recording itself).
     """
     t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
     p = np.asarray(stream.position, float)
     q = np.asarray(stream.quaternion, float)
     if isinstance(pred, PartwisePredictor):
-        a = _run_part(pred.position, t, p, q, horizon)
-        b = _run_part(pred.orientation, t, p, q, horizon)
+        pa, ka, a = _calibrated(pred.position, t, p, q, horizon, calibrate)
+        pb, kb, b = _calibrated(pred.orientation, t, p, q, horizon, calibrate)
         cov = np.zeros((len(t), 6, 6))
         cov[:, :3, :3] = a[2][:, :3, :3]
         cov[:, 3:, 3:] = b[2][:, 3:, 3:]
         pos, quat = a[0], b[1]
-        nis = a[3] + b[3]
+        nis, dof = a[3] + b[3], _dof(pa) + _dof(pb)
         rejected, resets = a[4] + b[4], a[5] + b[5]
+        scales, used = (ka, kb), PartwisePredictor(pa, pb)
     else:
-        pos, quat, cov, nis, rejected, resets = _run_part(pred, t, p, q, horizon)
+        used, k, (pos, quat, cov, nis, rejected, resets) = _calibrated(
+            pred, t, p, q, horizon, calibrate
+        )
+        scales, dof = (k,), _dof(used)
     poses = UncertainPose(Pose(pos, quat), np.array(cov))
     out = PoseStream.from_poses(stream.source, stream.target, stream.t_ns, poses)
-    return FilterRun(out, np.asarray(nis, float), rejected, resets)
+    return FilterRun(out, np.asarray(nis, float), rejected, resets, scales, used, dof)
