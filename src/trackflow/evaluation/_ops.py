@@ -31,9 +31,15 @@ def stream_info(stream: PoseStream) -> dict:
     regular = dt[dt <= gap]
     v = np.linalg.norm(np.diff(stream.position, axis=0), axis=1) / dt
     q = np.asarray(stream.quaternion)
-    w = np.degrees(np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:])), axis=1))
+    w = np.empty(n - 1)
+    flips = 0
+    for i in range(0, n - 1, _BLOCK):  # blocks: temporaries stay small for long recordings
+        a = q[i : min(i + _BLOCK, n - 1)]
+        b = q[i + 1 : i + 1 + len(a)]
+        rel = quat_log(quat_multiply(quat_conjugate(a), b))
+        w[i : i + len(a)] = np.degrees(np.linalg.norm(rel, axis=1))
+        flips += int(np.count_nonzero(np.einsum("ij,ij->i", a, b) < 0))
     w = w / dt
-    flips = int(np.count_nonzero(np.sum(q[1:] * q[:-1], axis=1) < 0))
     out.update(
         duration_s=float(t[-1]),
         rate_hz=1.0 / med,
@@ -48,6 +54,7 @@ def stream_info(stream: PoseStream) -> dict:
     return out
 
 
+_BLOCK = 1 << 16
 _STATS = {"median": np.median, "p95": lambda x: np.percentile(x, 95), "max": np.max}
 
 
