@@ -30,6 +30,8 @@ FORMATS = ("native", "tum", "euroc", "csv", "rosbag", "quest", "broad", "kitti")
 #: ``trackflow.evaluation.LEARNED_ORDERS`` (mirrored for the same reason).
 LEARNED_ORDERS = (3, 5, 10)
 TIME_UNITS = ("s", "ms", "us", "ns")
+#: Files larger than this get a "reading ..." line on standard error.
+LARGE_FILE_BYTES = 20_000_000
 
 #: Reader options a flag sets: dest -> library keyword.
 _READ_OPTIONS = {
@@ -119,17 +121,28 @@ def load(args, name: str = "file", suffix: str = "", min_samples: int = 1):
     anything, or guessed the format (unless ``--quiet``). Fewer than ``min_samples`` samples
     is an error naming the file and what was dropped.
     """
+    import os
+    import time
+
     from ..io import read_stream
 
     path = getattr(args, name)
     fmt = getattr(args, "format" + suffix, None)
+    quiet = getattr(args, "quiet", False)
+    big = path != "-" and os.path.isfile(path) and os.path.getsize(path) > LARGE_FILE_BYTES
+    if big and not quiet:
+        print(f"trackflow: reading {path} ({os.path.getsize(path) / 1e6:.0f} MB) ...",
+              end="", file=sys.stderr, flush=True)  # fmt: skip
+    t0 = time.perf_counter()
     stream, report = read_stream(
         path, format=fmt, clean=getattr(args, "clean", False), **_reader_options(args, suffix)
     )
+    if big and not quiet:
+        print(f" {len(stream)} samples in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     # rescaling quaternions within the rounding of their printed digits is not news
     notes = [n for n in report.notes if "rounding tolerance" not in n]
     notable = report.dropped or report.normalized or report.truncated or notes
-    if notable and not getattr(args, "quiet", False):
+    if notable and not quiet:
         text = report.summary().replace(
             f"({report.format})",
             f"(read as {report.format}" + ("" if fmt else ", format guessed") + ")",

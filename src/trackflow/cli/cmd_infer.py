@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ._common import add_input, add_output, load, save
+from ._progress import Progress
 
 
 def register(subparsers):
@@ -38,5 +39,13 @@ def run(args) -> int:
             "frames with --source/--target and --source2/--target2"
         )
     method = "interpolate" if args.interpolate else "filter"
-    save(args, infer_streams(a, b, method=method))
+    bar = Progress("inferring", 1, enabled=not args.quiet)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = max(total, 1)
+        bar.update(done)
+
+    out = infer_streams(a, b, method=method, progress=progress)
+    bar.close()
+    save(args, out)
     return 0

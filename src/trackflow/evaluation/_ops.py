@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..filters import PoseKalmanFilter
@@ -106,8 +108,12 @@ def infer_streams(
     method: str = "filter",
     predictor_a: KalmanPredictor | None = None,
     predictor_b: KalmanPredictor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> PoseStream:
     """Chain ``T_x_y`` (``a``) and ``T_y_z`` (``b``) into ``T_x_z``, time-aligned.
+
+    ``progress(done, total)``, if given, is called as the filters advance (``total`` counts
+    every measurement and query of both recordings).
 
     ``method="filter"`` (default): each recording runs through a pose Kalman filter
     (:class:`trackflow.filters.PoseKalmanFilter` keeping its whole history; motion model and
@@ -148,8 +154,9 @@ def infer_streams(
         raise ValueError("the recordings do not overlap in time")
     tq = tq[keep]
     ts = (tq - t0).astype(float) * 1e-9
-    ua = _filtered_at(a, predictor_a, t0, ts)
-    ub = _filtered_at(b, predictor_b, t0, ts)
+    total = len(a) + len(b) + 2 * len(ts)
+    ua = _filtered_at(a, predictor_a, t0, ts, progress, 0, total)
+    ub = _filtered_at(b, predictor_b, t0, ts, progress, len(a) + len(ts), total)
     return PoseStream.from_poses(a.source, b.target, tq, ua.compose(ub))
 
 
@@ -161,7 +168,9 @@ def _inside(tq: np.ndarray, t: np.ndarray) -> np.ndarray:
     return (tq >= t[0]) & (tq <= t[-1]) & ((t[j + 1] - t[j]).astype(float) * 1e-9 <= gap)
 
 
-def _filtered_at(s: PoseStream, predictor, t0: int, ts: np.ndarray) -> UncertainPose:
+def _filtered_at(
+    s: PoseStream, predictor, t0: int, ts: np.ndarray, progress=None, done: int = 0, total: int = 0
+) -> UncertainPose:
     """Run ``s`` through a pose Kalman filter and query it (smoothed) at ``ts`` [s from t0]."""
     t = (s.t_ns - t0).astype(float) * 1e-9
     p, q = np.asarray(s.position, float), np.asarray(s.quaternion, float)
@@ -170,9 +179,16 @@ def _filtered_at(s: PoseStream, predictor, t0: int, ts: np.ndarray) -> Uncertain
     kf = PoseKalmanFilter(
         pred.model, history=float(t[-1] - t[0]) + 1.0, gate_probability=pred.gate_probability
     )
+    step = 4096
     for k in range(len(t)):
         kf.update_pose(float(t[k]), meas[k])
-    out = [kf.predict(float(v)) for v in ts]
+        if progress is not None and k % step == 0:
+            progress(done + k, total)
+    out = []
+    for k, v in enumerate(ts):
+        out.append(kf.predict(float(v)))
+        if progress is not None and k % step == 0:
+            progress(done + len(t) + k, total)
     return UncertainPose(
         Pose(np.stack([u.position for u in out]), np.stack([u.quaternion for u in out])),
         np.stack([u.covariance for u in out]),
