@@ -44,7 +44,19 @@ def _is_ros1(path: Path) -> bool:
     return path.suffix == ".bag"
 
 
+def require_rosbags() -> None:
+    """Raise ``ImportError`` naming the extra to install when ``rosbags`` is missing."""
+    try:
+        import rosbags  # noqa: F401
+    except ImportError:
+        raise ImportError(
+            "ROS bags need the rosbags package, which is not installed: "
+            "pip install 'trackflow[ros]'"
+        ) from None
+
+
 def _typestore(ros1: bool):
+    require_rosbags()
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -85,6 +97,7 @@ def read_rosbag(
 
     Locations in the report and in errors are 0-based message indices on the topic.
     """
+    require_rosbags()
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     path = Path(path)
@@ -199,6 +212,7 @@ def write_rosbag(
     The bag is written under the output policy of :func:`trackflow.io.atomic_output` (atomic;
     an existing bag is replaced only with ``overwrite``).
     """
+    require_rosbags()
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import Writer as Writer2
 

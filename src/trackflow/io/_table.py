@@ -265,7 +265,9 @@ def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.nda
     except UnicodeEncodeError:
         return None
     neg = np.strings.startswith(toks, b"-")
-    body = np.where(neg, np.strings.slice(toks, 1, None), toks)
+    if np.any(np.strings.startswith(toks, b"--")):
+        return None
+    body = np.where(neg, np.strings.lstrip(toks, b"-"), toks)
     whole, _, frac = np.strings.partition(body, b".")
     flen = np.strings.str_len(frac)
     ok = np.strings.isdigit(whole) & ((flen == 0) | np.strings.isdigit(frac))
