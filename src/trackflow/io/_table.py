@@ -268,7 +268,8 @@ def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.nda
     if np.any(np.strings.startswith(toks, b"--")):
         return None
     body = np.where(neg, np.strings.lstrip(toks, b"-"), toks)
-    whole, _, frac = np.strings.partition(body, b".")
+    parts = np.char.partition(body, b".")  # np.strings.partition needs numpy >= 2.1
+    whole, frac = parts[:, 0], parts[:, 2]
     flen = np.strings.str_len(frac)
     ok = np.strings.isdigit(whole) & ((flen == 0) | np.strings.isdigit(frac))
     if not ok.all() or flen.max() > exponent or np.strings.str_len(whole).max() > 18:
