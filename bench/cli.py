@@ -13,7 +13,7 @@ on a real recording:
 Bars (issue 12): first minus warm <= 10 s per command, help < 0.3 s, infer on EuRoC < 3 s.
 The machine is shared: run it when it is quiet, and read the figures as upper bounds.
 
-    python bench/cli.py [--json] [--recording PATH]
+    python bench/cli.py [--json] [--recording PATH] [--data ../shared/data]
 """
 
 from __future__ import annotations
@@ -29,9 +29,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT / ".." / "shared" / "data"
-DEFAULT_RECORDING = SHARED / "tum_rgbd" / "freiburg1_xyz-groundtruth.txt"
 FALLBACK_RECORDING = ROOT / "tests" / "cli" / "data" / "fr1_xyz_groundtruth_10s.txt"
-EUROC = SHARED / "euroc" / "V1_01_easy_groundtruth_200hz.txt"
 
 
 def run(args: list[str], env: dict, cwd: Path) -> float:
@@ -57,10 +55,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true", help="print the issue's JSON keys only")
     ap.add_argument("--recording", type=Path, default=None, help="recording for the commands")
+    ap.add_argument("--data", type=Path, default=SHARED, help="the shared recordings folder")
     args = ap.parse_args()
-    rec = args.recording or (
-        DEFAULT_RECORDING if DEFAULT_RECORDING.exists() else FALLBACK_RECORDING
-    )
+    default = args.data / "tum_rgbd" / "freiburg1_xyz-groundtruth.txt"
+    rec = args.recording or (default if default.exists() else FALLBACK_RECORDING)
+    euroc = args.data / "euroc" / "V1_01_easy_groundtruth_200hz.txt"
     base = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     base.pop("NUMBA_CACHE_DIR", None)
     first, warm = {}, {}
@@ -75,8 +74,8 @@ def main() -> int:
         env = dict(base, NUMBA_CACHE_DIR=str(d / "cache-infer" / "numba"))
         help_s = min(run(["--help"], base, d) for _ in range(5))
         infer_s = None
-        if EUROC.exists():
-            argv = ["infer", str(EUROC), str(EUROC), str(d / "inferred.tfrec"), "--target", "mid",
+        if euroc.exists():
+            argv = ["infer", str(euroc), str(euroc), str(d / "inferred.tfrec"), "--target", "mid",
                     "--source2", "mid", "--force", "--quiet"]  # fmt: skip
             run(argv, env, d)  # compile once
             infer_s = run(argv, env, d)
