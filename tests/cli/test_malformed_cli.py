@@ -324,6 +324,17 @@ CASES = [
         ["m.json", "noise"],
     ),
     (
+        "model-n-dp-7",
+        {
+            "a.txt": TUM_OK,
+            "m.json": '{"trackflow_model": 1, "predictor": {"family": '
+            '"derivative", "n_dp": 7, "n_do": 1, "noise": [1, 1, 1, 1, 1, 1, 1, 1, 1, 1], '
+            '"pos_sigma": 0.001, "ori_sigma": 0.01}}',
+        },
+        ["filter", "a.txt", "o.txt", "--model", "m.json"],
+        ["m.json", "n_dp", "-1..3"],
+    ),
+    (
         "model-missing-file",
         {"a.txt": TUM_OK},
         ["filter", "a.txt", "o.txt", "--model", "m.json"],

@@ -37,6 +37,9 @@ __all__ = [
 ]
 
 MODEL_FILE_VERSION = 1
+#: Most time derivatives a model file may keep per part (the tuning tries 1..3; the setups'
+#: motion models allow 0..3).
+MAX_DERIVATIVES = 3
 
 
 def predictor_to_dict(pred) -> dict:
@@ -76,9 +79,16 @@ def predictor_from_dict(d: dict, where: str = "model"):
     family = _field(d, "family", where)
     try:
         if family == "derivative":
+            counts = {k: _field(d, k, where) for k in ("n_dp", "n_do")}
+            for k, v in counts.items():
+                if not isinstance(v, int) or isinstance(v, bool) or not -1 <= v <= MAX_DERIVATIVES:
+                    raise ValueError(
+                        f"{k} must be an integer in -1..{MAX_DERIVATIVES} (derivatives in the "
+                        f"state), got {v!r}"
+                    )
             model = MotionModel(
-                int(_field(d, "n_dp", where)),
-                int(_field(d, "n_do", where)),
+                counts["n_dp"],
+                counts["n_do"],
                 noise=[float(v) for v in _field(d, "noise", where)],
                 kind=str(d.get("kind", "white_noise")),
             )
