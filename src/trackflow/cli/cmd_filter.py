@@ -17,6 +17,7 @@ from ._common import (
     load,
     parse_horizons,
     parse_orders,
+    save,
     stream_arrays,
 )
 from ._progress import FinishingStream
@@ -61,8 +62,6 @@ def run(args) -> int:
             progress=None if args.quiet else FinishingStream(sys.stderr),
         ).predictor  # fmt: skip
     res = filter_stream(stream, pred, args.horizon / 1e3, calibrate=not args.no_calibrate)
-    from ._common import save
-
     save(args, res.stream)
     if not args.quiet:
         mean, lo, hi = res.nis_band()
