@@ -143,6 +143,7 @@ def test_columns_time_unit_and_frames(tmp_path):
     assert s.t_ns.tolist() == [k * 10_000_000 for k in range(5)]
 
 
+@pytest.mark.slow
 def test_infer_chains_two_tum_files_with_frame_flags(tmp_path):
     out = tmp_path / "o.txt"
     argv = ["infer", str(GT), str(GT), str(out), "--interpolate", "--target", "cam",
@@ -188,6 +189,7 @@ def test_kitti_reads_a_times_file(tmp_path):
     assert s.position.tolist() == [[1, 2, 3], [4, 5, 6]]
 
 
+@pytest.mark.slow
 def test_model_file_round_trip_learned_family(tmp_path, capsys):
     """``tune --output`` writes any family; ``filter --model`` runs it (the learned one too)."""
     model = tmp_path / "m.json"
@@ -217,6 +219,7 @@ def test_model_file_round_trip_learned_family(tmp_path, capsys):
     assert len(s) == 1000 and s.covariance is not None
 
 
+@pytest.mark.slow
 def test_evaluate_names_the_winning_model(capsys):
     assert main(["evaluate", str(GT), "--quiet", "--learned-orders", "none"]) == 0
     first = capsys.readouterr().out.splitlines()[0]

@@ -140,6 +140,7 @@ def _setup(tmp_path) -> Path:
     return tmp_path / "s.yaml"
 
 
+@pytest.mark.slow
 def test_lookup_between_samples(tmp_path, capsys):
     setup = _setup(tmp_path)
     s, _ = read_stream(GT)

@@ -50,6 +50,7 @@ def test_finishing_stream_completes_an_early_stopped_bar():
     assert "[" + "#" * 30 + "]" in last and last.endswith("\n") and "(done)" in last
 
 
+@pytest.mark.slow
 def test_evaluate_bar_reaches_100_percent(capsys):
     assert main(["evaluate", str(GT), "--learned-orders", "none", "--horizons", "50"]) == 0
     err = capsys.readouterr().err
@@ -66,6 +67,7 @@ def test_progress_bar_percentages():
     assert " 25 %" in text and text.rstrip().endswith("100 %")
 
 
+@pytest.mark.slow
 def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
     import trackflow.plotting as plotting
     from trackflow.evaluation import default_predictor
