@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test lint demo bench clean
+.PHONY: venv test test-min lint demo bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,18 @@ lint: $(STAMP)
 test: lint
 	$(PY) -m pytest -q -n 2 --dist loadfile
 
+# The suite on the declared minimum versions (constraints/min.txt), in a venv of its own.
+MIN := .venv-min
+$(MIN)/.installed: pyproject.toml constraints/min.txt
+	$(PYTHON) -m venv $(MIN)
+	$(MIN)/bin/python -m pip install --quiet --upgrade pip
+	$(MIN)/bin/python -m pip install --quiet -c constraints/min.txt -e '.[all]' \
+		'pytest>=8' 'pytest-xdist>=3.5' 'hypothesis>=6.100'
+	touch $(MIN)/.installed
+
+test-min: $(MIN)/.installed
+	$(MIN)/bin/python -m pytest -q -n 2 --dist loadfile
+
 demo: $(STAMP)
 	$(VENV)/bin/trackflow demo
 
@@ -34,4 +46,4 @@ bench: $(VENV)/.bench
 	$(PY) bench/run_all.py
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(MIN) .pytest_cache .ruff_cache

@@ -241,7 +241,7 @@ def main(argv=None) -> int:
     res = {f: solve_hand_eye(robot, quest, form=f) for f in ("robot-world", "hand-eye")}
     for f, r in res.items():
         write_hand_eye_report(out / f"quest_{f}", r)  # report.json + residuals.png
-    summary["quest_clock_calib"] = {k: v for k, v in clock.to_dict().items()
+    summary["quest_clock_calib"] = {k: v for k, v in clock.as_dict().items()
                                     if k in ("offset_s", "offset_sigma_s", "drift",
                                              "drift_sigma", "peak_correlation")}  # fmt: skip
     summary["quest_clock_traj1"] = {"offset_s": clock1.offset_s, "offset_sigma_s": clock1.sigma_s}

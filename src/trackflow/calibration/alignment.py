@@ -43,7 +43,7 @@ class AlignmentResult:
     residuals: np.ndarray
     inliers: np.ndarray
 
-    def to_dict(self) -> dict:
+    def as_dict(self) -> dict:
         return {
             "position": [float(v) for v in self.T.position],
             "quaternion": [float(v) for v in self.T.quaternion],

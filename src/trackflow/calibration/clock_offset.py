@@ -70,7 +70,7 @@ class ClockOffset:
     correlation: np.ndarray
     residual_rad_s: float
 
-    def to_dict(self) -> dict:
+    def as_dict(self) -> dict:
         return {
             "offset_s": self.offset_s,
             "offset_sigma_s": self.sigma_s,

@@ -54,7 +54,7 @@ class NoiseResult:
     def sigma_ori_deg(self) -> np.ndarray:
         return np.degrees(np.sqrt(np.diag(self.covariance)[3:]))
 
-    def to_dict(self) -> dict:
+    def as_dict(self) -> dict:
         return {
             "method": self.method,
             "sigma_pos_mm": [float(v) for v in self.sigma_pos_mm],

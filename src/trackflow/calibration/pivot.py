@@ -36,7 +36,7 @@ class PivotResult:
     residuals: np.ndarray | None = None  # (N, 3) metres, for plots
     inliers: np.ndarray | None = None
 
-    def to_dict(self) -> dict:
+    def as_dict(self) -> dict:
         sig = np.sqrt(np.diag(self.covariance)) * 1e3
         return {
             "tip": [float(v) for v in self.tip],

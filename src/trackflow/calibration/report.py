@@ -57,7 +57,7 @@ def write_clock_report(directory, result) -> Path:
     """``report.json`` and ``correlation.png`` for a :class:`ClockOffset`."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    (d / "report.json").write_text(json.dumps(result.to_dict(), indent=2))
+    (d / "report.json").write_text(json.dumps(result.as_dict(), indent=2))
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.plot(result.lags_s, result.correlation)

@@ -97,7 +97,7 @@ def run_clock(args) -> int:
                        note=f"clock offset of {args.b} to {args.a}")  # fmt: skip
     if args.report:
         write_clock_report(args.report, r)
-    _print(r.to_dict(), args.json)
+    _print(r.as_dict(), args.json)
     return 0
 
 
@@ -225,9 +225,9 @@ def run_align(args) -> int:
             note=f"alignment of {args.b} to {args.a}",
         )
     if args.report:
-        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+        _residual_report(args.report, r.as_dict(), r.residuals, r.inliers,
                          f"alignment: {r.residual_rmse_mm:.2f} mm RMSE", r.times_s)  # fmt: skip
-    _print(r.to_dict(), args.json)
+    _print(r.as_dict(), args.json)
     return 0
 
 
@@ -267,8 +267,8 @@ def run_noise(args) -> int:
             note=f"{args.method} noise of {args.file}",
         )
     if args.report:
-        _residual_report(args.report, r.to_dict(), r.errors, None, f"{args.method} noise samples")
-    _print(r.to_dict(), args.json)
+        _residual_report(args.report, r.as_dict(), r.errors, None, f"{args.method} noise samples")
+    _print(r.as_dict(), args.json)
     return 0
 
 
@@ -301,7 +301,7 @@ def run_pivot(args) -> int:
         write_fragment(args.fragment, statics=[static_edge("tip", stream.target, args.tip_frame,
                        tip)], note=f"pivot calibration of {args.file}")  # fmt: skip
     if args.report:
-        _residual_report(args.report, r.to_dict(), r.residuals, r.inliers,
+        _residual_report(args.report, r.as_dict(), r.residuals, r.inliers,
                          f"pivot: {r.residual_rms_mm:.2f} mm RMS")  # fmt: skip
-    _print(r.to_dict(), args.json)
+    _print(r.as_dict(), args.json)
     return 0

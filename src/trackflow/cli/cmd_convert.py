@@ -2,13 +2,7 @@
 
 from __future__ import annotations
 
-from ..io import FORMATS, write_stream
-from ._common import add_input, load
-
-
-def add_output(p) -> None:
-    p.add_argument("output", help="output file (format from --to or its extension)")
-    p.add_argument("--to", choices=FORMATS, default=None, help="output format")
+from ._common import add_input, add_output, load, save
 
 
 def register(subparsers):
@@ -20,5 +14,5 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    write_stream(args.output, load(args.file, args.format, args.clean), format=args.to)
+    save(args, load(args))
     return 0

@@ -5,8 +5,14 @@ from __future__ import annotations
 import json
 import sys
 
-from ..evaluation import Trajectory, evaluate_recording
-from ._common import add_input, add_learned_orders, load, parse_horizons, parse_orders
+from ._common import (
+    add_input,
+    add_learned_orders,
+    load,
+    parse_horizons,
+    parse_orders,
+)
+from ._progress import FinishingStream
 
 
 def register(subparsers):
@@ -28,23 +34,41 @@ def register(subparsers):
     p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning cost uses (ms)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     add_learned_orders(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
 
 
+def describe_model(d: dict) -> str:
+    """One line naming the chosen filter: family, derivative counts or learned order."""
+    fam = d.get("family") or d.get("kind")
+    if fam == "partwise":
+        return (
+            f"position: {describe_model(d['position'])}; "
+            f"orientation: {describe_model(d['orientation'])}"
+        )
+    if fam in ("twist_ar",) or d.get("kind") == "twist_ar":
+        return f"learned increment model of order {d.get('order')}"
+    return (
+        f"derivative model ({d.get('n_dp')} position, {d.get('n_do')} orientation "
+        f"derivatives, {d.get('kind')} noise)"
+    )
+
+
 def run(args) -> int:
-    recording = Trajectory.from_stream(load(args.file, args.format, args.clean))
+    from ..evaluation import Trajectory, evaluate_recording
+
+    recording = Trajectory.from_stream(load(args, min_samples=10))
     report = evaluate_recording(
         recording,
         horizons=parse_horizons(args.horizons),
         tune_fraction=args.tune_fraction,
         tune_horizons=parse_horizons(args.tune_horizons),
         ar_orders=parse_orders(args.learned_orders),
-        progress=None if args.quiet else sys.stderr,
+        progress=None if args.quiet else FinishingStream(sys.stderr),
     )
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
     else:
+        print(f"kalman = {describe_model(report.predictor.as_dict())}")
         print(report.table())
     return 0

@@ -1,51 +1,74 @@
-"""``trackflow filter``: run a pose Kalman filter, write filtered poses with covariances."""
+"""``trackflow filter``: run a tuned pose Kalman filter, write filtered poses with covariances.
+
+Without ``--model`` the filter is tuned on the recording itself first (as ``tune`` does), so
+the default output's covariances describe the recording; ``--model`` takes a file written by
+``tune --output`` (any family, the learned one included). A summary of how the filter fared
+(rejected measurements, resets, mean NIS against its 99 % band) goes to standard error.
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import sys
 
-from ..evaluation import default_predictor
-from ..filters import MotionModel, run_filter
-from ..io import PoseStream, write_stream
-from ..math import Pose, UncertainPose
-from ._common import add_input, load
-from .cmd_convert import add_output
+from ._common import (
+    add_input,
+    add_learned_orders,
+    add_output,
+    load,
+    parse_horizons,
+    parse_orders,
+    save,
+)
+from ._progress import FinishingStream
 
 
 def register(subparsers):
-    p = subparsers.add_parser("filter", help="Kalman-filter a recording (motion model)")
+    p = subparsers.add_parser(
+        "filter",
+        help="Kalman-filter a recording (tuned on it, or a model file from tune --output)",
+        description=__doc__.split("\n\n", 1)[1],
+    )
     add_input(p)
     add_output(p)
-    p.add_argument("--n-dp", type=int, default=2, help="position derivatives")
-    p.add_argument("--n-do", type=int, default=1, help="orientation derivatives")
-    p.add_argument(
-        "--noise",
-        default=None,
-        help="comma-separated white-noise densities per level (position levels, then "
-        "orientation levels); default: 30 on each highest level",
-    )
+    p.add_argument("--model", default=None, help="model file from 'trackflow tune --output'")
     p.add_argument("--horizon", type=float, default=0.0, help="predict this many ms ahead")
+    p.add_argument("--tune-horizons", default="50,100", help="horizons the tuning uses (ms)")
+    add_learned_orders(p)
+    p.add_argument(
+        "--no-calibrate",
+        action="store_true",
+        help="keep the model's noise as it is (default: scale it so that the mean NIS on this "
+        "recording matches the measurement dimension, making the output sigmas honest)",
+    )
     p.set_defaults(func=run)
     return p
 
 
 def run(args) -> int:
-    stream = load(args.file, args.format, args.clean)
-    if args.noise is None:
-        noise = [0.0] * args.n_dp + [30.0] + [0.0] * args.n_do + [30.0]
+    from ..evaluation import Trajectory, filter_stream, load_model, tune_model
+
+    if not (args.horizon >= 0 and args.horizon < 1e7):
+        raise ValueError(f"--horizon must be >= 0 ms, got {args.horizon}")
+    stream = load(args, min_samples=10)
+    if args.model is not None:
+        pred = load_model(args.model)
     else:
-        noise = [float(v) for v in args.noise.split(",")]
-    model = MotionModel(args.n_dp, args.n_do, noise=noise, kind="white_noise")
-    times = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
-    if stream.covariance is None:
-        guess = default_predictor(times, stream.position, stream.quaternion)
-        cov = np.broadcast_to(guess.measurement_covariance(), (len(times), 6, 6))
-    else:
-        cov = stream.covariance
-    poses = UncertainPose(Pose(stream.position, stream.quaternion), np.array(cov))
-    h = args.horizon / 1e3
-    res = run_filter(times, poses, model, horizons=(h,))
-    out = res.predictions[h] if h > 0 else res.filtered
-    write_stream(args.output, PoseStream.from_poses(stream.source, stream.target, stream.t_ns,
-                                                    out), format=args.to)  # fmt: skip
+        pred = tune_model(
+            Trajectory.from_stream(stream), parse_horizons(args.tune_horizons),
+            # predictions ahead need covariances, which the learned model does not give
+            ar_orders=parse_orders(args.learned_orders) if args.horizon == 0 else (),
+            progress=None if args.quiet else FinishingStream(sys.stderr),
+        ).predictor  # fmt: skip
+    res = filter_stream(stream, pred, args.horizon / 1e3, calibrate=not args.no_calibrate)
+    save(args, res.stream)
+    if not args.quiet:
+        mean, lo, hi = res.nis_band()
+        inside = "inside" if lo <= mean <= hi else "OUTSIDE"
+        print(
+            f"filtered {len(stream)} samples ({pred.as_dict()['family']} model): "
+            f"{res.rejected} rejected, {res.resets} resets, mean NIS {mean:.3g} "
+            f"({inside} the 99 % band {lo:.3g}..{hi:.3g}); noise variance scale "
+            + ", ".join(f"{k:.3g}" for k in res.noise_scale),
+            file=sys.stderr,
+        )
     return 0

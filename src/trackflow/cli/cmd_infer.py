@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-from ..evaluation import infer_streams
-from ..io import FORMATS, write_stream
-from ._common import add_input, load
-from .cmd_convert import add_output
+from ._common import add_input, add_output, load, save
+from ._progress import Progress
 
 
 def register(subparsers):
@@ -13,11 +11,12 @@ def register(subparsers):
         "infer",
         help="chain two recordings T_x_y @ T_y_z, time-aligned by pose Kalman filters",
         description="Each recording is Kalman-filtered and queried (smoothed) at the union of "
-        "both recordings' timestamps; the aligned poses are composed with covariances.",
+        "both recordings' timestamps; the aligned poses are composed with covariances. The "
+        "first recording's target must be the second's source: name the frames with "
+        "--source/--target and --source2/--target2 where the files do not.",
     )
     add_input(p, "first")
-    p.add_argument("second", help="second recording (T_y_z)")
-    p.add_argument("--format2", choices=FORMATS, default=None, help="format of the second")
+    add_input(p, "second", suffix="2")
     p.add_argument(
         "--interpolate",
         action="store_true",
@@ -29,8 +28,24 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    a = load(args.first, args.format, args.clean)
-    b = load(args.second, args.format2, args.clean)
+    from ..evaluation import infer_streams
+
+    a = load(args, "first", min_samples=4)
+    b = load(args, "second", suffix="2", min_samples=4)
+    if a.target != b.source:
+        raise ValueError(
+            f"cannot chain T_{a.source}_{a.target} ({args.first}) with T_{b.source}_{b.target} "
+            f"({args.second}): the first's target must be the second's source; name the "
+            "frames with --source/--target and --source2/--target2"
+        )
     method = "interpolate" if args.interpolate else "filter"
-    write_stream(args.output, infer_streams(a, b, method=method), format=args.to)
+    bar = Progress("inferring", 1, enabled=not args.quiet)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = max(total, 1)
+        bar.update(done)
+
+    out = infer_streams(a, b, method=method, progress=progress)
+    bar.close()
+    save(args, out)
     return 0

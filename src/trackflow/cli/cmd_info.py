@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-from ..evaluation import stream_info
 from ._common import add_input, load
 
 
@@ -17,7 +16,9 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    info = stream_info(load(args.file, args.format, args.clean))
+    from ..evaluation import stream_info
+
+    info = stream_info(load(args))
     if args.json:
         print(json.dumps(info, indent=2))
         return 0

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from ..evaluation import invert_stream
-from ..io import write_stream
-from ._common import add_input, load
-from .cmd_convert import add_output
+from ._common import add_input, add_output, load, save
 
 
 def register(subparsers):
@@ -17,5 +14,7 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    write_stream(args.output, invert_stream(load(args.file, args.format, args.clean)), args.to)
+    from ..evaluation import invert_stream
+
+    save(args, invert_stream(load(args)))
     return 0

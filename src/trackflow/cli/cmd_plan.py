@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..dataflow import load_setup
-from ..graph import Query
-
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -29,11 +26,15 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--naive", action="store_true", help="no time alignment (latest values)")
     p.add_argument("--explain", action="store_true", help="print why each component is there")
     p.add_argument("--dot", type=Path, default=None, help="write Graphviz dot to this file")
+    p.add_argument("--force", action="store_true", help="replace an existing --dot file")
     p.set_defaults(func=run)
     return p
 
 
 def run(args) -> int:
+    from ..dataflow import load_setup
+    from ..graph import Query
+
     setup = load_setup(args.setup)
     if args.source or args.target:
         if not (args.source and args.target):
@@ -60,6 +61,9 @@ def run(args) -> int:
             print(f"path: {path}")
         print("dataflow: " + ", ".join(f"{n.id} ({n.label()})" for n in plan.nodes))
     if args.dot is not None:
-        args.dot.write_text(plan.to_dot())
+        from ..io import atomic_output
+
+        with atomic_output(args.dot, overwrite=args.force) as tmp:
+            tmp.write_text(plan.to_dot())
         print(f"dot written to {args.dot}")
     return 0

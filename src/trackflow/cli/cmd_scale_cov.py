@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from ..evaluation import scale_covariance
-from ..io import write_stream
-from ._common import add_input, load
-from .cmd_convert import add_output
+from ._common import add_input, add_output, load, save
 
 
 def register(subparsers):
@@ -18,6 +15,7 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    out = scale_covariance(load(args.file, args.format, args.clean), args.factor)
-    write_stream(args.output, out, format=args.to)
+    from ..evaluation import scale_covariance
+
+    save(args, scale_covariance(load(args), args.factor))
     return 0

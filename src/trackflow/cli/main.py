@@ -5,26 +5,82 @@ Each subcommand lives in a module ``trackflow.cli.cmd_<name>`` exposing
 ``set_defaults``) to a callable ``func(args) -> int``. The callable only parses arguments, calls
 one typed library function and prints its result. Library errors (``ValueError``,
 ``FileNotFoundError`` ...) are turned into ``trackflow: error: <message>`` and exit code 1 here,
-and nowhere else.
+and nowhere else; hints that name a library argument (``pass topic=``) are rewritten to name the
+flag (``pass --topic``).
+
+The subcommand modules import the library (numpy, scipy, numba) only inside their ``run``
+functions, so ``trackflow --help`` and argument errors answer without loading it.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import re
+import signal
 import sys
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "ArgumentParser"]
+
+#: Library keyword -> command line flag, for hints in error messages.
+FLAG_FOR_OPTION = {
+    "clean": "--clean",
+    "format": "--format",
+    "topic": "--topic",
+    "columns": "--columns",
+    "time_unit": "--time-unit",
+    "source": "--source",
+    "target": "--target",
+    "overwrite": "--force",
+    "delimiter": "--delimiter",
+}
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show defaults in ``--help``, but not for flags and options without a default."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False, argparse.SUPPRESS) or "%(default)" in (
+            action.help or ""
+        ):
+            return action.help
+        return super()._get_help_string(action)
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with defaults in the help and negative numbers (``-2e9``) as option values."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
+        # argparse only knows -1 and -.5 as numbers; accept exponents and signs too
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$")
+
+
+class Terminated(BaseException):
+    """Raised by the signal handler on SIGTERM/SIGHUP, so ``finally`` blocks clean up."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(signum)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every ``cmd_*`` module registered, in name order."""
-    parser = argparse.ArgumentParser(
+    from .. import __version__
+
+    parser = ArgumentParser(
         prog="trackflow",
         description="Ubiquitous 6-DoF tracking with error handling.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser.add_argument("--version", action="version", version=f"trackflow {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
     sub.required = True
     package = importlib.import_module("trackflow.cli")
     names = sorted(
@@ -35,22 +91,72 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def flag_hints(message: str) -> str:
+    """Rewrite library hints (``pass topic=``, ``clean=True``, ``option(s) ['topic']``) to flags."""
+    for option, flag in FLAG_FOR_OPTION.items():
+        message = re.sub(rf"\b{option}=True\b", flag, message)
+        message = re.sub(rf"\b{option}=(?=[\s;,)]|$)", f"{flag} ", message)
+        message = message.replace(f"'{option}'", flag)
+    return message.replace("  ", " ")
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, MemoryError):
+        return "out of memory (the input is larger than this machine can hold)"
+    msg = str(exc) or type(exc).__name__
+    if isinstance(exc, KeyError):
+        msg = f"missing key {msg}"
+    return flag_hints(msg)
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe: point stdout at /dev/null so the interpreter's flush is silent."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            old[sig] = signal.signal(sig, _raise_terminated)
+        except ValueError:  # not the main thread (embedded use): leave signals alone
+            pass
     try:
-        return int(args.func(args) or 0)
-    except (ValueError, OSError, KeyError, RuntimeError) as exc:
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()
+        return code
+    except BrokenPipeError:
+        # `trackflow ... | head`: the reader is gone; that is not an error of ours
+        _quiet_stdout()
+        return 0
+    except (
+        ValueError,
+        OSError,
+        KeyError,
+        RuntimeError,
+        ArithmeticError,
+        MemoryError,
+        ImportError,
+    ) as exc:
         # The one error boundary: a clear message and exit code 1, no traceback.
-        msg = str(exc) or type(exc).__name__
-        if isinstance(exc, KeyError):
-            msg = f"missing key {msg}"
-        print(f"trackflow: error: {msg}", file=sys.stderr)
+        print(f"trackflow: error: {_message(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("trackflow: interrupted", file=sys.stderr)
         return 130
+    except Terminated as exc:
+        print(f"trackflow: terminated by signal {exc.signum}", file=sys.stderr)
+        return 128 + exc.signum
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,6 +8,7 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
 from ._events import ComponentStats, Measurement
+from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
@@ -24,6 +25,7 @@ __all__ = [
     "Inversion",
     "KalmanFilter",
     "LatestValue",
+    "LookupResult",
     "Measurement",
     "Network",
     "Plan",
@@ -36,6 +38,8 @@ __all__ = [
     "SimulatedSensor",
     "StaticPose",
     "load_setup",
+    "lookup",
+    "rpy_deg",
     "make_filter",
     "parse_setup",
     "plan_query",

@@ -47,6 +47,17 @@ class _LineLoader(yaml.SafeLoader):
 
 
 def _construct_map(loader: _LineLoader, node) -> _Map:
+    seen: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                f"duplicate key {key!r} (first on line {seen[key]})",
+                key_node.start_mark,
+            )
+        seen[key] = key_node.start_mark.line + 1
     m = _Map(loader.construct_mapping(node, deep=True))
     m.line = node.start_mark.line + 1
     return m
@@ -77,7 +88,10 @@ class Setup:
     def plan(self, query: Query | str | None = None, align: bool = True) -> Plan:
         """Plan a query of this setup (a :class:`Query`, a query name, or the first)."""
         q = query if isinstance(query, Query) else self.query(query)
-        return plan_query(self.graph, q, align=align)
+        try:
+            return plan_query(self.graph, q, align=align)
+        except ValueError as exc:
+            raise ValueError(f"{self.source}: {exc}") from None
 
     def players(self) -> dict[str, RecordingPlayer]:
         """Players for every measured edge with a recording (read with ``trackflow.io``)."""
@@ -104,9 +118,38 @@ def _cov(src, item, what) -> np.ndarray:
         if c.shape != (6, 6):
             raise _err(src, item, f"{what}: covariance must be a 6x6 list of lists")
         return c
-    sp = float(item.get("sigma_pos_mm", 0.0)) * 1e-3
-    so = np.radians(np.broadcast_to(np.asarray(item.get("sigma_ori_deg", 0.0), float), (3,)))
-    return np.diag(np.concatenate([np.full(3, sp**2), so**2]))
+    sp = np.asarray(item.get("sigma_pos_mm", 0.0), float)
+    so = np.asarray(item.get("sigma_ori_deg", 0.0), float)
+    for key, v in (("sigma_pos_mm", sp), ("sigma_ori_deg", so)):
+        if v.ndim > 1 or v.size not in (1, 3) or not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise _err(
+                src, item, f"{what}: {key} must be one or three finite values >= 0, got "
+                f"{item.get(key)!r}"
+            )  # fmt: skip
+    sp = np.broadcast_to(sp * 1e-3, (3,))
+    so = np.radians(np.broadcast_to(so, (3,)))
+    return np.diag(np.concatenate([sp**2, so**2]))
+
+
+def _name(src, item, key: str, what: str) -> str:
+    """A frame or edge name: a non-empty string without surrounding blanks."""
+    v = item[key]
+    if not isinstance(v, (str, int)) or isinstance(v, bool) or not str(v).strip():
+        raise _err(src, item, f"{what}: {key} must be a non-empty name, got {v!r}")
+    if str(v) != str(v).strip():
+        raise _err(src, item, f"{what}: {key} {v!r} has leading or trailing blanks")
+    return str(v)
+
+
+def _frame(src, item, key: str, what: str, declared: set[str] | None) -> str:
+    """A frame name, which must be one of ``frames:`` when the setup declares them."""
+    name = _name(src, item, key, what)
+    if declared is not None and name not in declared:
+        raise _err(
+            src, item, f"{what}: {key} frame {name!r} is not declared in frames: "
+            f"{sorted(declared)}"
+        )  # fmt: skip
+    return name
 
 
 def _motion(src, item, what) -> MotionSpec:
@@ -118,12 +161,27 @@ def _motion(src, item, what) -> MotionSpec:
     unknown = set(m) - {"n_dp", "n_do", "noise"}
     if unknown:
         raise _err(src, m or item, f"{what}: unknown motion keys {sorted(unknown)}")
+    n_dp, n_do = int(m.get("n_dp", 1)), int(m.get("n_do", 1))
     noise = m.get("noise", 1.0)
-    noise = tuple(float(v) for v in noise) if isinstance(noise, list) else float(noise)
-    return MotionSpec(
-        static=False, n_dp=int(m.get("n_dp", 1)), n_do=int(m.get("n_do", 1)), noise=noise
-    )
+    if isinstance(noise, list):
+        noise = tuple(float(v) for v in noise)
+        need = (n_dp + 1) + (n_do + 1)
+        if len(noise) not in (2, need):
+            raise _err(
+                src, m, f"{what}: motion noise needs one value per part (2: the highest "
+                f"position and orientation levels) or per level ((n_dp + 1) + (n_do + 1) = "
+                f"{need} for n_dp={n_dp}, n_do={n_do}); got {len(noise)}"
+            )  # fmt: skip
+    else:
+        noise = float(noise)
+    values = noise if isinstance(noise, tuple) else (noise,)
+    if not all(np.isfinite(v) and v >= 0 for v in values):
+        raise _err(src, m, f"{what}: motion noise must be finite and >= 0, got {m['noise']!r}")
+    return MotionSpec(static=False, n_dp=n_dp, n_do=n_do, noise=noise)
 
+
+#: Largest accepted ``| |q| - 1 |`` of a static quaternion in a setup (4 printed decimals).
+STATIC_UNIT_TOLERANCE = 1e-3
 
 _SENSOR_KEYS = {
     "name",
@@ -253,23 +311,41 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
     if "include" in doc:
         doc = _apply_includes(doc, source, base_dir)
     g = SpatialRelationshipGraph()
-    for f in doc.get("frames") or []:
-        g.add_frame(str(f))
+    frames = doc.get("frames")
+    declared: set[str] | None = None
+    if frames is not None:
+        if not isinstance(frames, list):
+            raise _err(
+                source, doc, f"frames must be a list such as [P, A, T], got {frames!r}"
+            )  # fmt: skip
+        declared = set()
+        for f in frames:
+            entry = _Map(frame=f)
+            entry.line = getattr(doc, "line", 0)
+            name = _name(source, entry, "frame", "frames")
+            if name in declared:
+                raise _err(source, doc, f"frames: {name!r} is listed twice")
+            declared.add(name)
+            g.add_frame(name)
     recordings: dict[str, Path] = {}
     for i, s in enumerate(doc.get("sensors") or []):
         what = f"sensors[{i}]"
         _check_keys(source, s, _SENSOR_KEYS, what)
+        name = _name(source, s, "name", what)
+        src_f = _frame(source, s, "source", what, declared)
+        tgt_f = _frame(source, s, "target", what, declared)
+        cov, motion = _cov(source, s, what), _motion(source, s, what)
         try:
             g.add_measured(
-                str(s["name"]),
-                str(s["source"]),
-                str(s["target"]),
+                name,
+                src_f,
+                tgt_f,
                 latency_s=float(s.get("latency_ms", 0.0)) * 1e-3,
                 rate_hz=float(s.get("rate_hz", 30.0)),
                 confidence=float(s.get("confidence", 1.0)),
                 cost=float(s.get("cost", 0.0)),
-                covariance=_cov(source, s, what),
-                motion=_motion(source, s, what),
+                covariance=cov,
+                motion=motion,
                 stamp_offset_s=float(s.get("stamp_offset_ms", 0.0)) * 1e-3,
             )
         except (TypeError, ValueError) as exc:
@@ -280,22 +356,32 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
     for i, s in enumerate(doc.get("statics") or []):
         what = f"statics[{i}]"
         _check_keys(source, s, _STATIC_KEYS, what)
+        name = _name(source, s, "name", what)
+        src_f = _frame(source, s, "source", what, declared)
+        tgt_f = _frame(source, s, "target", what, declared)
+        cov = _cov(source, s, what)
         try:
-            pose = Pose(
-                s.get("position", [0, 0, 0]), s.get("quaternion", [0, 0, 0, 1]), normalize=True
-            )
-            g.add_static(
-                str(s["name"]), str(s["source"]), str(s["target"]), pose, _cov(source, s, what)
-            )
+            q = np.asarray(s.get("quaternion", [0, 0, 0, 1]), dtype=float)
+            if q.shape != (4,) or not np.all(np.isfinite(q)):
+                raise ValueError(f"quaternion must be 4 finite numbers (x, y, z, w), got {q}")
+            if abs(np.linalg.norm(q) - 1.0) > STATIC_UNIT_TOLERANCE:
+                raise ValueError(
+                    f"quaternion {q.tolist()} has norm {np.linalg.norm(q):.6g}, not unit "
+                    f"(allowed deviation {STATIC_UNIT_TOLERANCE:g}, for rounded digits)"
+                )
+            pose = Pose(s.get("position", [0, 0, 0]), q, normalize=True)
+            g.add_static(name, src_f, tgt_f, pose, cov)
         except (TypeError, ValueError) as exc:
             raise _err(source, s, f"{what}: {exc}") from exc
     queries: dict[str, Query] = {}
     for i, q in enumerate(doc.get("queries") or []):
         what = f"queries[{i}]"
         _check_keys(source, q, _QUERY_KEYS, what)
+        _name(source, q, "name", what)
         try:
-            for frame in (q["source"], q["target"]):
-                g.check_frame(str(frame))
+            for frame in (_frame(source, q, "source", what, declared),
+                          _frame(source, q, "target", what, declared)):  # fmt: skip
+                g.check_frame(frame)
             rate = q.get("rate_hz")
             queries[str(q["name"])] = Query(
                 str(q["source"]),
@@ -317,9 +403,15 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
 def load_setup(path: str | Path) -> Setup:
     """Read a YAML setup file; errors name the file and line."""
     path = Path(path)
-    text = path.read_text()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
     try:
         doc = yaml.load(text, Loader=_LineLoader)  # a SafeLoader subclass
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML: {exc}") from exc
+        mark = getattr(exc, "problem_mark", None)
+        if mark is not None:
+            raise ValueError(f"{path}:{mark.line + 1}: invalid YAML: {exc.problem}") from None
+        raise ValueError(f"{path}: invalid YAML: {exc}") from None
     return parse_setup(doc, str(path), path.parent)

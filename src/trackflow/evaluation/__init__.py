@@ -8,8 +8,17 @@ See ``docs/posetool.md``.
 """
 
 from ._baselines import LinearPredictor, NoPredictor, predict_linear, predict_none
+from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories, umeyama
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._metrics import ErrorStats, error_stats, pose_errors
+from ._model_file import (
+    FilterRun,
+    filter_stream,
+    load_model,
+    predictor_from_dict,
+    predictor_to_dict,
+    save_model,
+)
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
 from ._prediction import Prediction, Predictor, predict_kalman
 from ._predictor import (
@@ -24,9 +33,16 @@ from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 
 __all__ = [
+    "ALIGNMENTS",
+    "CompareResult",
+    "Stats",
+    "associate",
+    "compare_trajectories",
+    "umeyama",
     "LEARNED_ORDERS",
     "PREDICTORS",
     "ErrorStats",
+    "FilterRun",
     "KalmanPredictor",
     "LinearPredictor",
     "NoPredictor",
@@ -43,6 +59,11 @@ __all__ = [
     "estimate_noise",
     "evaluate_predictors",
     "evaluate_recording",
+    "filter_stream",
+    "load_model",
+    "predictor_from_dict",
+    "predictor_to_dict",
+    "save_model",
     "interpolate_poses",
     "pose_errors",
     "predict_kalman",

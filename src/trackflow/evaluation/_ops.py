@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..filters import PoseKalmanFilter
@@ -31,9 +33,15 @@ def stream_info(stream: PoseStream) -> dict:
     regular = dt[dt <= gap]
     v = np.linalg.norm(np.diff(stream.position, axis=0), axis=1) / dt
     q = np.asarray(stream.quaternion)
-    w = np.degrees(np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:])), axis=1))
+    w = np.empty(n - 1)
+    flips = 0
+    for i in range(0, n - 1, _BLOCK):  # blocks: temporaries stay small for long recordings
+        a = q[i : min(i + _BLOCK, n - 1)]
+        b = q[i + 1 : i + 1 + len(a)]
+        rel = quat_log(quat_multiply(quat_conjugate(a), b))
+        w[i : i + len(a)] = np.degrees(np.linalg.norm(rel, axis=1))
+        flips += int(np.count_nonzero(np.einsum("ij,ij->i", a, b) < 0))
     w = w / dt
-    flips = int(np.count_nonzero(np.sum(q[1:] * q[:-1], axis=1) < 0))
     out.update(
         duration_s=float(t[-1]),
         rate_hz=1.0 / med,
@@ -48,6 +56,7 @@ def stream_info(stream: PoseStream) -> dict:
     return out
 
 
+_BLOCK = 1 << 16
 _STATS = {"median": np.median, "p95": lambda x: np.percentile(x, 95), "max": np.max}
 
 
@@ -55,7 +64,15 @@ def shift_stream(stream: PoseStream, offset_s: float) -> PoseStream:
     """Add ``offset_s`` seconds to every timestamp (a constant latency correction)."""
     if not np.isfinite(offset_s):
         raise ValueError(f"offset must be finite, got {offset_s}")
-    return stream.with_(t_ns=stream.t_ns + np.int64(round(offset_s * 1e9)))
+    off = round(offset_s * 1e9)  # exact Python integer: no wrap-around
+    if len(stream):
+        lo, hi = int(stream.t_ns[0]) + off, int(stream.t_ns[-1]) + off
+        if lo < -(2**63) or hi > 2**63 - 1:
+            raise ValueError(
+                f"offset {offset_s:g} s moves the timestamps out of the int64 nanosecond range "
+                f"(about +-292 years from 1970); first sample at {int(stream.t_ns[0]) * 1e-9:.9g} s"
+            )
+    return stream.with_(t_ns=stream.t_ns + np.int64(off))
 
 
 def scale_covariance(stream: PoseStream, factor: float) -> PoseStream:
@@ -91,8 +108,12 @@ def infer_streams(
     method: str = "filter",
     predictor_a: KalmanPredictor | None = None,
     predictor_b: KalmanPredictor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> PoseStream:
     """Chain ``T_x_y`` (``a``) and ``T_y_z`` (``b``) into ``T_x_z``, time-aligned.
+
+    ``progress(done, total)``, if given, is called as the filters advance (``total`` counts
+    every measurement and query of both recordings).
 
     ``method="filter"`` (default): each recording runs through a pose Kalman filter
     (:class:`trackflow.filters.PoseKalmanFilter` keeping its whole history; motion model and
@@ -133,8 +154,9 @@ def infer_streams(
         raise ValueError("the recordings do not overlap in time")
     tq = tq[keep]
     ts = (tq - t0).astype(float) * 1e-9
-    ua = _filtered_at(a, predictor_a, t0, ts)
-    ub = _filtered_at(b, predictor_b, t0, ts)
+    total = len(a) + len(b) + 2 * len(ts)
+    ua = _filtered_at(a, predictor_a, t0, ts, progress, 0, total)
+    ub = _filtered_at(b, predictor_b, t0, ts, progress, len(a) + len(ts), total)
     return PoseStream.from_poses(a.source, b.target, tq, ua.compose(ub))
 
 
@@ -146,7 +168,9 @@ def _inside(tq: np.ndarray, t: np.ndarray) -> np.ndarray:
     return (tq >= t[0]) & (tq <= t[-1]) & ((t[j + 1] - t[j]).astype(float) * 1e-9 <= gap)
 
 
-def _filtered_at(s: PoseStream, predictor, t0: int, ts: np.ndarray) -> UncertainPose:
+def _filtered_at(
+    s: PoseStream, predictor, t0: int, ts: np.ndarray, progress=None, done: int = 0, total: int = 0
+) -> UncertainPose:
     """Run ``s`` through a pose Kalman filter and query it (smoothed) at ``ts`` [s from t0]."""
     t = (s.t_ns - t0).astype(float) * 1e-9
     p, q = np.asarray(s.position, float), np.asarray(s.quaternion, float)
@@ -155,9 +179,16 @@ def _filtered_at(s: PoseStream, predictor, t0: int, ts: np.ndarray) -> Uncertain
     kf = PoseKalmanFilter(
         pred.model, history=float(t[-1] - t[0]) + 1.0, gate_probability=pred.gate_probability
     )
+    step = 4096
     for k in range(len(t)):
         kf.update_pose(float(t[k]), meas[k])
-    out = [kf.predict(float(v)) for v in ts]
+        if progress is not None and k % step == 0:
+            progress(done + k, total)
+    out = []
+    for k, v in enumerate(ts):
+        out.append(kf.predict(float(v)))
+        if progress is not None and k % step == 0:
+            progress(done + len(t) + k, total)
     return UncertainPose(
         Pose(np.stack([u.position for u in out]), np.stack([u.quaternion for u in out])),
         np.stack([u.covariance for u in out]),

@@ -1,8 +1,11 @@
 """Recordings: pose streams, the native ``.tfrec`` format and readers/writers for common formats.
 
 ``read_stream(path, format=None, clean=False, **options) -> (PoseStream, ReadReport)`` and
-``write_stream(path, stream, format=None, **options)`` cover every format; the per-format
-functions are exported too. Formats, conversions and quirks: ``docs/formats.md``.
+``write_stream(path, stream, format=None, overwrite=False, **options)`` cover every format; the
+per-format functions are exported too. Every writer follows one output policy
+(``atomic_output``: temporary file in the target directory, rename when complete, no silent
+overwrite, nothing left behind on failure); ``"-"`` is standard input/output. Formats,
+conversions and quirks: ``docs/formats.md``.
 """
 
 from ._api import FORMATS, guess_format, read_stream, write_stream
@@ -14,7 +17,9 @@ from ._devices import (
     write_broad,
     write_quest,
 )
+from ._kitti import KITTI_RATE_HZ, read_kitti, write_kitti
 from ._native import RecordingWriter, read_native, write_native
+from ._output import STDIO, atomic_output, remove_stale_temporaries
 from ._report import ReadReport
 from ._rosbag import MESSAGE_TYPES, read_rosbag, write_rosbag
 from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
@@ -28,22 +33,28 @@ __all__ = [
     "FLAG_ORIENTATION",
     "FLAG_POSITION",
     "FORMATS",
+    "KITTI_RATE_HZ",
     "MESSAGE_TYPES",
     "PoseStream",
     "ReadReport",
+    "STDIO",
     "RecordingWriter",
+    "atomic_output",
     "guess_format",
     "read_broad",
     "read_csv",
     "read_euroc",
+    "read_kitti",
     "read_native",
     "read_quest",
     "read_rosbag",
     "read_stream",
     "read_tum",
+    "remove_stale_temporaries",
     "write_broad",
     "write_csv",
     "write_euroc",
+    "write_kitti",
     "write_native",
     "write_quest",
     "write_rosbag",

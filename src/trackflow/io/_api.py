@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import inspect
+import sys
+import tempfile
 from pathlib import Path
 
 from ._devices import read_broad, read_quest, write_broad, write_quest
+from ._kitti import read_kitti, write_kitti
 from ._native import MAGIC, read_native, write_native
+from ._output import STDIO
 from ._report import ReadReport
 from ._rosbag import read_rosbag, write_rosbag
 from ._stream import PoseStream
@@ -22,6 +26,7 @@ _READERS = {
     "rosbag": read_rosbag,
     "quest": read_quest,
     "broad": read_broad,
+    "kitti": read_kitti,
 }
 _WRITERS = {
     "native": write_native,
@@ -31,14 +36,21 @@ _WRITERS = {
     "rosbag": write_rosbag,
     "quest": write_quest,
     "broad": write_broad,
+    "kitti": write_kitti,
 }
 #: Names accepted by ``format=``.
 FORMATS = tuple(_READERS)
 
 
-def _first_data_line(path: Path) -> str | None:
+def _head(path: Path) -> bytes:
+    """The first 64 KiB of a file, without a UTF-8 byte order mark."""
     with open(path, "rb") as f:
         chunk = f.read(65536)
+    return chunk[3:] if chunk.startswith(b"\xef\xbb\xbf") else chunk
+
+
+def _first_data_line(path: Path) -> str | None:
+    chunk = _head(path)
     for raw in chunk.split(b"\n")[:50]:
         line = raw.decode("utf-8", errors="replace").strip()
         if line and not line.startswith("#"):
@@ -62,7 +74,8 @@ def guess_format(path, for_writing: bool = False) -> str:
     Rules: native magic bytes; ``.bag`` or a directory with ``metadata.yaml`` -> ``rosbag``;
     ``.mat`` -> ``broad``; ``.tfrec`` -> ``native``; a text file with a leading comment line
     ``#timestamp,...`` -> ``euroc``; 16 comma-separated columns with .NET ticks ->
-    ``quest``; other comma-separated text -> ``csv``; whitespace-separated -> ``tum``.
+    ``quest``; other comma-separated text -> ``csv``; whitespace-separated with 12 columns ->
+    ``kitti``, else ``tum``; ``.kitti`` -> ``kitti``.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -78,6 +91,8 @@ def guess_format(path, for_writing: bool = False) -> str:
         return "broad"
     if suffix == ".tfrec":
         return "native"
+    if suffix == ".kitti":
+        return "kitti"
     if for_writing or not path.is_file():
         if suffix == ".csv":
             return "csv"
@@ -86,8 +101,14 @@ def guess_format(path, for_writing: bool = False) -> str:
         if for_writing and suffix in ("", ".db3", ".mcap"):
             return "rosbag"
         raise ValueError(f"{path}: cannot tell the format from the name; pass format=")
-    with open(path, "rb") as f:
-        head = f.read(65536).decode("utf-8", errors="replace").split("\n")[:20]
+    chunk = _head(path)
+    if b"\0" in chunk:
+        line = chunk[: chunk.index(b"\0")].count(b"\n") + 1
+        raise ValueError(
+            f"{path}:{line}: binary data that is not a recognised recording (NUL byte); "
+            "pass format= if it is one"
+        )
+    head = chunk.decode("utf-8", errors="replace").split("\n")[:20]
     for first in head:
         first = first.strip().lower()
         if not first.startswith("#"):
@@ -99,7 +120,7 @@ def guess_format(path, for_writing: bool = False) -> str:
         raise ValueError(f"{path}: no data lines; pass format=")
     if "," in line:
         return "quest" if _is_quest_line(line) else "csv"
-    return "tum"
+    return "kitti" if len(line.split()) == 12 else "tum"
 
 
 def _call(func, path, fmt: str, kwargs: dict):
@@ -138,14 +159,40 @@ def read_stream(
     report : ReadReport
         Counts of every row read, kept, dropped (with reasons and lines) or changed.
     """
+    if str(path) == STDIO:
+        return _read_stdin(format, clean, options)
     fmt = format or guess_format(path)
     if fmt not in _READERS:
         raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     return _call(_READERS[fmt], Path(path), fmt, {"clean": bool(clean), **options})
 
 
-def write_stream(path, stream: PoseStream, format: str | None = None, **options) -> None:
+def _read_stdin(format, clean, options) -> tuple[PoseStream, ReadReport]:
+    """Read standard input (``path="-"``): buffered to a private file, named ``<stdin>``."""
+    if format == "rosbag":
+        raise ValueError("<stdin>: ROS bags cannot be read from standard input")
+    with tempfile.TemporaryDirectory(prefix="trackflow-") as d:
+        tmp = Path(d) / "stdin"
+        data = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else sys.stdin.read()
+        tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
+        try:
+            stream, report = read_stream(tmp, format=format, clean=clean, **options)
+        except ValueError as exc:
+            raise ValueError(str(exc).replace(str(tmp), "<stdin>")) from None
+    report.path = "<stdin>"
+    return stream, report
+
+
+def write_stream(
+    path, stream: PoseStream, format: str | None = None, *, overwrite: bool = False, **options
+) -> None:
     """Write ``stream`` in ``format`` (guessed from the extension when omitted).
+
+    Every format follows one output policy (:func:`trackflow.io.atomic_output`): the file is
+    written to a temporary name in the target directory and renamed into place when complete,
+    an existing ``path`` is an error (``FileExistsError``) unless ``overwrite``, and nothing is
+    left behind when writing fails. ``path="-"`` writes to standard output (format default
+    ``tum``).
 
     Extensions: ``.tfrec`` native, ``.txt``/``.tum`` TUM, ``.csv`` generic CSV, ``.bag`` ROS 1,
     no extension ROS 2 bag directory, ``.mat`` BROAD. Options: ``msgtype=``/``topic=`` for
@@ -154,15 +201,15 @@ def write_stream(path, stream: PoseStream, format: str | None = None, **options)
     """
     if not isinstance(stream, PoseStream):
         raise ValueError(f"stream must be a PoseStream, got {type(stream).__name__}")
-    fmt = format or guess_format(path, for_writing=True)
+    fmt = format or ("tum" if str(path) == STDIO else guess_format(path, for_writing=True))
     if fmt not in _WRITERS:
         raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     func = _WRITERS[fmt]
     params = inspect.signature(func).parameters
-    unknown = [k for k in options if k not in params or k in ("path", "stream")]
+    unknown = [k for k in options if k not in params or k in ("path", "stream", "overwrite")]
     if unknown:
-        accepted = [k for k in params if k not in ("path", "stream")]
+        accepted = [k for k in params if k not in ("path", "stream", "overwrite")]
         raise ValueError(
             f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
         )
-    func(Path(path), stream, **options)
+    func(path if str(path) == STDIO else Path(path), stream, overwrite=overwrite, **options)

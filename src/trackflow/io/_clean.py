@@ -2,7 +2,8 @@
 
 Checks, in order, on the parsed rows of a recording:
 
-1. non-finite values (NaN, inf) in any field;
+1. non-finite values (NaN, inf) in any field, and position coordinates beyond
+   ``MAX_POSITION_M`` (1e9 m: corrupt digits or a wrong unit, never a pose);
 2. zero quaternions;
 3. quaternions off unit length by more than the file's printed precision allows
    (``1e-6`` for binary data; for decimal text up to ``1e-3`` depending on the printed digits,
@@ -33,6 +34,9 @@ from ._stream import PoseStream, present_fields
 __all__ = ["finish_stream", "locate", "fmt_ns"]
 
 TRUNCATED = "truncated tail"
+#: Largest accepted position coordinate [m]: beyond it a value is corrupt or in a wrong unit
+#: (the Earth-Moon distance is 3.8e8 m), and squares of it would overflow in the filters.
+MAX_POSITION_M = 1e9
 
 
 def locate(report: ReadReport, where: int) -> str:
@@ -199,13 +203,23 @@ class _Rows:
 
 
 def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence) -> None:
-    """Check 1: NaN or inf in any field; confidences outside [0, 1]."""
+    """Check 1: NaN or inf in any field; implausible positions; confidences outside [0, 1]."""
     finite = _finite_rows(position) & _finite_rows(quaternion)
     if covariance is not None:
         finite &= _finite_rows(covariance)
     if confidence is not None:
         finite &= np.isfinite(confidence)
     rows.reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
+    with np.errstate(invalid="ignore"):
+        far = finite & ~(np.abs(position) <= MAX_POSITION_M).all(axis=1)
+    rows.reject(
+        "implausible position",
+        far,
+        lambda i: (
+            f"position {tuple(float(v) for v in position[i])} m is beyond "
+            f"{MAX_POSITION_M:g} m (not a pose; wrong unit or corrupt digits?)"
+        ),
+    )
     if confidence is not None:
         conf_ok = (confidence >= 0.0) & (confidence <= 1.0)
         rows.reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ._clean import finish_stream
+from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import PoseStream
 from ._table import parse_rows, quat_tolerance_from_tokens
@@ -90,7 +91,7 @@ def read_quest(
     return stream, report
 
 
-def write_quest(path, stream: PoseStream) -> None:
+def write_quest(path, stream: PoseStream, *, overwrite: bool = False) -> None:
     """Write a Quest/Unity log (frames mirrored back to Unity's left-handed convention).
 
     Timestamps must be multiples of 100 ns. The local-time ticks column repeats the UTC ticks
@@ -110,7 +111,8 @@ def write_quest(path, stream: PoseStream) -> None:
         cal = f"{d.year},{d.month},{d.day},{d.hour},{d.minute},{d.second},{d.microsecond // 1000}"
         vals = ",".join(repr(x) for x in p[k].tolist() + q[k].tolist())
         out.append(f"{tick},{tick},{cal},{vals}\n")
-    Path(path).write_text("".join(out))
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        tmp.write_text("".join(out), encoding="utf-8")
 
 
 def _broad_times(n: int, rate_hz: float) -> np.ndarray:
@@ -161,7 +163,9 @@ def read_broad(
     return stream, report
 
 
-def write_broad(path, stream: PoseStream, *, rate_hz: float = BROAD_RATE_HZ) -> None:
+def write_broad(
+    path, stream: PoseStream, *, rate_hz: float = BROAD_RATE_HZ, overwrite: bool = False
+) -> None:
     """Write ``opt_pos``/``opt_quat`` on BROAD's sample grid, NaN rows where samples are missing.
 
     Every timestamp must lie on the grid ``round(i * 1e9 / rate_hz)`` with ``i >= 0``.
@@ -171,6 +175,12 @@ def write_broad(path, stream: PoseStream, *, rate_hz: float = BROAD_RATE_HZ) -> 
     t = stream.t_ns
     idx = np.rint(t * (rate_hz / 1e9)).astype(np.int64)
     n = int(idx[-1]) + 1 if len(idx) else 0
+    if n > 4 * len(t) + 1000:  # Unix-time stamps would need years of NaN rows
+        raise ValueError(
+            f"a BROAD trial starts at t = 0 and holds one row per {1e3 / rate_hz:g} ms: these "
+            f"{len(t)} samples would need {n} rows (first sample at {t[0] * 1e-9:.9g} s); "
+            "shift the recording to start near 0 first (trackflow shift --offset)"
+        )
     grid = _broad_times(n, rate_hz)
     off = (idx < 0) | (grid[np.clip(idx, 0, max(n - 1, 0))] != t) if n else idx < 0
     if np.any(off):
@@ -182,4 +192,6 @@ def write_broad(path, stream: PoseStream, *, rate_hz: float = BROAD_RATE_HZ) -> 
     quat = np.full((n, 4), np.nan)
     pos[idx] = stream.position
     quat[idx] = stream.quaternion[:, [3, 0, 1, 2]]
-    savemat(path, {"opt_pos": pos, "opt_quat": quat})
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        with open(tmp, "wb") as f:
+            savemat(f, {"opt_pos": pos, "opt_quat": quat})

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..math import check_covariance
 from ._clean import TRUNCATED, finish_stream
+from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import (
     FLAG_COVARIANCE,
@@ -444,16 +445,11 @@ def _write_all(fd: int, data: bytes) -> None:
         view = view[k:]
 
 
-def write_native(path, stream: PoseStream) -> None:
-    """Write ``stream`` as a new ``.tfrec`` file, replacing ``path`` atomically."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.part")
-    try:
+def write_native(path, stream: PoseStream, *, overwrite: bool = False) -> None:
+    """Write ``stream`` as a new ``.tfrec`` file under the output policy of
+    :func:`trackflow.io.atomic_output` (atomic; an existing file only with ``overwrite``)."""
+    with atomic_output(path, overwrite=overwrite) as tmp:
         with RecordingWriter(
             tmp, stream.source, stream.target, covariance=stream.covariance is not None
         ) as w:
             w.append(stream)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..math import cov_from_ros, cov_to_ros
 from ._clean import finish_stream
+from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
 
@@ -43,7 +44,19 @@ def _is_ros1(path: Path) -> bool:
     return path.suffix == ".bag"
 
 
+def require_rosbags() -> None:
+    """Raise ``ImportError`` naming the extra to install when ``rosbags`` is missing."""
+    try:
+        import rosbags  # noqa: F401
+    except ImportError:
+        raise ImportError(
+            "ROS bags need the rosbags package, which is not installed: "
+            "pip install 'trackflow[ros]'"
+        ) from None
+
+
 def _typestore(ros1: bool):
+    require_rosbags()
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -84,6 +97,7 @@ def read_rosbag(
 
     Locations in the report and in errors are 0-based message indices on the topic.
     """
+    require_rosbags()
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     path = Path(path)
@@ -95,8 +109,9 @@ def read_rosbag(
     try:
         reader = AnyReader([path], default_typestore=_typestore(ros1))
         reader.open()
-    except AnyReaderError as exc:
-        raise ValueError(f"{path}: cannot open as a ROS bag ({exc})") from exc
+    except (AnyReaderError, ValueError, KeyError, IndexError, EOFError) as exc:
+        # garbage files fail deep inside the bag parsers (codec, struct, key errors)
+        raise ValueError(f"{path}: cannot open as a ROS bag ({exc})") from None
     try:
         conns = [c for c in reader.connections if c.msgtype in _SUPPORTED]
         topics = sorted({c.topic for c in conns})
@@ -125,8 +140,10 @@ def read_rosbag(
             if cov is not None:
                 covs.append(np.asarray(cov, dtype=float))
             frames.add((frame_id, child))
-    except AnyReaderError as exc:
-        raise ValueError(f"{path}: cannot read topic {topic!r} ({exc})") from exc
+    except (AnyReaderError, KeyError, IndexError, EOFError) as exc:
+        raise ValueError(f"{path}: cannot read topic {topic!r} ({exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}" if str(path) not in str(exc) else str(exc)) from None
     finally:
         reader.close()
     n = len(ts)
@@ -176,6 +193,7 @@ def write_rosbag(
     *,
     msgtype: str | None = None,
     topic: str | None = None,
+    overwrite: bool = False,
 ) -> None:
     """Write a stream as one topic of a new ROS 1 ``.bag`` (suffix ``.bag``) or ROS 2 bag
     directory (any other path).
@@ -191,13 +209,14 @@ def write_rosbag(
 
     ``header.frame_id`` is ``stream.source``; ``child_frame_id`` is ``stream.target``; the bag
     time of each message is its stamp. Confidence and flags have no place in these messages.
+    The bag is written under the output policy of :func:`trackflow.io.atomic_output` (atomic;
+    an existing bag is replaced only with ``overwrite``).
     """
+    require_rosbags()
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import Writer as Writer2
 
     path = Path(path)
-    if path.exists():
-        raise ValueError(f"{path}: exists already (bag writers never overwrite)")
     if msgtype is None:
         msgtype = "PoseWithCovarianceStamped" if stream.covariance is not None else "PoseStamped"
     if msgtype not in MESSAGE_TYPES:
@@ -218,40 +237,43 @@ def write_rosbag(
         cov_ros = cov_to_ros(stream.covariance, stream.quaternion).reshape(-1, 36)
         cov_ros[(stream.flags & FLAG_COVARIANCE) == 0] = 0.0
     serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
-    writer = Writer1(path) if ros1 else Writer2(path, version=8)
-    with writer:
-        conn = writer.add_connection(topic, full, typestore=store)
-        for k in range(len(stream)):
-            t = int(stream.t_ns[k])
-            stamp = Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)
-            hdr = (
-                Header(seq=k, stamp=stamp, frame_id=stream.source)
-                if ros1
-                else Header(stamp=stamp, frame_id=stream.source)
-            )
-            x, y, z = (float(v) for v in stream.position[k])
-            qx, qy, qz, qw = (float(v) for v in stream.quaternion[k])
-            cov = np.zeros(36) if cov_ros is None else cov_ros[k]
-            pose = Pose_(position=Point(x=x, y=y, z=z), orientation=Quat(x=qx, y=qy, z=qz, w=qw))
-            if msgtype == "PoseStamped":
-                msg = T[full](header=hdr, pose=pose)
-            elif msgtype == "PoseWithCovarianceStamped":
-                msg = T[full](header=hdr, pose=PWC(pose=pose, covariance=cov))
-            elif msgtype == "TransformStamped":
-                tr = T["geometry_msgs/msg/Transform"](
-                    translation=Vec3(x=x, y=y, z=z), rotation=Quat(x=qx, y=qy, z=qz, w=qw)
+    with atomic_output(path, overwrite=overwrite, directory=not ros1) as tmp:
+        writer = Writer1(tmp) if ros1 else Writer2(tmp, version=8)
+        with writer:
+            conn = writer.add_connection(topic, full, typestore=store)
+            for k in range(len(stream)):
+                t = int(stream.t_ns[k])
+                stamp = Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)
+                hdr = (
+                    Header(seq=k, stamp=stamp, frame_id=stream.source)
+                    if ros1
+                    else Header(stamp=stamp, frame_id=stream.source)
                 )
-                msg = T[full](header=hdr, child_frame_id=stream.target, transform=tr)
-            else:  # Odometry
-                zero = Vec3(x=0.0, y=0.0, z=0.0)
-                twist = T["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
-                    covariance=np.zeros(36),
+                x, y, z = (float(v) for v in stream.position[k])
+                qx, qy, qz, qw = (float(v) for v in stream.quaternion[k])
+                cov = np.zeros(36) if cov_ros is None else cov_ros[k]
+                pose = Pose_(
+                    position=Point(x=x, y=y, z=z), orientation=Quat(x=qx, y=qy, z=qz, w=qw)
                 )
-                msg = T[full](
-                    header=hdr,
-                    child_frame_id=stream.target,
-                    pose=PWC(pose=pose, covariance=cov),
-                    twist=twist,
-                )
-            writer.write(conn, t, serialize(msg, full))
+                if msgtype == "PoseStamped":
+                    msg = T[full](header=hdr, pose=pose)
+                elif msgtype == "PoseWithCovarianceStamped":
+                    msg = T[full](header=hdr, pose=PWC(pose=pose, covariance=cov))
+                elif msgtype == "TransformStamped":
+                    tr = T["geometry_msgs/msg/Transform"](
+                        translation=Vec3(x=x, y=y, z=z), rotation=Quat(x=qx, y=qy, z=qz, w=qw)
+                    )
+                    msg = T[full](header=hdr, child_frame_id=stream.target, transform=tr)
+                else:  # Odometry
+                    zero = Vec3(x=0.0, y=0.0, z=0.0)
+                    twist = T["geometry_msgs/msg/TwistWithCovariance"](
+                        twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
+                        covariance=np.zeros(36),
+                    )
+                    msg = T[full](
+                        header=hdr,
+                        child_frame_id=stream.target,
+                        pose=PWC(pose=pose, covariance=cov),
+                        twist=twist,
+                    )
+                writer.write(conn, t, serialize(msg, full))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
@@ -60,15 +59,27 @@ def format_ns(t_ns: int, exponent: int = 9) -> str:
 
 
 def read_lines(path: Path) -> tuple[list[str], bool, int]:
-    """Lines of a text file, whether the last one is unterminated, and its byte length."""
+    """Lines of a text file, whether the last one is unterminated, and its byte length.
+
+    A leading UTF-8 byte order mark is skipped; NUL bytes (binary or zero-filled data) and
+    invalid UTF-8 raise ``ValueError`` naming file and line.
+    """
     raw = Path(path).read_bytes()
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        line = raw[:nul].count(b"\n") + 1
+        raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
+    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte order mark (Windows editors)
+        raw = raw[3:]
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
         raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
     unterminated = bool(raw) and not raw.endswith(b"\n")
+    del raw  # large files: never hold the bytes, the text and its lines at once
     lines = text.split("\n")
+    del text
     if not unterminated and lines and lines[-1] == "":
         lines.pop()
     tail_bytes = len(lines[-1].encode()) if unterminated and lines else 0
@@ -249,17 +260,23 @@ def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.nda
     scale = 10**exponent
     if offset_ns % scale:
         return None
-    toks = np.strings.strip(toks)
-    neg = np.strings.startswith(toks, "-")
-    body = np.where(neg, np.strings.slice(toks, 1, None), toks)
-    whole, _, frac = np.strings.partition(body, ".")
+    try:  # one byte per character: a quarter of the memory of unicode arrays
+        toks = np.strings.strip(np.asarray(toks).astype("S"))
+    except UnicodeEncodeError:
+        return None
+    neg = np.strings.startswith(toks, b"-")
+    if np.any(np.strings.startswith(toks, b"--")):
+        return None
+    body = np.where(neg, np.strings.lstrip(toks, b"-"), toks)
+    parts = np.char.partition(body, b".")  # np.strings.partition needs numpy >= 2.1
+    whole, frac = parts[:, 0], parts[:, 2]
     flen = np.strings.str_len(frac)
     ok = np.strings.isdigit(whole) & ((flen == 0) | np.strings.isdigit(frac))
     if not ok.all() or flen.max() > exponent or np.strings.str_len(whole).max() > 18:
         return None
     w = whole.astype(np.int64) - offset_ns // scale * np.where(neg, -1, 1)
     if exponent:
-        f = np.strings.ljust(frac, exponent, "0").astype(np.int64)
+        f = np.strings.ljust(frac, exponent, b"0").astype(np.int64)
     else:
         f = np.zeros(len(toks), dtype=np.int64)
     if np.any(np.abs(w) > (2**63 - 1) // scale - 1):
@@ -273,8 +290,10 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
     if not data or max(value_cols) != ncols - 1:
         return None
     try:
+        # the list of lines itself: joining it into one string (and a StringIO of it) would
+        # hold several copies of the file in memory at once
         values = np.loadtxt(
-            io.StringIO("\n".join(data)),
+            data,
             delimiter=delimiter,
             usecols=value_cols,
             ndmin=2,
@@ -284,7 +303,7 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
         if values.shape != (len(data), len(value_cols)):
             return None
         toks = np.loadtxt(
-            io.StringIO("\n".join(data)),
+            data,
             delimiter=delimiter,
             usecols=[time_col],
             ndmin=1,

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ._clean import finish_stream
+from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import PoseStream
 from ._table import (
@@ -63,6 +64,12 @@ def _rows_text(columns: list[np.ndarray], sep: str) -> str:
     return "".join(sep.join(row) + "\n" for row in zip(*as_text))
 
 
+def _write_text(path, text: str, overwrite: bool) -> None:
+    """Write ``text`` as UTF-8 under the output policy (atomic, no silent overwrite)."""
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
 def _times_text(t_ns: np.ndarray, exponent: int) -> np.ndarray:
     return np.array([format_ns(t, exponent) for t in t_ns.tolist()], dtype=object)
 
@@ -106,16 +113,18 @@ def read_tum(
     return stream, report
 
 
-def write_tum(path, stream: PoseStream) -> None:
+def write_tum(path, stream: PoseStream, *, overwrite: bool = False) -> None:
     """Write ``t tx ty tz qx qy qz qw`` lines (exact decimal seconds, shortest exact floats).
 
-    Only poses and times are stored (TUM has no covariance, confidence or flags).
+    Only poses and times are stored (TUM has no covariance, confidence or flags). The file is
+    written atomically and an existing one is replaced only with ``overwrite`` (see
+    :func:`trackflow.io.atomic_output`).
     """
     head = _frames_comment(stream) + "# timestamp tx ty tz qx qy qz qw\n"
     cols = [_times_text(stream.t_ns, 9)]
     cols += [stream.position[:, i] for i in range(3)]
     cols += [stream.quaternion[:, i] for i in range(4)]
-    Path(path).write_text(head + _rows_text(cols, " "))
+    _write_text(path, head + _rows_text(cols, " "), overwrite)
 
 
 # -- EuRoC ----------------------------------------------------------------------------------
@@ -163,13 +172,13 @@ def read_euroc(
     return stream, report
 
 
-def write_euroc(path, stream: PoseStream) -> None:
+def write_euroc(path, stream: PoseStream, *, overwrite: bool = False) -> None:
     """Write the 8 pose columns of EuRoC ground truth (ns, metres, quaternion w first)."""
     q = stream.quaternion
     cols = [_times_text(stream.t_ns, 0)]
     cols += [stream.position[:, i] for i in range(3)]
     cols += [q[:, 3], q[:, 0], q[:, 1], q[:, 2]]
-    Path(path).write_text(_frames_comment(stream) + _EUROC_HEADER + _rows_text(cols, ","))
+    _write_text(path, _frames_comment(stream) + _EUROC_HEADER + _rows_text(cols, ","), overwrite)
 
 
 # -- generic CSV ----------------------------------------------------------------------------
@@ -333,7 +342,14 @@ def read_csv(
     return stream, report
 
 
-def write_csv(path, stream: PoseStream, *, delimiter: str = ",", time_unit: str = "s") -> None:
+def write_csv(
+    path,
+    stream: PoseStream,
+    *,
+    delimiter: str = ",",
+    time_unit: str = "s",
+    overwrite: bool = False,
+) -> None:
     """Write every field with a header ``t,x,y,z,qx,qy,qz,qw,confidence,flags[,cov_i_j...]``.
 
     Covariance columns (upper triangle, trackflow convention) are written when the stream has
@@ -350,4 +366,4 @@ def write_csv(path, stream: PoseStream, *, delimiter: str = ",", time_unit: str 
         names += _COV_NAMES
         cols += [stream.covariance[:, i, j] for i, j in _COV_IJ]
     head = _frames_comment(stream) + delimiter.join(names) + "\n"
-    Path(path).write_text(head + _rows_text(cols, delimiter))
+    _write_text(path, head + _rows_text(cols, delimiter), overwrite)

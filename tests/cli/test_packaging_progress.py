@@ -1,0 +1,105 @@
+"""Optional extras, packaged examples, progress output and the sequence plot's annotations."""
+
+from __future__ import annotations
+
+import io
+import sys
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from trackflow.cli._progress import FinishingStream, Progress
+from trackflow.cli.main import main
+
+DATA = Path(__file__).parent / "data"
+GT = DATA / "fr1_xyz_groundtruth_10s.txt"
+
+
+def test_examples_are_package_data():
+    ex = resources.files("trackflow") / "examples"
+    names = {p.name for p in ex.iterdir()}
+    assert {"demo_setup.yaml", "fusion_setup.yaml", "calibration_setup.yaml"} <= names
+
+
+@pytest.mark.parametrize(
+    "module,argv,extra",
+    [
+        ("rosbags", ["convert", str(GT), "{tmp}/o.bag"], "trackflow[ros]"),
+        ("matplotlib", ["plot-traj", str(GT), "--out", "{tmp}/t.png"], "trackflow[plot]"),
+    ],
+)
+def test_missing_extra_is_named(module, argv, extra, tmp_path, monkeypatch, capsys):
+    for name in list(sys.modules):
+        if name == module or name.startswith(module + "."):
+            monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, module, None)  # makes `import module` fail
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trackflow: error:") and extra in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_finishing_stream_completes_an_early_stopped_bar():
+    out = io.StringIO()
+    s = FinishingStream(out)
+    s.write("\rtuning x [#####.........................]   10 evals, best cost 0.5")
+    s.write("\n")
+    last = out.getvalue().split("\r")[-1]
+    assert "[" + "#" * 30 + "]" in last and last.endswith("\n") and "(done)" in last
+
+
+@pytest.mark.slow
+def test_evaluate_bar_reaches_100_percent(capsys):
+    assert main(["evaluate", str(GT), "--learned-orders", "none", "--horizons", "50"]) == 0
+    err = capsys.readouterr().err
+    finals = [seg for seg in err.split("\r") if "\n" in seg and "tuning" in seg]
+    assert finals and "[" + "#" * 30 + "]" in finals[-1]
+
+
+def test_progress_bar_percentages():
+    out = io.StringIO()
+    p = Progress("reading", 200, stream=out)
+    p.update(50)
+    p.close()
+    text = out.getvalue()
+    assert " 25 %" in text and text.rstrip().endswith("100 %")
+
+
+@pytest.mark.slow
+def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
+    import trackflow.plotting as plotting
+    from trackflow.evaluation import default_predictor
+    from trackflow.io import read_stream
+
+    seen = {}
+
+    def capture(fig, path, overwrite=False, dpi=110):
+        seen["title"] = fig._suptitle.get_text()
+        seen["legends"] = [
+            [t.get_text() for t in leg.get_texts()]
+            for ax in fig.axes
+            for leg in [c for c in ax.get_children() if type(c).__name__ == "Legend"]
+        ]
+        seen["z"] = sorted(
+            (ln.get_zorder(), ln.get_linestyle(), ln.get_marker()) for ln in fig.axes[0].lines
+        )
+
+    monkeypatch.setattr(plotting, "save_figure", capture)
+    s, _ = read_stream(GT)
+    t = s.elapsed_s
+    pred = default_predictor(t, s.position, s.quaternion)
+    plotting.plot_sequence(tmp_path / "s.png", t, s.position, s.quaternion, pred, 0.1, (2, 4),
+                           title="fr1")  # fmt: skip
+    assert seen["title"].startswith("fr1: measured, filtered and predicted")
+    labels = sorted(sum(seen["legends"], []))
+    assert {"x", "y", "z", "measured", "Kalman filtered"} <= set(labels)
+    # measurement markers lie under every line
+    marker_z = max(z for z, ls, m in seen["z"] if m == ".")
+    assert all(z > marker_z for z, ls, m in seen["z"] if m != "." and ls == "-" and z >= 4)
+    with pytest.raises(ValueError, match="holds 0 samples"):
+        plotting.plot_sequence(tmp_path / "e.png", t, s.position, s.quaternion, pred, 0.1,
+                               (1000, 1003))  # fmt: skip
+    assert not (tmp_path / "e.png").exists()
+    assert np.isfinite(t).all()
