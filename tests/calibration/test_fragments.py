@@ -98,7 +98,7 @@ def test_cli_reports_bad_input_without_traceback(tmp_path, capsys):
     write_stream(tmp_path / "robot.txt", a)
     write_stream(tmp_path / "sensor.txt", b.with_(position=np.zeros(b.position.shape)))
     still = a.with_(position=np.zeros(a.position.shape))
-    write_stream(tmp_path / "robot.txt", still)
+    write_stream(tmp_path / "robot.txt", still, overwrite=True)
     rc = main(["calibrate", "clock-offset", str(tmp_path / "robot.txt"),
                str(tmp_path / "sensor.txt")])  # fmt: skip
     assert rc == 1
@@ -124,7 +124,7 @@ def test_fragment_round_trip(tmp_path, position, rotvec, sigmas, offset):
 
     C = np.diag(np.square(sigmas))
     X = UncertainPose(Pose(position, quat_exp(np.array(rotvec))), C)
-    write_fragment(tmp_path / "calib.yaml", statics=[static_edge("X", "T", "H", X)],
+    write_fragment(tmp_path / "calib.yaml", statics=[static_edge("X", "T", "H", X)], overwrite=True,
                    sensors=[sensor_update("quest", clock_offset_s=offset)])  # fmt: skip
     (tmp_path / "setup.yaml").write_text(yaml.safe_dump(SETUP))
     edges = {e.name: e for e in load_setup(tmp_path / "setup.yaml").graph.edges}

@@ -30,7 +30,7 @@ def _cli(*args, stdin: bytes | None = None, cwd=None):
 
 def test_mirrored_names_match_the_library():
     from trackflow.cli.cmd_demo import DEFAULT_SEED
-    from trackflow.dataflow import DemoConfig
+    from trackflow.demo import DemoConfig
     from trackflow.evaluation import LEARNED_ORDERS
 
     assert _common.FORMATS == FORMATS

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..io import atomic_output
 from ..math import UncertainPose
 
 __all__ = ["sensor_update", "static_edge", "write_fragment"]
@@ -51,7 +52,11 @@ def sensor_update(
 
 
 def write_fragment(
-    path: str | Path, statics: list[dict] = (), sensors: list[dict] = (), note: str = ""
+    path: str | Path,
+    statics: list[dict] = (),
+    sensors: list[dict] = (),
+    note: str = "",
+    overwrite: bool = False,
 ) -> Path:
     """Write a fragment YAML (``statics`` and ``sensors`` lists); returns the path."""
     path = Path(path)
@@ -63,5 +68,6 @@ def write_fragment(
     if not doc:
         raise ValueError("a setup fragment needs at least one static edge or sensor update")
     head = "".join(f"# {line}\n" for line in note.splitlines()) if note else ""
-    path.write_text(head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        tmp.write_text(head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
     return path

@@ -7,6 +7,7 @@ from a setup), ``--report DIR`` a JSON report with residual plots.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -31,12 +32,13 @@ def register(subparsers):
 
 def _add_pair(p, a="a", b="b"):
     add_input(p, a)
-    p.add_argument(b, help="second recording (format guessed)")
+    add_input(p, b, suffix="2")
     p.add_argument("--max-offset", type=float, default=1.0, help="offset search range, seconds")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--fragment", type=Path, help="write a setup fragment (YAML) here")
     p.add_argument("--report", type=Path, help="write report.json and residual plots here")
     p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
+    p.add_argument("--force", action="store_true", help="replace an existing fragment or report")
 
 
 def _print(d: dict, as_json: bool) -> None:
@@ -88,15 +90,20 @@ def run_clock(args) -> int:
     from ..calibration.fragment import sensor_update, write_fragment
     from ..calibration.report import write_clock_report
 
-    a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
+    a, b = load(args, "a"), load(args, "b", suffix="2")
     r = estimate_clock_offset(
         a, b, max_offset_s=args.max_offset, drift=args.drift, signal=args.signal
     )
     if args.fragment:
-        write_fragment(args.fragment, sensors=[sensor_update(args.sensor_name, r.offset_s)],
-                       note=f"clock offset of {args.b} to {args.a}")  # fmt: skip
+        write_fragment(
+            args.fragment,
+            overwrite=args.force,
+            sensors=[sensor_update(args.sensor_name, r.offset_s)],
+            note=f"clock offset of {args.b} to {args.a}",
+        )
     if args.report:
-        write_clock_report(args.report, r)
+        with _report_dir(args) as d:
+            write_clock_report(d, r)
     _print(r.as_dict(), args.json)
     return 0
 
@@ -152,7 +159,7 @@ def run_hand_eye(args) -> int:
     from ..calibration.fragment import sensor_update, static_edge, write_fragment
     from ..calibration.report import write_hand_eye_report
 
-    robot, sensor = load(args.robot, args.format, args.clean), load(args.sensor, None, args.clean)
+    robot, sensor = load(args, "robot"), load(args, "sensor", suffix="2")
     if args.use:
         c = load_calibration(args.use)
         offset = c["offset_s"] if args.offset is None else args.offset
@@ -181,12 +188,14 @@ def run_hand_eye(args) -> int:
             statics.append(static_edge("hand_eye_Z", robot.source, sensor.source, r.Z))
         write_fragment(
             args.fragment,
+            overwrite=args.force,
             statics=statics,
             sensors=[sensor_update(args.sensor_name, r.offset_s)],
             note=f"hand-eye calibration from {args.robot} and {args.sensor}",
         )
     if args.report:
-        write_hand_eye_report(args.report, r)
+        with _report_dir(args) as d:
+            write_hand_eye_report(d, r)
     _print(r.to_json(), args.json)
     return 0
 
@@ -212,7 +221,7 @@ def run_align(args) -> int:
     from ..calibration import align_trajectories
     from ..calibration.fragment import sensor_update, static_edge, write_fragment
 
-    a, b = load(args.a, args.format, args.clean), load(args.b, None, args.clean)
+    a, b = load(args, "a"), load(args, "b", suffix="2")
     r = align_trajectories(
         a, b, with_scale=args.scale, offset_s=args.offset,
         estimate_offset=not args.fixed_offset, max_offset_s=args.max_offset,
@@ -220,12 +229,14 @@ def run_align(args) -> int:
     if args.fragment:
         write_fragment(
             args.fragment,
+            overwrite=args.force,
             statics=[static_edge("alignment", a.source, b.source, r.T)],
             sensors=[sensor_update(args.sensor_name, r.offset_s)],
             note=f"alignment of {args.b} to {args.a}",
         )
     if args.report:
-        _residual_report(args.report, r.as_dict(), r.residuals, r.inliers,
+        with _report_dir(args) as d:
+            _residual_report(d, r.as_dict(), r.residuals, r.inliers,
                          f"alignment: {r.residual_rmse_mm:.2f} mm RMSE", r.times_s)  # fmt: skip
     _print(r.as_dict(), args.json)
     return 0
@@ -248,6 +259,7 @@ def _register_noise(sub):
     p.add_argument("--fragment", type=Path, help="write the sensor's covariance as a fragment")
     p.add_argument("--sensor-name", default="sensor", help="sensor name used in the fragment")
     p.add_argument("--report", type=Path, help="write report.json and an error plot here")
+    p.add_argument("--force", action="store_true", help="replace an existing fragment or report")
     p.set_defaults(func=run_noise)
 
 
@@ -256,18 +268,20 @@ def run_noise(args) -> int:
     from ..calibration.fragment import sensor_update, write_fragment
 
     r = sensor_noise(
-        load(args.file, args.format, args.clean), args.method,
+        load(args), args.method,
         max_speed=args.max_speed * 1e-3, max_rate_deg=args.max_rate,
         min_segment_s=args.min_segment,
     )  # fmt: skip
     if args.fragment:
         write_fragment(
             args.fragment,
+            overwrite=args.force,
             sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
             note=f"{args.method} noise of {args.file}",
         )
     if args.report:
-        _residual_report(args.report, r.as_dict(), r.errors, None, f"{args.method} noise samples")
+        with _report_dir(args) as d:
+            _residual_report(d, r.as_dict(), r.errors, None, f"{args.method} noise samples")
     _print(r.as_dict(), args.json)
     return 0
 
@@ -282,6 +296,7 @@ def _register_pivot(sub):
     p.add_argument("--fragment", type=Path, help="write the tip as a static edge (fragment)")
     p.add_argument("--tip-frame", default="tip", help="frame name of the tip in the fragment")
     p.add_argument("--report", type=Path, help="write report.json and a residual plot here")
+    p.add_argument("--force", action="store_true", help="replace an existing fragment or report")
     p.set_defaults(func=run_pivot)
 
 
@@ -292,16 +307,31 @@ def run_pivot(args) -> int:
     from ..calibration.fragment import static_edge, write_fragment
     from ..math import Pose, UncertainPose
 
-    stream = load(args.file, args.format, args.clean)
+    stream = load(args)
     r = pivot_calibration(stream)
     if args.fragment:
         cov = np.zeros((6, 6))
         cov[:3, :3] = r.covariance[:3, :3]
         tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
-        write_fragment(args.fragment, statics=[static_edge("tip", stream.target, args.tip_frame,
-                       tip)], note=f"pivot calibration of {args.file}")  # fmt: skip
+        write_fragment(
+            args.fragment,
+            overwrite=args.force,
+            statics=[static_edge("tip", stream.target, args.tip_frame, tip)],
+            note=f"pivot calibration of {args.file}",
+        )
     if args.report:
-        _residual_report(args.report, r.as_dict(), r.residuals, r.inliers,
+        with _report_dir(args) as d:
+            _residual_report(d, r.as_dict(), r.residuals, r.inliers,
                          f"pivot: {r.residual_rms_mm:.2f} mm RMS")  # fmt: skip
     _print(r.as_dict(), args.json)
     return 0
+
+
+@contextlib.contextmanager
+def _report_dir(args):
+    """The report directory, written whole or not at all (the one output policy)."""
+    from ..io import atomic_output
+
+    with atomic_output(args.report, overwrite=args.force, directory=True) as tmp:
+        tmp.mkdir()
+        yield tmp
