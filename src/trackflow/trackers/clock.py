@@ -37,8 +37,9 @@ class ClockEstimate:
     ref_ns : int
         Tracker time of the reference point [ns].
     sigma_ns : float
-        RMS height of the per-bin minima above the envelope [ns]: how far a typical fastest
-        packet sits above the fitted line, the scale of the mapping's uncertainty.
+        Median height of the per-bin minima above the envelope [ns]: how far a typical
+        fastest packet sits above the fitted line, the scale of the mapping's uncertainty
+        (a median, so that one stalled bin does not inflate it).
     points : int
         Bins in the fit.
     """
@@ -160,8 +161,8 @@ class ClockMapper:
                 b = math.copysign(self.max_drift, b)
                 a = min(yi - b * (xi - xm) * 1e9 for xi, yi in zip(x, y))
         ref_ns = ref + int(round(xm * 1e9))
-        res = [yi - (a + b * (xi - xm) * 1e9) for xi, yi in zip(x, y)]
-        sigma = math.sqrt(sum(r * r for r in res) / len(res))
+        res = sorted(yi - (a + b * (xi - xm) * 1e9) for xi, yi in zip(x, y))
+        sigma = res[len(res) // 2]
         self.estimate = ClockEstimate(a, b, ref_ns, sigma, len(pts))
         if self._cur is not None:  # the open bin may already hold a lower point
             x_c, y_c = self._cur

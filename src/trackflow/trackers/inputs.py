@@ -27,7 +27,16 @@ from .clock import ClockMapper
 from .spec import InputSpec
 from .status import SensorStatus
 
-__all__ = ["DTrackInput", "LiveInput", "NatNetInput", "Sample", "VrpnInput", "make_input"]
+__all__ = [
+    "Body",
+    "DTrackInput",
+    "LiveInput",
+    "NatNetInput",
+    "Sample",
+    "VrpnInput",
+    "make_input",
+    "make_inputs",
+]
 
 #: The host clock of live runs: ``time.time_ns`` (Unix time, integer ns).
 host_ns = time.time_ns
@@ -51,20 +60,10 @@ class Sample(NamedTuple):
 Sink = Callable[["LiveInput", bytes, int], None]
 
 
-class LiveInput:
-    """Base of the protocol inputs.
-
-    Parameters
-    ----------
-    name : str
-        The sensor (edge) name.
-    spec : InputSpec
-    covariance : ndarray (6, 6)
-        The sensor's nominal measurement covariance (setup), used when the protocol sends
-        none, and scaled by NatNet's mean marker error.
-    """
-
-    protocol = ""
+class Body:
+    """One sensor fed by a connection: its body selector, conversion, nominal covariance
+    (setup; used when the protocol sends none, scaled by NatNet's mean marker error) and
+    status."""
 
     def __init__(self, name: str, spec: InputSpec, covariance):
         self.name = name
@@ -72,53 +71,123 @@ class LiveInput:
         self.options = spec.options
         self.nominal = np.asarray(covariance, dtype=float).reshape(6, 6)
         self.conv = BoundaryConversion(spec.unit_scale, spec.up)
+        self.status = SensorStatus(name, spec.protocol)
+
+
+class LiveInput:
+    """One connection to a tracker (a socket or two and a thread) feeding one or more
+    sensors (bodies); a packet is decoded once for all of them.
+
+    Parameters
+    ----------
+    spec : InputSpec
+        The first sensor's spec; its connection options define the connection.
+    """
+
+    protocol = ""
+
+    def __init__(self, spec: InputSpec):
+        self.spec = spec
+        self.options = spec.options
+        self.bodies: list[Body] = []
         self.clock = ClockMapper()
-        self.status = SensorStatus(name, self.protocol)
+        self.packets = 0
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
 
+    @staticmethod
+    def connection_key(spec: InputSpec) -> tuple:
+        """Sensors whose specs give the same key share one connection."""
+        o = spec.options
+        keys = {
+            "natnet": ("server", "command_port", "data_port", "multicast", "group", "interface"),
+            "dtrack": ("interface", "port", "group", "command", "command_port"),
+        }.get(spec.protocol)
+        if keys is None:
+            return (spec.protocol, spec.vrpn_address[1:], o["timeout_ms"])
+        return (spec.protocol, *(o[k] for k in keys))
+
+    def add_body(self, name: str, spec: InputSpec, covariance) -> Body:
+        if self.connection_key(spec) != self.connection_key(self.spec):
+            raise ValueError(f"sensor {name!r}: another connection than {self.spec.options}")
+        b = Body(name, spec, covariance)
+        self.bodies.append(b)
+        return b
+
+    @property
+    def status(self) -> SensorStatus:
+        """The first sensor's status (single-body inputs)."""
+        return self.bodies[0].status
+
     # -- pure part --------------------------------------------------------------------------------
-    def handle(self, data: bytes, arrival_ns: int) -> list[Sample]:
-        """Decode one packet; rejections are counted in :attr:`status`, never raised."""
-        self.status.packets += 1
+    def handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
+        """Decode one packet into ``(body index, sample)`` pairs; rejections are counted in
+        the bodies' statuses (a packet-level error on every body), never raised."""
+        self.packets += 1
+        for b in self.bodies:
+            b.status.packets += 1
         try:
             return self._handle(data, arrival_ns)
         except PacketError as exc:
-            self.status.reject(exc.reason)
+            for b in self.bodies:
+                b.status.reject(exc.reason)
             return []
 
-    def _handle(self, data: bytes, arrival_ns: int) -> list[Sample]:  # pragma: no cover
-        raise NotImplementedError
+    def _handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
+        raise NotImplementedError  # pragma: no cover
+
+    def _per_body(self, fn) -> list[tuple[int, Sample]]:
+        """Call ``fn(body) -> Sample | None`` for every body; its PacketError is counted on
+        that body only."""
+        out = []
+        for i, b in enumerate(self.bodies):
+            try:
+                s = fn(b)
+            except PacketError as exc:
+                b.status.reject(exc.reason)
+                continue
+            if s is not None:
+                out.append((i, s))
+        return out
 
     def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
         by the envelope fit, minus the protocol's exposure-to-send latency."""
         self.clock.add(tx_ns, arrival_ns)
-        self.status.clock = self.clock.estimate
+        for b in self.bodies:
+            b.status.clock = self.clock.estimate
         return self.clock.to_host(tx_ns) - latency_ns
 
-    def _sample(self, t_ns: int, arrival_ns: int, position, quaternion, cov) -> Sample:
-        p, q = self.conv.pose(position, quaternion)
+    @staticmethod
+    def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov) -> Sample:
+        p, q = b.conv.pose(position, quaternion)
         if not (np.isfinite(p).all() and np.isfinite(q).all()):
-            raise PacketError("non-finite pose", self.name)
+            raise PacketError("non-finite pose", b.name)
         n = math.sqrt(float(q @ q))
         if not 0.9 < n < 1.1:
             raise PacketError("non-unit quaternion", f"|q| = {n:.4g}")
         q = q / n
-        c = self.conv.covariance(cov)
+        c = b.conv.covariance(cov)
         c = 0.5 * (c + c.T)
         if not np.isfinite(c).all():
-            raise PacketError("invalid covariance", self.name)
-        self.status.measured(arrival_ns, t_ns)
+            raise PacketError("invalid covariance", b.name)
+        b.status.measured(arrival_ns, t_ns)
         return Sample(int(t_ns), int(arrival_ns), p, q, c)
+
+    def _frame(self, number: int) -> bool:
+        ok = True
+        for b in self.bodies:
+            ok = b.status.frame(number) and ok
+        return ok
 
     # -- transport -------------------------------------------------------------------------------
     def start(self, sink: Sink) -> None:
         """Open the sockets and start the receiving thread; every packet goes to
         ``sink(input, data, arrival_ns)`` (which normally calls :meth:`handle`)."""
         self._stop.clear()
-        t = threading.Thread(target=self._run, args=(sink,), name=f"input-{self.name}", daemon=True)
+        name = f"input-{self.protocol}-{self.bodies[0].name if self.bodies else ''}"
+        t = threading.Thread(target=self._run, args=(sink,), name=name, daemon=True)
         self._threads.append(t)
         t.start()
 
@@ -131,8 +200,16 @@ class LiveInput:
             s.close()
         self._socks.clear()
 
-    def _run(self, sink: Sink) -> None:  # pragma: no cover
-        raise NotImplementedError
+    def _run(self, sink: Sink) -> None:
+        raise NotImplementedError  # pragma: no cover
+
+    def _reject_all(self, reason: str) -> None:
+        for b in self.bodies:
+            b.status.reject(reason)
+
+    def _connected(self, value: bool) -> None:
+        for b in self.bodies:
+            b.status.connected = value
 
     def _udp(self, bind: tuple[str, int], group: str | None = None) -> socket.socket:
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -151,27 +228,20 @@ class LiveInput:
 
 # -- DTrack ---------------------------------------------------------------------------------------
 class DTrackInput(LiveInput):
-    """A DTrack body from the UDP output (``ts2`` latency preferred, else ``ts`` with the
-    configured ``latency_ms``); optional TCP command channel sends
+    """DTrack bodies from the UDP output (``ts2`` latency preferred, else ``ts`` with the
+    configured ``latency_ms``); the optional TCP command channel sends
     ``dtrack2 tracking start``."""
 
     protocol = "dtrack"
 
-    def __init__(self, name, spec, covariance):
-        super().__init__(name, spec, covariance)
+    def __init__(self, spec):
+        super().__init__(spec)
         self.days = dtrack.DayUnwrapper()
 
     def _handle(self, data, arrival_ns):
         f = dtrack.decode_dtrack(data)
-        if f.frame is not None and not self.status.frame(f.frame):
+        if f.frame is not None and not self._frame(f.frame):
             return []
-        body = f.body(self.options["body"])
-        if body is None:
-            raise PacketError("body not in frame", f"body {self.options['body']}")
-        _, q = dtrack.dtrack_pose(body)
-        R = np.asarray(body.rotation).reshape(3, 3)
-        c = f.covariance(body.id)
-        cov = dtrack.dtrack_covariance(R, c) if c is not None else self.nominal
         if f.ts2 is not None:
             stamp = f.ts2[0] * 1_000_000_000 + f.ts2[1] * 1000
             lat = f.ts2[2] * 1000
@@ -181,7 +251,20 @@ class DTrackInput(LiveInput):
         else:
             raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         t = self._map(stamp + lat, lat, arrival_ns)
-        return [self._sample(t, arrival_ns, body.position_mm, q, cov)]
+
+        def one(b: Body):
+            body = f.body(b.options["body"])
+            if body is None:
+                raise PacketError("body not in frame", f"body {b.options['body']}")
+            _, q = dtrack.dtrack_pose(body)
+            c = f.covariance(body.id)
+            if c is None:
+                cov = b.nominal
+            else:
+                cov = dtrack.dtrack_covariance(np.asarray(body.rotation).reshape(3, 3), c)
+            return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
+
+        return self._per_body(one)
 
     def _run(self, sink):
         o = self.options
@@ -190,9 +273,9 @@ class DTrackInput(LiveInput):
             if o["command"]:
                 self.command(o["command"], o["command_port"], "dtrack2 tracking start")
         except OSError as exc:
-            self.status.reject(f"socket error: {exc.strerror or exc}")
+            self._reject_all(f"socket error: {exc.strerror or exc}")
             return
-        self.status.connected = True
+        self._connected(True)
         while not self._stop.is_set():
             try:
                 data = s.recv(65536)
@@ -215,24 +298,29 @@ class DTrackInput(LiveInput):
                 reply += chunk
         answer = reply.rstrip(b"\0").decode("ascii", "replace")
         if answer != "dtrack2 ok":
-            self.status.reject("command refused")
+            self._reject_all("command refused")
         return answer
 
 
-# -- NatNet ---------------------------------------------------------------------------------------
 class NatNetInput(LiveInput):
-    """A NatNet rigid body: CONNECT/SERVERINFO handshake, MODELDEF for names, unicast
+    """NatNet rigid bodies: CONNECT/SERVERINFO handshake, MODELDEF for names, unicast
     KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks."""
 
     protocol = "natnet"
 
-    def __init__(self, name, spec, covariance):
-        super().__init__(name, spec, covariance)
+    def __init__(self, spec):
+        super().__init__(spec)
         self.server: natnet.ServerInfo | None = None
         self.models: natnet.ModelDefinitions | None = None
-        body = self.options["body"]
-        self.body_id: int | None = body if isinstance(body, int) else None
-        self.ref_error = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
+
+    def body_id(self, b: Body) -> int:
+        sel = b.options["body"]
+        if isinstance(sel, int):
+            return sel
+        bid = None if self.models is None else self.models.id_of(sel)
+        if bid is None:
+            raise PacketError("unknown body name", str(sel))
+        return bid
 
     def _handle(self, data, arrival_ns):
         msg, payload = natnet.decode_message(data)
@@ -243,8 +331,6 @@ class NatNetInput(LiveInput):
             if self.server is None:
                 raise PacketError("no handshake yet", "MODELDEF before SERVERINFO")
             self.models = natnet.decode_model_definitions(payload, self.server.version)
-            if self.body_id is None:
-                self.body_id = self.models.id_of(self.options["body"])
             return []
         if msg != natnet.FRAMEOFDATA:
             if msg in (natnet.MESSAGESTRING, natnet.RESPONSE, natnet.KEEPALIVE):
@@ -252,91 +338,94 @@ class NatNetInput(LiveInput):
             raise PacketError("unexpected message", f"id {msg}")
         if self.server is None:
             raise PacketError("no handshake yet", "frame before SERVERINFO")
-        if self.body_id is None:
-            raise PacketError("unknown body name", str(self.options["body"]))
         f = natnet.decode_frame(payload, self.server.version)
-        if not self.status.frame(f.frame):
+        if not self._frame(f.frame):
             return []
-        b = f.body(self.body_id)
-        if b is None:
-            raise PacketError("body not in frame", f"id {self.body_id}")
-        if b.valid is False:
-            raise PacketError("not tracked", f"id {self.body_id}")
-        timing = natnet.exposure_and_latency(f, self.server.clock_frequency)
-        if timing is not None:
-            freq = self.server.clock_frequency
-            tx_ns = f.transmit // freq * 1_000_000_000 + (f.transmit % freq) * 1_000_000_000 // freq
-            lat_ns = (f.transmit - f.mid_exposure) * 1_000_000_000 // freq
+        freq = self.server.clock_frequency
+        if natnet.exposure_and_latency(f, freq) is not None:
+            g = 1_000_000_000
+            tx_ns = f.transmit // freq * g + (f.transmit % freq) * g // freq
+            lat_ns = (f.transmit - f.mid_exposure) * g // freq
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
         t = self._map(tx_ns, lat_ns, arrival_ns)
-        cov = self.nominal
-        if b.mean_error is not None and self.ref_error > 0:
-            err = b.mean_error * self.conv.scale
-            if not math.isfinite(err) or err < 0:
-                raise PacketError("bad mean error", f"{b.mean_error}")
-            cov = cov * max(1.0, (err / self.ref_error) ** 2)
-        return [self._sample(t, arrival_ns, b.position, b.quaternion, cov)]
+
+        def one(b: Body):
+            rb = f.body(self.body_id(b))
+            if rb is None:
+                raise PacketError("body not in frame", str(b.options["body"]))
+            if rb.valid is False:
+                raise PacketError("not tracked", str(b.options["body"]))
+            cov = b.nominal
+            ref = math.sqrt(float(np.trace(cov[:3, :3])) / 3.0)
+            if rb.mean_error is not None and ref > 0:
+                err = rb.mean_error * b.conv.scale
+                if not (math.isfinite(err) and err >= 0):
+                    raise PacketError("bad mean error", f"{rb.mean_error}")
+                cov = cov * max(1.0, (err / ref) ** 2)
+            return self._sample(b, t, arrival_ns, rb.position, rb.quaternion, cov)
+
+        return self._per_body(one)
 
     def _run(self, sink):
         o = self.options
         server = (o["server"], o["command_port"])
         try:
             cmd = self._udp((o["interface"], 0))
+            mc = o["multicast"]
             data = self._udp(
-                (o["interface"], o["data_port"] if o["multicast"] else 0),
-                o["group"] if o["multicast"] else None,
+                (o["interface"], o["data_port"] if mc else 0), o["group"] if mc else None
             )
         except OSError as exc:
-            self.status.reject(f"socket error: {exc.strerror or exc}")
+            self._reject_all(f"socket error: {exc.strerror or exc}")
             return
         sel = selectors.DefaultSelector()
         sel.register(cmd, selectors.EVENT_READ)
         sel.register(data, selectors.EVENT_READ)
-        next_connect = next_keepalive = 0.0
+        next_cmd = next_keepalive = 0.0
+        need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
                 try:
-                    if self.server is None and now >= next_connect:
+                    if now >= next_cmd and self.server is None:
                         cmd.sendto(natnet.encode_connect(), server)
-                        next_connect = now + 0.5
-                    elif self.server is not None and self.models is None and now >= next_connect:
+                        next_cmd = now + 0.5
+                    elif now >= next_cmd and need_names and self.models is None:
                         cmd.sendto(natnet.encode_message(natnet.REQUEST_MODELDEF), server)
-                        next_connect = now + 0.5
-                    if not o["multicast"] and now >= next_keepalive:
+                        next_cmd = now + 0.5
+                    if not mc and now >= next_keepalive:
                         data.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
                         next_keepalive = now + 1.0
                 except OSError:
-                    self.status.reject("send failed")
+                    self._reject_all("send failed")
                 for key, _ in sel.select(timeout=0.1):
                     try:
                         raw = key.fileobj.recv(65536)
-                    except (TimeoutError, BlockingIOError):
-                        continue
-                    except OSError:  # e.g. ICMP port unreachable while no server runs
+                    except OSError:  # timeouts, ICMP port unreachable while no server runs
                         continue
                     arrival = host_ns()
-                    self.status.connected = self.server is not None
+                    had_server = self.server is not None
                     sink(self, raw, arrival)
+                    self._connected(self.server is not None)
+                    if not had_server and self.server is not None:
+                        next_cmd = 0.0  # ask for the model definitions at once
         finally:
             sel.close()
 
 
-# -- VRPN -----------------------------------------------------------------------------------------
 class VrpnInput(LiveInput):
-    """A VRPN tracker sensor over TCP (``Name@host[:port]``), reconnecting after errors.
+    """VRPN tracker sensors over TCP (``Name@host[:port]``), reconnecting after errors.
     ``clock: map`` estimates the server's clock offset (subtracting ``latency_ms``, the
     server's known exposure-to-send latency); ``clock: host`` trusts the stamps as host
     time (a synchronised clock)."""
 
     protocol = "vrpn"
 
-    def __init__(self, name, spec, covariance):
-        super().__init__(name, spec, covariance)
-        self.device, self.host, self.port = spec.vrpn_address
-        self.decoder = vrpn.StreamDecoder()
-        self.broken = False
+    def __init__(self, spec):
+        super().__init__(spec)
+        self.host, self.port = spec.vrpn_address[1:]
+        self.reset_stream()
 
     def reset_stream(self) -> None:
         """A new connection: a fresh decoder that expects the server's cookie."""
@@ -350,55 +439,60 @@ class VrpnInput(LiveInput):
             self.broken = True  # a TCP stream cannot be resynchronised: reconnect
             raise
         out = []
-        lat = int(round(self.options["latency_ms"] * 1e6))
         for r in reports:
-            if r.device != self.device or r.sensor != self.options["sensor"]:
-                continue
             stamp = r.sec * 1_000_000_000 + r.usec * 1000
-            if self.options["clock"] == "host":
-                t = stamp
-            else:
-                t = self._map(stamp + lat, lat, arrival_ns)
-            try:
-                out.append(self._sample(t, arrival_ns, r.position, r.quaternion, self.nominal))
-            except PacketError as exc:
-                self.status.reject(exc.reason)
+            mapped: dict[int, int] = {}
+
+            def one(b: Body, r=r, stamp=stamp, mapped=mapped):
+                if b.spec.vrpn_address[0] != r.device or b.options["sensor"] != r.sensor:
+                    return None
+                lat = int(round(b.options["latency_ms"] * 1e6))
+                if b.options["clock"] == "host":
+                    t = stamp
+                else:
+                    if lat not in mapped:
+                        mapped[lat] = self._map(stamp + lat, lat, arrival_ns)
+                    t = mapped[lat]
+                return self._sample(b, t, arrival_ns, r.position, r.quaternion, b.nominal)
+
+            out.extend(self._per_body(one))
         return out
 
     def _run(self, sink):
         timeout = self.options["timeout_ms"] * 1e-3
+        devices = sorted({b.spec.vrpn_address[0] for b in self.bodies})
         while not self._stop.is_set():
             try:
                 conn = socket.create_connection((self.host, self.port), timeout=timeout)
             except OSError:
-                self.status.reject("connection failed")
+                self._reject_all("connection failed")
                 self._stop.wait(0.5)
                 continue
             self._socks.append(conn)
             self.reset_stream()
             try:
-                conn.sendall(
-                    vrpn.make_cookie()
-                    + vrpn.encode_description(vrpn.SENDER_DESCRIPTION, 0, self.device)
-                    + vrpn.encode_description(vrpn.TYPE_DESCRIPTION, 0, vrpn.POS_QUAT)
-                )
+                hello = vrpn.make_cookie()
+                for k, d in enumerate(devices):
+                    hello += vrpn.encode_description(vrpn.SENDER_DESCRIPTION, k, d)
+                hello += vrpn.encode_description(vrpn.TYPE_DESCRIPTION, 0, vrpn.POS_QUAT)
+                conn.sendall(hello)
                 conn.settimeout(0.2)
-                self.status.connected = True
+                self._connected(True)
                 while not self._stop.is_set():
                     try:
                         raw = conn.recv(65536)
                     except TimeoutError:
                         continue
                     if not raw:
-                        self.status.reject("connection closed")
+                        self._reject_all("connection closed")
                         break
                     sink(self, raw, host_ns())
                     if self.broken:
                         break
             except OSError:
-                self.status.reject("connection lost")
+                self._reject_all("connection lost")
             finally:
-                self.status.connected = False
+                self._connected(False)
                 conn.close()
                 if conn in self._socks:
                     self._socks.remove(conn)
@@ -409,5 +503,19 @@ _INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
 
 
 def make_input(name: str, spec: InputSpec, covariance) -> LiveInput:
-    """The live input of a sensor's ``input:`` spec."""
-    return _INPUTS[spec.protocol](name, spec, covariance)
+    """A live input (one connection) feeding the one sensor ``name``."""
+    inp = _INPUTS[spec.protocol](spec)
+    inp.add_body(name, spec, covariance)
+    return inp
+
+
+def make_inputs(sensors: dict[str, tuple[InputSpec, np.ndarray]]) -> list[LiveInput]:
+    """Live inputs for ``{sensor: (spec, nominal covariance)}``: sensors on the same
+    connection (same server, ports) share one input, so each packet is decoded once."""
+    by_key: dict[tuple, LiveInput] = {}
+    for name, (spec, cov) in sensors.items():
+        key = LiveInput.connection_key(spec)
+        if key not in by_key:
+            by_key[key] = _INPUTS[spec.protocol](spec)
+        by_key[key].add_body(name, spec, cov)
+    return list(by_key.values())
