@@ -39,11 +39,11 @@ class BoundaryConversion:
         self.up = up
 
     def pose(self, position, quaternion) -> tuple[np.ndarray, np.ndarray]:
-        """``(t [m] (3,), q (x, y, z, w) (4,))`` in trackflow's frames."""
+        """``(t [m] (..., 3), q (x, y, z, w) (..., 4))`` in trackflow frames (batches too)."""
         p = np.asarray(position, dtype=float) * self.scale
         q = np.asarray(quaternion, dtype=float)
         if self.up == "y":
-            p = Y_UP_TO_Z_UP @ p
+            p = p @ Y_UP_TO_Z_UP.T
             q = quat_multiply(quat_multiply(_QM, q), _QM_INV)
         return p, q
 
