@@ -93,6 +93,7 @@ class LiveInput:
         self.clock = ClockMapper()
         self.packets = 0
         self._stop = threading.Event()
+        self.ready = threading.Event()  # set once the sockets are open (or failed)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
 
@@ -186,6 +187,7 @@ class LiveInput:
         """Open the sockets and start the receiving thread; every packet goes to
         ``sink(input, data, arrival_ns)`` (which normally calls :meth:`handle`)."""
         self._stop.clear()
+        self.ready.clear()
         name = f"input-{self.protocol}-{self.bodies[0].name if self.bodies else ''}"
         t = threading.Thread(target=self._run, args=(sink,), name=name, daemon=True)
         self._threads.append(t)
@@ -274,8 +276,10 @@ class DTrackInput(LiveInput):
                 self.command(o["command"], o["command_port"], "dtrack2 tracking start")
         except OSError as exc:
             self._reject_all(f"socket error: {exc.strerror or exc}")
+            self.ready.set()
             return
         self._connected(True)
+        self.ready.set()
         while not self._stop.is_set():
             try:
                 data = s.recv(65536)
@@ -378,7 +382,9 @@ class NatNetInput(LiveInput):
             )
         except OSError as exc:
             self._reject_all(f"socket error: {exc.strerror or exc}")
+            self.ready.set()
             return
+        self.ready.set()
         sel = selectors.DefaultSelector()
         sel.register(cmd, selectors.EVENT_READ)
         sel.register(data, selectors.EVENT_READ)
@@ -466,6 +472,7 @@ class VrpnInput(LiveInput):
                 conn = socket.create_connection((self.host, self.port), timeout=timeout)
             except OSError:
                 self._reject_all("connection failed")
+                self.ready.set()
                 self._stop.wait(0.5)
                 continue
             self._socks.append(conn)
@@ -478,6 +485,7 @@ class VrpnInput(LiveInput):
                 conn.sendall(hello)
                 conn.settimeout(0.2)
                 self._connected(True)
+                self.ready.set()
                 while not self._stop.is_set():
                     try:
                         raw = conn.recv(65536)

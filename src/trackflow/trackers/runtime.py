@@ -235,6 +235,10 @@ def run_live(
     interrupted = False
     for inp in inputs:
         inp.start(packet)
+    for inp in inputs:
+        inp.ready.wait(5.0)
+    if on_status is not None:
+        on_status([f"listening: {', '.join(b.name for i in inputs for b in i.bodies)}"])
     try:
         while not stop.is_set():
             now = host_ns()
