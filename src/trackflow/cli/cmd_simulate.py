@@ -35,6 +35,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--natnet-version", default="4.1", help="NatNet version (2.0 .. 4.1)")
     p.add_argument("--body", default="body", help="NatNet rigid body name")
     p.add_argument("--body-id", type=int, default=1, help="NatNet/DTrack body id")
+    p.add_argument("--bodies", type=int, default=1, help="bodies (0.1 m apart along x)")
     p.add_argument("--device", default="Tracker0", help="VRPN device name")
     p.add_argument("--command-port", type=int, default=None, help="DTrack TCP command port")
     p.add_argument("--wait", type=float, default=10.0, help="wait this long for a client [s]")
@@ -65,6 +66,7 @@ def run(args) -> int:
         version=(major, minor),
         body_id=args.body_id,
         body_name=args.body,
+        bodies=args.bodies,
         device=args.device,
         command_port=args.command_port,
     )

@@ -72,6 +72,11 @@ class Body:
         self.nominal = np.asarray(covariance, dtype=float).reshape(6, 6)
         self.conv = BoundaryConversion(spec.unit_scale, spec.up)
         self.status = SensorStatus(name, spec.protocol)
+        c = self.conv.covariance(self.nominal)
+        #: the nominal covariance in trackflow's frames, exactly symmetric
+        self.nominal_converted = 0.5 * (c + c.T)
+        #: nominal position sigma [m] (NatNet's mean marker error is compared with it)
+        self.nominal_sigma = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
 
 
 class LiveInput:
@@ -161,18 +166,30 @@ class LiveInput:
         return self.clock.to_host(tx_ns) - latency_ns
 
     @staticmethod
-    def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov) -> Sample:
-        p, q = b.conv.pose(position, quaternion)
-        if not (np.isfinite(p).all() and np.isfinite(q).all()):
+    def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov=None) -> Sample:
+        """A checked sample; ``cov`` is a 6x6 covariance over ``(dt [m], dtheta)`` in the
+        wire's frames, or ``None`` for the body's nominal one (already converted)."""
+        x, y, z = position
+        qx, qy, qz, qw = quaternion
+        n2 = qx * qx + qy * qy + qz * qz + qw * qw
+        if not (math.isfinite(x + y + z) and math.isfinite(n2)):
             raise PacketError("non-finite pose", b.name)
-        n = math.sqrt(float(q @ q))
-        if not 0.9 < n < 1.1:
-            raise PacketError("non-unit quaternion", f"|q| = {n:.4g}")
-        q = q / n
-        c = b.conv.covariance(cov)
-        c = 0.5 * (c + c.T)
-        if not np.isfinite(c).all():
-            raise PacketError("invalid covariance", b.name)
+        if not 0.81 < n2 < 1.21:
+            raise PacketError("non-unit quaternion", f"|q|^2 = {n2:.4g}")
+        n = math.sqrt(n2)
+        if b.conv.up == "z":
+            k = b.conv.scale
+            p = np.array((x * k, y * k, z * k))
+            q = np.array((qx / n, qy / n, qz / n, qw / n))
+        else:
+            p, q = b.conv.pose((x, y, z), (qx / n, qy / n, qz / n, qw / n))
+        if cov is None:
+            c = b.nominal_converted
+        else:
+            c = b.conv.covariance(cov)
+            c = 0.5 * (c + c.T)
+            if not np.isfinite(c).all():
+                raise PacketError("invalid covariance", b.name)
         b.status.measured(arrival_ns, t_ns)
         return Sample(int(t_ns), int(arrival_ns), p, q, c)
 
@@ -253,16 +270,17 @@ class DTrackInput(LiveInput):
         else:
             raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         t = self._map(stamp + lat, lat, arrival_ns)
+        by_id = {x.id: x for x in f.bodies}
+        covs = {x.id: x for x in f.covariances}
 
         def one(b: Body):
-            body = f.body(b.options["body"])
+            body = by_id.get(b.options["body"])
             if body is None:
                 raise PacketError("body not in frame", f"body {b.options['body']}")
             _, q = dtrack.dtrack_pose(body)
-            c = f.covariance(body.id)
-            if c is None:
-                cov = b.nominal
-            else:
+            c = covs.get(body.id)
+            cov = None
+            if c is not None:
                 cov = dtrack.dtrack_covariance(np.asarray(body.rotation).reshape(3, 3), c)
             return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
 
@@ -353,20 +371,22 @@ class NatNetInput(LiveInput):
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
         t = self._map(tx_ns, lat_ns, arrival_ns)
+        by_id = {rb.id: rb for rb in f.rigid_bodies}
 
         def one(b: Body):
-            rb = f.body(self.body_id(b))
+            rb = by_id.get(self.body_id(b))
             if rb is None:
                 raise PacketError("body not in frame", str(b.options["body"]))
             if rb.valid is False:
                 raise PacketError("not tracked", str(b.options["body"]))
-            cov = b.nominal
-            ref = math.sqrt(float(np.trace(cov[:3, :3])) / 3.0)
+            cov = None
+            ref = b.nominal_sigma
             if rb.mean_error is not None and ref > 0:
                 err = rb.mean_error * b.conv.scale
                 if not (math.isfinite(err) and err >= 0):
                     raise PacketError("bad mean error", f"{rb.mean_error}")
-                cov = cov * max(1.0, (err / ref) ** 2)
+                if err > ref:  # scaled by (error / nominal)^2: still exactly symmetric
+                    cov = b.nominal * (err / ref) ** 2
             return self._sample(b, t, arrival_ns, rb.position, rb.quaternion, cov)
 
         return self._per_body(one)
@@ -459,7 +479,7 @@ class VrpnInput(LiveInput):
                     if lat not in mapped:
                         mapped[lat] = self._map(stamp + lat, lat, arrival_ns)
                     t = mapped[lat]
-                return self._sample(b, t, arrival_ns, r.position, r.quaternion, b.nominal)
+                return self._sample(b, t, arrival_ns, r.position, r.quaternion)
 
             out.extend(self._per_body(one))
         return out

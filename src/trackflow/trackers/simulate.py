@@ -46,6 +46,7 @@ class SimConfig:
     version: tuple[int, int] = (4, 1)
     body_id: int = 1
     body_name: str = "body"
+    bodies: int = 1
     device: str = "Tracker0"
     clock_frequency: int = 10_000_000
     command_port: int | None = None
@@ -65,6 +66,8 @@ class Simulator:
             raise ValueError("need 0 <= loss < 1, jitter_ms >= 0, latency_ms >= 0")
         if not cfg.speed > 0:
             raise ValueError("speed must be > 0")
+        if not 1 <= cfg.bodies <= 1000:
+            raise ValueError("bodies must be 1 .. 1000")
         t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
         keep = t >= cfg.start_s
         if cfg.duration_s is not None:
@@ -122,7 +125,12 @@ class Simulator:
             (c.version[0], c.version[1], 0, 0),
             c.clock_frequency if c.version >= (3, 0) else None,
         )
-        defs = natnet.ModelDefinitions((natnet.RigidBodyDescription(c.body_name, c.body_id),))
+        defs = natnet.ModelDefinitions(
+            tuple(
+                natnet.RigidBodyDescription(self.body_label(k), c.body_id + k)
+                for k in range(c.bodies)
+            )
+        )
         while not self.stop.is_set():
             try:
                 data, addr = self.sock.recvfrom(65536)
@@ -161,16 +169,30 @@ class Simulator:
                     self._started.set()
 
     # -- packets ----------------------------------------------------------------------------
+    def body_label(self, k: int) -> str:
+        """Name of body ``k`` (the first is ``body_name``, then ``body_name_2`` ...)."""
+        return self.cfg.body_name if k == 0 else f"{self.cfg.body_name}_{k + 1}"
+
+    def body_position(self, i: int, k: int) -> np.ndarray:
+        """Body ``k`` moves like the recording, shifted by ``0.1 k`` m along x."""
+        p = self.position[i]
+        return p if k == 0 else p + np.array([0.1 * k, 0.0, 0.0])
+
     def _packet(self, i: int, exp_host: int, tx_host: int) -> bytes | None:
         c = self.cfg
-        p, q = self.position[i], self.quaternion[i]
+        q = self.quaternion[i]
         exp_tr, tx_tr = self.tracker_ns(exp_host), self.tracker_ns(tx_host)
         if c.protocol == "natnet":
             f = c.clock_frequency
-            body = natnet.NatNetRigidBody(c.body_id, tuple(p), tuple(q), 0.0002, True)
+            bodies = tuple(
+                natnet.NatNetRigidBody(
+                    c.body_id + k, tuple(self.body_position(i, k)), tuple(q), 0.0002, True
+                )
+                for k in range(c.bodies)
+            )
             fr = natnet.NatNetFrame(
                 int(self.frames[i]),
-                (body,),
+                bodies,
                 timestamp=exp_tr * 1e-9,
                 mid_exposure=exp_tr * f // 1_000_000_000,
                 data_received=exp_tr * f // 1_000_000_000,
@@ -182,11 +204,16 @@ class Simulator:
             sec, rest = divmod(exp_tr, 1_000_000_000)
             usec = rest // 1000
             lat_us = (tx_tr - (sec * 1_000_000_000 + usec * 1000)) // 1000
-            R = quat_to_matrix(q)
-            body = dtrack.DTrackBody(
-                c.body_id, 1.0, tuple(float(x) * 1e3 for x in p), tuple(R.ravel())
+            R = tuple(quat_to_matrix(q).ravel())
+            bodies = tuple(
+                dtrack.DTrackBody(
+                    c.body_id + k, 1.0, tuple(float(x) * 1e3 for x in self.body_position(i, k)), R
+                )
+                for k in range(c.bodies)
             )
-            fr = dtrack.DTrackFrame(int(self.frames[i]), None, (sec, usec, lat_us), 1, (body,))
+            fr = dtrack.DTrackFrame(
+                int(self.frames[i]), None, (sec, usec, lat_us), c.bodies, bodies
+            )
             return dtrack.encode_dtrack(fr, digits=None, rot_digits=None)
         return None
 
@@ -194,7 +221,10 @@ class Simulator:
         c = self.cfg
         if c.protocol == "vrpn":
             # the header time is the exposure on the server's clock
-            self.vrpn.report(0, self.position[i], self.quaternion[i], self.tracker_ns(exp_host))
+            for k in range(c.bodies):
+                self.vrpn.report(
+                    k, self.body_position(i, k), self.quaternion[i], self.tracker_ns(exp_host)
+                )
             return
         data = self._packet(i, exp_host, tx_host)
         if c.protocol == "natnet":
