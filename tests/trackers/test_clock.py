@@ -42,10 +42,12 @@ def test_mapper_recovers_offset_and_drift(drift):
         true_host = xi + offset + drift * (xi - x[0])
         errs.append(m.to_host(int(xi)) - true_host)
     errs = np.array(errs) * 1e-3  # us
-    # after the first seconds the mapping sits on the minimum transit (30 us) within 30 us,
-    # although the delays spread over 2 ms and 5 % of them spike by up to 50 ms
-    late = errs[120 * 5 :]
-    assert np.all(np.abs(late - 30) < 30), (late.min(), late.max())
+    # once the drift is estimated (15 s) the mapping sits on the minimum transit (30 us):
+    # never more than 10 us below it or 45 us above it, although the delays spread over
+    # 2 ms and 5 % of them spike by up to 50 ms; before, within 200 us
+    late = errs[120 * 15 :] - 30
+    assert -10 < late.min() and late.max() < 45, (late.min(), late.max())
+    assert np.abs(errs[120:]).max() < 200
     e = m.estimate
     assert e.drift == pytest.approx(drift, abs=2e-6)
     assert 0 < e.sigma_ns < 2e6

@@ -234,3 +234,12 @@ def test_4_1_section_size_mismatch_is_rejected():
     with pytest.raises(PacketError) as e:
         decode_frame(decode_message(bytes(raw))[1], (4, 1))
     assert e.value.reason in ("bad size", "truncated", "bad count")
+
+
+def test_connect_request_bytes():
+    from trackflow.trackers.natnet import encode_connect
+
+    raw = encode_connect((4, 1, 0, 0))
+    assert raw[:8] == b"\x00\x00\x0e\x01Ping" and len(raw) == 4 + 270
+    assert raw[4 + 265 : 4 + 269] == bytes((4, 1, 0, 0)) and raw[-1:] == b"\0"
+    assert decode_message(raw)[0] == 0

@@ -3,13 +3,15 @@
 Every packet gives a pair (tracker stamp ``x`` of an event, host receive time ``h``). The
 difference ``y = h - x`` is the clock offset plus the transport delay, and the delay is never
 negative: the smallest ``y`` over time are the packets that came through fastest. The
-estimator fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope), in the
-linear-programming sense: the line lies below every point and maximises the sum of its
-values, i.e. it is the edge of the lower convex hull above the mean of ``x``. Delay spikes
-sit above the envelope and never move it; drift ``b`` (ppm-level) is followed over a sliding
-window. The mapped host time of a stamp is ``x + a + b (x - x_ref)``; it includes the minimum
-transport delay (on loopback tens of microseconds), which no one-way method can separate
-from the offset.
+estimator fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift
+``b`` is the slope of the line that lies below every point of a sliding window and maximises
+the sum of its values (linear programming; the edge of the lower convex hull above the mean
+of ``x``), and the offset ``a`` puts the line through the lowest point of the last seconds,
+so that mapping a new stamp extrapolates over seconds, not over the whole window. Delay
+spikes sit above the envelope and never move it; until the window spans ``min_span_s`` the
+drift is taken as zero. The mapped host time of a stamp is ``x + a + b (x - x_ref)``; it
+includes the minimum transport delay (on loopback tens of microseconds), which no one-way
+method can separate from the offset.
 
 Points are reduced to per-bin minima (``bin_s``) so a refit costs ``O(window / bin)``, done
 once per closed bin; between refits a new point below the line lowers the line at once.
@@ -17,7 +19,6 @@ once per closed bin; between refits a new point below the line lowers the line a
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -98,20 +99,24 @@ class ClockMapper:
         Drift is estimated only once the bins span this long [s] (before: offset only).
     max_drift : float
         Larger fitted drifts are clipped (a real oscillator is within 1e-4).
+    anchor_s : float
+        The line is anchored on the lowest bin of the last ``anchor_s`` seconds [s].
     """
 
     def __init__(
         self,
         window_s: float = 30.0,
         bin_s: float = 0.1,
-        min_span_s: float = 2.0,
+        min_span_s: float = 10.0,
         max_drift: float = 5e-4,
+        anchor_s: float = 3.0,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
             raise ValueError("clock mapper: need window_s > bin_s > 0")
         self.window_ns = int(window_s * 1e9)
         self.bin_ns = int(bin_s * 1e9)
         self.min_span_ns = int(min_span_s * 1e9)
+        self.anchor_ns = int(anchor_s * 1e9)
         self.max_drift = float(max_drift)
         self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
         self._cur: tuple[int, int] | None = None
@@ -150,18 +155,16 @@ class ClockMapper:
         ref = pts[0][0]
         x = [(p[0] - ref) * 1e-9 for p in pts]  # seconds, for a well-conditioned slope
         y = [float(p[1]) for p in pts]
-        if pts[-1][0] - ref < self.min_span_ns:
-            a, b = min(y), 0.0
-            xm = 0.0
-        else:
-            a, b = lower_envelope(x, y)
-            b *= 1e-9  # ns of offset per ns of tracker time
-            xm = sum(x) / len(x)
-            if abs(b) > self.max_drift:
-                b = math.copysign(self.max_drift, b)
-                a = min(yi - b * (xi - xm) * 1e9 for xi, yi in zip(x, y))
-        ref_ns = ref + int(round(xm * 1e9))
-        res = sorted(yi - (a + b * (xi - xm) * 1e9) for xi, yi in zip(x, y))
+        b = 0.0
+        if pts[-1][0] - ref >= self.min_span_ns:
+            _, b = lower_envelope(x, y)
+            b = max(-self.max_drift * 1e9, min(self.max_drift * 1e9, b)) * 1e-9
+        # the slope comes from the whole window (a long baseline); the line is anchored on the
+        # lowest point of the recent bins, so that extrapolating to new stamps stays short
+        ref_ns = pts[-1][0]
+        recent = [(p[0], p[1]) for p in pts if ref_ns - p[0] <= self.anchor_ns]
+        a = min(yi - b * (xi - ref_ns) for xi, yi in recent)
+        res = sorted(yi - (a + b * (xi - ref_ns)) for xi, yi in recent)
         sigma = res[len(res) // 2]
         self.estimate = ClockEstimate(a, b, ref_ns, sigma, len(pts))
         if self._cur is not None:  # the open bin may already hold a lower point

@@ -181,11 +181,11 @@ def _name(text: str, size: int = 256) -> bytes:
     return raw + b"\0" * (size - len(raw))
 
 
-def encode_connect(
-    client: str = "trackflow", version: tuple[int, int, int, int] = (4, 1, 0, 0)
-) -> bytes:
-    """CONNECT: the client's name [256] and app/NatNet versions (like a SERVERINFO's head)."""
-    return encode_message(CONNECT, _name(client) + bytes((1, 0, 0, 0)) + bytes(version))
+def encode_connect(version: tuple[int, int, int, int] = (4, 1, 0, 0)) -> bytes:
+    """CONNECT: ``"Ping"`` padded to 265 bytes, then the NatNet version the client speaks
+    (4 bytes) and a NUL, 270 bytes, as the NatNet SDK's 4.1 sample client sends it; older
+    servers read only the leading string."""
+    return encode_message(CONNECT, b"Ping" + b"\0" * 261 + bytes(version) + b"\0")
 
 
 def decode_server_info(payload) -> ServerInfo:

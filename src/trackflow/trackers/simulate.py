@@ -217,7 +217,7 @@ class Simulator:
             return dtrack.encode_dtrack(fr, digits=None, rot_digits=None)
         return None
 
-    def _send(self, i: int, exp_host: int, tx_host: int) -> None:
+    def _send(self, i: int, exp_host: int, data: bytes | None) -> None:
         c = self.cfg
         if c.protocol == "vrpn":
             # the header time is the exposure on the server's clock
@@ -226,7 +226,6 @@ class Simulator:
                     k, self.body_position(i, k), self.quaternion[i], self.tracker_ns(exp_host)
                 )
             return
-        data = self._packet(i, exp_host, tx_host)
         if c.protocol == "natnet":
             for addr in list(self._clients):
                 self.sock.sendto(data, addr)
@@ -266,13 +265,15 @@ class Simulator:
         try:
             while heap and not self.stop.is_set():
                 send_at, i = heapq.heappop(heap)
-                now = _wait_until(send_at)
                 if lost[i]:
                     self.lost += 1
                     continue
-                # the tracker stamps the frame `jitter` before it leaves: a late wake-up is
-                # processing latency (reported in the packet), the jitter is network delay
-                self._send(i, int(exp[i]), max(int(exp[i] + lat), now - int(jit[i])))
+                # the tracker stamps the frame `latency` after the exposure and it leaves
+                # `jitter` later (network delay); the packet is built before the wait so
+                # that building it does not count as transit
+                packet = self._packet(i, int(exp[i]), int(exp[i] + lat))
+                _wait_until(send_at)
+                self._send(i, int(exp[i]), packet)
                 self.sent += 1
                 self.truth_t.append(int(exp[i]))
                 self.truth_i.append(i)
