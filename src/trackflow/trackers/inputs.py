@@ -226,6 +226,10 @@ class LiveInput:
         for b in self.bodies:
             b.status.reject(reason)
 
+    def _event_all(self, kind: str) -> None:
+        for b in self.bodies:
+            b.status.event(kind)
+
     def _connected(self, value: bool) -> None:
         for b in self.bodies:
             b.status.connected = value
@@ -293,7 +297,7 @@ class DTrackInput(LiveInput):
             if o["command"]:
                 self.command(o["command"], o["command_port"], "dtrack2 tracking start")
         except OSError as exc:
-            self._reject_all(f"socket error: {exc.strerror or exc}")
+            self._event_all(f"socket error: {exc.strerror or exc}")
             self.ready.set()
             return
         self._connected(True)
@@ -320,7 +324,7 @@ class DTrackInput(LiveInput):
                 reply += chunk
         answer = reply.rstrip(b"\0").decode("ascii", "replace")
         if answer != "dtrack2 ok":
-            self._reject_all("command refused")
+            self._event_all("command refused")
         return answer
 
 
@@ -401,7 +405,7 @@ class NatNetInput(LiveInput):
                 (o["interface"], o["data_port"] if mc else 0), o["group"] if mc else None
             )
         except OSError as exc:
-            self._reject_all(f"socket error: {exc.strerror or exc}")
+            self._event_all(f"socket error: {exc.strerror or exc}")
             self.ready.set()
             return
         self.ready.set()
@@ -425,7 +429,7 @@ class NatNetInput(LiveInput):
                         cmd.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
                         next_keepalive = now + 1.0
                 except OSError:
-                    self._reject_all("send failed")
+                    self._event_all("send failed")
                 for key, _ in sel.select(timeout=0.1):
                     try:
                         raw = key.fileobj.recv(65536)
@@ -492,7 +496,7 @@ class VrpnInput(LiveInput):
             try:
                 conn = socket.create_connection((self.host, self.port), timeout=timeout)
             except OSError:
-                self._reject_all("connection failed")
+                self._event_all("connection failed")
                 self.ready.set()
                 self._stop.wait(0.5)
                 continue
@@ -513,13 +517,13 @@ class VrpnInput(LiveInput):
                     except TimeoutError:
                         continue
                     if not raw:
-                        self._reject_all("connection closed")
+                        self._event_all("connection closed")
                         break
                     sink(self, raw, host_ns())
                     if self.broken:
                         break
             except OSError:
-                self._reject_all("connection lost")
+                self._event_all("connection lost")
             finally:
                 self._connected(False)
                 conn.close()

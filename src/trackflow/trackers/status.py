@@ -24,7 +24,10 @@ class SensorStatus:
     dropouts : int
         Frames missing from the tracker's frame counter (gaps).
     rejections : dict
-        Counted rejections by reason (garbage, truncated, not tracked, reordered ...).
+        Counted rejections of packets or poses by reason (garbage, truncated, not tracked,
+        reordered ...).
+    connection : dict
+        Connection events by kind (connection failed, lost, closed; socket errors).
     latency_ns : deque
         Recent host arrival time minus mapped exposure time [ns].
     clock : ClockEstimate or None
@@ -37,6 +40,7 @@ class SensorStatus:
     measurements: int = 0
     dropouts: int = 0
     rejections: dict[str, int] = field(default_factory=dict)
+    connection: dict[str, int] = field(default_factory=dict)
     latency_ns: deque = field(default_factory=lambda: deque(maxlen=512))
     arrivals_ns: deque = field(default_factory=lambda: deque(maxlen=1024))
     clock: ClockEstimate | None = None
@@ -48,6 +52,11 @@ class SensorStatus:
     def reject(self, reason: str) -> None:
         with self._lock:
             self.rejections[reason] = self.rejections.get(reason, 0) + 1
+
+    def event(self, kind: str) -> None:
+        """Count a connection event (not a rejected packet)."""
+        with self._lock:
+            self.connection[kind] = self.connection.get(kind, 0) + 1
 
     @property
     def rejected(self) -> int:
@@ -94,6 +103,7 @@ class SensorStatus:
             "clock_sigma_ms": None if c is None else c.sigma_ns * 1e-6,
             "dropouts": self.dropouts,
             "rejections": dict(sorted(self.rejections.items())),
+            "connection": dict(sorted(self.connection.items())),
             "stale": self.stale(now_ns, stale_s),
         }
 
@@ -105,7 +115,9 @@ class SensorStatus:
         sig = "" if s["clock_sigma_ms"] is None else f" +-{s['clock_sigma_ms'] * 1e3:.0f} us"
         rej = ", ".join(f"{k} {v}" for k, v in s["rejections"].items()) or "0"
         flag = " STALE" if s["stale"] else ""
+        conn = ", ".join(f"{k} {v}" for k, v in s["connection"].items())
+        conn = f", {conn}" if conn else ""
         return (
             f"{self.name} ({self.protocol}): {s['rate_hz']:.1f} Hz, latency {lat}, clock {off}"
-            f"{sig}, dropouts {self.dropouts}, rejected {rej}{flag}"
+            f"{sig}, dropouts {self.dropouts}, rejected {rej}{conn}{flag}"
         )
