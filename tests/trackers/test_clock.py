@@ -67,3 +67,22 @@ def test_mapper_lowers_at_once_and_clips_drift():
         ClockMapper(window_s=0.1, bin_s=0.2)
     with pytest.raises(ValueError, match="no samples"):
         ClockMapper().to_host(0)
+
+
+def test_a_stall_of_every_packet_does_not_move_the_mapping():
+    """Every packet of 5 s arrives 2 s late (a stalled sender): the mapping keeps the line
+    of the window instead of following the late packets (at most the height of one bin's
+    minimum off while the first fast packets come back), and is back on it right after."""
+    rng = np.random.default_rng(4)
+    x, h = _stream(rng, 120 * 40, 10**12, 0.0, spikes=0.0)
+    stall = (x - x[0] > 25e9) & (x - x[0] < 30e9)
+    h[stall] += 2_000_000_000
+    m = ClockMapper()
+    errs = []
+    for xi, hi in zip(x, h):
+        m.add(int(xi), int(hi))
+        errs.append(m.to_host(int(xi)) - (xi + 10**12))
+    errs = np.array(errs) * 1e-3
+    assert np.abs(errs[120 * 15 :]).max() < 500, np.abs(errs[120 * 15 :]).max()
+    after = errs[120 * 32 :] - 30  # minimum transit 30 us
+    assert np.abs(after).max() < 40, np.abs(after).max()

@@ -100,7 +100,11 @@ class ClockMapper:
     max_drift : float
         Larger fitted drifts are clipped (a real oscillator is within 1e-4).
     anchor_s : float
-        The line is anchored on the lowest bin of the last ``anchor_s`` seconds [s].
+        The line is anchored on the lowest bin of the last ``anchor_s`` seconds [s] ...
+    stall_s : float
+        ... unless that bin sits more than ``3 x`` the usual height of bins above the
+        window's envelope plus ``stall_s`` [s] (every recent packet late: a stall); then on
+        the window's envelope.
     """
 
     def __init__(
@@ -110,6 +114,7 @@ class ClockMapper:
         min_span_s: float = 10.0,
         max_drift: float = 5e-4,
         anchor_s: float = 3.0,
+        stall_s: float = 1e-4,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
             raise ValueError("clock mapper: need window_s > bin_s > 0")
@@ -117,6 +122,7 @@ class ClockMapper:
         self.bin_ns = int(bin_s * 1e9)
         self.min_span_ns = int(min_span_s * 1e9)
         self.anchor_ns = int(anchor_s * 1e9)
+        self.stall_ns = float(stall_s * 1e9)
         self.max_drift = float(max_drift)
         self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
         self._cur: tuple[int, int] | None = None
@@ -159,13 +165,20 @@ class ClockMapper:
         if pts[-1][0] - ref >= self.min_span_ns:
             _, b = lower_envelope(x, y)
             b = max(-self.max_drift * 1e9, min(self.max_drift * 1e9, b)) * 1e-9
-        # the slope comes from the whole window (a long baseline); the line is anchored on the
-        # lowest point of the recent bins, so that extrapolating to new stamps stays short
+        # with that slope: the line below every bin of the window, and the line through the
+        # lowest recent bin; the recent one extrapolates over seconds instead of the whole
+        # window, unless every recent packet was late (a stalled sender or network), i.e. it
+        # sits far above the window's line compared with how high bins usually sit
         ref_ns = pts[-1][0]
-        recent = [(p[0], p[1]) for p in pts if ref_ns - p[0] <= self.anchor_ns]
-        a = min(yi - b * (xi - ref_ns) for xi, yi in recent)
-        res = sorted(yi - (a + b * (xi - ref_ns)) for xi, yi in recent)
-        sigma = res[len(res) // 2]
+        heights = [yi - b * (p[0] - ref_ns) for p, yi in zip(pts, y)]
+        a_full = min(heights)
+        recent = [h for p, h in zip(pts, heights) if ref_ns - p[0] <= self.anchor_ns]
+        a = min(recent)
+        typical = sorted(heights)[len(heights) // 2] - a_full
+        if a - a_full > 3.0 * typical + self.stall_ns:
+            a = a_full
+        res = sorted(h - a for h in recent)
+        sigma = max(res[len(res) // 2], 0.0)
         self.estimate = ClockEstimate(a, b, ref_ns, sigma, len(pts))
         if self._cur is not None:  # the open bin may already hold a lower point
             x_c, y_c = self._cur
