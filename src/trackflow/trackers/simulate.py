@@ -68,6 +68,8 @@ class Simulator:
             raise ValueError("speed must be > 0")
         if not 1 <= cfg.bodies <= 1000:
             raise ValueError("bodies must be 1 .. 1000")
+        if cfg.protocol == "natnet" and not (2, 0) <= tuple(cfg.version) <= (4, 1):
+            raise ValueError(f"NatNet {cfg.version[0]}.{cfg.version[1]} is not supported (2.0-4.1)")
         t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
         keep = t >= cfg.start_s
         if cfg.duration_s is not None:
