@@ -134,6 +134,92 @@ def _sensor_edges(plan) -> list[str]:
     return [n.params["edge"] for n in plan.nodes if n.kind == "source"]
 
 
+class _Scheduler:
+    """Time-ordered dispatch of live samples and sampler ticks (module docstring).
+
+    Receiving threads call :meth:`packet`; the scheduling thread runs :meth:`loop`.
+    """
+
+    def __init__(self, net, sampler: Sampler, sources: dict, inputs: list, writers: dict):
+        self.clock = net.clock
+        self.sampler = sampler
+        self.sources = sources
+        self.writers = writers
+        self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
+        self.events: queue.SimpleQueue = queue.SimpleQueue()
+        self.lock = threading.Lock()
+        self.last = 0  # the latest dispatch time handed out
+        self.floor = 0  # no dispatch time at or below a fired tick
+        self.ticks = 0
+
+    def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
+        """Decode a packet and queue its samples with strictly increasing dispatch times."""
+        with self.lock:
+            a = max(stamp, self.last + 1, self.floor)
+            pairs = inp.handle(data, a)
+            for k, (bi, s) in enumerate(pairs):
+                self.events.put((a + k, self.names[(id(inp), bi)], s._replace(arrival_ns=a + k)))
+            self.last = a + max(len(pairs) - 1, 0)
+
+    def dispatch(self, arrival: int, name: str, s: Sample) -> None:
+        self.clock.now_ns = arrival
+        self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        pose = self.sources[name].deliver(s)
+        if pose is not None and name in self.writers:
+            p, q, c = pose.position, pose.quaternion, pose.covariance
+            self.writers[name][0].append_sample(s.t_ns, p, q, c)
+            self.writers[name][1].append_sample(arrival, p, q, c)
+
+    def fire(self, t: int) -> None:
+        self.clock.now_ns = t
+        self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        self.sampler.tick(t)
+        self.ticks += 1
+
+    def loop(self, next_tick: int, deadline: int | None, stop: threading.Event, status) -> None:
+        """Dispatch until ``deadline`` (host ns) or ``stop``; ``status(now)`` is called
+        between events."""
+        period = self.sampler.period_ns
+        while not stop.is_set():
+            now = host_ns()
+            if deadline is not None and now >= deadline:
+                return
+            status(now)
+            wait = min(next_tick - now, 100_000_000)
+            try:
+                item = (
+                    self.events.get(timeout=wait * 1e-9) if wait > 0 else self.events.get_nowait()
+                )
+            except queue.Empty:
+                item = None
+            if item is not None:
+                arrival, name, s = item
+                while next_tick < arrival:  # ticks before it (a sample first at equal times)
+                    self.fire(next_tick)
+                    next_tick += period
+                self.dispatch(arrival, name, s)
+                continue
+            if host_ns() >= next_tick:
+                with self.lock:  # no sample stamped before the tick may still be on its way
+                    if not self.events.empty():
+                        continue
+                    self.floor = max(self.floor, next_tick + 1)
+                self.fire(next_tick)
+                next_tick += period
+
+
+def _writers(setup: Setup, edges: list[str], record) -> dict:
+    out = {}
+    if record is not None:
+        for e in edges:
+            edge = setup.graph.edge(e)
+            out[e] = tuple(
+                RecordingWriter(p, edge.source, edge.target, covariance=True)
+                for p in input_paths(record, e)
+            )
+    return out
+
+
 def run_live(
     setup: Setup,
     *,
@@ -158,7 +244,8 @@ def run_live(
     vrpn_out : VrpnTrackerServer, optional
         Every answer is also served as sensor 0 of this VRPN tracker.
     on_status : callable, optional
-        Called every ``status_period_s`` with one status line per sensor.
+        Called once with ``["listening: ..."]`` when the inputs are open, then every
+        ``status_period_s`` with one status line per sensor.
     """
     q = _push_query(setup, query)
     plan = setup.plan(q)
@@ -182,90 +269,30 @@ def run_live(
     net.reset()
     warm_up(net)
     inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
-    names = {(id(inp), i): b.name for inp in inputs for i, b in enumerate(inp.bodies)}
-    writers: dict[str, tuple[RecordingWriter, RecordingWriter]] = {}
-    if record is not None:
-        for e in edges:
-            edge = setup.graph.edge(e)
-            writers[e] = tuple(
-                RecordingWriter(p, edge.source, edge.target, covariance=True)
-                for p in input_paths(record, e)
-            )
+    writers = _writers(setup, edges, record)
+    sched = _Scheduler(net, sampler, sources, inputs, writers)
+    bodies = [b for i in inputs for b in i.bodies]
+    next_status = [0]
 
-    events: queue.SimpleQueue = queue.SimpleQueue()
-    lock = threading.Lock()
-    last = [0]
-    floor = [0]
-
-    def packet(inp: LiveInput, data: bytes, stamp: int) -> None:
-        with lock:
-            a = max(stamp, last[0] + 1, floor[0])
-            pairs = inp.handle(data, a)
-            for k, (bi, s) in enumerate(pairs):
-                events.put((a + k, names[(id(inp), bi)], s._replace(arrival_ns=a + k)))
-            last[0] = a + max(len(pairs) - 1, 0)
-
-    clock = net.clock
-
-    def dispatch(arrival: int, name: str, s: Sample) -> None:
-        clock.now_ns = arrival
-        clock.dispatch_wall_ns = time.perf_counter_ns()
-        pose = sources[name].deliver(s)
-        if pose is not None and name in writers:
-            p, qq, c = pose.position, pose.quaternion, pose.covariance
-            writers[name][0].append_sample(s.t_ns, p, qq, c)
-            writers[name][1].append_sample(arrival, p, qq, c)
-
-    period = sampler.period_ns
-    ticks = 0
-
-    def fire(t: int) -> None:
-        nonlocal ticks
-        clock.now_ns = t
-        clock.dispatch_wall_ns = time.perf_counter_ns()
-        sampler.tick(t)
-        ticks += 1
+    def status(now: int) -> None:
+        if on_status is not None and now >= next_status[0]:
+            on_status([b.status.line(now, b.spec.stale_s) for b in bodies])
+            next_status[0] = now + int(status_period_s * 1e9)
 
     t_start = host_ns()
-    next_tick = -(-t_start // period) * period
+    next_tick = -(-t_start // sampler.period_ns) * sampler.period_ns
     sampler.start_ns = next_tick
     deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
-    next_status = t_start + int(status_period_s * 1e9)
-    stop = stop or threading.Event()
+    next_status[0] = t_start + int(status_period_s * 1e9)
     interrupted = False
     for inp in inputs:
-        inp.start(packet)
-    for inp in inputs:
-        inp.ready.wait(5.0)
-    if on_status is not None:
-        on_status([f"listening: {', '.join(b.name for i in inputs for b in i.bodies)}"])
+        inp.start(sched.packet)
     try:
-        while not stop.is_set():
-            now = host_ns()
-            if deadline is not None and now >= deadline:
-                break
-            if on_status is not None and now >= next_status:
-                on_status([b.status.line(now, b.spec.stale_s) for i in inputs for b in i.bodies])
-                next_status = now + int(status_period_s * 1e9)
-            wait = min(next_tick - now, 100_000_000)
-            try:
-                item = events.get(timeout=max(wait, 0) * 1e-9) if wait > 0 else events.get_nowait()
-            except queue.Empty:
-                item = None
-            if item is not None:
-                arrival, name, s = item
-                while next_tick < arrival:
-                    fire(next_tick)
-                    next_tick += period
-                dispatch(arrival, name, s)
-                continue
-            if host_ns() >= next_tick:
-                with lock:
-                    if not events.empty():
-                        continue
-                    floor[0] = max(floor[0], next_tick + 1)
-                fire(next_tick)
-                next_tick += period
+        for inp in inputs:
+            inp.ready.wait(5.0)
+        if on_status is not None:
+            on_status([f"listening: {', '.join(b.name for b in bodies)}"])
+        sched.loop(next_tick, deadline, stop or threading.Event(), status)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -279,8 +306,8 @@ def run_live(
     end = host_ns()
     return RunResult(
         answers=sink.stats.events_in,
-        ticks=ticks,
-        statuses={b.name: b.status.summary(end, b.spec.stale_s) for i in inputs for b in i.bodies},
+        ticks=sched.ticks,
+        statuses={b.name: b.status.summary(end, b.spec.stale_s) for b in bodies},
         stats=net.stats(),
         record=None if record is None else Path(record),
         duration_s=(end - t_start) * 1e-9,
