@@ -135,6 +135,27 @@ def test_short_natnet_stream_and_stale(room1, tmp_path):
     assert status.stale(host_ns(), 0.2) and status.clock is not None
 
 
+def test_natnet_multicast(room1):
+    """Multicast: the client joins the group on the loopback interface; no keep-alive."""
+    cmd, data = _free_port(), _free_port()
+    spec = parse_input({"natnet": {"command_port": cmd, "body": "rig", "multicast": True,
+                                   "data_port": data, "group": "239.255.42.99"}})  # fmt: skip
+    inp = make_input("rig", spec, COV)
+    got = []
+    inp.start(lambda i, d, a: got.extend(s for _, s in i.handle(d, a)))
+    assert inp.ready.wait(10)
+    try:
+        sender = _trackflow("simulate", "natnet", room1, "--port", cmd, "--body", "rig",
+                            "--multicast", "239.255.42.99", "--data-port", data,
+                            "--duration", 0.5, "--wait", 20)  # fmt: skip
+        report = json.loads(_finish(sender, 60))
+        time.sleep(0.3)
+    finally:
+        inp.stop()
+    assert report["sent"] > 0 and len(got) + inp.status.rejected == report["sent"]
+    assert len(got) > 0.8 * report["sent"], inp.status.rejections
+
+
 def test_vrpn_server_output_to_a_vrpn_client():
     with VrpnTrackerServer("Tracker0", "127.0.0.1", 0) as server:
         spec = parse_input(

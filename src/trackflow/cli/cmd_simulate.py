@@ -36,6 +36,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--body", default="body", help="NatNet rigid body name")
     p.add_argument("--body-id", type=int, default=1, help="NatNet/DTrack body id")
     p.add_argument("--bodies", type=int, default=1, help="bodies (0.1 m apart along x)")
+    p.add_argument("--multicast", default=None, help="NatNet: stream to this group")
+    p.add_argument("--data-port", type=int, default=1511, help="NatNet multicast data port")
     p.add_argument("--device", default="Tracker0", help="VRPN device name")
     p.add_argument("--command-port", type=int, default=None, help="DTrack TCP command port")
     p.add_argument("--wait", type=float, default=10.0, help="wait this long for a client [s]")
@@ -69,6 +71,8 @@ def run(args) -> int:
         bodies=args.bodies,
         device=args.device,
         command_port=args.command_port,
+        multicast_group=args.multicast,
+        data_port=args.data_port,
     )
     out = simulate(args.recording, cfg, truth_path=args.truth, wait_for_client_s=args.wait)
     print(json.dumps(out))

@@ -238,8 +238,8 @@ class LiveInput:
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
-        if group:
-            s.bind(("", bind[1]))
+        if group:  # bound to the group address: only that group's datagrams arrive
+            s.bind((group, bind[1]))
             mreq = socket.inet_aton(group) + socket.inet_aton(bind[0])
             s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
         else:

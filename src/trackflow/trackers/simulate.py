@@ -50,6 +50,8 @@ class SimConfig:
     device: str = "Tracker0"
     clock_frequency: int = 10_000_000
     command_port: int | None = None
+    multicast_group: str | None = None  # NatNet: stream to this group ...
+    data_port: int = 1511  # ... on this port (through the interface ``host``)
 
 
 class Simulator:
@@ -100,6 +102,11 @@ class Simulator:
                 self.sock.bind((cfg.host, cfg.port))
                 self.port = self.sock.getsockname()[1]
                 self.sock.settimeout(0.05)
+                if cfg.multicast_group:
+                    self.sock.setsockopt(
+                        socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(cfg.host)
+                    )
+                    self.sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
             else:
                 self.port = cfg.port
         self._cmd = None
@@ -121,11 +128,15 @@ class Simulator:
     # -- servers ----------------------------------------------------------------------------
     def _natnet_server(self) -> None:
         c = self.cfg
+        group = tuple(int(x) for x in (c.multicast_group or "239.255.42.99").split("."))
         info = natnet.ServerInfo(
             "trackflow simulate",
             (3, 1, 0, 0),
             (c.version[0], c.version[1], 0, 0),
             c.clock_frequency if c.version >= (3, 0) else None,
+            c.data_port,
+            c.multicast_group is not None,
+            group,
         )
         defs = natnet.ModelDefinitions(
             tuple(
@@ -146,6 +157,8 @@ class Simulator:
                 continue
             if msg == natnet.CONNECT:
                 self.sock.sendto(natnet.encode_server_info(info), addr)
+                if c.multicast_group:
+                    self._clients.add((c.multicast_group, c.data_port))
             elif msg == natnet.REQUEST_MODELDEF:
                 self.sock.sendto(natnet.encode_model_definitions(defs, c.version), addr)
             elif msg == natnet.KEEPALIVE:
