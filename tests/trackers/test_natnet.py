@@ -243,3 +243,18 @@ def test_connect_request_bytes():
     assert raw[:8] == b"\x00\x00\x0e\x01Ping" and len(raw) == 4 + 270
     assert raw[4 + 265 : 4 + 269] == bytes((4, 1, 0, 0)) and raw[-1:] == b"\0"
     assert decode_message(raw)[0] == 0
+
+
+def test_natnet_package_skips_the_2x_software_latency():
+    """Before 3.0 the suffix starts with the software latency (f32), as the SDK's packet
+    clients read it; the package skips it, so its timestamp is wrong (its bodies agree)."""
+    pytest.importorskip("natnet")
+    from natnet.data_frame import DataFrame
+    from natnet.packet_buffer import PacketBuffer
+    from natnet.version import Version
+
+    payload = golden((2, 9))[4:]
+    theirs = DataFrame.read_from_buffer(PacketBuffer(payload), Version(2, 9))
+    ours = decode_frame(payload, (2, 9))
+    assert [tuple(b.pos) for b in theirs.rigid_bodies] == [b.position for b in ours.rigid_bodies]
+    assert ours.timestamp == 12.5 and theirs.suffix.timestamp != 12.5
