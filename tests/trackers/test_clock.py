@@ -86,3 +86,27 @@ def test_a_stall_of_every_packet_does_not_move_the_mapping():
     assert np.abs(errs[120 * 15 :]).max() < 500, np.abs(errs[120 * 15 :]).max()
     after = errs[120 * 32 :] - 30  # minimum transit 30 us
     assert np.abs(after).max() < 40, np.abs(after).max()
+
+
+def test_a_step_of_the_tracker_clock_restarts_the_fit():
+    """The tracker's clock jumps back by 5 s (a restart): the fit starts again from the new
+    stamps instead of calling every packet 5 s late; a jump forward likewise."""
+    rng = np.random.default_rng(6)
+    x, h = _stream(rng, 120 * 60, 10**12, 0.0, spikes=0.0)
+    step = x - x[0] > 20e9
+    x = x.copy()
+    x[step] -= 5_000_000_000  # the same host arrivals, stamps 5 s lower
+    m = ClockMapper()
+    errs = []
+    for xi, hi, st in zip(x, h, step):
+        m.add(int(xi), int(hi))
+        errs.append(m.to_host(int(xi)) - (xi + 10**12 + (5_000_000_000 if st else 0)))
+    errs = np.array(errs) * 1e-3
+    assert m.steps == 1
+    after = errs[step][120:] - 30  # a second after the step
+    assert np.abs(after).max() < 200, np.abs(after).max()
+    m.add(int(x[-1]) + 7_000_000_000, int(h[-1]) + 8_000_000)  # forward by 7 s
+    assert m.steps == 2 and m.to_host(int(x[-1]) + 7_000_000_000) == int(h[-1]) + 8_000_000
+    m.reset()
+    with pytest.raises(ValueError, match="no samples"):
+        m.to_host(0)

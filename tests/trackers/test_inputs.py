@@ -213,3 +213,12 @@ queries:
     p.write_text(text.replace("body: head", "bodyy: head"))
     with pytest.raises(ValueError, match=r"s.yaml:\d+: sensors\[0\]: input.natnet: unknown keys"):
         load_setup(p)
+
+
+def test_a_restarted_tracker_is_an_event_not_a_loss():
+    inp = _dtrack()
+    for k, fr in enumerate([500_000, 500_001, 3, 4]):
+        inp.handle(_dt_packet(fr, (1000 + k, 0, 100)), 10**12 + k * 10**9)
+    st = inp.status
+    assert st.dropouts == 0 and st.connection == {"frame counter restarted": 1}
+    assert st.measurements == 4 and st.rejections == {}

@@ -105,6 +105,10 @@ class ClockMapper:
         ... unless that bin sits more than ``3 x`` the usual height of bins above the
         window's envelope plus ``stall_s`` [s] (every recent packet late: a stall); then on
         the window's envelope.
+    step_s : float
+        A stamp earlier than the newest one by more than this, or an offset sample below
+        the line by more than this [s], is a step of the tracker's clock (a restart): the fit
+        starts again from it.
     """
 
     def __init__(
@@ -115,6 +119,7 @@ class ClockMapper:
         max_drift: float = 5e-4,
         anchor_s: float = 3.0,
         stall_s: float = 1e-4,
+        step_s: float = 0.05,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
             raise ValueError("clock mapper: need window_s > bin_s > 0")
@@ -123,17 +128,35 @@ class ClockMapper:
         self.min_span_ns = int(min_span_s * 1e9)
         self.anchor_ns = int(anchor_s * 1e9)
         self.stall_ns = float(stall_s * 1e9)
+        self.step_ns = int(step_s * 1e9)
+        #: clock steps detected (the fit restarted from the data after the step)
+        self.steps = 0
         self.max_drift = float(max_drift)
         self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
         self._cur: tuple[int, int] | None = None
         self._cur_bin: int | None = None
         self.estimate: ClockEstimate | None = None
         self.count = 0
+        self._newest = 0
+
+    def reset(self) -> None:
+        """Forget everything (the tracker restarted)."""
+        self.bins.clear()
+        self._cur = self._cur_bin = self.estimate = None
+        self._newest = 0
 
     def add(self, tracker_ns: int, host_ns: int) -> None:
         """Add one (tracker stamp, host receive time) pair [ns]."""
         self.count += 1
         y = host_ns - tracker_ns
+        e = self.estimate
+        if e is not None and (
+            tracker_ns < self._newest - self.step_ns
+            or y < e.offset_ns + e.drift * (tracker_ns - e.ref_ns) - self.step_ns
+        ):
+            self.reset()
+            self.steps += 1
+        self._newest = tracker_ns if self.estimate is None else max(self._newest, tracker_ns)
         k = tracker_ns // self.bin_ns
         if self._cur_bin is None or k != self._cur_bin:
             if self._cur is not None:
@@ -175,7 +198,8 @@ class ClockMapper:
         recent = [h for p, h in zip(pts, heights) if ref_ns - p[0] <= self.anchor_ns]
         a = min(recent)
         typical = sorted(heights)[len(heights) // 2] - a_full
-        if a - a_full > 3.0 * typical + self.stall_ns:
+        limit = a_full + 3.0 * typical + self.stall_ns
+        if a > limit:  # every recent packet late (a stall): keep the window's line
             a = a_full
         res = sorted(h - a for h in recent)
         sigma = max(res[len(res) // 2], 0.0)

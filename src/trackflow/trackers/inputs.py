@@ -196,7 +196,11 @@ class LiveInput:
     def _frame(self, number: int) -> bool:
         ok = True
         for b in self.bodies:
+            before = b.status.connection.get("frame counter restarted", 0)
             ok = b.status.frame(number) and ok
+            restarted = b.status.connection.get("frame counter restarted", 0) > before
+        if self.bodies and restarted:
+            self.clock.reset()  # a restarted tracker may have restarted its clock too
         return ok
 
     # -- transport -------------------------------------------------------------------------------

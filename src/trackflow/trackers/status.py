@@ -8,7 +8,10 @@ from dataclasses import dataclass, field
 
 from .clock import ClockEstimate
 
-__all__ = ["SensorStatus"]
+__all__ = ["RESTART_FRAMES", "SensorStatus"]
+
+#: A frame counter jumping back (or ahead) by more than this many frames is a restart.
+RESTART_FRAMES = 10_000
 
 
 @dataclass
@@ -63,13 +66,17 @@ class SensorStatus:
         return sum(self.rejections.values())
 
     def frame(self, number: int) -> bool:
-        """Account for a frame counter; False (counted "reordered") if it is not new."""
+        """Account for a frame counter; False (counted "reordered") if it is not new. A jump
+        of more than :data:`RESTART_FRAMES` either way is a restarted tracker (an event)."""
         last = self.last_frame
         if last is not None:
-            if number <= last:
+            if last - RESTART_FRAMES < number <= last:
                 self.reject("reordered or duplicate frame")
                 return False
-            self.dropouts += number - last - 1
+            if number <= last or number - last > RESTART_FRAMES:
+                self.event("frame counter restarted")  # a restarted tracker, not a loss
+            else:
+                self.dropouts += number - last - 1
         self.last_frame = number
         return True
 
