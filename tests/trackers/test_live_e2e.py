@@ -302,3 +302,24 @@ def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
     assert out["answers"] > 50, out
     rep = json.loads(_finish(_trackflow("run", setup, "--replay", rec, "--json"), 90))
     assert rep == {"answers": out["answers"], "recorded": out["answers"], "identical": True}
+
+
+def test_kernel_receive_stamps_do_not_wait_for_the_reader():
+    from trackflow.trackers.inputs import enable_kernel_stamps, recv_stamped
+
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as r,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s,
+    ):
+        r.bind(("127.0.0.1", 0))
+        r.settimeout(5)
+        kernel = enable_kernel_stamps(r)
+        sent = host_ns()
+        s.sendto(b"frame", r.getsockname())
+        time.sleep(0.05)  # the reader is late
+        data, arrival = recv_stamped(r, kernel)
+        read = host_ns()
+    assert data == b"frame"
+    if not kernel:
+        pytest.skip("no kernel receive stamps on this platform")
+    assert sent <= arrival and read - arrival >= 40_000_000

@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 import selectors
 import socket
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +42,40 @@ __all__ = [
 
 #: The host clock of live runs: ``time.time_ns`` (Unix time, integer ns).
 host_ns = time.time_ns
+
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS); the socket module does not always name it.
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("qq")
+
+
+def enable_kernel_stamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp every received datagram (Linux ``SO_TIMESTAMPNS``, the same
+    clock as ``time.time_ns``); False where unavailable."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def recv_stamped(sock: socket.socket, kernel: bool) -> tuple[bytes, int]:
+    """One datagram and its arrival time [host ns]: the kernel's receive stamp when
+    ``kernel`` (so thread wake-up and interpreter delays do not count), else the time the
+    call returned."""
+    if not kernel:
+        data = sock.recv(65536)
+        return data, host_ns()
+    data, ancillary, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))
+    now = host_ns()
+    for level, kind, raw in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= 16:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            t = sec * 1_000_000_000 + nsec
+            if 0 <= now - t < 10_000_000_000:  # a sane stamp on the same clock
+                return data, t
+    return data, now
 
 
 class Sample(NamedTuple):
@@ -99,6 +135,7 @@ class LiveInput:
         self.packets = 0
         self._stop = threading.Event()
         self.ready = threading.Event()  # set once the sockets are open (or failed)
+        self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
 
@@ -249,6 +286,7 @@ class LiveInput:
         else:
             s.bind(bind)
         s.settimeout(0.2)
+        self.kernel_stamps = enable_kernel_stamps(s)
         self._socks.append(s)
         return s
 
@@ -308,12 +346,12 @@ class DTrackInput(LiveInput):
         self.ready.set()
         while not self._stop.is_set():
             try:
-                data = s.recv(65536)
+                data, arrival = recv_stamped(s, self.kernel_stamps)
             except TimeoutError:
                 continue
             except OSError:
                 break
-            sink(self, data, host_ns())
+            sink(self, data, arrival)
 
     def command(self, host: str, port: int, text: str, timeout: float = 2.0) -> str:
         """Send a DTrack2 command over TCP (NUL-terminated) and return the reply; a reply
@@ -436,10 +474,9 @@ class NatNetInput(LiveInput):
                     self._event_all("send failed")
                 for key, _ in sel.select(timeout=0.1):
                     try:
-                        raw = key.fileobj.recv(65536)
+                        raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
                     except OSError:  # timeouts, ICMP port unreachable while no server runs
                         continue
-                    arrival = host_ns()
                     had_server = self.server is not None
                     sink(self, raw, arrival)
                     self._connected(self.server is not None)
