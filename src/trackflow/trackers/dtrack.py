@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,8 +51,7 @@ __all__ = [
 _BLOCK = re.compile(rb"\[([^\[\]]*)\]")
 
 
-@dataclass(frozen=True, slots=True)
-class DTrackBody:
+class DTrackBody(NamedTuple):
     """A ``6d`` body: ``position_mm`` (3,), ``rotation`` the 3x3 matrix row by row (9,),
     ``R_room_body``; ``quality`` -1 = not tracked."""
 
@@ -62,8 +62,7 @@ class DTrackBody:
     euler_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-@dataclass(frozen=True, slots=True)
-class DTrackCovariance:
+class DTrackCovariance(NamedTuple):
     """A ``6dcov`` entry: ``reference_mm`` (3,) in body coordinates and the full 6x6
     ``matrix`` (36 values row by row) as sent: position [mm^2], orientation [rad^2]."""
 
@@ -72,8 +71,7 @@ class DTrackCovariance:
     matrix: tuple[float, ...]
 
 
-@dataclass(frozen=True, slots=True)
-class DTrackMarker:
+class DTrackMarker(NamedTuple):
     """A ``3d`` marker: ``position_mm`` (3,)."""
 
     id: int
@@ -81,8 +79,7 @@ class DTrackMarker:
     position_mm: tuple[float, float, float]
 
 
-@dataclass(frozen=True, slots=True)
-class DTrackInertial:
+class DTrackInertial(NamedTuple):
     """A ``6di`` hybrid body: ``state`` 0/1/2, ``error_deg`` the drift estimate."""
 
     id: int

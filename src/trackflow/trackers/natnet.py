@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from ._packet import MAX_DATAGRAM, PacketError, Reader
 
@@ -85,8 +86,7 @@ class ServerInfo:
         return self.natnet_version[0], self.natnet_version[1]
 
 
-@dataclass(frozen=True, slots=True)
-class NatNetRigidBody:
+class NatNetRigidBody(NamedTuple):
     """A rigid body of a frame: ``position`` [m] (3,), ``quaternion`` ``(x, y, z, w)`` (4,),
     ``mean_error`` [m] (``None`` before 2.0), ``valid`` (``None`` before 2.6)."""
 
@@ -279,8 +279,8 @@ def decode_frame(payload, version) -> NatNetFrame:
     if v >= (3, 0):
         r.need(38 * n, "rigid bodies")
         bodies = tuple(
-            NatNetRigidBody(t[0], t[1:4], t[4:8], t[8], bool(t[9] & 1))
-            for t in _RB3.iter_unpack(bytes(r.data[r.pos : r.pos + 38 * n]))
+            NatNetRigidBody(t[0], t[1:4], t[4:8], t[8], t[9] & 1 == 1)
+            for t in _RB3.iter_unpack(r.data[r.pos : r.pos + 38 * n])
         )
         r.pos += 38 * n
     else:

@@ -18,7 +18,7 @@ has no I/O and can be fed any split of the bytes.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from ._packet import PacketError
 
@@ -63,8 +63,7 @@ def check_cookie(data: bytes) -> None:
         raise PacketError("wrong version", f"VRPN cookie {bytes(data[:16])!r}")
 
 
-@dataclass(frozen=True, slots=True)
-class Message:
+class Message(NamedTuple):
     """One VRPN message: header time (``sec``, ``usec``), sender id, type id, payload."""
 
     sec: int
@@ -74,8 +73,7 @@ class Message:
     payload: bytes
 
 
-@dataclass(frozen=True, slots=True)
-class PoseReport:
+class PoseReport(NamedTuple):
     """A decoded Pos_Quat report: ``position`` (3,), ``quaternion`` ``(x, y, z, w)`` (4,),
     source time ``sec`` + ``usec`` (the sender's clock)."""
 
