@@ -466,8 +466,9 @@ class NatNetInput(LiveInput):
                     elif now >= next_cmd and need_names and self.models is None:
                         cmd.sendto(natnet.encode_message(natnet.REQUEST_MODELDEF), server)
                         next_cmd = now + 0.5
-                    if not mc and now >= next_keepalive:  # from the command socket, as
-                        # the SDK does: a unicast server streams to where it comes from
+                    if not mc and self.server is not None and now >= next_keepalive:
+                        # after the handshake, from the command socket as the SDK does: a
+                        # unicast server streams to where it comes from
                         cmd.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
                         next_keepalive = now + 1.0
                 except OSError:
