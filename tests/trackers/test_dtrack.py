@@ -125,13 +125,31 @@ def _skew(v):
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
+def _euler_matrix(eta, theta, phi):
+    """DTrack2 manual, appendix B.1: R written out in the angles (independent of the code)."""
+    ce, se, ct, st, cp, sp = (np.cos(eta), np.sin(eta), np.cos(theta), np.sin(theta),
+                              np.cos(phi), np.sin(phi))  # fmt: skip
+    return np.array(
+        [
+            [cp * ct, -sp * ct, st],
+            [sp * ce + cp * st * se, cp * ce - sp * st * se, -ct * se],
+            [sp * se - cp * st * ce, cp * se + sp * st * ce, ct * ce],
+        ]
+    )
+
+
 def test_6dcov_conversion_against_monte_carlo():
-    """Sample DTrack's error model (reference-point error in room coordinates, rotation error
-    on the left) and measure trackflow's error (origin error, rotation error on the right)."""
+    """Sample DTrack's error model (reference-point location error in room coordinates,
+    Euler-angle errors) and measure trackflow's error (origin error, rotation error on the
+    right)."""
+    from trackflow.math import quat_from_matrix
+    from trackflow.trackers.dtrack import dtrack_euler
+
     rng = np.random.default_rng(5)
-    q = rng.normal(size=4)
-    q /= np.linalg.norm(q)
-    R = quat_to_matrix(q)
+    ang = np.array([0.4, -0.7, 2.1])  # eta, theta, phi
+    R = _euler_matrix(*ang)
+    np.testing.assert_allclose(dtrack_euler(R), ang, atol=1e-12)
+    q = quat_from_matrix(R)
     t = np.array([0.3, -0.1, 1.2])
     c_mm = np.array([40.0, -25.0, 60.0])
     A = rng.normal(size=(6, 6))
@@ -143,13 +161,11 @@ def test_6dcov_conversion_against_monte_carlo():
     C_dt = 0.5 * (C_dt + C_dt.T)
     cov = DTrackCovariance(0, tuple(c_mm), tuple(C_dt.ravel()))
     C = dtrack_covariance(R, cov)
-    n = 200_000
+    n = 100_000
     e = rng.multivariate_normal(np.zeros(6), C_dt, size=n)
-    dp, dphi = e[:, :3] * 1e-3, e[:, 3:]
-    from trackflow.math import quat_exp
-
-    q_true = quat_multiply(quat_exp(dphi), q)  # R_true = Exp(dphi) R
-    R_true = quat_to_matrix(q_true)
+    dp, da = e[:, :3] * 1e-3, e[:, 3:]
+    R_true = np.array([_euler_matrix(*(ang + d)) for d in da])
+    q_true = quat_from_matrix(R_true)
     p_ref = t + R @ (c_mm * 1e-3)
     t_true = p_ref + dp - np.einsum("nij,j->ni", R_true, c_mm * 1e-3)
     dtheta = quat_log(quat_multiply(quat_conjugate(q), q_true))

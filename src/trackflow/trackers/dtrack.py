@@ -13,8 +13,9 @@ ar-tracking/DTrackSDK ``DTrackParser.cpp``):
 * ``6d <n> [id qu][x y z eta theta phi][b0 .. b8]``   bodies: position [mm], Euler angles
   [deg] (ignored: the matrix is exact), rotation matrix **column-wise** (``b0 b1 b2`` is the
   first column); quality ``-1`` means not tracked (dummy zero pose)
-* ``6dcov <n> [id crx cry crz][s11 s12 .. s66]``  6x6 pose covariance, 21 values of the upper
-  triangle row by row, about the reference point ``cr`` [mm, body coordinates]
+* ``6dcov <n> [id crx cry crz][s11 s12 .. s66]``  6x6 covariance of the location of the
+  reference point ``cr`` [mm, body coordinates] and of the Euler angles [rad], 21 values of
+  the upper triangle row by row (:func:`dtrack_covariance`)
 * ``3d <n> [id qu][x y z]``             single markers [mm]
 * ``6di <n> [id st err][x y z][b0 .. b8]`` hybrid (inertial) bodies: state 0 not tracked,
   1 inertial only, 2 optical and inertial; drift error estimate [deg]
@@ -44,6 +45,7 @@ __all__ = [
     "DayUnwrapper",
     "decode_dtrack",
     "dtrack_covariance",
+    "dtrack_euler",
     "dtrack_pose",
     "encode_dtrack",
 ]
@@ -348,15 +350,37 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def dtrack_euler(rotation: np.ndarray) -> tuple[float, float, float]:
+    """DTrack's Euler angles ``(eta, theta, phi)`` [rad] of ``R = Rx(eta) Ry(theta) Rz(phi)``
+    (DTrack2 manual, appendix B.1; ``R[0, 2] = sin(theta)``)."""
+    R = np.asarray(rotation, dtype=float)
+    theta = float(np.arcsin(np.clip(R[0, 2], -1.0, 1.0)))
+    phi = float(np.arctan2(-R[0, 1], R[0, 0]))
+    eta = float(np.arctan2(-R[1, 2], R[2, 2]))
+    return eta, theta, phi
+
+
+def _rot(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    m = np.eye(3)
+    m[i, i] = m[j, j] = c
+    m[i, j], m[j, i] = -s, s
+    return m
+
+
 def dtrack_covariance(rotation: np.ndarray, cov: DTrackCovariance) -> np.ndarray:
     """The ``6dcov`` matrix in trackflow's convention (``docs/conventions.md``).
 
-    DTrack's covariance is over ``(dp, dphi)``: ``dp`` the error of the reference point
-    ``p_ref = t + R c`` [mm] in room coordinates and ``dphi`` a rotation error in room
-    coordinates, ``R_true = Exp(dphi) R`` [rad]. trackflow's error of the body origin is
-    ``dt = dp + [R c]x dphi`` (since ``t = p_ref - R c``) in metres and
-    ``dtheta = R^T dphi``, so ``C = J C_dtrack J^T`` with
-    ``J = [[I / 1000, [R c]x / 1000], [0, R^T]]`` (the ``/ 1000`` turns mm into m).
+    DTrack's covariance is over ``(dp, da)``: ``dp`` the error of the location of the
+    reference point ``p_ref = t + R c`` (``c`` given in body coordinates) in room coordinates
+    [mm], and ``da`` the error of DTrack's Euler angles ``(eta, theta, phi)`` [rad] with
+    ``R = Rx(eta) Ry(theta) Rz(phi)`` (DTrackSDK ``DTrackDataTypes.hpp``: "3d location in
+    [mm], 3d euler angles in [rad]"). A change of the angles is the rotation error on the
+    right ``dtheta = E da`` with ``E = [(Ry Rz)^T e_x, Rz^T e_y, e_z]``, and the body origin
+    ``t = p_ref - R c`` moves by ``dt = dp + R [c]x dtheta``; so ``C = J C_dtrack J^T`` with
+    ``J = [[I / 1000, R [c]x E / 1000], [0, E]]`` (the ``/ 1000`` turns mm into m). Singular at
+    ``theta = +-90 deg``, like the Euler angles themselves.
 
     Parameters
     ----------
@@ -368,11 +392,16 @@ def dtrack_covariance(rotation: np.ndarray, cov: DTrackCovariance) -> np.ndarray
     ndarray (6, 6)
     """
     R = np.asarray(rotation, dtype=float)
+    _, theta, phi = dtrack_euler(R)
+    Rz, Ry = _rot(2, phi), _rot(1, theta)
+    E = np.column_stack(
+        [(Ry @ Rz).T @ np.array([1.0, 0, 0]), Rz.T @ np.array([0, 1.0, 0]), [0, 0, 1.0]]
+    )
     c = np.asarray(cov.reference_mm, dtype=float)
     J = np.zeros((6, 6))
     J[:3, :3] = np.eye(3) * 1e-3
-    J[:3, 3:] = _skew(R @ c) * 1e-3
-    J[3:, 3:] = R.T
+    J[:3, 3:] = R @ _skew(c) @ E * 1e-3
+    J[3:, 3:] = E
     C = J @ np.asarray(cov.matrix, dtype=float).reshape(6, 6) @ J.T
     return 0.5 * (C + C.T)
 
