@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-min lint demo bench clean
+.PHONY: venv test test-min lint demo demo-live bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,13 @@ test-min: $(MIN)/.installed
 
 demo: $(STAMP)
 	$(VENV)/bin/trackflow demo
+	$(MAKE) demo-live
+
+# Simulated NatNet + DTrack trackers replaying ../shared/data recordings over 127.0.0.1,
+# `trackflow run` on examples/live_demo.yaml, answers against the truth, replay bit for bit.
+LIVE_SECONDS ?= 60
+demo-live: $(STAMP)
+	$(PY) -m trackflow.trackers.demo --seconds $(LIVE_SECONDS)
 
 # Benchmarks compare against peers that are never runtime dependencies.
 $(VENV)/.bench: $(STAMP)

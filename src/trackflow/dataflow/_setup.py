@@ -5,7 +5,8 @@ Example (``examples/demo_setup.yaml`` is a complete one)::
     sensors:
       - {name: art, source: A, target: T, rate_hz: 60, latency_ms: 20,
          sigma_pos_mm: 0.3, sigma_ori_deg: 0.05, motion: {n_dp: 1, n_do: 1, noise: [2, 8]},
-         recording: art.tum}            # optional, relative to the YAML file
+         recording: art.tum,            # optional, relative to the YAML file
+         input: {dtrack: {port: 5000, body: 3}}}  # optional live input (docs/trackers.md)
     statics:
       - {name: projector, source: P, target: A, position: [0, 2, 0],
          quaternion: [0, 0, 0, 1], sigma_pos_mm: 0.1, sigma_ori_deg: 0.01}
@@ -74,6 +75,8 @@ class Setup:
     queries: dict[str, Query] = field(default_factory=dict)
     recordings: dict[str, Path] = field(default_factory=dict)
     source: str = "<python>"
+    #: live inputs of sensors: name -> :class:`trackflow.trackers.spec.InputSpec`
+    inputs: dict = field(default_factory=dict)
 
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
@@ -197,6 +200,7 @@ _SENSOR_KEYS = {
     "covariance",
     "motion",
     "recording",
+    "input",
 }
 _STATIC_KEYS = {
     "name",
@@ -328,6 +332,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             declared.add(name)
             g.add_frame(name)
     recordings: dict[str, Path] = {}
+    inputs: dict = {}
     for i, s in enumerate(doc.get("sensors") or []):
         what = f"sensors[{i}]"
         _check_keys(source, s, _SENSOR_KEYS, what)
@@ -353,6 +358,13 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
         if "recording" in s:
             p = Path(str(s["recording"]))
             recordings[str(s["name"])] = p if p.is_absolute() or base_dir is None else base_dir / p
+        if "input" in s:
+            from ..trackers.spec import parse_input
+
+            try:
+                inputs[str(s["name"])] = parse_input(s["input"])
+            except ValueError as exc:
+                raise _err(source, s.get("input") or s, f"{what}: {exc}") from exc
     for i, s in enumerate(doc.get("statics") or []):
         what = f"statics[{i}]"
         _check_keys(source, s, _STATIC_KEYS, what)
@@ -397,7 +409,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             )
         except (TypeError, ValueError) as exc:
             raise _err(source, q, f"{what}: {exc}") from exc
-    return Setup(g, queries, recordings, source)
+    return Setup(g, queries, recordings, source, inputs)
 
 
 def load_setup(path: str | Path) -> Setup:

@@ -1,0 +1,265 @@
+"""Live tracker inputs: decoding speed of every protocol and packet-to-answer latency.
+
+* ``decode_frames_per_s``: frames of 20 bodies decoded per second, best of ``--repeat`` runs:
+  DTrack (``fr``, ``ts2``, ``6d`` with 20 bodies), NatNet 3.1 (the version both decoders
+  read correctly; trackflow decodes 4.1 as fast), VRPN (20 Pos_Quat messages cut from a TCP
+  byte stream).
+* ``natnet_pkg_frames_per_s``: the same NatNet 3.1 frames with the ``natnet`` package 0.3.0
+  (``DataFrame.read_from_buffer``), the peer, measured in the same run.
+* ``e2e_latency_us``: a ``trackflow simulate natnet`` process sends 20 bodies at 240 Hz
+  (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one core,
+  receives each packet, decodes it, maps the exposure time, pushes 20 measurements through
+  the runtime's queue into 20 pose Kalman filters and delivers the 20 filtered answers; the
+  latency is from the packet's receipt (the kernel's receive stamp, so time in the socket
+  buffer counts) to the last of its answers being delivered (``time.time_ns``, same clock).
+
+Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
+shared: take the figures as the best of a few runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trackflow.dataflow import KalmanFilter
+from trackflow.graph import MotionSpec
+from trackflow.math import quat_exp, quat_to_matrix
+from trackflow.trackers import dtrack, natnet, vrpn
+from trackflow.trackers.inputs import make_inputs
+from trackflow.trackers.runtime import LiveSource
+from trackflow.trackers.spec import parse_input
+
+BODIES, RATE = 20, 240
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bodies(rng):
+    p = rng.normal(0, 1, (BODIES, 3))
+    q = quat_exp(rng.normal(0, 1, (BODIES, 3)))
+    return p, q
+
+
+def _rate(fn, data, repeat: int, n: int = 2000) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn(data)
+        best = min(best, time.perf_counter() - t0)
+    return n / best
+
+
+def decode_rates(repeat: int) -> dict:
+    rng = np.random.default_rng(0)
+    p, q = _bodies(rng)
+    dt = dtrack.DTrackFrame(
+        123,
+        None,
+        (1_700_000_000, 250_000, 4_000),
+        BODIES,
+        tuple(
+            dtrack.DTrackBody(k, 1.0, tuple(p[k] * 1e3), tuple(quat_to_matrix(q[k]).ravel()))
+            for k in range(BODIES)
+        ),
+    )
+    dt_raw = dtrack.encode_dtrack(dt)
+    v = (3, 1)
+    nn = natnet.NatNetFrame(
+        123,
+        tuple(
+            natnet.NatNetRigidBody(k + 1, tuple(p[k]), tuple(q[k]), 2e-4, True)
+            for k in range(BODIES)
+        ),
+        12.5,
+        10_000,
+        10_100,
+        10_200,
+    )
+    nn_raw = natnet.encode_frame(nn, v)
+    vr_raw = b"".join(
+        vrpn.encode_message(1, 2, 0, 0, vrpn.encode_pos_quat(k, p[k], q[k])) for k in range(BODIES)
+    )
+    head = (
+        vrpn.make_cookie()
+        + vrpn.encode_description(-1, 0, "Tracker0")
+        + vrpn.encode_description(-2, 0, vrpn.POS_QUAT)
+    )
+    dec = vrpn.StreamDecoder()
+    dec.feed(head)
+    assert len(dec.feed(vr_raw)) == BODIES
+
+    def natnet_ours(raw):
+        msg, payload = natnet.decode_message(raw)
+        return natnet.decode_frame(payload, v)
+
+    out = {
+        "dtrack": _rate(dtrack.decode_dtrack, dt_raw, repeat),
+        "natnet": _rate(natnet_ours, nn_raw, repeat),
+        "vrpn": _rate(dec.feed, vr_raw, repeat),
+    }
+    pkg = None
+    try:
+        from natnet.data_frame import DataFrame
+        from natnet.packet_buffer import PacketBuffer
+        from natnet.version import Version
+
+        ver = Version(*v)
+
+        def natnet_pkg(raw):
+            return DataFrame.read_from_buffer(PacketBuffer(raw[4:]), ver)
+
+        theirs = natnet_pkg(nn_raw)
+        assert [b.id_num for b in theirs.rigid_bodies] == list(range(1, BODIES + 1))
+        pkg = _rate(natnet_pkg, nn_raw, repeat, 500)
+    except ImportError:
+        print("natnet package not installed (pip install '.[bench]')", file=sys.stderr)
+    return {"decode": out, "pkg": pkg}
+
+
+def e2e_latency(seconds: float, recording: Path) -> dict:
+    """Packet receipt -> 20 filtered answers delivered [us] (module docstring)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cores = sorted(os.sched_getaffinity(0))
+    me, other = cores[0], cores[-1]
+    os.sched_setaffinity(0, {me})
+    specs = {
+        f"b{k}": (parse_input({"natnet": {"command_port": port, "body": k}}), np.eye(6) * 1e-6)
+        for k in range(1, BODIES + 1)
+    }
+    (inp,) = make_inputs(specs)
+    # white acceleration / angular acceleration noise for hand motion replayed at twice its
+    # speed (TUM-VI room1 reaches several m/s^2 and hundreds of deg/s)
+    motion = MotionSpec(static=False, n_dp=1, n_do=1, noise=(0.0, 30.0, 0.0, 100.0))
+    sources, filters = {}, {}
+    for name in specs:
+        sources[name] = LiveSource(name)
+        filters[name] = KalmanFilter(f"kf_{name}", motion)
+        sources[name].consumers.append((filters[name], 0))
+    for kf in filters.values():  # compile the filter kernels before listening
+        from trackflow.trackers.runtime import warm_up
+
+        class _Net:
+            components = {"kf": kf}
+
+        warm_up(_Net)
+    events: queue.SimpleQueue = queue.SimpleQueue()
+    lock = threading.Lock()
+    latencies: list[int] = []
+    service: list[int] = []  # first sample of a packet taken from the queue -> last answer
+    first_taken = [0]
+
+    def sink(i, data, arrival):
+        t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
+        with lock:
+            pairs = i.handle(data, arrival)
+            for k, (bi, smp) in enumerate(pairs):
+                events.put((t0, k == len(pairs) - 1, i.bodies[bi].name, smp))
+
+    stop = threading.Event()
+
+    def schedule():
+        while not stop.is_set():
+            try:
+                t0, last, name, smp = events.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if not first_taken[0]:
+                first_taken[0] = time.time_ns()
+            sources[name].deliver(smp)
+            answer = filters[name].pull(smp.arrival_ns)
+            if last:
+                now = time.time_ns()
+                if answer is not None:
+                    latencies.append(now - t0)
+                    service.append(now - first_taken[0])
+                first_taken[0] = 0
+
+    th = threading.Thread(target=schedule, daemon=True)
+    th.start()
+    inp.start(sink)
+    inp.ready.wait(5)
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    sender = subprocess.Popen(
+        [
+            sys.executable, "-m", "trackflow.cli.main", "simulate", "natnet", str(recording),
+            "--port", str(port), "--bodies", str(BODIES), "--speed", str(RATE / 120),
+            "--duration", str(seconds * RATE / 120), "--jitter-ms", "0", "--wait", "30",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: os.sched_setaffinity(0, {other}),
+    )  # fmt: skip
+    try:
+        sender.communicate(timeout=seconds + 120)
+    finally:
+        if sender.poll() is None:
+            sender.kill()
+        time.sleep(0.2)
+        inp.stop()
+        stop.set()
+        th.join(2)
+    lat = np.asarray(latencies[RATE:], dtype=float) * 1e-3  # skip the first second
+    if len(lat) == 0:
+        raise RuntimeError(f"no answers; input status: {inp.status.summary(time.time_ns())}")
+    svc = np.asarray(service[RATE:], dtype=float) * 1e-3
+    return {
+        "p50": float(np.percentile(lat, 50)),
+        "p99": float(np.percentile(lat, 99)),
+        "service_p50": float(np.percentile(svc, 50)),
+        "service_p99": float(np.percentile(svc, 99)),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--seconds", type=float, default=20.0, help="latency run length")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument(
+        "--recording",
+        type=Path,
+        default=ROOT.parent / "shared" / "data" / "tumvi" / "dataset-room1_512_16.txt",
+    )
+    args = ap.parse_args(argv)
+    if not args.recording.exists():
+        args.recording = Path("/work/shared/data/tumvi/dataset-room1_512_16.txt")
+    d = decode_rates(args.repeat)
+    lat = e2e_latency(args.seconds, args.recording)
+    out = {
+        "decode_frames_per_s": {k: round(v) for k, v in d["decode"].items()},
+        "natnet_pkg_frames_per_s": None if d["pkg"] is None else round(d["pkg"]),
+        "e2e_latency_us": {k: round(lat[k], 1) for k in ("p50", "p99")},
+        "bodies": BODIES,
+        "rate_hz": RATE,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k}: {v}")
+        if d["pkg"]:
+            print(f"natnet decode vs the natnet package: {d['decode']['natnet'] / d['pkg']:.1f}x")
+        print(
+            f"processing one packet (20 updates + 20 answers) once dequeued: p50 "
+            f"{lat['service_p50']:.0f} us, p99 {lat['service_p99']:.0f} us "
+            f"(period {1e6 / RATE:.0f} us)"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,217 @@
+"""Mapping a tracker's clock onto the host clock: offset and drift from a lower envelope.
+
+Every packet gives a pair (tracker stamp ``x`` of an event, host receive time ``h``). The
+difference ``y = h - x`` is the clock offset plus the transport delay, and the delay is never
+negative: the smallest ``y`` over time are the packets that came through fastest. The
+estimator fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift
+``b`` is the slope of the line that lies below every point of a sliding window and maximises
+the sum of its values (linear programming; the edge of the lower convex hull above the mean
+of ``x``), and the offset ``a`` puts the line through the lowest point of the last seconds,
+so that mapping a new stamp extrapolates over seconds, not over the whole window. Delay
+spikes sit above the envelope and never move it; until the window spans ``min_span_s`` the
+drift is taken as zero. The mapped host time of a stamp is ``x + a + b (x - x_ref)``; it
+includes the minimum transport delay (on loopback tens of microseconds), which no one-way
+method can separate from the offset.
+
+Points are reduced to per-bin minima (``bin_s``) so a refit costs ``O(window / bin)``, done
+once per closed bin; between refits a new point below the line lowers the line at once.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+__all__ = ["ClockEstimate", "ClockMapper", "lower_envelope"]
+
+
+@dataclass(frozen=True, slots=True)
+class ClockEstimate:
+    """The current clock mapping.
+
+    Attributes
+    ----------
+    offset_ns : float
+        ``host - tracker`` at tracker time ``ref_ns`` [ns] (offset plus minimum delay).
+    drift : float
+        ``d(host) / d(tracker) - 1`` (dimensionless; 1e-6 = 1 ppm).
+    ref_ns : int
+        Tracker time of the reference point [ns].
+    sigma_ns : float
+        Median height of the per-bin minima above the envelope [ns]: how far a typical
+        fastest packet sits above the fitted line, the scale of the mapping's uncertainty
+        (a median, so that one stalled bin does not inflate it).
+    points : int
+        Bins in the fit.
+    """
+
+    offset_ns: float
+    drift: float
+    ref_ns: int
+    sigma_ns: float
+    points: int
+
+    def to_host(self, tracker_ns: int) -> int:
+        """Host time [ns] of a tracker time [ns]."""
+        dx = tracker_ns - self.ref_ns
+        return tracker_ns + int(round(self.offset_ns + self.drift * dx))
+
+
+def lower_envelope(x: list[float], y: list[float]) -> tuple[float, float]:
+    """``(a, b)`` of the line ``a + b (x - mean(x))`` below every point with the largest sum.
+
+    ``x`` must be increasing. One point (or all at one ``x``): the lowest, ``b = 0``.
+    """
+    n = len(x)
+    if n == 0:
+        raise ValueError("no points")
+    xm = sum(x) / n
+    if n == 1 or x[-1] == x[0]:
+        return min(y), 0.0
+    hull: list[int] = []
+    for i in range(n):  # lower hull, monotone chain
+        while len(hull) >= 2:
+            o, p = hull[-2], hull[-1]
+            cross = (x[p] - x[o]) * (y[i] - y[o]) - (y[p] - y[o]) * (x[i] - x[o])
+            if cross <= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    for k in range(len(hull) - 1):
+        i, j = hull[k], hull[k + 1]
+        if x[i] <= xm <= x[j] and x[j] > x[i]:
+            b = (y[j] - y[i]) / (x[j] - x[i])
+            return y[i] + b * (xm - x[i]), b
+    return min(y), 0.0  # pragma: no cover - xm lies within [x0, xn]
+
+
+class ClockMapper:
+    """Online tracker-to-host clock mapping (see the module docstring).
+
+    Parameters
+    ----------
+    window_s : float
+        Span of tracker time kept for the fit [s].
+    bin_s : float
+        Width of the bins whose minima are fitted [s].
+    min_span_s : float
+        Drift is estimated only once the bins span this long [s] (before: offset only).
+    max_drift : float
+        Larger fitted drifts are clipped (a real oscillator is within 1e-4).
+    anchor_s : float
+        The line is anchored on the lowest bin of the last ``anchor_s`` seconds [s] ...
+    stall_s : float
+        ... unless that bin sits more than ``3 x`` the usual height of bins above the
+        window's envelope plus ``stall_s`` [s] (every recent packet late: a stall); then on
+        the window's envelope.
+    step_s : float
+        A stamp earlier than the newest one by more than this, or an offset sample below
+        the line by more than this [s], is a step of the tracker's clock (a restart): the fit
+        starts again from it.
+    """
+
+    def __init__(
+        self,
+        window_s: float = 30.0,
+        bin_s: float = 0.1,
+        min_span_s: float = 10.0,
+        max_drift: float = 5e-4,
+        anchor_s: float = 3.0,
+        stall_s: float = 1e-4,
+        step_s: float = 0.05,
+    ):
+        if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
+            raise ValueError("clock mapper: need window_s > bin_s > 0")
+        self.window_ns = int(window_s * 1e9)
+        self.bin_ns = int(bin_s * 1e9)
+        self.min_span_ns = int(min_span_s * 1e9)
+        self.anchor_ns = int(anchor_s * 1e9)
+        self.stall_ns = float(stall_s * 1e9)
+        self.step_ns = int(step_s * 1e9)
+        #: clock steps detected (the fit restarted from the data after the step)
+        self.steps = 0
+        self.max_drift = float(max_drift)
+        self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
+        self._cur: tuple[int, int] | None = None
+        self._cur_bin: int | None = None
+        self.estimate: ClockEstimate | None = None
+        self.count = 0
+        self._newest = 0
+
+    def reset(self) -> None:
+        """Forget everything (the tracker restarted)."""
+        self.bins.clear()
+        self._cur = self._cur_bin = self.estimate = None
+        self._newest = 0
+
+    def add(self, tracker_ns: int, host_ns: int) -> None:
+        """Add one (tracker stamp, host receive time) pair [ns]."""
+        self.count += 1
+        y = host_ns - tracker_ns
+        e = self.estimate
+        if e is not None and (
+            tracker_ns < self._newest - self.step_ns
+            or y < e.offset_ns + e.drift * (tracker_ns - e.ref_ns) - self.step_ns
+        ):
+            self.reset()
+            self.steps += 1
+        self._newest = tracker_ns if self.estimate is None else max(self._newest, tracker_ns)
+        k = tracker_ns // self.bin_ns
+        if self._cur_bin is None or k != self._cur_bin:
+            if self._cur is not None:
+                self.bins.append(self._cur)
+                while self.bins and tracker_ns - self.bins[0][0] > self.window_ns:
+                    self.bins.popleft()
+                self._refit()
+            self._cur_bin, self._cur = k, (tracker_ns, y)
+        elif y < self._cur[1]:
+            self._cur = (tracker_ns, y)
+        e = self.estimate
+        if e is None:
+            self.estimate = ClockEstimate(float(y), 0.0, tracker_ns, 0.0, 1)
+        else:
+            line = e.offset_ns + e.drift * (tracker_ns - e.ref_ns)
+            if y < line:  # below the envelope: lower it now, keep the slope
+                self.estimate = ClockEstimate(
+                    e.offset_ns - (line - y), e.drift, e.ref_ns, e.sigma_ns, e.points
+                )
+
+    def _refit(self) -> None:
+        pts = sorted(self.bins)
+        if not pts:
+            return
+        ref = pts[0][0]
+        x = [(p[0] - ref) * 1e-9 for p in pts]  # seconds, for a well-conditioned slope
+        y = [float(p[1]) for p in pts]
+        b = 0.0
+        if pts[-1][0] - ref >= self.min_span_ns:
+            _, b = lower_envelope(x, y)
+            b = max(-self.max_drift * 1e9, min(self.max_drift * 1e9, b)) * 1e-9
+        # with that slope: the line below every bin of the window, and the line through the
+        # lowest recent bin; the recent one extrapolates over seconds instead of the whole
+        # window, unless every recent packet was late (a stalled sender or network), i.e. it
+        # sits far above the window's line compared with how high bins usually sit
+        ref_ns = pts[-1][0]
+        heights = [yi - b * (p[0] - ref_ns) for p, yi in zip(pts, y)]
+        a_full = min(heights)
+        recent = [h for p, h in zip(pts, heights) if ref_ns - p[0] <= self.anchor_ns]
+        a = min(recent)
+        typical = sorted(heights)[len(heights) // 2] - a_full
+        limit = a_full + 3.0 * typical + self.stall_ns
+        if a > limit:  # every recent packet late (a stall): keep the window's line
+            a = a_full
+        res = sorted(h - a for h in recent)
+        sigma = max(res[len(res) // 2], 0.0)
+        self.estimate = ClockEstimate(a, b, ref_ns, sigma, len(pts))
+        if self._cur is not None:  # the open bin may already hold a lower point
+            x_c, y_c = self._cur
+            line = a + b * (x_c - ref_ns)
+            if y_c < line:
+                self.estimate = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, len(pts))
+
+    def to_host(self, tracker_ns: int) -> int:
+        """Host time [ns] of a tracker time [ns] (the latest estimate)."""
+        if self.estimate is None:
+            raise ValueError("clock mapper: no samples yet")
+        return self.estimate.to_host(tracker_ns)

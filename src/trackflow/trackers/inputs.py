@@ -1,0 +1,596 @@
+"""Live inputs: packets of one tracker -> time-mapped, converted pose samples of one body.
+
+Each input has a pure part, :meth:`LiveInput.handle` (bytes + host arrival time -> samples;
+keeps the protocol state: handshake, model names, frame counter, clock mapping) that tests
+drive without sockets, and a transport (:meth:`LiveInput.start`) on stdlib sockets with
+timeouts that feeds it from a thread. Exposure times come from the protocol wherever it has
+them (NatNet mid-exposure/transmit ticks, DTrack ``ts2`` latency, the VRPN source stamp);
+a packet is never stamped on arrival when the protocol has better.
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import socket
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from . import dtrack, natnet, vrpn
+from ._packet import PacketError
+from .axes import BoundaryConversion
+from .clock import ClockMapper
+from .spec import InputSpec
+from .status import SensorStatus
+
+__all__ = [
+    "Body",
+    "DTrackInput",
+    "LiveInput",
+    "NatNetInput",
+    "Sample",
+    "VrpnInput",
+    "make_input",
+    "make_inputs",
+]
+
+#: The host clock of live runs: ``time.time_ns`` (Unix time, integer ns).
+host_ns = time.time_ns
+
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS); the socket module does not always name it.
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("qq")
+
+
+def enable_kernel_stamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp every received datagram (Linux ``SO_TIMESTAMPNS``, the same
+    clock as ``time.time_ns``); False where unavailable."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def recv_stamped(sock: socket.socket, kernel: bool) -> tuple[bytes, int]:
+    """One datagram and its arrival time [host ns]: the kernel's receive stamp when
+    ``kernel`` (so thread wake-up and interpreter delays do not count), else the time the
+    call returned."""
+    if not kernel:
+        data = sock.recv(65536)
+        return data, host_ns()
+    data, ancillary, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))
+    now = host_ns()
+    for level, kind, raw in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= 16:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            t = sec * 1_000_000_000 + nsec
+            if 0 <= now - t < 10_000_000_000:  # a sane stamp on the same clock
+                return data, t
+    return data, now
+
+
+class Sample(NamedTuple):
+    """One pose of a live body in trackflow's conventions.
+
+    ``t_ns`` is the exposure time mapped onto the host clock and ``arrival_ns`` the host
+    receive time [ns]; ``position`` (3,) [m], ``quaternion`` (4,) ``(x, y, z, w)`` unit,
+    ``covariance`` (6, 6) over ``(dt, dtheta)`` exactly symmetric.
+    """
+
+    t_ns: int
+    arrival_ns: int
+    position: np.ndarray
+    quaternion: np.ndarray
+    covariance: np.ndarray
+
+
+Sink = Callable[["LiveInput", bytes, int], None]
+
+
+class Body:
+    """One sensor fed by a connection: its body selector, conversion, nominal covariance
+    (setup; used when the protocol sends none, scaled by NatNet's mean marker error) and
+    status."""
+
+    def __init__(self, name: str, spec: InputSpec, covariance):
+        self.name = name
+        self.spec = spec
+        self.options = spec.options
+        self.nominal = np.asarray(covariance, dtype=float).reshape(6, 6)
+        self.conv = BoundaryConversion(spec.unit_scale, spec.up)
+        self.status = SensorStatus(name, spec.protocol)
+        c = self.conv.covariance(self.nominal)
+        #: the nominal covariance in trackflow's frames, exactly symmetric
+        self.nominal_converted = 0.5 * (c + c.T)
+        #: nominal position sigma [m] (NatNet's mean marker error is compared with it)
+        self.nominal_sigma = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
+
+
+class LiveInput:
+    """One connection to a tracker (a socket or two and a thread) feeding one or more
+    sensors (bodies); a packet is decoded once for all of them.
+
+    Parameters
+    ----------
+    spec : InputSpec
+        The first sensor's spec; its connection options define the connection.
+    """
+
+    protocol = ""
+
+    def __init__(self, spec: InputSpec):
+        self.spec = spec
+        self.options = spec.options
+        self.bodies: list[Body] = []
+        self.clock = ClockMapper()
+        self.packets = 0
+        self._stop = threading.Event()
+        self.ready = threading.Event()  # set once the sockets are open (or failed)
+        self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
+        self._threads: list[threading.Thread] = []
+        self._socks: list[socket.socket] = []
+
+    @staticmethod
+    def connection_key(spec: InputSpec) -> tuple:
+        """Sensors whose specs give the same key share one connection."""
+        o = spec.options
+        keys = {
+            "natnet": ("server", "command_port", "data_port", "multicast", "group", "interface"),
+            "dtrack": ("interface", "port", "group", "command", "command_port"),
+        }.get(spec.protocol)
+        if keys is None:
+            return (spec.protocol, spec.vrpn_address[1:], o["timeout_ms"])
+        return (spec.protocol, *(o[k] for k in keys))
+
+    def add_body(self, name: str, spec: InputSpec, covariance) -> Body:
+        if self.connection_key(spec) != self.connection_key(self.spec):
+            raise ValueError(f"sensor {name!r}: another connection than {self.spec.options}")
+        b = Body(name, spec, covariance)
+        self.bodies.append(b)
+        return b
+
+    @property
+    def status(self) -> SensorStatus:
+        """The first sensor's status (single-body inputs)."""
+        return self.bodies[0].status
+
+    # -- pure part --------------------------------------------------------------------------------
+    def handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
+        """Decode one packet into ``(body index, sample)`` pairs; rejections are counted in
+        the bodies' statuses (a packet-level error on every body), never raised."""
+        self.packets += 1
+        for b in self.bodies:
+            b.status.packets += 1
+        try:
+            return self._handle(data, arrival_ns)
+        except PacketError as exc:
+            for b in self.bodies:
+                b.status.reject(exc.reason)
+            return []
+
+    def _handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
+        raise NotImplementedError  # pragma: no cover
+
+    def _per_body(self, fn) -> list[tuple[int, Sample]]:
+        """Call ``fn(body) -> Sample | None`` for every body; its PacketError is counted on
+        that body only."""
+        out = []
+        for i, b in enumerate(self.bodies):
+            try:
+                s = fn(b)
+            except PacketError as exc:
+                b.status.reject(exc.reason)
+                continue
+            if s is not None:
+                out.append((i, s))
+        return out
+
+    def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
+        """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
+        by the envelope fit, minus the protocol's exposure-to-send latency."""
+        self.clock.add(tx_ns, arrival_ns)
+        for b in self.bodies:
+            b.status.clock = self.clock.estimate
+        return self.clock.to_host(tx_ns) - latency_ns
+
+    @staticmethod
+    def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov=None) -> Sample:
+        """A checked sample; ``cov`` is a 6x6 covariance over ``(dt [m], dtheta)`` in the
+        wire's frames, or ``None`` for the body's nominal one (already converted)."""
+        x, y, z = position
+        qx, qy, qz, qw = quaternion
+        n2 = qx * qx + qy * qy + qz * qz + qw * qw
+        if not (math.isfinite(x + y + z) and math.isfinite(n2)):
+            raise PacketError("non-finite pose", b.name)
+        if not 0.81 < n2 < 1.21:
+            raise PacketError("non-unit quaternion", f"|q|^2 = {n2:.4g}")
+        n = math.sqrt(n2)
+        if b.conv.up == "z":
+            k = b.conv.scale
+            p = np.array((x * k, y * k, z * k))
+            q = np.array((qx / n, qy / n, qz / n, qw / n))
+        else:
+            p, q = b.conv.pose((x, y, z), (qx / n, qy / n, qz / n, qw / n))
+        if cov is None:
+            c = b.nominal_converted
+        else:
+            c = b.conv.covariance(cov)
+            c = 0.5 * (c + c.T)
+            if not np.isfinite(c).all():
+                raise PacketError("invalid covariance", b.name)
+        b.status.measured(arrival_ns, t_ns)
+        return Sample(int(t_ns), int(arrival_ns), p, q, c)
+
+    def _frame(self, number: int) -> bool:
+        ok = True
+        for b in self.bodies:
+            before = b.status.connection.get("frame counter restarted", 0)
+            ok = b.status.frame(number) and ok
+            restarted = b.status.connection.get("frame counter restarted", 0) > before
+        if self.bodies and restarted:
+            self.clock.reset()  # a restarted tracker may have restarted its clock too
+        return ok
+
+    # -- transport -------------------------------------------------------------------------------
+    def start(self, sink: Sink) -> None:
+        """Open the sockets and start the receiving thread; every packet goes to
+        ``sink(input, data, arrival_ns)`` (which normally calls :meth:`handle`)."""
+        self._stop.clear()
+        self.ready.clear()
+        name = f"input-{self.protocol}-{self.bodies[0].name if self.bodies else ''}"
+        t = threading.Thread(target=self._run, args=(sink,), name=name, daemon=True)
+        self._threads.append(t)
+        t.start()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout)
+        self._threads.clear()
+        for s in self._socks:
+            s.close()
+        self._socks.clear()
+
+    def _run(self, sink: Sink) -> None:
+        raise NotImplementedError  # pragma: no cover
+
+    def _reject_all(self, reason: str) -> None:
+        for b in self.bodies:
+            b.status.reject(reason)
+
+    def _event_all(self, kind: str) -> None:
+        for b in self.bodies:
+            b.status.event(kind)
+
+    def _connected(self, value: bool) -> None:
+        for b in self.bodies:
+            b.status.connected = value
+
+    def _udp(self, bind: tuple[str, int], group: str | None = None) -> socket.socket:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        if group:  # bound to the group address: only that group's datagrams arrive
+            s.bind((group, bind[1]))
+            mreq = socket.inet_aton(group) + socket.inet_aton(bind[0])
+            s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
+        else:
+            s.bind(bind)
+        s.settimeout(0.2)
+        self.kernel_stamps = enable_kernel_stamps(s)
+        self._socks.append(s)
+        return s
+
+
+# -- DTrack ---------------------------------------------------------------------------------------
+class DTrackInput(LiveInput):
+    """DTrack bodies from the UDP output (``ts2`` latency preferred, else ``ts`` with the
+    configured ``latency_ms``); the optional TCP command channel sends
+    ``dtrack2 tracking start``."""
+
+    protocol = "dtrack"
+
+    def __init__(self, spec):
+        super().__init__(spec)
+        self.days = dtrack.DayUnwrapper()
+
+    def _handle(self, data, arrival_ns):
+        f = dtrack.decode_dtrack(data)
+        if f.frame is not None and not self._frame(f.frame):
+            return []
+        if f.ts2 is not None:
+            stamp = f.ts2[0] * 1_000_000_000 + f.ts2[1] * 1000
+            lat = f.ts2[2] * 1000
+        elif f.ts is not None:
+            stamp = int(round(self.days(f.ts) * 1e9))
+            lat = int(round(self.options["latency_ms"] * 1e6))
+        else:
+            raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
+        t = self._map(stamp + lat, lat, arrival_ns)
+        by_id = {x.id: x for x in f.bodies}
+        covs = {x.id: x for x in f.covariances}
+
+        def one(b: Body):
+            body = by_id.get(b.options["body"])
+            if body is None:
+                raise PacketError("body not in frame", f"body {b.options['body']}")
+            _, q = dtrack.dtrack_pose(body)
+            c = covs.get(body.id)
+            cov = None
+            if c is not None:
+                cov = dtrack.dtrack_covariance(np.asarray(body.rotation).reshape(3, 3), c)
+            return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
+
+        return self._per_body(one)
+
+    def _run(self, sink):
+        o = self.options
+        try:
+            s = self._udp((o["interface"], o["port"]), o["group"])
+            if o["command"]:
+                self.command(o["command"], o["command_port"], "dtrack2 tracking start")
+        except OSError as exc:
+            self._event_all(f"socket error: {exc.strerror or exc}")
+            self.ready.set()
+            return
+        self._connected(True)
+        self.ready.set()
+        while not self._stop.is_set():
+            try:
+                data, arrival = recv_stamped(s, self.kernel_stamps)
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            sink(self, data, arrival)
+
+    def command(self, host: str, port: int, text: str, timeout: float = 2.0) -> str:
+        """Send a DTrack2 command over TCP (NUL-terminated) and return the reply; a reply
+        other than ``dtrack2 ok`` is counted as ``command refused``."""
+        with socket.create_connection((host, port), timeout=timeout) as c:
+            c.sendall(text.encode("ascii") + b"\0")
+            reply = b""
+            while not reply.endswith(b"\0") and len(reply) < 4096:
+                chunk = c.recv(4096)
+                if not chunk:
+                    break
+                reply += chunk
+        answer = reply.rstrip(b"\0").decode("ascii", "replace")
+        if answer != "dtrack2 ok":
+            self._event_all("command refused")
+        return answer
+
+
+class NatNetInput(LiveInput):
+    """NatNet rigid bodies: CONNECT/SERVERINFO handshake, MODELDEF for names, unicast
+    KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks."""
+
+    protocol = "natnet"
+
+    def __init__(self, spec):
+        super().__init__(spec)
+        self.server: natnet.ServerInfo | None = None
+        self.models: natnet.ModelDefinitions | None = None
+
+    def body_id(self, b: Body) -> int:
+        sel = b.options["body"]
+        if isinstance(sel, int):
+            return sel
+        bid = None if self.models is None else self.models.id_of(sel)
+        if bid is None:
+            raise PacketError("unknown body name", str(sel))
+        return bid
+
+    def _handle(self, data, arrival_ns):
+        msg, payload = natnet.decode_message(data)
+        if msg == natnet.SERVERINFO:
+            self.server = natnet.decode_server_info(payload)
+            return []
+        if msg == natnet.MODELDEF:
+            if self.server is None:
+                raise PacketError("no handshake yet", "MODELDEF before SERVERINFO")
+            self.models = natnet.decode_model_definitions(payload, self.server.version)
+            return []
+        if msg != natnet.FRAMEOFDATA:
+            if msg in (natnet.MESSAGESTRING, natnet.RESPONSE, natnet.KEEPALIVE):
+                return []
+            raise PacketError("unexpected message", f"id {msg}")
+        if self.server is None:
+            raise PacketError("no handshake yet", "frame before SERVERINFO")
+        f = natnet.decode_frame(payload, self.server.version)
+        if not self._frame(f.frame):
+            return []
+        freq = self.server.clock_frequency
+        if natnet.exposure_and_latency(f, freq) is not None:
+            g = 1_000_000_000
+            tx_ns = f.transmit // freq * g + (f.transmit % freq) * g // freq
+            lat_ns = (f.transmit - f.mid_exposure) * g // freq
+        else:  # before NatNet 3.0: the frame timestamp, latency unknown
+            tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
+        t = self._map(tx_ns, lat_ns, arrival_ns)
+        by_id = {rb.id: rb for rb in f.rigid_bodies}
+
+        def one(b: Body):
+            rb = by_id.get(self.body_id(b))
+            if rb is None:
+                raise PacketError("body not in frame", str(b.options["body"]))
+            if rb.valid is False:
+                raise PacketError("not tracked", str(b.options["body"]))
+            cov = None
+            ref = b.nominal_sigma
+            if rb.mean_error is not None and ref > 0:
+                err = rb.mean_error * b.conv.scale
+                if not (math.isfinite(err) and err >= 0):
+                    raise PacketError("bad mean error", f"{rb.mean_error}")
+                if err > ref:  # scaled by (error / nominal)^2: still exactly symmetric
+                    cov = b.nominal * (err / ref) ** 2
+            return self._sample(b, t, arrival_ns, rb.position, rb.quaternion, cov)
+
+        return self._per_body(one)
+
+    def _run(self, sink):
+        o = self.options
+        server = (o["server"], o["command_port"])
+        try:
+            cmd = self._udp((o["interface"], 0))
+            mc = o["multicast"]
+            data = self._udp(
+                (o["interface"], o["data_port"] if mc else 0), o["group"] if mc else None
+            )
+        except OSError as exc:
+            self._event_all(f"socket error: {exc.strerror or exc}")
+            self.ready.set()
+            return
+        self.ready.set()
+        sel = selectors.DefaultSelector()
+        sel.register(cmd, selectors.EVENT_READ)
+        sel.register(data, selectors.EVENT_READ)
+        next_cmd = next_keepalive = 0.0
+        need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                try:
+                    if now >= next_cmd and self.server is None:
+                        cmd.sendto(natnet.encode_connect(), server)
+                        next_cmd = now + 0.5
+                    elif now >= next_cmd and need_names and self.models is None:
+                        cmd.sendto(natnet.encode_message(natnet.REQUEST_MODELDEF), server)
+                        next_cmd = now + 0.5
+                    if not mc and self.server is not None and now >= next_keepalive:
+                        # after the handshake, from the command socket as the SDK does: a
+                        # unicast server streams to where it comes from
+                        cmd.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
+                        next_keepalive = now + 1.0
+                except OSError:
+                    self._event_all("send failed")
+                for key, _ in sel.select(timeout=0.1):
+                    try:
+                        raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
+                    except OSError:  # timeouts, ICMP port unreachable while no server runs
+                        continue
+                    had_server = self.server is not None
+                    sink(self, raw, arrival)
+                    self._connected(self.server is not None)
+                    if not had_server and self.server is not None:
+                        next_cmd = 0.0  # ask for the model definitions at once
+        finally:
+            sel.close()
+
+
+class VrpnInput(LiveInput):
+    """VRPN tracker sensors over TCP (``Name@host[:port]``), reconnecting after errors.
+    ``clock: map`` estimates the server's clock offset (subtracting ``latency_ms``, the
+    server's known exposure-to-send latency); ``clock: host`` trusts the stamps as host
+    time (a synchronised clock)."""
+
+    protocol = "vrpn"
+
+    def __init__(self, spec):
+        super().__init__(spec)
+        self.host, self.port = spec.vrpn_address[1:]
+        self.reset_stream()
+
+    def reset_stream(self) -> None:
+        """A new connection: a fresh decoder that expects the server's cookie."""
+        self.decoder = vrpn.StreamDecoder()
+        self.broken = False
+
+    def _handle(self, data, arrival_ns):
+        try:
+            reports = self.decoder.feed(data)
+        except PacketError:
+            self.broken = True  # a TCP stream cannot be resynchronised: reconnect
+            raise
+        out = []
+        for r in reports:
+            stamp = r.sec * 1_000_000_000 + r.usec * 1000
+            mapped: dict[int, int] = {}
+
+            def one(b: Body, r=r, stamp=stamp, mapped=mapped):
+                if b.spec.vrpn_address[0] != r.device or b.options["sensor"] != r.sensor:
+                    return None
+                lat = int(round(b.options["latency_ms"] * 1e6))
+                if b.options["clock"] == "host":
+                    t = stamp
+                else:
+                    if lat not in mapped:
+                        mapped[lat] = self._map(stamp + lat, lat, arrival_ns)
+                    t = mapped[lat]
+                return self._sample(b, t, arrival_ns, r.position, r.quaternion)
+
+            out.extend(self._per_body(one))
+        return out
+
+    def _run(self, sink):
+        timeout = self.options["timeout_ms"] * 1e-3
+        devices = sorted({b.spec.vrpn_address[0] for b in self.bodies})
+        while not self._stop.is_set():
+            try:
+                conn = socket.create_connection((self.host, self.port), timeout=timeout)
+            except OSError:
+                self._event_all("connection failed")
+                self.ready.set()
+                self._stop.wait(0.5)
+                continue
+            self._socks.append(conn)
+            self.reset_stream()
+            try:
+                hello = vrpn.make_cookie()
+                for k, d in enumerate(devices):
+                    hello += vrpn.encode_description(vrpn.SENDER_DESCRIPTION, k, d)
+                hello += vrpn.encode_description(vrpn.TYPE_DESCRIPTION, 0, vrpn.POS_QUAT)
+                conn.sendall(hello)
+                conn.settimeout(0.2)
+                self._connected(True)
+                self.ready.set()
+                while not self._stop.is_set():
+                    try:
+                        raw = conn.recv(65536)
+                    except TimeoutError:
+                        continue
+                    if not raw:
+                        self._event_all("connection closed")
+                        break
+                    sink(self, raw, host_ns())
+                    if self.broken:
+                        break
+            except OSError:
+                self._event_all("connection lost")
+            finally:
+                self._connected(False)
+                conn.close()
+                if conn in self._socks:
+                    self._socks.remove(conn)
+            self._stop.wait(0.2)
+
+
+_INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
+
+
+def make_input(name: str, spec: InputSpec, covariance) -> LiveInput:
+    """A live input (one connection) feeding the one sensor ``name``."""
+    inp = _INPUTS[spec.protocol](spec)
+    inp.add_body(name, spec, covariance)
+    return inp
+
+
+def make_inputs(sensors: dict[str, tuple[InputSpec, np.ndarray]]) -> list[LiveInput]:
+    """Live inputs for ``{sensor: (spec, nominal covariance)}``: sensors on the same
+    connection (same server, ports) share one input, so each packet is decoded once."""
+    by_key: dict[tuple, LiveInput] = {}
+    for name, (spec, cov) in sensors.items():
+        key = LiveInput.connection_key(spec)
+        if key not in by_key:
+            by_key[key] = _INPUTS[spec.protocol](spec)
+        by_key[key].add_body(name, spec, cov)
+    return list(by_key.values())

@@ -1,0 +1,385 @@
+"""``trackflow run``: a setup's dataflow driven live by its trackers, recorded, replayable.
+
+Live event order. Every packet is stamped on arrival (host clock, ``time.time_ns``) under one
+lock that also hands out strictly increasing dispatch times (samples of one packet get
+``arrival, arrival + 1 ns, ...``), so the queue is in time order; the scheduler thread
+dispatches samples and sampler ticks in time order, a sample before a tick at the same
+nanosecond, exactly as the virtual clock of :meth:`trackflow.dataflow.Network.run` orders
+them. A tick is fired only when no sample with an earlier time can still arrive (the lock
+raises a floor under later stamps). The answers therefore depend only on the recorded inputs
+and their dispatch times, and :func:`replay` reproduces them bit for bit.
+
+Recording (``record=out.tfrec``): ``out.tfrec`` holds the answers (``T_source_target`` of the
+query with covariance, as :class:`trackflow.dataflow.Recorder` writes them); for every
+sensor ``out.<sensor>.tfrec`` holds its measurements stamped with the mapped exposure time,
+and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch time.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..dataflow import (
+    Component,
+    KalmanFilter,
+    Measurement,
+    RecordingPlayer,
+    Sampler,
+    Setup,
+)
+from ..io import RecordingWriter, read_stream
+from ..math import Pose, UncertainPose
+from .inputs import LiveInput, Sample, host_ns, make_inputs
+
+__all__ = [
+    "LiveSource",
+    "ReplayResult",
+    "RunResult",
+    "input_paths",
+    "replay",
+    "run_live",
+    "warm_up",
+]
+
+
+class LiveSource(Component):
+    """The push source of a live sensor: :meth:`deliver` turns a :class:`Sample` into a
+    :class:`Measurement` (``t_ns`` = exposure on the host clock, ``origin_ns`` the same).
+    A sample not after the previous one ("timestamp backwards") or with an invalid pose or
+    covariance is a counted rejection, as in :class:`trackflow.dataflow.RecordingPlayer`."""
+
+    push_out = True
+    kind = "live"
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self._last_t: int | None = None
+
+    def deliver(self, s: Sample) -> UncertainPose | None:
+        self.stats.events_in += 1
+        if self._last_t is not None and s.t_ns <= self._last_t:
+            self.stats.reject("timestamp backwards")
+            return None
+        try:
+            pose = UncertainPose(Pose(s.position, s.quaternion), s.covariance)
+        except ValueError:
+            self.stats.reject("invalid pose or covariance")
+            return None
+        self._last_t = s.t_ns
+        self.emit(Measurement(s.t_ns, pose, s.t_ns))
+        return pose
+
+
+def warm_up(net) -> None:
+    """Run every Kalman filter of ``net`` once on a throwaway copy, so that compiling its
+    kernels (numba, first use in a process) happens before the trackers are listened to."""
+    seen = set()
+    for c in net.components.values():
+        if isinstance(c, KalmanFilter) and (c.motion, c.history_s) not in seen:
+            seen.add((c.motion, c.history_s))
+            f = c.filter_factory(c.motion, c.history_s)
+            u = UncertainPose(Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), np.eye(6) * 1e-6)
+            f.update_pose(0.0, u)
+            f.update_pose(0.01, u)
+            f.predict(0.02)
+
+
+def input_paths(record, sensor: str) -> tuple[Path, Path]:
+    """``(exposure-stamped, dispatch-stamped)`` input recordings of ``sensor`` next to the
+    answers file ``record``."""
+    record = Path(record)
+    stem = record.name[: -len(record.suffix)] if record.suffix else record.name
+    return (
+        record.with_name(f"{stem}.{sensor}.tfrec"),
+        record.with_name(f"{stem}.{sensor}.arrival.tfrec"),
+    )
+
+
+@dataclass
+class RunResult:
+    """Outcome of a live run: answers delivered, ticks, per-sensor statuses, component
+    statistics, the recording and whether it ended by interruption."""
+
+    answers: int
+    ticks: int
+    statuses: dict[str, dict]
+    stats: dict[str, dict]
+    record: Path | None
+    duration_s: float
+    interrupted: bool = False
+    inputs: list[LiveInput] = field(default_factory=list, repr=False)
+
+
+def _push_query(setup: Setup, query: str | None):
+    q = setup.query(query)
+    if q.mode != "push" or not q.rate_hz:
+        raise ValueError(
+            f"{setup.source}: query {q.name!r} must be a push query with rate_hz to run live"
+        )
+    return q
+
+
+def _sensor_edges(plan) -> list[str]:
+    return [n.params["edge"] for n in plan.nodes if n.kind == "source"]
+
+
+class _Scheduler:
+    """Time-ordered dispatch of live samples and sampler ticks (module docstring).
+
+    Receiving threads call :meth:`packet`; the scheduling thread runs :meth:`loop`.
+    """
+
+    def __init__(self, net, sampler: Sampler, sources: dict, inputs: list, writers: dict):
+        self.clock = net.clock
+        self.sampler = sampler
+        self.sources = sources
+        self.writers = writers
+        self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
+        self.events: queue.SimpleQueue = queue.SimpleQueue()
+        self.lock = threading.Lock()
+        self.last = 0  # the latest dispatch time handed out
+        self.floor = 0  # no dispatch time at or below a fired tick
+        self.ticks = 0
+
+    def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
+        """Decode a packet and queue its samples with strictly increasing dispatch times."""
+        with self.lock:
+            a = max(stamp, self.last + 1, self.floor)
+            pairs = inp.handle(data, a)
+            for k, (bi, s) in enumerate(pairs):
+                self.events.put((a + k, self.names[(id(inp), bi)], s._replace(arrival_ns=a + k)))
+            self.last = a + max(len(pairs) - 1, 0)
+
+    def dispatch(self, arrival: int, name: str, s: Sample) -> None:
+        self.clock.now_ns = arrival
+        self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        pose = self.sources[name].deliver(s)
+        if pose is not None and name in self.writers:
+            p, q, c = pose.position, pose.quaternion, pose.covariance
+            self.writers[name][0].append_sample(s.t_ns, p, q, c)
+            self.writers[name][1].append_sample(arrival, p, q, c)
+
+    def fire(self, t: int) -> None:
+        self.clock.now_ns = t
+        self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        self.sampler.tick(t)
+        self.ticks += 1
+
+    def loop(self, next_tick: int, deadline: int | None, stop: threading.Event, status) -> None:
+        """Dispatch until ``deadline`` (host ns) or ``stop``; ``status(now)`` is called
+        between events."""
+        period = self.sampler.period_ns
+        while not stop.is_set():
+            now = host_ns()
+            if deadline is not None and now >= deadline:
+                return
+            status(now)
+            wait = min(next_tick - now, 100_000_000)
+            try:
+                item = (
+                    self.events.get(timeout=wait * 1e-9) if wait > 0 else self.events.get_nowait()
+                )
+            except queue.Empty:
+                item = None
+            if item is not None:
+                arrival, name, s = item
+                while next_tick < arrival:  # ticks before it (a sample first at equal times)
+                    self.fire(next_tick)
+                    next_tick += period
+                self.dispatch(arrival, name, s)
+                continue
+            if host_ns() >= next_tick:
+                with self.lock:  # no sample stamped before the tick may still be on its way
+                    if not self.events.empty():
+                        continue
+                    self.floor = max(self.floor, next_tick + 1)
+                self.fire(next_tick)
+                next_tick += period
+
+
+def _writers(setup: Setup, edges: list[str], record) -> dict:
+    out = {}
+    if record is not None:
+        for e in edges:
+            edge = setup.graph.edge(e)
+            out[e] = tuple(
+                RecordingWriter(p, edge.source, edge.target, covariance=True)
+                for p in input_paths(record, e)
+            )
+    return out
+
+
+def run_live(
+    setup: Setup,
+    *,
+    query: str | None = None,
+    duration_s: float | None = None,
+    record=None,
+    callback: Callable[[Measurement], None] | None = None,
+    vrpn_out=None,
+    on_status: Callable[[list[str]], None] | None = None,
+    status_period_s: float = 1.0,
+    stop: threading.Event | None = None,
+    history_s: float = 1.0,
+) -> RunResult:
+    """Run the setup's query live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
+
+    Parameters
+    ----------
+    record : path, optional
+        ``.tfrec`` of the answers; the inputs go next to it (module docstring).
+    callback : callable, optional
+        Called with every answer (a :class:`Measurement`).
+    vrpn_out : VrpnTrackerServer, optional
+        Every answer is also served as sensor 0 of this VRPN tracker.
+    on_status : callable, optional
+        Called once with ``["listening: ..."]`` when the inputs are open, then every
+        ``status_period_s`` with one status line per sensor.
+    """
+    q = _push_query(setup, query)
+    plan = setup.plan(q)
+    edges = _sensor_edges(plan)
+    missing = [e for e in edges if e not in setup.inputs]
+    if missing:
+        raise ValueError(
+            f"{setup.source}: sensor(s) {missing} have no 'input:' (a live tracker); "
+            "add one, or replay a recording with --replay"
+        )
+    sources = {e: LiveSource(e) for e in edges}
+
+    def on_answer(m: Measurement) -> None:
+        if vrpn_out is not None:
+            vrpn_out.report(0, m.pose.position, m.pose.quaternion, m.t_ns)
+        if callback is not None:
+            callback(m)
+
+    net, sink = plan.build(sources, callback=on_answer, record=record, history_s=history_s)
+    sampler = next(c for c in net.components.values() if isinstance(c, Sampler))
+    net.reset()
+    warm_up(net)
+    inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
+    writers = _writers(setup, edges, record)
+    sched = _Scheduler(net, sampler, sources, inputs, writers)
+    bodies = [b for i in inputs for b in i.bodies]
+    next_status = [0]
+
+    def status(now: int) -> None:
+        if on_status is not None and now >= next_status[0]:
+            on_status([b.status.line(now, b.spec.stale_s) for b in bodies])
+            next_status[0] = now + int(status_period_s * 1e9)
+
+    t_start = host_ns()
+    next_tick = -(-t_start // sampler.period_ns) * sampler.period_ns
+    sampler.start_ns = next_tick
+    deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
+    next_status[0] = t_start + int(status_period_s * 1e9)
+    interrupted = False
+    for inp in inputs:
+        inp.start(sched.packet)
+    try:
+        for inp in inputs:
+            inp.ready.wait(5.0)
+        if on_status is not None:
+            on_status([f"listening: {', '.join(b.name for b in bodies)}"])
+        sched.loop(next_tick, deadline, stop or threading.Event(), status)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        for inp in inputs:
+            inp.stop()
+        for c in net.components.values():
+            c.finish()
+        for pair in writers.values():
+            for w in pair:
+                w.close()
+    end = host_ns()
+    return RunResult(
+        answers=sink.stats.events_in,
+        ticks=sched.ticks,
+        statuses={b.name: b.status.summary(end, b.spec.stale_s) for b in bodies},
+        stats=net.stats(),
+        record=None if record is None else Path(record),
+        duration_s=(end - t_start) * 1e-9,
+        interrupted=interrupted,
+        inputs=inputs,
+    )
+
+
+class _ArrivalPlayer(RecordingPlayer):
+    """A recorded live input: each sample arrives at its recorded dispatch time."""
+
+    def __init__(self, name, exposure, arrival):
+        self._arrival = np.asarray(arrival.t_ns, dtype=np.int64)
+        super().__init__(
+            name, exposure.t_ns, exposure.position, exposure.quaternion, exposure.covariance, 0
+        )
+
+    def arrivals(self) -> np.ndarray:
+        return self._arrival
+
+
+@dataclass
+class ReplayResult:
+    """Answers of a replay, the recorded answers, and where they first differ (if)."""
+
+    answers: object
+    recorded: object
+    identical: bool
+    mismatch: str | None
+
+
+def replay(setup: Setup, record, *, query: str | None = None, history_s: float = 1.0):
+    """Replay a live run recorded at ``record``: feed every sensor's recorded inputs at
+    their dispatch times through the same dataflow (virtual clock) and compare the answers
+    with the recorded ones, bit for bit.
+
+    Raises
+    ------
+    ValueError
+        Missing or inconsistent input recordings (named).
+    """
+    q = _push_query(setup, query)
+    plan = setup.plan(q)
+    recorded, _ = read_stream(record, format="native")
+    players = {}
+    for e in _sensor_edges(plan):
+        exp_path, arr_path = input_paths(record, e)
+        if not exp_path.exists() or not arr_path.exists():
+            raise ValueError(f"{record}: no recorded input of sensor {e!r} ({exp_path.name})")
+        exp, _ = read_stream(exp_path, format="native")
+        arr, _ = read_stream(arr_path, format="native")
+        n = min(len(exp), len(arr))  # a killed run may have written one file further
+        exp, arr = exp[:n], arr[:n]
+        if not np.array_equal(exp.position, arr.position):
+            raise ValueError(f"{arr_path}: records do not match {exp_path.name}")
+        players[e] = _ArrivalPlayer(e, exp, arr)
+    net, sink = plan.build(players, history_s=history_s)
+    sampler = next(c for c in net.components.values() if isinstance(c, Sampler))
+    if len(recorded) == 0:
+        raise ValueError(f"{record}: the run recorded no answers")
+    offset = int(round(q.time_offset_s * 1e9))
+    sampler.start_ns = int(recorded.t_ns[0]) - offset
+    net.run(until_ns=int(recorded.t_ns[-1]) - offset)
+    got = sink.to_stream(q.source, q.target)
+    mismatch = None
+    if len(got) != len(recorded):
+        mismatch = f"{len(got)} answers replayed, {len(recorded)} recorded"
+    else:
+        for field_name in ("t_ns", "position", "quaternion", "covariance"):
+            a, b = getattr(got, field_name), getattr(recorded, field_name)
+            if not np.array_equal(a, b):
+                bad = np.flatnonzero((a != b).reshape(len(a), -1).any(axis=1))
+                mismatch = f"{field_name} differs at answer {int(bad[0])} ({len(bad)} answers)"
+                break
+    return ReplayResult(got, recorded, mismatch is None, mismatch)

@@ -1,0 +1,338 @@
+"""Simulated trackers: replay a real recording as DTrack, NatNet or VRPN packets on loopback.
+
+A sample recorded at time ``t_i`` is exposed at host time ``start + (t_i - t_0) / speed``;
+the tracker's clock reads ``host + clock_offset`` (plus ``drift``); the packet is stamped
+``latency`` after the exposure (NatNet transmit tick, DTrack ``ts2`` latency), then waits a
+random ``U(0, jitter)`` in the "network" and is sent; a fraction ``loss`` of the frames is
+never sent (their frame numbers are skipped, as a real loss). ``truth`` receives the exposure
+host times and poses as sent, so a receiver's mapped times can be checked.
+"""
+
+from __future__ import annotations
+
+import heapq
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..io import PoseStream, read_stream, write_stream
+from ..math import quat_to_matrix
+from . import dtrack, natnet
+from ._packet import PacketError
+from .vrpn_server import VrpnTrackerServer
+
+__all__ = ["SimConfig", "Simulator", "simulate"]
+
+
+@dataclass
+class SimConfig:
+    """How a recording is replayed (units in the names)."""
+
+    protocol: str
+    host: str = "127.0.0.1"
+    port: int = 0
+    latency_ms: float = 5.0
+    clock_offset_s: float = 0.0
+    drift_ppm: float = 0.0
+    loss: float = 0.0
+    jitter_ms: float = 0.0
+    speed: float = 1.0
+    duration_s: float | None = None
+    start_s: float = 0.0
+    seed: int = 0
+    version: tuple[int, int] = (4, 1)
+    body_id: int = 1
+    body_name: str = "body"
+    bodies: int = 1
+    device: str = "Tracker0"
+    clock_frequency: int = 10_000_000
+    command_port: int | None = None
+    multicast_group: str | None = None  # NatNet: stream to this group ...
+    data_port: int = 1511  # ... on this port (through the interface ``host``)
+
+
+class Simulator:
+    """Replays ``stream`` as packets of ``cfg.protocol``; :meth:`run` blocks until done.
+
+    The sockets are opened in the constructor, so :attr:`port` (the NatNet command port,
+    the DTrack destination port or the VRPN server port) is known before :meth:`run`.
+    """
+
+    def __init__(self, stream: PoseStream, cfg: SimConfig):
+        if cfg.protocol not in ("natnet", "dtrack", "vrpn"):
+            raise ValueError(f"unknown protocol {cfg.protocol!r} (natnet, dtrack, vrpn)")
+        if not (0 <= cfg.loss < 1 and cfg.jitter_ms >= 0 and cfg.latency_ms >= 0):
+            raise ValueError("need 0 <= loss < 1, jitter_ms >= 0, latency_ms >= 0")
+        if not cfg.speed > 0:
+            raise ValueError("speed must be > 0")
+        if not 1 <= cfg.bodies <= 1000:
+            raise ValueError("bodies must be 1 .. 1000")
+        if cfg.protocol == "natnet" and not (2, 0) <= tuple(cfg.version) <= (4, 1):
+            raise ValueError(f"NatNet {cfg.version[0]}.{cfg.version[1]} is not supported (2.0-4.1)")
+        t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
+        keep = t >= cfg.start_s
+        if cfg.duration_s is not None:
+            keep &= t < cfg.start_s + cfg.duration_s
+        if not keep.any():
+            raise ValueError("no samples in the chosen part of the recording")
+        self.cfg = cfg
+        self.rel_s = (t[keep] - cfg.start_s) / cfg.speed
+        self.position = stream.position[keep]
+        self.quaternion = stream.quaternion[keep]
+        dt = np.diff(t)
+        rate = 1.0 / float(np.median(dt[dt > 0])) if len(dt) else 100.0
+        self.frames = np.round(t[keep] * rate).astype(np.int64) + 1
+        self.stop = threading.Event()
+        self.sent = 0
+        self.lost = 0
+        self.truth_t: list[int] = []
+        self.truth_i: list[int] = []
+        self._clients: set = set()
+        self._started = threading.Event()
+        self.vrpn = None
+        if cfg.protocol == "vrpn":
+            self.vrpn = VrpnTrackerServer(cfg.device, cfg.host, cfg.port)
+            self.port = self.vrpn.port
+        else:
+            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            if cfg.protocol == "natnet":
+                self.sock.bind((cfg.host, cfg.port))
+                self.port = self.sock.getsockname()[1]
+                self.sock.settimeout(0.05)
+                if cfg.multicast_group:
+                    self.sock.setsockopt(
+                        socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(cfg.host)
+                    )
+                    self.sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+            else:
+                self.port = cfg.port
+        self._cmd = None
+        if cfg.protocol == "dtrack" and cfg.command_port is not None:
+            self._cmd = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self._cmd.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._cmd.bind((cfg.host, cfg.command_port))
+            self._cmd.listen(2)
+            self._cmd.settimeout(0.2)
+            self.command_port = self._cmd.getsockname()[1]
+        else:
+            self._started.set()
+
+    # -- tracker clock ----------------------------------------------------------------------
+    def tracker_ns(self, host: int) -> int:
+        c = self.cfg
+        return host + int(round(c.clock_offset_s * 1e9 + c.drift_ppm * 1e-6 * host))
+
+    # -- servers ----------------------------------------------------------------------------
+    def _natnet_server(self) -> None:
+        c = self.cfg
+        group = tuple(int(x) for x in (c.multicast_group or "239.255.42.99").split("."))
+        info = natnet.ServerInfo(
+            "trackflow simulate",
+            (3, 1, 0, 0),
+            (c.version[0], c.version[1], 0, 0),
+            c.clock_frequency if c.version >= (3, 0) else None,
+            c.data_port,
+            c.multicast_group is not None,
+            group,
+        )
+        defs = natnet.ModelDefinitions(
+            tuple(
+                natnet.RigidBodyDescription(self.body_label(k), c.body_id + k)
+                for k in range(c.bodies)
+            )
+        )
+        while not self.stop.is_set():
+            try:
+                data, addr = self.sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            try:
+                msg, _ = natnet.decode_message(data)
+            except PacketError:
+                continue
+            if msg == natnet.CONNECT:
+                self.sock.sendto(natnet.encode_server_info(info), addr)
+                if c.multicast_group:
+                    self._clients.add((c.multicast_group, c.data_port))
+            elif msg == natnet.REQUEST_MODELDEF:
+                self.sock.sendto(natnet.encode_model_definitions(defs, c.version), addr)
+            elif msg == natnet.KEEPALIVE:
+                self._clients.add(addr)
+
+    def _dtrack_commands(self) -> None:
+        while not self.stop.is_set():
+            try:
+                conn, _ = self._cmd.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            with conn:
+                conn.settimeout(1.0)
+                try:
+                    text = conn.recv(4096).split(b"\0", 1)[0].decode("ascii", "replace")
+                except OSError:
+                    continue
+                ok = text in ("dtrack2 tracking start", "dtrack2 tracking stop")
+                conn.sendall((b"dtrack2 ok" if ok else b"dtrack2 err 1") + b"\0")
+                if text == "dtrack2 tracking start":
+                    self._started.set()
+
+    # -- packets ----------------------------------------------------------------------------
+    def body_label(self, k: int) -> str:
+        """Name of body ``k`` (the first is ``body_name``, then ``body_name_2`` ...)."""
+        return self.cfg.body_name if k == 0 else f"{self.cfg.body_name}_{k + 1}"
+
+    def body_position(self, i: int, k: int) -> np.ndarray:
+        """Body ``k`` moves like the recording, shifted by ``0.1 k`` m along x."""
+        p = self.position[i]
+        return p if k == 0 else p + np.array([0.1 * k, 0.0, 0.0])
+
+    def _packet(self, i: int, exp_host: int, tx_host: int) -> bytes | None:
+        c = self.cfg
+        q = self.quaternion[i]
+        exp_tr, tx_tr = self.tracker_ns(exp_host), self.tracker_ns(tx_host)
+        if c.protocol == "natnet":
+            f = c.clock_frequency
+            bodies = tuple(
+                natnet.NatNetRigidBody(
+                    c.body_id + k, tuple(self.body_position(i, k)), tuple(q), 0.0002, True
+                )
+                for k in range(c.bodies)
+            )
+            fr = natnet.NatNetFrame(
+                int(self.frames[i]),
+                bodies,
+                timestamp=exp_tr * 1e-9,
+                mid_exposure=exp_tr * f // 1_000_000_000,
+                data_received=exp_tr * f // 1_000_000_000,
+                transmit=tx_tr * f // 1_000_000_000,
+                precision=(exp_tr // 1_000_000_000, 0),
+            )
+            return natnet.encode_frame(fr, c.version)
+        if c.protocol == "dtrack":
+            sec, rest = divmod(exp_tr, 1_000_000_000)
+            usec = rest // 1000
+            lat_us = (tx_tr - (sec * 1_000_000_000 + usec * 1000)) // 1000
+            R = tuple(quat_to_matrix(q).ravel())
+            bodies = tuple(
+                dtrack.DTrackBody(
+                    c.body_id + k, 1.0, tuple(float(x) * 1e3 for x in self.body_position(i, k)), R
+                )
+                for k in range(c.bodies)
+            )
+            fr = dtrack.DTrackFrame(
+                int(self.frames[i]), None, (sec, usec, lat_us), c.bodies, bodies
+            )
+            return dtrack.encode_dtrack(fr, digits=None, rot_digits=None)
+        return None
+
+    def _send(self, i: int, exp_host: int, data: bytes | None) -> None:
+        c = self.cfg
+        if c.protocol == "vrpn":
+            # the header time is the exposure on the server's clock
+            for k in range(c.bodies):
+                self.vrpn.report(
+                    k, self.body_position(i, k), self.quaternion[i], self.tracker_ns(exp_host)
+                )
+            return
+        if c.protocol == "natnet":
+            for addr in list(self._clients):
+                self.sock.sendto(data, addr)
+        else:
+            self.sock.sendto(data, (c.host, self.port))
+
+    def run(self, wait_for_client_s: float = 10.0) -> dict:
+        """Replay; returns counts. Waits up to ``wait_for_client_s`` for a first client
+        (NatNet keep-alive, VRPN connection, DTrack ``tracking start``) before starting."""
+        c = self.cfg
+        threads = []
+        if c.protocol == "natnet":
+            threads.append(threading.Thread(target=self._natnet_server, daemon=True))
+        if self._cmd is not None:
+            threads.append(threading.Thread(target=self._dtrack_commands, daemon=True))
+        for t in threads:
+            t.start()
+        deadline = time.monotonic() + wait_for_client_s
+        while time.monotonic() < deadline and not self.stop.is_set():
+            ready = {
+                "natnet": lambda: bool(self._clients),
+                "vrpn": lambda: self.vrpn.clients > 0,
+                "dtrack": self._started.is_set,
+            }[c.protocol]()
+            if ready:
+                break
+            time.sleep(0.01)
+        rng = np.random.default_rng(c.seed)
+        lat = int(round(c.latency_ms * 1e6))
+        start = time.time_ns() + 50_000_000
+        exp = start + np.round(self.rel_s * 1e9).astype(np.int64)
+        jit = np.round(rng.uniform(0.0, c.jitter_ms * 1e6, len(exp))).astype(np.int64)
+        lost = rng.random(len(exp)) < c.loss
+        # (stamp time, index): stamped `lat` after exposure; sent `jitter` after the stamp
+        heap = [(int(exp[i] + lat + jit[i]), i) for i in range(len(exp))]
+        heapq.heapify(heap)
+        try:
+            while heap and not self.stop.is_set():
+                send_at, i = heapq.heappop(heap)
+                if lost[i]:
+                    self.lost += 1
+                    continue
+                # the tracker stamps the frame `latency` after the exposure and it leaves
+                # `jitter` later (network delay); the packet is built before the wait so
+                # that building it does not count as transit
+                packet = self._packet(i, int(exp[i]), int(exp[i] + lat))
+                _wait_until(send_at)
+                self._send(i, int(exp[i]), packet)
+                self.sent += 1
+                self.truth_t.append(int(exp[i]))
+                self.truth_i.append(i)
+        finally:
+            self.stop.set()
+            for t in threads:
+                t.join(2.0)
+            self.close()
+        return {"sent": self.sent, "lost": self.lost, "frames": len(exp)}
+
+    def truth(self) -> PoseStream:
+        """Exposure host times and poses of the sent samples, in time order."""
+        order = np.argsort(self.truth_t, kind="stable")
+        idx = np.asarray(self.truth_i, dtype=np.int64)[order]
+        t = np.asarray(self.truth_t, dtype=np.int64)[order]
+        return PoseStream("world", "body", t, self.position[idx], self.quaternion[idx])
+
+    def close(self) -> None:
+        if self.vrpn is not None:
+            self.vrpn.close()
+        else:
+            self.sock.close()
+        if self._cmd is not None:
+            self._cmd.close()
+
+
+def _wait_until(t_ns: int) -> int:
+    """Sleep until host time ``t_ns`` (the last half millisecond spinning, so packets leave
+    on time on a loaded machine); returns the host time reached."""
+    while True:
+        now = time.time_ns()
+        left = t_ns - now
+        if left <= 0:
+            return now
+        if left > 500_000:
+            time.sleep((left - 400_000) * 1e-9)
+
+
+def simulate(recording, cfg: SimConfig, truth_path=None, wait_for_client_s: float = 10.0) -> dict:
+    """Replay ``recording`` (any format ``trackflow.io`` reads) as ``cfg.protocol`` packets;
+    optionally write the truth (exposure host times, poses) to ``truth_path``."""
+    stream, _ = read_stream(recording)
+    sim = Simulator(stream, cfg)
+    out = sim.run(wait_for_client_s)
+    if truth_path is not None and sim.sent:
+        write_stream(truth_path, sim.truth())
+    return out

@@ -1,0 +1,157 @@
+"""The ``input:`` key of a sensor in a setup: which live tracker feeds it, checked once.
+
+Examples (YAML)::
+
+    input: {natnet: {server: 127.0.0.1, body: head}, up: y}
+    input: {dtrack: {port: 5000, body: 3}}
+    input: {vrpn: {device: "Tracker0@127.0.0.1", sensor: 0}}
+
+Common keys next to the protocol: ``up`` (``z``: frames as sent; ``y``: the tracker sends
+Y-up frames, converted to Z-up, see ``docs/conventions.md``), ``unit`` (unit of positions on
+the wire: ``m``, ``cm`` or ``mm``; default per protocol: DTrack mm, NatNet and VRPN m) and
+``stale_ms`` (no data for that long = stale; default 500).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from dataclasses import dataclass, field
+
+__all__ = ["PROTOCOLS", "InputSpec", "parse_input"]
+
+_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
+_DEFAULT_UNIT = {"natnet": "m", "dtrack": "mm", "vrpn": "m"}
+
+# key -> (type, default); a default of ... means required
+_OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
+    "natnet": {
+        "server": (str, "127.0.0.1"),
+        "body": ((str, int), ...),
+        "command_port": (int, 1510),
+        "data_port": (int, 1511),
+        "multicast": (bool, False),
+        "group": (str, "239.255.42.99"),
+        "interface": (str, "127.0.0.1"),
+        "timeout_ms": ((int, float), 2000),
+    },
+    "dtrack": {
+        "port": (int, 5000),
+        "body": (int, ...),
+        "interface": (str, "127.0.0.1"),
+        "group": ((str, type(None)), None),
+        "command": ((str, type(None)), None),
+        "command_port": (int, 50105),
+        "latency_ms": ((int, float), 0.0),
+    },
+    "vrpn": {
+        "device": (str, ...),
+        "sensor": (int, 0),
+        "clock": (str, "map"),
+        "latency_ms": ((int, float), 0.0),
+        "timeout_ms": ((int, float), 2000),
+    },
+}
+PROTOCOLS = tuple(_OPTIONS)
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """A validated live input of one sensor.
+
+    Attributes
+    ----------
+    protocol : str
+        ``natnet``, ``dtrack`` or ``vrpn``.
+    options : dict
+        The protocol's options with defaults filled in (see ``_OPTIONS``).
+    up : str
+        ``z`` (as sent) or ``y`` (Y-up frames converted to Z-up).
+    unit_scale : float
+        Metres per wire unit.
+    stale_s : float
+    """
+
+    protocol: str
+    options: dict = field(default_factory=dict)
+    up: str = "z"
+    unit_scale: float = 1.0
+    stale_s: float = 0.5
+
+    @property
+    def vrpn_address(self) -> tuple[str, str, int]:
+        """``(device, host, port)`` of a VRPN ``device`` string ``Name@host[:port]`` (also
+        ``Name@tcp://host:port``)."""
+        dev = self.options["device"]
+        name, _, where = dev.partition("@")
+        where = where.removeprefix("tcp://")
+        host, _, port = where.partition(":")
+        return name, host or "127.0.0.1", int(port) if port else 3883
+
+
+def _check_host(value: str, what: str) -> None:
+    try:
+        ipaddress.ip_address(value)
+    except ValueError:
+        if not value or any(c.isspace() for c in value):
+            raise ValueError(f"{what}: {value!r} is not a host address") from None
+
+
+def parse_input(doc) -> InputSpec:
+    """Validate an ``input:`` mapping; ``ValueError`` names the offending key."""
+    if not isinstance(doc, dict):
+        raise ValueError("input must be a mapping like {natnet: {server: ..., body: ...}}")
+    protos = [k for k in doc if k in _OPTIONS]
+    if len(protos) != 1:
+        raise ValueError(f"input needs exactly one of {list(PROTOCOLS)}, got {sorted(doc)}")
+    proto = protos[0]
+    unknown = set(doc) - {proto, "up", "unit", "stale_ms"}
+    if unknown:
+        raise ValueError(f"input: unknown keys {sorted(unknown)} (allowed: up, unit, stale_ms)")
+    raw = doc[proto] or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"input.{proto} must be a mapping")
+    allowed = _OPTIONS[proto]
+    bad = set(raw) - set(allowed)
+    if bad:
+        raise ValueError(f"input.{proto}: unknown keys {sorted(bad)} (allowed: {sorted(allowed)})")
+    opts = {}
+    for key, (typ, default) in allowed.items():
+        if key not in raw:
+            if default is ...:
+                raise ValueError(f"input.{proto}: missing key {key!r}")
+            opts[key] = default
+            continue
+        v = raw[key]
+        if (
+            isinstance(v, bool)
+            and typ is not bool
+            and bool not in (typ if isinstance(typ, tuple) else (typ,))
+        ):
+            raise ValueError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
+        if not isinstance(v, typ):
+            raise ValueError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
+        opts[key] = v
+    for key in ("port", "command_port", "data_port"):
+        if key in opts and not 0 < opts[key] < 65536:
+            raise ValueError(f"input.{proto}.{key}: {opts[key]} is not a port")
+    for key in ("server", "interface", "group", "command"):
+        if opts.get(key) is not None:
+            _check_host(opts[key], f"input.{proto}.{key}")
+    if proto == "vrpn":
+        if "@" not in opts["device"]:
+            raise ValueError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
+        if opts["clock"] not in ("map", "host"):
+            raise ValueError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
+    for key in ("latency_ms", "timeout_ms"):
+        if key in opts and not 0 <= float(opts[key]) < 1e5:
+            raise ValueError(f"input.{proto}.{key}: {opts[key]} out of range")
+    up = str(doc.get("up", "z")).lower()
+    if up not in ("y", "z"):
+        raise ValueError(f"input.up must be 'y' or 'z', got {doc.get('up')!r}")
+    unit = str(doc.get("unit", _DEFAULT_UNIT[proto]))
+    if unit not in _UNITS:
+        raise ValueError(f"input.unit must be one of {sorted(_UNITS)}, got {unit!r}")
+    stale = float(doc.get("stale_ms", 500)) * 1e-3
+    if not 0 < stale < 3600:
+        raise ValueError(f"input.stale_ms: {doc.get('stale_ms')} out of range")
+    return InputSpec(proto, opts, up, _UNITS[unit], stale)

@@ -1,0 +1,224 @@
+"""Live inputs without sockets: handshake order, body selection, rejections with reasons,
+exposure-time mapping from the protocol's stamps, covariance and axis conversions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_to_matrix
+from trackflow.trackers import dtrack, natnet, vrpn
+from trackflow.trackers.axes import Y_UP_TO_Z_UP, BoundaryConversion
+from trackflow.trackers.inputs import make_input, make_inputs
+from trackflow.trackers.spec import parse_input
+
+COV = np.diag([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])
+FREQ = 10_000_000
+V = (4, 1)
+
+
+def _natnet(body="head", **extra):
+    return make_input("s", parse_input({"natnet": {"body": body}, **extra}), COV)
+
+
+def _frame(n, tx_ticks, lat_ticks, valid=True, err=0.0002, pos=(1.0, 2.0, 3.0), q=(0, 0, 0, 1)):
+    rb = natnet.NatNetRigidBody(3, pos, q, err, valid)
+    return natnet.encode_frame(
+        natnet.NatNetFrame(n, (rb,), 0.0, tx_ticks - lat_ticks, tx_ticks, tx_ticks), V
+    )
+
+
+def _handshake(inp):
+    info = natnet.ServerInfo(clock_frequency=FREQ)
+    assert inp.handle(natnet.encode_server_info(info), 0) == []
+    defs = natnet.ModelDefinitions((natnet.RigidBodyDescription("head", 3),))
+    assert inp.handle(natnet.encode_model_definitions(defs, V), 0) == []
+
+
+def test_natnet_needs_the_handshake_and_the_names():
+    inp = _natnet()
+    assert inp.handle(_frame(1, 10 * FREQ, 50_000), 5) == []
+    assert inp.status.rejections == {"no handshake yet": 1}
+    inp.handle(natnet.encode_server_info(natnet.ServerInfo(clock_frequency=FREQ)), 0)
+    inp.handle(_frame(2, 10 * FREQ, 50_000), 5)
+    assert inp.status.rejections["unknown body name"] == 1
+    _handshake(inp)
+    (pair,) = inp.handle(_frame(3, 10 * FREQ, 50_000), 10_000_000_000 + 200_000)
+    assert pair[1].position.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_natnet_exposure_from_ticks_and_counted_rejections():
+    inp = _natnet()
+    _handshake(inp)
+    offset = 7_000_000_000  # host = tracker + 7 s; transit 100 us
+    got = []
+    for k in range(1, 40):
+        tx = 100 * FREQ + k * FREQ // 120
+        tx_ns = tx * 1_000_000_000 // FREQ
+        got += inp.handle(_frame(k if k != 20 else 25, tx, 45_000), tx_ns + offset + 100_000)
+    # exposure = transmit - 4.5 ms, on the host clock (+ the 100 us transit)
+    s = got[0][1]
+    tx0 = (100 * FREQ + FREQ // 120) * 1_000_000_000 // FREQ
+    assert s.t_ns == tx0 + offset + 100_000 - 4_500_000
+    st = inp.status
+    # frames 1..19, 25 (5 missing), then 21..25 again (5 reordered or duplicate)
+    assert st.dropouts == 5 and st.rejections["reordered or duplicate frame"] == 5
+    inp.handle(_frame(50, 200 * FREQ, 10, valid=False), 0)
+    inp.handle(b"\x07\x00\xff\xff", 0)
+    inp.handle(_frame(51, 200 * FREQ, -5), 0)
+    assert st.rejections["not tracked"] == 1 and st.rejections["truncated"] == 1
+    assert st.rejections["bad stamps"] == 1
+
+
+def test_natnet_mean_error_scales_the_covariance():
+    inp = _natnet()
+    _handshake(inp)
+    (a,) = inp.handle(_frame(1, 10 * FREQ, 10, err=0.0005), 1)
+    (b,) = inp.handle(_frame(2, 10 * FREQ + 100, 10, err=0.0001), 2)
+    # below the nominal 1 mm the setup's covariance stands; above it scales with error^2
+    np.testing.assert_allclose(a[1].covariance, COV)
+    np.testing.assert_allclose(b[1].covariance, COV)
+    (c,) = inp.handle(_frame(3, 10 * FREQ + 200, 10, err=0.003), 3)
+    np.testing.assert_allclose(c[1].covariance, COV * 9.0)
+
+
+def test_y_up_conversion_of_pose_and_covariance():
+    inp = _natnet(up="y")
+    _handshake(inp)
+    q = quat_exp(np.array([0.0, 0.3, 0.0]))  # yaw about Y (up) in the Y-up frame
+    (p,) = inp.handle(_frame(1, 10 * FREQ, 10, pos=(1.0, 2.0, 3.0), q=tuple(q)), 1)
+    s = p[1]
+    np.testing.assert_allclose(s.position, [1.0, -3.0, 2.0])  # (x, y, z) -> (x, -z, y)
+    # the same yaw is now about Z (up)
+    np.testing.assert_allclose(quat_log(s.quaternion), [0, 0, 0.3], atol=1e-6)
+    M = Y_UP_TO_Z_UP
+    np.testing.assert_allclose(quat_to_matrix(s.quaternion), M @ quat_to_matrix(q) @ M.T, atol=1e-6)
+
+
+def test_y_up_covariance_against_monte_carlo():
+    rng = np.random.default_rng(3)
+    conv = BoundaryConversion(1.0, "y")
+    t, q = np.array([0.2, 1.5, -0.4]), quat_exp(np.array([0.3, -0.2, 0.5]))
+    A = rng.normal(size=(6, 6)) * 1e-2
+    C = A @ A.T
+    e = rng.multivariate_normal(np.zeros(6), C, 100_000)
+    t2, q2 = conv.pose(t, q)
+    tt, qt = conv.pose(t + e[:, :3], quat_multiply(q, quat_exp(e[:, 3:])))
+    E = np.hstack([tt - t2, quat_log(quat_multiply(quat_conjugate(q2), qt))])
+    C_mc = np.cov(E.T)
+    assert np.abs(C_mc - conv.covariance(C)).max() < 0.03 * np.abs(C).max()
+
+
+def _dtrack(**opts):
+    return make_input("s", parse_input({"dtrack": {"body": 2, **opts}}), COV)
+
+
+def _dt_packet(fr, ts2=None, ts=None, quality=1.0, cov=None):
+    R = quat_to_matrix(quat_exp(np.array([0.0, 0.0, 0.5])))
+    b = dtrack.DTrackBody(2, quality, (100.0, 200.0, 300.0), tuple(R.ravel()))
+    covs = () if cov is None else (cov,)
+    return dtrack.encode_dtrack(dtrack.DTrackFrame(fr, ts, ts2, None, (b,), covs), None, None)
+
+
+def test_dtrack_ts2_latency_gives_the_exposure():
+    inp = _dtrack()
+    (p,) = inp.handle(_dt_packet(1, (1000, 250_000, 4_000)), 1000_254_000_000 + 80_000 + 5)
+    s = p[1]
+    # send = 1000.254 s tracker; mapped = arrival; exposure = mapped - 4 ms
+    assert s.t_ns == 1000_254_000_000 + 80_000 + 5 - 4_000_000
+    np.testing.assert_allclose(s.position, [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(s.covariance, COV)
+    inp.handle(_dt_packet(2, (1000, 260_000, 4_000), quality=-1.0), 0)
+    inp.handle(b"fr 3\r\n6d 1 [2 1.0][1 2 3]\r\n", 0)
+    inp.handle(_dt_packet(4), 0)
+    assert inp.status.rejections == {"not tracked": 1, "bad line": 1, "no timestamp": 1}
+
+
+def test_dtrack_ts_over_midnight_and_6dcov():
+    inp = _dtrack(latency_ms=2.0)
+    cov = dtrack.DTrackCovariance(
+        2, (0.0, 0.0, 0.0), tuple(np.diag([1.0] * 3 + [1e-6] * 3).ravel())
+    )
+    ts = [86399.99, 0.0, 0.01]
+    out = [
+        inp.handle(_dt_packet(k + 1, ts=t, cov=cov), 10**12 + k * 10**7)[0][1]
+        for k, t in enumerate(ts)
+    ]
+    d = np.diff([s.t_ns for s in out])
+    np.testing.assert_allclose(d, [1e7, 1e7], atol=2)  # no day jump
+    np.testing.assert_allclose(np.diag(out[0].covariance)[:3], [1e-6] * 3)  # mm^2 -> m^2
+
+
+def test_vrpn_host_clock_and_reconnect_on_garbage():
+    spec = parse_input({"vrpn": {"device": "Tracker0@127.0.0.1:1", "sensor": 1, "clock": "host"}})
+    inp = make_input("s", spec, COV)
+    stream = (
+        vrpn.make_cookie()
+        + vrpn.encode_description(-1, 0, "Tracker0")
+        + vrpn.encode_description(-2, 0, vrpn.POS_QUAT)
+        + vrpn.encode_message(12, 500_000, 0, 0, vrpn.encode_pos_quat(1, (1, 2, 3), (0, 0, 0, 1)))
+        + vrpn.encode_message(12, 600_000, 0, 0, vrpn.encode_pos_quat(0, (1, 2, 3), (0, 0, 0, 1)))
+    )
+    (p,) = inp.handle(stream, 99)
+    assert p[1].t_ns == 12_500_000_000 and not inp.broken
+    inp.handle(b"\xff" * 24, 100)
+    assert inp.broken and inp.status.rejections == {"bad length": 1}
+
+
+def test_sensors_on_one_connection_share_it():
+    a = parse_input({"natnet": {"body": "head"}})
+    b = parse_input({"natnet": {"body": "hand"}})
+    c = parse_input({"natnet": {"body": "hand", "server": "127.0.0.2"}})
+    inputs = make_inputs({"h": (a, COV), "k": (b, COV), "x": (c, COV)})
+    assert [len(i.bodies) for i in inputs] == [2, 1]
+
+
+@pytest.mark.parametrize(
+    "doc, match",
+    [
+        ({"natnet": {}}, "missing key 'body'"),
+        ({"natnet": {"body": "x"}, "dtrack": {"body": 1}}, "exactly one"),
+        ({"dtrack": {"body": "x"}}, "input.dtrack.body"),
+        ({"dtrack": {"body": 1, "port": 70000}}, "not a port"),
+        ({"dtrack": {"body": 1, "colour": 1}}, "unknown keys"),
+        ({"vrpn": {"device": "Tracker0"}}, "Name@host"),
+        ({"vrpn": {"device": "T@h", "clock": "gps"}}, "clock"),
+        ({"natnet": {"body": "x"}, "up": "x"}, "input.up"),
+        ({"natnet": {"body": "x"}, "unit": "inch"}, "input.unit"),
+        ({"natnet": {"body": "x", "server": "a b"}}, "not a host"),
+        ({"natnet": {"body": True}}, "input.natnet.body"),
+    ],
+)
+def test_bad_input_specs_name_the_key(doc, match):
+    with pytest.raises(ValueError, match=match):
+        parse_input(doc)
+
+
+def test_setup_input_key(tmp_path):
+    from trackflow.dataflow import load_setup
+
+    text = """frames: [W, B]
+sensors:
+  - name: head
+    source: W
+    target: B
+    input: {natnet: {server: 127.0.0.1, body: head}, up: y}
+queries:
+  - {name: q, source: W, target: B, mode: push, rate_hz: 60}
+"""
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    s = load_setup(p)
+    assert s.inputs["head"].protocol == "natnet" and s.inputs["head"].up == "y"
+    p.write_text(text.replace("body: head", "bodyy: head"))
+    with pytest.raises(ValueError, match=r"s.yaml:\d+: sensors\[0\]: input.natnet: unknown keys"):
+        load_setup(p)
+
+
+def test_a_restarted_tracker_is_an_event_not_a_loss():
+    inp = _dtrack()
+    for k, fr in enumerate([500_000, 500_001, 3, 4]):
+        inp.handle(_dt_packet(fr, (1000 + k, 0, 100)), 10**12 + k * 10**9)
+    st = inp.status
+    assert st.dropouts == 0 and st.connection == {"frame counter restarted": 1}
+    assert st.measurements == 4 and st.rejections == {}

@@ -1,0 +1,325 @@
+"""End to end on 127.0.0.1 with real processes and sockets: `trackflow simulate` replays the
+TUM-VI recording as NatNet, DTrack and VRPN; trackflow's inputs receive every pose (or count
+its loss) exactly, with the exposure time mapped onto the host clock; `trackflow run` records
+a live run and its replay reproduces the answers bit for bit. Everything is bounded by
+timeouts; a sender that is never answered gives up after its --wait."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from trackflow.io import read_stream
+from trackflow.trackers.inputs import host_ns, make_input
+from trackflow.trackers.spec import parse_input
+from trackflow.trackers.vrpn_server import VrpnTrackerServer
+
+ROOT = Path(__file__).resolve().parents[2]
+COV = np.diag([1e-7] * 3 + [1e-5] * 3)
+F32 = 2.0**-24  # float32 rounding, relative
+
+
+@pytest.fixture
+def room1(shared_data) -> Path:
+    path = shared_data / "tumvi" / "dataset-room1_512_16.txt"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    return path
+
+
+def _free_port(kind=socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _trackflow(*args, **kw) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    return subprocess.Popen(
+        [sys.executable, "-m", "trackflow.cli.main", *map(str, args)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
+
+
+def _finish(p: subprocess.Popen, timeout: float = 60.0) -> str:
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        out, err = p.communicate()
+        raise AssertionError(f"process timed out: {err[-2000:]}") from None
+    assert p.returncode == 0, err[-2000:]
+    return out
+
+
+def receive(
+    protocol: str, room1: Path, tmp_path: Path, seconds: float = 4.0, jitter_ms: float = 2.0
+):
+    """Run a sender process for ``seconds`` of the recording and an input in this process;
+    returns (samples, status, truth, sender report)."""
+    port = _free_port(socket.SOCK_STREAM if protocol == "vrpn" else socket.SOCK_DGRAM)
+    truth_path = tmp_path / f"{protocol}_truth.tfrec"
+    opts = {
+        "natnet": {"natnet": {"command_port": port, "body": "rig"}},
+        "dtrack": {"dtrack": {"port": port, "body": 1}},
+        "vrpn": {"vrpn": {"device": f"Tracker0@127.0.0.1:{port}", "latency_ms": 5.0}},
+    }[protocol]
+    inp = make_input("rig", parse_input(opts), COV)
+    got = []
+    inp.start(lambda i, data, a: got.extend(s for _, s in i.handle(data, a)))
+    assert inp.ready.wait(10)
+    try:
+        sender = _trackflow(
+            "simulate", protocol, room1, "--port", port, "--duration", seconds,
+            "--start", 10, "--latency-ms", 5, "--clock-offset-s", -3600.5, "--drift-ppm", 20,
+            "--jitter-ms", jitter_ms, "--loss", 0.02, "--body", "rig", "--wait", 20,
+            "--truth", truth_path,
+        )  # fmt: skip
+        report = json.loads(_finish(sender, 90.0))
+        time.sleep(0.3)
+    finally:
+        inp.stop()
+    truth, _ = read_stream(truth_path)
+    return got, inp.status, truth, report
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol", ["natnet", "dtrack", "vrpn"])
+def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, room1, tmp_path):
+    got, status, truth, report = receive(protocol, room1, tmp_path)
+    assert report["sent"] == len(truth) and report["lost"] > 0
+    # every pose sent is received or counted (NatNet frames that come before the handshake
+    # and the model definitions are counted as "no handshake yet" / "unknown body name")
+    assert len(got) + status.rejected == len(truth), status.rejections
+    if protocol != "vrpn":  # frame counters: the injected losses are counted as dropouts
+        assert status.dropouts >= report["lost"]
+    # in order, each received pose is the next sent one with the same position (float32)
+    idx, j = [], 0
+    for s in got:
+        while j < len(truth) and not np.all(
+            np.abs(s.position - truth.position[j]) <= F32 * np.abs(truth.position[j]) + 1e-15
+        ):
+            j += 1
+        assert j < len(truth), "a received position matches no sent one"
+        idx.append(j)
+        j += 1
+    idx = np.array(idx)
+    t = np.array([s.t_ns for s in got])
+    err_ms = (t - truth.t_ns[idx]) * 1e-6
+    naive_ms = (np.array([s.arrival_ns for s in got]) - truth.t_ns[idx]) * 1e-6
+    settled = truth.t_ns[idx] - truth.t_ns[0] > 1e9  # after the first second
+    # stamping on arrival would be 5-7 ms late (latency + jitter); the mapped exposure time
+    # is off by the minimum delivery delay only (the 0.2 ms bar is measured on the whole
+    # recording by bench/trackers_e2e.py; here the machine may be loaded by other tests)
+    assert np.median(naive_ms[settled]) > 5.0
+    assert np.median(np.abs(err_ms[settled])) < 0.5, np.percentile(err_ms[settled], [0, 50, 100])
+    assert np.mean(np.abs(err_ms[settled]) < 1.0) > 0.95
+
+
+def test_short_natnet_stream_and_stale(room1, tmp_path):
+    got, status, truth, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
+    assert got and len(got) + status.rejected == len(truth), status.rejections
+    assert status.stale(host_ns(), 0.2) and status.clock is not None
+
+
+def test_natnet_multicast(room1):
+    """Multicast: the client joins the group on the loopback interface; no keep-alive."""
+    cmd, data = _free_port(), _free_port()
+    spec = parse_input({"natnet": {"command_port": cmd, "body": "rig", "multicast": True,
+                                   "data_port": data, "group": "239.255.42.99"}})  # fmt: skip
+    inp = make_input("rig", spec, COV)
+    got = []
+    inp.start(lambda i, d, a: got.extend(s for _, s in i.handle(d, a)))
+    assert inp.ready.wait(10)
+    try:
+        sender = _trackflow("simulate", "natnet", room1, "--port", cmd, "--body", "rig",
+                            "--multicast", "239.255.42.99", "--data-port", data,
+                            "--duration", 0.5, "--wait", 20)  # fmt: skip
+        report = json.loads(_finish(sender, 60))
+        time.sleep(0.3)
+    finally:
+        inp.stop()
+    assert report["sent"] > 0 and len(got) + inp.status.rejected == report["sent"]
+    assert len(got) > 0.8 * report["sent"], inp.status.rejections
+
+
+def test_vrpn_server_output_to_a_vrpn_client():
+    with VrpnTrackerServer("Tracker0", "127.0.0.1", 0) as server:
+        spec = parse_input(
+            {"vrpn": {"device": f"Tracker0@127.0.0.1:{server.port}", "sensor": 0, "clock": "host"}}
+        )
+        inp = make_input("app", spec, COV)
+        got = []
+        inp.start(lambda i, data, a: got.extend(s for _, s in i.handle(data, a)))
+        try:
+            deadline = time.monotonic() + 10
+            while server.clients == 0 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert server.clients == 1
+            q = np.array([0.1, -0.2, 0.3, 0.9])
+            q /= np.linalg.norm(q)
+            for k in range(5):
+                server.report(0, (k, 2.5, -1.0), q, 1_700_000_000_000_000_000 + k * 1000)
+            while len(got) < 5 and time.monotonic() < deadline:
+                time.sleep(0.01)
+        finally:
+            inp.stop()
+    assert [s.position.tolist() for s in got] == [[k, 2.5, -1.0] for k in range(5)]
+    assert [s.t_ns for s in got] == [1_700_000_000_000_000_000 + k * 1000 for k in range(5)]
+    np.testing.assert_array_equal(got[0].quaternion, q / np.linalg.norm(q))
+
+
+def test_vrpn_server_connect_back_over_udp():
+    """The classic VRPN client asks by UDP ("IP PORT") and the server connects back."""
+    from trackflow.trackers import vrpn
+
+    with VrpnTrackerServer("Tracker0", "127.0.0.1", 0) as server:
+        lst = socket.socket()
+        lst.bind(("127.0.0.1", 0))
+        lst.listen(1)
+        lst.settimeout(10)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            u.sendto(f"127.0.0.1 {lst.getsockname()[1]}\0".encode(), ("127.0.0.1", server.port))
+            u.sendto(b"garbage\0", ("127.0.0.1", server.port))
+        conn, _ = lst.accept()
+        conn.settimeout(10)
+        conn.sendall(vrpn.make_cookie())
+        dec = vrpn.StreamDecoder()
+        deadline = time.monotonic() + 10
+        while server.clients == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        server.report(3, (1, 2, 3), (0, 0, 0, 1), 5_000_001_000)
+        reports = []
+        while not reports and time.monotonic() < deadline:
+            reports = dec.feed(conn.recv(4096))
+        conn.close()
+        lst.close()
+        assert server.rejections.get("bad connect-back request") == 1
+    (r,) = reports
+    assert (r.device, r.sensor, r.position, r.sec, r.usec) == ("Tracker0", 3, (1, 2, 3), 5, 1)
+
+
+def test_garbage_on_the_wire_is_counted_not_fatal():
+    port = _free_port()
+    inp = make_input("s", parse_input({"dtrack": {"port": port, "body": 1}}), COV)
+    inp.start(lambda i, data, a: i.handle(data, a))
+    assert inp.ready.wait(10)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for pkt in (b"\xff\xfe" * 100, b"fr 1\r\n6d 1 [1 1.0]\r\n", b"", b"6d x\r\n"):
+                s.sendto(pkt, ("127.0.0.1", port))
+        deadline = time.monotonic() + 10
+        while inp.status.packets < 4 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        inp.stop()
+    assert inp.status.rejections == {"not ASCII": 1, "bad line": 2, "empty": 1}
+    assert inp.status.measurements == 0
+
+
+def test_dtrack_command_channel_starts_the_stream(room1):
+    port, cmd = _free_port(), _free_port(socket.SOCK_STREAM)
+    spec = parse_input({"dtrack": {"port": port, "body": 1, "command": "127.0.0.1",
+                                   "command_port": cmd}})  # fmt: skip
+    inp = make_input("s", spec, COV)
+    sender = _trackflow("simulate", "dtrack", room1, "--port", port, "--command-port", cmd,
+                        "--duration", 0.5, "--wait", 20)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # wait for the sender's command port
+            try:
+                socket.create_connection(("127.0.0.1", cmd), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        got = []
+        inp.start(lambda i, data, a: got.extend(i.handle(data, a)))
+        report = json.loads(_finish(sender, 60))
+        time.sleep(0.2)
+    finally:
+        inp.stop()
+        if sender.poll() is None:
+            sender.kill()
+    assert report["sent"] > 0 and len(got) == report["sent"]
+    assert "command refused" not in inp.status.connection
+
+
+LIVE_SETUP = """frames: [W, B, D]
+sensors:
+  - name: head
+    source: W
+    target: B
+    rate_hz: 120
+    sigma_pos_mm: 0.3
+    sigma_ori_deg: 0.1
+    motion: {{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}}
+    input: {{natnet: {{command_port: {nn}, body: rig}}}}
+  - name: hand
+    source: W
+    target: D
+    rate_hz: 120
+    sigma_pos_mm: 0.3
+    sigma_ori_deg: 0.1
+    motion: {{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}}
+    input: {{dtrack: {{port: {dt}, body: 1}}}}
+queries:
+  - {{name: rel, source: B, target: D, mode: push, rate_hz: 100}}
+"""
+
+
+@pytest.mark.slow
+def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
+    nn, dt = _free_port(), _free_port()
+    setup = tmp_path / "live.yaml"
+    setup.write_text(LIVE_SETUP.format(nn=nn, dt=dt))
+    rec = tmp_path / "out.tfrec"
+    run = _trackflow("run", setup, "--duration", 15, "--record", rec, "--json")
+    first: list[str] = []
+    reader = threading.Thread(target=lambda: first.append(run.stderr.readline()), daemon=True)
+    reader.start()
+    reader.join(60)  # the run compiles its filters, then says it is listening
+    assert first and first[0].startswith("listening"), first
+    common = ("--duration", 3, "--jitter-ms", 1, "--wait", 20)
+    s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
+    s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, "--start", 0.5, *common)
+    sent = [json.loads(_finish(s, 90))["sent"] for s in (s1, s2)]
+    out = json.loads(_finish(run, 90))
+    assert out["sensors"]["hand"]["measurements"] == sent[1], out
+    assert out["sensors"]["head"]["measurements"] > 0.9 * sent[0], out
+    assert out["answers"] > 50, out
+    rep = json.loads(_finish(_trackflow("run", setup, "--replay", rec, "--json"), 90))
+    assert rep == {"answers": out["answers"], "recorded": out["answers"], "identical": True}
+
+
+def test_kernel_receive_stamps_do_not_wait_for_the_reader():
+    from trackflow.trackers.inputs import enable_kernel_stamps, recv_stamped
+
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as r,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s,
+    ):
+        r.bind(("127.0.0.1", 0))
+        r.settimeout(5)
+        kernel = enable_kernel_stamps(r)
+        sent = host_ns()
+        s.sendto(b"frame", r.getsockname())
+        time.sleep(0.05)  # the reader is late
+        data, arrival = recv_stamped(r, kernel)
+        read = host_ns()
+    assert data == b"frame"
+    if not kernel:
+        pytest.skip("no kernel receive stamps on this platform")
+    assert sent <= arrival and read - arrival >= 40_000_000
