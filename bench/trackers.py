@@ -32,13 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from trackflow.dataflow import KalmanFilter
+from trackflow.dataflow import KalmanFilter, parse_input
 from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import make_inputs
 from trackflow.trackers.runtime import LiveSource
-from trackflow.trackers.spec import parse_input
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from trackflow.dataflow import parse_input
 from trackflow.io import read_stream
 from trackflow.trackers.inputs import make_input
-from trackflow.trackers.spec import parse_input
 
 ROOT = Path(__file__).resolve().parents[1]
 F32 = 2.0**-24

@@ -20,6 +20,7 @@ LAYERS = {
     "dataflow": 2,
     "evaluation": 2,
     "demo": 3,
+    "trackers": 3,
     "calibration": 3,
     "distributed": 3,
     "cli": 4,

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from trackflow.dataflow import parse_input
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.axes import Y_UP_TO_Z_UP, BoundaryConversion
 from trackflow.trackers.inputs import make_input, make_inputs
-from trackflow.trackers.spec import parse_input
 
 COV = np.diag([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])
 FREQ = 10_000_000

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from trackflow.dataflow import parse_input
 from trackflow.io import read_stream
 from trackflow.trackers.inputs import host_ns, make_input
-from trackflow.trackers.spec import parse_input
 from trackflow.trackers.vrpn_server import VrpnTrackerServer
 
 ROOT = Path(__file__).resolve().parents[2]

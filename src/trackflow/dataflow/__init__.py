@@ -8,6 +8,7 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
 from ._events import ComponentStats, Measurement
+from ._inputs import InputSpec, parse_input
 from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
@@ -22,6 +23,7 @@ __all__ = [
     "Component",
     "ComponentStats",
     "Inference",
+    "InputSpec",
     "Inversion",
     "KalmanFilter",
     "LatestValue",
@@ -41,6 +43,7 @@ __all__ = [
     "lookup",
     "rpy_deg",
     "make_filter",
+    "parse_input",
     "parse_setup",
     "plan_query",
 ]

@@ -75,7 +75,7 @@ class Setup:
     queries: dict[str, Query] = field(default_factory=dict)
     recordings: dict[str, Path] = field(default_factory=dict)
     source: str = "<python>"
-    #: live inputs of sensors: name -> :class:`trackflow.trackers.spec.InputSpec`
+    #: live inputs of sensors: name -> :class:`trackflow.dataflow.InputSpec`
     inputs: dict = field(default_factory=dict)
 
     def query(self, name: str | None = None) -> Query:
@@ -359,7 +359,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             p = Path(str(s["recording"]))
             recordings[str(s["name"])] = p if p.is_absolute() or base_dir is None else base_dir / p
         if "input" in s:
-            from ..trackers.spec import parse_input
+            from ._inputs import parse_input
 
             try:
                 inputs[str(s["name"])] = parse_input(s["input"])

@@ -9,12 +9,12 @@ applications; :func:`simulate` replays a recording as a tracker.
 Conventions: ``docs/conventions.md``; protocols and time mapping: ``docs/trackers.md``.
 """
 
+from ..dataflow import InputSpec, parse_input
 from ._packet import MAX_DATAGRAM, PacketError
 from .clock import ClockEstimate, ClockMapper
 from .inputs import LiveInput, Sample, make_input, make_inputs
 from .runtime import LiveSource, ReplayResult, RunResult, replay, run_live
 from .simulate import SimConfig, Simulator, simulate
-from .spec import InputSpec, parse_input
 from .status import SensorStatus
 from .vrpn_server import VrpnTrackerServer
 

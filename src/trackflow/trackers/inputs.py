@@ -22,11 +22,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..dataflow import InputSpec
 from . import dtrack, natnet, vrpn
 from ._packet import PacketError
 from .axes import BoundaryConversion
 from .clock import ClockMapper
-from .spec import InputSpec
 from .status import SensorStatus
 
 __all__ = [
