@@ -7,8 +7,6 @@ import json
 import sys
 from pathlib import Path
 
-from ..dataflow import load_setup
-
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -33,6 +31,8 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    from ..dataflow import load_setup
+
     setup = load_setup(args.setup)
     if args.replay is not None:
         from ..trackers.runtime import replay

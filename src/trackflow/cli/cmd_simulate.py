@@ -6,8 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-from ..trackers.simulate import SimConfig, simulate
-
 _DEFAULT_PORT = {"natnet": 1510, "dtrack": 5000, "vrpn": 3883}
 
 
@@ -52,6 +50,8 @@ def run(args) -> int:
         major, minor = (int(x) for x in args.natnet_version.split("."))
     except ValueError as exc:
         raise ValueError(f"--natnet-version must be like 4.1, got {args.natnet_version!r}") from exc
+    from ..trackers.simulate import SimConfig, simulate
+
     cfg = SimConfig(
         args.protocol,
         host=args.host,

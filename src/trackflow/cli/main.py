@@ -118,10 +118,30 @@ def _quiet_stdout() -> None:
         pass
 
 
+def _announce_compilation(quiet: bool) -> None:
+    """Say once, on standard error, when a command must wait for kernels to compile."""
+    from ..math._backend import set_compile_notice
+
+    said = []
+
+    def notice(source: str) -> None:
+        if not said and not quiet:
+            print(
+                "trackflow: compiling numerical kernels for their first use (cached for later "
+                "runs; `trackflow compile` does this ahead of time) ...",
+                file=sys.stderr,
+                flush=True,
+            )
+        said.append(source)
+
+    set_compile_notice(notice)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _announce_compilation(quiet=getattr(args, "quiet", False))
     old = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
         try:

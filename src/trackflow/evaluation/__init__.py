@@ -31,8 +31,10 @@ from ._predictor import (
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
+from ._warmup import compile_kernels
 
 __all__ = [
+    "compile_kernels",
     "ALIGNMENTS",
     "CompareResult",
     "Stats",
