@@ -11,6 +11,8 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev,distributed]'
+	# compile the numba kernels once, at install, so no command's first run waits for it
+	$(VENV)/bin/trackflow compile
 	touch $(STAMP)
 
 venv: $(STAMP)

@@ -3,9 +3,14 @@
 Each figure is the wall time of a fresh ``trackflow`` process (``python -m trackflow.cli.main``)
 on a real recording:
 
-* ``first_run_s``: ``evaluate``, ``filter`` and ``plot`` with an empty numba cache (a fresh
-  temporary ``NUMBA_CACHE_DIR`` and ``XDG_CACHE_HOME`` per command), as on a fresh machine;
+* ``first_run_s``: ``evaluate``, ``filter`` and ``plot``, each the first run of that command on
+  a fresh installation: a fresh temporary ``NUMBA_CACHE_DIR`` / ``XDG_CACHE_HOME`` filled by
+  the install step ``trackflow compile`` (what ``make`` runs after ``pip install``) and by
+  nothing else;
 * ``warm_run_s``: the same command again with that cache;
+* ``install_compile_s``: the install step itself (``trackflow compile`` into the empty cache);
+* ``cold_first_run_s``: ``evaluate`` with an empty cache and no install step (a ``pip install``
+  that skipped ``trackflow compile``): it compiles what it runs, and says so on stderr;
 * ``help_s``: ``trackflow --help`` (best of five);
 * ``infer_euroc_s``: ``infer`` chaining the EuRoC V1_01 ground truth (28.7k samples) with
   itself (warm cache).
@@ -65,12 +70,17 @@ def main() -> int:
     first, warm = {}, {}
     with tempfile.TemporaryDirectory(prefix="trackflow-bench-") as d:
         d = Path(d)
+        cache = d / "cache-installed"
+        cache.mkdir()
+        env = dict(base, NUMBA_CACHE_DIR=str(cache / "numba"), XDG_CACHE_HOME=str(cache))
+        install_s = run(["compile", "--quiet"], env, d)
         for name, argv in commands(rec, d).items():
-            cache = d / f"cache-{name}"
-            cache.mkdir()
-            env = dict(base, NUMBA_CACHE_DIR=str(cache / "numba"), XDG_CACHE_HOME=str(cache))
             first[name] = run(argv, env, d)
             warm[name] = run(argv, env, d)
+        cold = d / "cache-cold"
+        cold.mkdir()
+        cold_env = dict(base, NUMBA_CACHE_DIR=str(cold / "numba"), XDG_CACHE_HOME=str(cold))
+        cold_first = run(commands(rec, d)["evaluate"], cold_env, d)
         env = dict(base, NUMBA_CACHE_DIR=str(d / "cache-infer" / "numba"))
         help_s = min(run(["--help"], base, d) for _ in range(5))
         infer_s = None
@@ -84,6 +94,8 @@ def main() -> int:
         "warm_run_s": warm,
         "help_s": help_s,
         "infer_euroc_s": infer_s,
+        "install_compile_s": install_s,
+        "cold_first_run_s": {"evaluate": cold_first},
     }
     if args.json:
         print(json.dumps(result))
@@ -93,6 +105,8 @@ def main() -> int:
         extra = first[name] - warm[name]
         print(f"{name:<9} first {first[name]:7.2f} s  warm {warm[name]:7.2f} s  "
               f"first - warm {extra:6.2f} s (bar <= 10)")  # fmt: skip
+    print(f"install step (trackflow compile): {install_s:.1f} s; evaluate with no install step: "
+          f"{cold_first:.1f} s")  # fmt: skip
     print(f"--help    {help_s:.3f} s (bar < 0.3)")
     print(f"infer on EuRoC: {'n/a' if infer_s is None else f'{infer_s:.2f} s'} (bar < 3)")
     return 0
