@@ -252,7 +252,7 @@ class OpticalTracker:
         dof = 2 * tri.n_views - 3
         good = tri.valid & (tri.chi2 <= chdtri(np.maximum(dof, 1), 1.0 - c.gate_probability))
         start = 0
-        for b, m in enumerate(models):
+        for m in models:
             sl = slice(start, start + len(m))
             start += len(m)
             ok = good[sl].copy()
