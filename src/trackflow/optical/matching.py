@@ -18,7 +18,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.special import chdtri
 
 from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
@@ -71,7 +73,54 @@ def _kabsch_batch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return R, cb - np.einsum("tij,tj->ti", R, ca)
 
 
-def _hypotheses(model: MarkerModel, X: np.ndarray, D: np.ndarray, tol: float, seeds: int = 24):
+@numba.njit(cache=True)
+def _seed_triangles(E, S, seed_i, seed_a, per_seed):
+    """For every seed (point i = marker a), up to ``per_seed`` triangles (i, k, l) = (a, c, d)
+    whose three distances all match, the best supported (``S[k, c] + S[l, d]``) first."""
+    P, M = S.shape
+    n = len(seed_i)
+    tri_p = np.empty((n * per_seed, 3), np.int64)
+    tri_m = np.empty((n * per_seed, 3), np.int64)
+    out = 0
+    ks = np.empty(P * M, np.int64)
+    cs = np.empty(P * M, np.int64)
+    for s in range(n):
+        i, a = seed_i[s], seed_a[s]
+        m = 0
+        for k in range(P):
+            for c in range(M):
+                if E[i, k, a, c]:
+                    ks[m] = k
+                    cs[m] = c
+                    m += 1
+        cand_u = []
+        cand_v = []
+        cand_s = []
+        for u in range(m):
+            for v in range(u + 1, m):
+                if ks[u] != ks[v] and cs[u] != cs[v] and E[ks[u], ks[v], cs[u], cs[v]]:
+                    cand_u.append(u)
+                    cand_v.append(v)
+                    cand_s.append(S[ks[u], cs[u]] + S[ks[v], cs[v]])
+        if len(cand_s) == 0:
+            continue
+        order = np.argsort(-np.array(cand_s))
+        for j in range(min(per_seed, len(order))):
+            u, v = cand_u[order[j]], cand_v[order[j]]
+            tri_p[out, 0], tri_p[out, 1], tri_p[out, 2] = i, ks[u], ks[v]
+            tri_m[out, 0], tri_m[out, 1], tri_m[out, 2] = a, cs[u], cs[v]
+            out += 1
+    return tri_p[:out], tri_m[:out]
+
+
+def _hypotheses(
+    model: MarkerModel,
+    X: np.ndarray,
+    D: np.ndarray,
+    tol: float,
+    seeds: int = 200,
+    per_seed: int = 4,
+):
     """Poses (R (T, 3, 3), t (T, 3)) from measured triples matching model triangles.
 
     ``E[i, k, a, c]`` says that the distance of points i, k matches that of markers a, c.
@@ -87,24 +136,11 @@ def _hypotheses(model: MarkerModel, X: np.ndarray, D: np.ndarray, tol: float, se
     E = (np.abs(D[:, :, None, None] - dmx[None, None]) < tol) & near[:, :, None, None]
     S = E.any(axis=3).sum(axis=1)  # (P, M)
     flat = np.argsort(-S, axis=None)[:seeds]
-    tri_p, tri_m = [], []
-    for f in flat:
-        i, a = divmod(int(f), M)
-        if S[i, a] < 2:
-            break
-        k, c = np.nonzero(E[i, :, a, :])
-        ok = E[k[:, None], k[None, :], c[:, None], c[None, :]]
-        u, v = np.nonzero(np.triu(ok, 1))
-        if not len(u):
-            continue
-        score = S[k[u], c[u]] + S[k[v], c[v]]
-        best = np.argsort(-score)[:16]
-        u, v = u[best], v[best]
-        tri_p.append(np.stack([np.full(len(u), i), k[u], k[v]], axis=1))
-        tri_m.append(np.stack([np.full(len(u), a), c[u], c[v]], axis=1))
-    if not tri_p:
+    si, sa = np.divmod(flat, M)
+    keep = S[si, sa] >= 2
+    tp, tm = _seed_triangles(E, S, si[keep], sa[keep], per_seed)
+    if not len(tp):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
-    tp, tm = np.concatenate(tri_p), np.concatenate(tri_m)
     return _kabsch_batch(model.points[tm], X[tp])
 
 
@@ -138,7 +174,7 @@ def _best_for_model(model, cand, avail, tol, min_markers, prediction, gate, chi_
     if not len(R):
         return None, False
     pred = np.einsum("tij,mj->tmi", R, model.points) + t[:, None]  # (T, M, 3)
-    dist = np.linalg.norm(pred[:, :, None] - X[None, None], axis=-1).min(axis=2)  # (T, M)
+    dist, _ = cKDTree(X).query(pred, distance_upper_bound=tol)  # (T, M), inf beyond tol
     inl = dist < tol
     count = inl.sum(axis=1)
     sse = np.where(inl, dist**2, 0.0).sum(axis=1)
@@ -256,13 +292,20 @@ def identify(
     avail = np.ones(len(candidates), bool)
     remaining = list(models)
     found: dict[str, BodyMatch] = {}
+    cache: dict[str, tuple] = {}
     while remaining:
         bests = {}
         for model in remaining:
-            m, ambiguous = _best_for_model(
-                model, candidates, avail, tolerance, min_markers,
-                predictions.get(model.name), gate6, chi_gate,
-            )  # fmt: skip
+            hit = cache.get(model.name)
+            if hit is None or (
+                hit[0] is not None and not avail[hit[0].points[hit[0].points >= 0]].all()
+            ):
+                hit = _best_for_model(
+                    model, candidates, avail, tolerance, min_markers,
+                    predictions.get(model.name), gate6, chi_gate,
+                )  # fmt: skip
+                cache[model.name] = hit
+            m, ambiguous = hit
             if m is not None and not ambiguous:
                 bests[model.name] = (model, m)
         best = None
