@@ -84,7 +84,7 @@ def test_similar_bodies_without_their_distinguishing_markers_need_the_prediction
 
 def test_two_view_points_on_one_epipolar_line_are_returned_as_alternatives():
     rig = ring_rig(2, radius=2.0)
-    a, b = rig[0], rig[1]
+    a = rig[0]
     # two points on one ray of camera a: their images in a coincide, in b they differ
     ray = a.rays(np.array([[640.0, 512.0]]))[0]
     X = a.center + np.outer([2.4, 2.9], ray)
