@@ -251,6 +251,7 @@ def identify(
     models: Sequence[MarkerModel],
     tolerance: float = 0.004,
     min_markers: int = 4,
+    min_fraction: float = 0.3,
     predictions: Mapping[str, UncertainPose] | None = None,
     gate_probability: float = 0.999,
 ) -> dict[str, BodyMatch]:
@@ -265,8 +266,11 @@ def identify(
     tolerance : float
         Distance tolerance [m] for matching distances and verifying markers (a few sigma of
         the point noise plus the model's manufacturing error).
-    min_markers : int
-        Fewest matched markers to report a body (at least 3; 4 rejects most chance fits).
+    min_markers, min_fraction : int, float
+        Fewest matched markers to report a body: ``max(min_markers, ceil(min_fraction * M))``
+        for a model of ``M`` markers (capped at ``M``). Four reject most chance fits of small
+        models; large models need more, since some four of their markers are nearly coplanar
+        and then also fit a mirror image of the body (a reflection in glass).
     predictions : mapping name -> UncertainPose, optional
         Predicted ``T_world_body`` of tracked bodies (e.g. ``PoseKalmanFilter.predict``):
         inconsistent hypotheses are discarded and ambiguities resolved towards it.
@@ -301,7 +305,8 @@ def identify(
                 hit[0] is not None and not avail[hit[0].points[hit[0].points >= 0]].all()
             ):
                 hit = _best_for_model(
-                    model, candidates, avail, tolerance, min_markers,
+                    model, candidates, avail, tolerance,
+                    min(len(model), max(min_markers, int(np.ceil(min_fraction * len(model))))),
                     predictions.get(model.name), gate6, chi_gate,
                 )  # fmt: skip
                 cache[model.name] = hit

@@ -56,6 +56,7 @@ class TrackerConfig:
     support_px: float = 1.5
     tolerance_m: float = 0.004
     min_markers: int = 4
+    min_fraction: float = 0.3
     min_markers_tracked: int = 3
     gate_probability: float = 0.9999
     motion: MotionModel = field(
@@ -300,6 +301,7 @@ class OpticalTracker:
             models,
             tolerance=c.tolerance_m,
             min_markers=c.min_markers,
+            min_fraction=c.min_fraction,
             predictions={m.name: preds[m.name] for m in models if m.name in preds},
             gate_probability=c.gate_probability,
         )
