@@ -142,7 +142,7 @@ def summarise(rec, hidden) -> dict:
         ori_bound = float(np.sqrt(np.trace(C[:, 3:, 3:], axis1=1, axis2=2).mean()))
         lo, hi = chi2.ppf([0.025, 0.975], 6 * N) / N
         rec_s = []
-        for body, t0, t1 in hidden:
+        for body, _t0, t1 in hidden:
             if body != name:
                 continue
             after = np.flatnonzero((r["t"] > t1) & ok)
