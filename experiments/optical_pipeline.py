@@ -8,7 +8,7 @@ frames have 0.1 px centroid jitter, read noise, a person walking through the vol
 wall mirroring every marker, fixed and flickering reflections, 1 % marker dropouts, and two
 full occlusions (body A hidden for 0.8 s, body B for 0.5 s).
 
-The tracker first measures its centroid noise on the first second of frames (reprojection
+The tracker first measures its centroid noise on the first two seconds of frames (reprojection
 residuals of the triangulated markers), then tracks the whole sequence from scratch with it.
 Written: ``docs/optical_*.png`` and the figures as JSON on stdout (``--json``).
 
@@ -248,8 +248,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if not DATA.is_dir():
         raise SystemExit(f"the shared recordings are not at {DATA}")
-    # 1. measure the centroid noise on the first second
-    cal, *_ = run(1.0, 0.12, hidden=())
+    # 1. measure the centroid noise on the first two seconds
+    cal, *_ = run(2.0, 0.12, hidden=())
     sigma = cal.pixel_sigma_estimate()
     # 2. track from scratch with it, with two full occlusions
     hidden = [("A", START_S + 3.0, START_S + 3.8), ("B", START_S + 6.0, START_S + 6.5)]

@@ -16,7 +16,7 @@ RECORDINGS = ["ar_table/table_01.txt", "ar_table/table_02.txt", "ar_table/table_
 CENTERS = [(0.45, 0.0, 1.0), (-0.22, 0.39, 1.1), (-0.22, -0.39, 0.9)]
 
 
-def models(n_markers: int = 8, seed: int = 0):
+def models(n_markers: int = 10, seed: int = 0):
     rng = np.random.default_rng(seed)
     a = random_model("A", n_markers, rng)
     return [a, similar_model(a, "B", rng), random_model("C", n_markers, rng)]
@@ -32,6 +32,7 @@ def trajectories(names, data: Path):
     return out
 
 
-def renderer(data: Path, settings: RenderSettings | None = None, n_markers: int = 8, seed=1):
+def renderer(data: Path, settings: RenderSettings | None = None, n_markers: int = 10, seed=1):
     ms = models(n_markers)
+    settings = settings or RenderSettings(visibility_deg=100.0)
     return FrameRenderer(ring_rig(4), ms, trajectories([m.name for m in ms], data), settings, seed)

@@ -45,6 +45,9 @@ class TrackerConfig:
 
     ``sigma_px`` is the centroid noise of one blob coordinate; it sets every covariance and
     gate, so it should be measured (:meth:`OpticalTracker.pixel_sigma_estimate`).
+    ``search_interval_s`` spaces the (costly) searches for bodies that are not tracked: 0
+    searches every frame; more bounds the time spent on bodies that are out of view, for a
+    recovery delayed by up to that interval.
     """
 
     threshold: float = 20.0
@@ -63,6 +66,7 @@ class TrackerConfig:
         default_factory=lambda: MotionModel(n_dp=1, n_do=1, noise=(0.0, 4.0, 0.0, 20.0))
     )
     lost_after_s: float = 0.25
+    search_interval_s: float = 0.0
     max_prediction_sigma_m: float = 0.005
 
     def __post_init__(self):
@@ -150,6 +154,7 @@ class OpticalTracker:
             "searches": 0,
         }
         self._res = [0.0, 0]  # sum of chi2 at sigma_px, degrees of freedom
+        self._last_search: float | None = None
 
     # -- public -----------------------------------------------------------------------------
     def process(self, t: float, images: Sequence[np.ndarray]) -> FrameResult:
@@ -186,7 +191,9 @@ class OpticalTracker:
         if guided:
             self._guided(t, guided, preds, blobs, used, results)
         todo = [m for m in self.models if m.name not in results]
-        if todo:
+        due = self._last_search is None or t - self._last_search >= self.config.search_interval_s
+        if todo and due:
+            self._last_search = t
             self._search(t, todo, preds, blobs, used, results)
         for m in self.models:
             if m.name not in results:

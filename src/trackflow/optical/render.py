@@ -267,10 +267,10 @@ class FrameRenderer:
         Y = np.broadcast_to(ys[:, :, None], val.shape)
         X = np.broadcast_to(xs[:, None, :], val.shape)
         ok = (X >= 0) & (X < w) & (Y >= 0) & (Y < h) & (val > 0.05)
-        acc = np.zeros(img.shape, float)
-        np.add.at(acc, (Y[ok], X[ok]), val[ok])
-        touched = acc > 0
-        img[touched] = np.clip(np.round(img[touched] + acc[touched]), 0, 255).astype(np.uint8)
+        flat, inv = np.unique(Y[ok] * w + X[ok], return_inverse=True)
+        add = np.bincount(inv, weights=val[ok])
+        pix = img.reshape(-1)
+        pix[flat] = np.clip(np.round(pix[flat] + add), 0, 255).astype(np.uint8)
 
     def render(self, t: float) -> Frame:
         """The frame exposed at time ``t`` [s]."""
