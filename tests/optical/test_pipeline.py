@@ -76,7 +76,7 @@ def test_recovers_after_a_full_occlusion(shared_data):
 
 def test_optical_sensor_in_a_dataflow_network(shared_data, tmp_path):
     doc = yaml.safe_load((ROOT / "examples" / "optical.yaml").read_text())
-    for name, tc in doc["render"]["trajectories"].items():
+    for tc in doc["render"]["trajectories"].values():
         tc["recording"] = str(shared_data / Path(tc["recording"]).relative_to("../../shared/data"))
     doc["render"]["duration_s"] = 0.25
     doc["setup"] = str(ROOT / "examples" / "optical_setup.yaml")
