@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..math import Pose, UncertainPose, quat_exp, quat_from_matrix, quat_to_matrix, skew
+from ..math import Pose, UncertainPose, quat_from_matrix
+from ._kernels import fit_pose_packed
 
 __all__ = ["PoseFit", "fit_pose", "umeyama"]
 
@@ -107,21 +108,13 @@ def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
         W = np.linalg.inv(C)  # (M, 3, 3) information
     except np.linalg.LinAlgError as e:
         raise ValueError("a point covariance is singular") from e
-    R, t = umeyama(m, x, 1.0 / np.trace(C, axis1=1, axis2=2))
-    for it in range(iterations + 1):
-        r = x - (m @ R.T + t)  # (M, 3)
-        J = np.empty((len(m), 3, 6))
-        J[:, :, :3] = np.eye(3)
-        J[:, :, 3:] = -R @ skew(m)
-        JW = np.einsum("mki,mkl->mil", J, W)  # J^T W, (M, 6, 3)
-        H = np.einsum("mil,mlj->ij", JW, J)
-        if it == iterations:
-            break
-        g = np.einsum("mil,ml->i", JW, r)
-        d = np.linalg.solve(H, g)
-        t = t + d[:3]
-        R = R @ quat_to_matrix(quat_exp(d[3:]))
-    point_chi2 = np.einsum("mk,mkl,ml->m", r, W, r)
+    if len(m) < 3:
+        raise ValueError(f"need at least 3 points, got {len(m)}")
+    sv = np.linalg.svd(m - m.mean(axis=0), compute_uv=False)
+    if sv[1] <= 1e-9 * sv[0]:
+        raise ValueError("the points are collinear: the rotation about their line is unknown")
+    wts = 1.0 / np.trace(C, axis1=1, axis2=2)
+    R, t, H, point_chi2 = fit_pose_packed(m, x, np.ascontiguousarray(W), wts, int(iterations))
     cov = np.linalg.inv(H)
     cov = 0.5 * (cov + cov.T)
     pose = UncertainPose(Pose(t, quat_from_matrix(R), normalize=True), cov)

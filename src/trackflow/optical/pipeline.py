@@ -28,13 +28,13 @@ from scipy.special import chdtri
 
 from ..filters import MotionModel, PoseKalmanFilter
 from ..math import UncertainPose, skew
+from ._kernels import guided_assign, pack_cameras, refine_points_packed
 from .absolute_orientation import fit_pose
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
 from .matching import identify, pose_nis
 from .models import MarkerModel
-from .triangulation import refine_points
 
 __all__ = ["BodyResult", "FrameResult", "OpticalTracker", "TrackerConfig"]
 
@@ -140,6 +140,9 @@ class OpticalTracker:
         self._gate2 = float(chdtri(2, 1.0 - c.gate_probability))
         self._gate3 = float(chdtri(3, 1.0 - c.gate_probability))
         self._gate6 = float(chdtri(6, 1.0 - c.gate_probability))
+        dofs = np.arange(1, 2 * len(rig))
+        self._chi_gates = np.concatenate([[np.inf], chdtri(dofs, 1.0 - c.gate_probability)])
+        self._packed = pack_cameras(rig)
         self.reset()
 
     def reset(self) -> None:
@@ -220,59 +223,40 @@ class OpticalTracker:
 
     def _guided(self, t, models, preds, blobs, used, results) -> None:
         c = self.config
-        s2 = c.sigma_px**2
-        Xs, Cs, owner = [], [], []
-        for b, m in enumerate(models):
+        Xs, Cs = [], []
+        for m in models:
             X, C = self._predicted_markers(m, preds[m.name])
             Xs.append(X)
             Cs.append(C)
-            owner.append(np.full(len(m), b))
         X = np.concatenate(Xs)
-        C = np.concatenate(Cs)
-        Q = len(X)
-        uv_obs = np.full((len(self.rig), Q, 2), np.nan)
-        claim = [np.full(len(bl), -1) for bl in blobs]
-        for ci, cam in enumerate(self.rig):
-            bl = blobs[ci]
-            if not len(bl):
-                continue
-            uv, J = cam.project(X, jacobian=True)
-            S = J @ C @ np.swapaxes(J, 1, 2) + s2 * np.eye(2)
-            ok = cam.in_image(uv)
-            det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] ** 2
-            d = bl[None] - uv[:, None]  # (Q, K, 2)
-            m2 = (
-                S[:, None, 1, 1] * d[..., 0] ** 2
-                - 2 * S[:, None, 0, 1] * d[..., 0] * d[..., 1]
-                + S[:, None, 0, 0] * d[..., 1] ** 2
-            ) / det[:, None]
-            m2[~ok] = np.inf
-            gated = m2 < self._gate2
-            per_blob = gated.sum(axis=0)
-            q_idx, k_idx = np.nonzero(gated)
-            # a marker with several blobs in its gate, or a blob in several gates: leave out
-            single = (gated.sum(axis=1)[q_idx] == 1) & (per_blob[k_idx] == 1)
-            q_idx, k_idx = q_idx[single], k_idx[single]
-            uv_obs[ci, q_idx] = bl[k_idx]
-            claim[ci][k_idx] = q_idx
-        mask = np.all(np.isfinite(uv_obs), axis=2)
-        tri = refine_points(self.rig, X, uv_obs, mask, c.sigma_px, iterations=2)
-        dof = 2 * tri.n_views - 3
-        good = tri.valid & (tri.chi2 <= chdtri(np.maximum(dof, 1), 1.0 - c.gate_probability))
-        start = 0
+        C = np.ascontiguousarray(np.concatenate(Cs))
+        start = np.concatenate([[0], np.cumsum([len(b) for b in blobs])]).astype(np.int64)
+        allb = np.ascontiguousarray(np.concatenate(blobs)) if start[-1] else np.zeros((0, 2))
+        P, R, tt = self._packed
+        s2 = c.sigma_px**2
+        uv_obs, claim = guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
+        Xr, cov, chi2, n_views = refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
+        dof = 2 * n_views - 3
+        with np.errstate(invalid="ignore"):
+            good = (n_views >= 2) & (
+                chi2 <= self._chi_gates[np.clip(dof, 0, len(self._chi_gates) - 1)]
+            )
+        q0 = 0
         for m in models:
-            sl = slice(start, start + len(m))
-            start += len(m)
-            ok = good[sl].copy()
-            res = self._pose_from_markers(m, tri.X[sl], tri.covariance[sl], ok, preds[m.name])
+            sl = slice(q0, q0 + len(m))
+            q0 += len(m)
+            res = self._pose_from_markers(m, Xr[sl], cov[sl], good[sl].copy(), preds[m.name])
             if res is None:
                 continue
             pose, ok = res
             q_used = np.flatnonzero(ok) + sl.start
-            self._res[0] += float(tri.chi2[q_used].sum())
+            self._res[0] += float(chi2[q_used].sum())
             self._res[1] += int(dof[q_used].sum())
+            mark = np.zeros(len(X) + 1, bool)
+            mark[q_used] = True
+            hit = mark[claim]  # claim -1 indexes the False sentinel
             for ci in range(len(self.rig)):
-                used[ci] |= np.isin(claim[ci], q_used) & (claim[ci] >= 0)
+                used[ci] |= hit[start[ci] : start[ci + 1]]
             self._update(m, t, pose, "tracked", int(ok.sum()), results)
 
     def _pose_from_markers(self, m, X, C, ok, pred):
