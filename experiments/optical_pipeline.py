@@ -19,67 +19,27 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
-from trackflow.io import read_stream
 from trackflow.math import quat_conjugate, quat_log, quat_multiply
-from trackflow.optical import ring_rig
-from trackflow.optical.models import random_model, similar_model
 from trackflow.optical.pipeline import OpticalTracker, TrackerConfig
-from trackflow.optical.render import (
-    Cylinder,
-    FrameRenderer,
-    RenderSettings,
-    trajectory_from_stream,
-)
+from trackflow.optical.scene import shared_data_dir, three_body_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def data_dir() -> Path:
-    """The shared recordings: ``$TRACKFLOW_DATA``, ``../shared/data`` next to the repository,
-    or the workplace's ``/work/shared/data``."""
-    env = os.environ.get("TRACKFLOW_DATA")
-    if env:
-        return Path(env)
-    for c in (ROOT.parent / "shared" / "data", Path("/work/shared/data")):
-        if (c / "README.md").is_file():
-            return c
-    return ROOT.parent / "shared" / "data"
-
-
-DATA = data_dir()
-RECORDINGS = ["ar_table/table_01.txt", "ar_table/table_02.txt", "ar_table/table_03.txt"]
-CENTERS = [(0.45, 0.0, 1.0), (-0.22, 0.39, 1.1), (-0.22, -0.39, 0.9)]
+DATA = shared_data_dir(ROOT)
 RATE_HZ = 120.0
 START_S = 5.0
 
 
-def scene(n_markers: int = 20, seed: int = 0, hidden=(), occluders=True, sigma_px: float = 0.1):
-    """The rig, the three models and a renderer (frames from ``START_S`` on)."""
-    rng = np.random.default_rng(seed)
-    a = random_model("A", n_markers, rng)
-    models = [
-        a,
-        similar_model(a, "B", rng, n_moved=2, shift=0.02),
-        random_model("C", n_markers, rng),
-    ]
-    trajs = {}
-    for m, rec, c in zip(models, RECORDINGS, CENTERS):
-        stream, _ = read_stream(DATA / rec)
-        trajs[m.name] = trajectory_from_stream(stream, c, detrend_s=4.0)
-    settings = RenderSettings(
-        sigma_px=sigma_px,
-        occluders=[Cylinder((0.0, 0.0), 1.4, 0.5, 0.0, 0.22, 1.8)] if occluders else [],
-        hidden=list(hidden),
-    )
-    rig = ring_rig(4)
-    return rig, models, FrameRenderer(rig, models, trajs, settings, seed=seed + 1)
+def scene(seed: int = 0, hidden=()):
+    """The experiment's scene: :func:`three_body_scene` with 20 markers per body."""
+    rig, models, r = three_body_scene(DATA, 20, seed)
+    r.settings.hidden = list(hidden)
+    return rig, models, r
 
 
 def pose_error(est, truth) -> np.ndarray:
