@@ -134,24 +134,31 @@ def figures(rec, hidden, summary, first, rig, out_dir: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     paths = []
-    # 1. a rendered frame: one camera's image (cropped) with the true blob centres
-    fig, ax = plt.subplots(figsize=(7, 5.6))
-    img = first.images[1]
-    ax.imshow(img, cmap="gray", vmin=0, vmax=120)
-    lab = first.blob_label[1]
-    uv = first.blob_uv[1]
-    for code, color, text in ((0, "tab:red", "A"), (1, "tab:orange", "B"), (2, "tab:cyan", "C")):
-        sel = (lab >= 0) & (lab // 1000 == code)
-        ax.scatter(uv[sel, 0], uv[sel, 1], s=60, facecolors="none", edgecolors=color, label=text)
-    g = lab < 0
-    ax.scatter(
-        uv[g, 0], uv[g, 1], s=60, marker="s", facecolors="none", edgecolors="w", label="ghost"
-    )
-    ax.set_title("camera 1, first frame: marker blobs of bodies A, B, C and ghosts")
-    ax.legend(loc="lower right", fontsize=8)
+    # 1. a rendered frame: the camera seeing most blobs, whole and zoomed on one body
+    cam = int(np.argmax([len(u) for u in first.blob_uv]))
+    img, lab, uv = first.images[cam], first.blob_label[cam], first.blob_uv[cam]
+    fig, axs = plt.subplots(1, 2, figsize=(11, 4.6), width_ratios=[1.25, 1])
+    styles = ((0, "tab:red", "A"), (1, "tab:orange", "B"), (2, "tab:cyan", "C"))
+    for ax in axs:
+        ax.imshow(img, cmap="gray", vmin=0, vmax=120)
+        for code, color, text in styles:
+            sel = (lab >= 0) & (lab // 1000 == code)
+            ax.scatter(
+                uv[sel, 0], uv[sel, 1], s=70, facecolors="none", edgecolors=color, label=text
+            )
+        g = lab < 0
+        ax.scatter(uv[g, 0], uv[g, 1], s=70, marker="s", facecolors="none", edgecolors="w",
+                   label="ghost (mirror, reflection)")  # fmt: skip
+    sel = (lab >= 0) & (lab // 1000 == np.bincount(lab[lab >= 0] // 1000).argmax())
+    cx, cy = uv[sel].mean(axis=0)
+    axs[1].set_xlim(cx - 45, cx + 45)
+    axs[1].set_ylim(cy + 35, cy - 35)
+    axs[0].set_title(f"camera {cam}, first frame ({img.shape[1]}x{img.shape[0]})")
+    axs[1].set_title("zoom: marker blobs, true centres circled")
+    axs[0].legend(loc="lower right", fontsize=7)
     fig.tight_layout()
     p = out_dir / "optical_frame.png"
-    fig.savefig(p, dpi=110)
+    fig.savefig(p, dpi=100)
     plt.close(fig)
     paths.append(p)
     # 2. position error of A with its 3-sigma band, and modes of all bodies

@@ -19,7 +19,7 @@ from scipy.special import chdtri
 
 from ..math import skew
 from .camera import CameraRig
-from .triangulation import refine_points, triangulate_linear
+from .triangulation import refine_points, triangulate_normalized
 
 __all__ = ["PointCandidates", "match_epipolar"]
 
@@ -90,7 +90,8 @@ def _line_distance(E: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
 
 
 def _gather(blobs: list[np.ndarray], tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (C, T, 2) and mask (C, T) of tracks (T, C) of blob indices."""
+    """Values (C, T, 2) (pixels or normalised coordinates) and mask (C, T) of tracks (T, C) of
+    blob indices."""
     C, T = tracks.shape[1], len(tracks)
     uv = np.full((C, T, 2), np.nan)
     for c in range(C):
@@ -157,8 +158,8 @@ def match_epipolar(
         return PointCandidates.empty(C)
     tracks = np.concatenate(pairs)
     # 2. triangulate each pair, keep those in front of both cameras, collect support
-    uv, mask = _gather(blobs, tracks)
-    X = triangulate_linear(rig, uv, mask)
+    xn, mask = _gather(norm, tracks)
+    X = triangulate_normalized(rig, xn, mask)
     proj = rig.project(X)  # (C, T, 2)
     front = np.all(np.isfinite(proj) | ~mask[..., None], axis=(0, 2)) & np.all(
         np.isfinite(X), axis=1
@@ -182,7 +183,8 @@ def match_epipolar(
     n_views = (tracks >= 0).sum(axis=1)
     # 3. refine and gate every distinct track
     uv, mask = _gather(blobs, tracks)
-    tri = refine_points(rig, triangulate_linear(rig, uv, mask), uv, mask, sigma_px, 2)
+    xn, _ = _gather(norm, tracks)
+    tri = refine_points(rig, triangulate_normalized(rig, xn, mask), uv, mask, sigma_px, 2)
     dof = np.maximum(2 * n_views - 3, 1)
     ok = tri.valid & (tri.chi2 <= chdtri(dof, 1.0 - gate_probability))
     order = np.lexsort((np.where(ok, tri.chi2 / dof, np.inf), -n_views))

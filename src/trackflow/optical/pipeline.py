@@ -66,7 +66,7 @@ class TrackerConfig:
         default_factory=lambda: MotionModel(n_dp=1, n_do=1, noise=(0.0, 4.0, 0.0, 20.0))
     )
     lost_after_s: float = 0.25
-    search_interval_s: float = 0.0
+    search_interval_s: float = 0.02
     max_prediction_sigma_m: float = 0.005
 
     def __post_init__(self):

@@ -76,14 +76,25 @@ def triangulate_linear(rig: CameraRig, uv, mask=None) -> np.ndarray:
         World points [m]; NaN where fewer than two views.
     """
     uv, mask = _check(rig, uv, mask)
+    xn = np.stack(
+        [
+            cam.normalize(np.where(mask[c, :, None], uv[c], cam.K[:2, 2]))
+            for c, cam in enumerate(rig)
+        ]
+    )
+    return triangulate_normalized(rig, xn, mask)
+
+
+def triangulate_normalized(rig: CameraRig, xn, mask) -> np.ndarray:
+    """:func:`triangulate_linear` on undistorted normalised coordinates ``xn`` (C, N, 2)
+    (``X_cam ~ (x, y, 1)``, :meth:`Camera.normalize`) with the observation mask (C, N)."""
     C, N = mask.shape
     A = np.zeros((N, 2 * C, 4))
     for c, cam in enumerate(rig):
-        xn = cam.normalize(np.where(mask[c, :, None], uv[c], cam.K[:2, 2]))
         Rt = np.hstack([cam.R_cam_world, cam.t_cam_world[:, None]])
-        m = mask[c][:, None] & np.all(np.isfinite(xn), axis=1)[:, None]
-        A[:, 2 * c] = np.where(m, xn[:, :1] * Rt[2] - Rt[0], 0.0)
-        A[:, 2 * c + 1] = np.where(m, xn[:, 1:] * Rt[2] - Rt[1], 0.0)
+        m = mask[c][:, None] & np.all(np.isfinite(xn[c]), axis=1)[:, None]
+        A[:, 2 * c] = np.where(m, xn[c, :, :1] * Rt[2] - Rt[0], 0.0)
+        A[:, 2 * c + 1] = np.where(m, xn[c, :, 1:] * Rt[2] - Rt[1], 0.0)
     X = np.full((N, 3), np.nan)
     ok = mask.sum(axis=0) >= 2
     if ok.any():
