@@ -275,3 +275,53 @@ def fit_pose_packed(m, x, W, w_init, iterations):
         t = t + d[:3]
         R = R @ _exp_so3(d[3:])
     return R, t, H, pc
+
+
+@numba.njit(cache=True, nogil=True)
+def quat_of_matrix(R):
+    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (Shepperd's method), ``w >= 0``."""
+    q = np.empty(4)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0.0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q[3] = 0.25 * s
+        q[0] = (R[2, 1] - R[1, 2]) / s
+        q[1] = (R[0, 2] - R[2, 0]) / s
+        q[2] = (R[1, 0] - R[0, 1]) / s
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q[3] = (R[2, 1] - R[1, 2]) / s
+        q[0] = 0.25 * s
+        q[1] = (R[0, 1] + R[1, 0]) / s
+        q[2] = (R[0, 2] + R[2, 0]) / s
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q[3] = (R[0, 2] - R[2, 0]) / s
+        q[0] = (R[0, 1] + R[1, 0]) / s
+        q[1] = 0.25 * s
+        q[2] = (R[1, 2] + R[2, 1]) / s
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q[3] = (R[1, 0] - R[0, 1]) / s
+        q[0] = (R[0, 2] + R[2, 0]) / s
+        q[1] = (R[1, 2] + R[2, 1]) / s
+        q[2] = 0.25 * s
+    if q[3] < 0.0:
+        q = -q
+    return q / np.sqrt(q @ q)
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_pose_cov(m, x, C, iterations):
+    """:func:`fit_pose_packed` from point covariances ``C`` (M, 3, 3): returns ``t`` (3,),
+    ``q`` (4,), the 6x6 covariance and ``point_chi2`` (M,)."""
+    M = m.shape[0]
+    W = np.empty((M, 3, 3))
+    w = np.empty(M)
+    for i in range(M):
+        W[i] = np.linalg.inv(C[i])
+        w[i] = 1.0 / (C[i, 0, 0] + C[i, 1, 1] + C[i, 2, 2])
+    R, t, H, pc = fit_pose_packed(m, x, W, w, iterations)
+    cov = np.linalg.inv(H)
+    cov = 0.5 * (cov + cov.T)
+    return t, quat_of_matrix(R), cov, pc

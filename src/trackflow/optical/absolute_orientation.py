@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..math import Pose, UncertainPose, quat_from_matrix
-from ._kernels import fit_pose_packed
+from ..math import Pose, UncertainPose
+from ._kernels import fit_pose_cov
 
 __all__ = ["PoseFit", "fit_pose", "umeyama"]
 
@@ -104,18 +104,15 @@ def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
         )
     if not (np.all(np.isfinite(m)) and np.all(np.isfinite(x)) and np.all(np.isfinite(C))):
         raise ValueError("model, measured points and covariances must be finite")
-    try:
-        W = np.linalg.inv(C)  # (M, 3, 3) information
-    except np.linalg.LinAlgError as e:
-        raise ValueError("a point covariance is singular") from e
     if len(m) < 3:
         raise ValueError(f"need at least 3 points, got {len(m)}")
     sv = np.linalg.svd(m - m.mean(axis=0), compute_uv=False)
     if sv[1] <= 1e-9 * sv[0]:
         raise ValueError("the points are collinear: the rotation about their line is unknown")
-    wts = 1.0 / np.trace(C, axis1=1, axis2=2)
-    R, t, H, point_chi2 = fit_pose_packed(m, x, np.ascontiguousarray(W), wts, int(iterations))
-    cov = np.linalg.inv(H)
-    cov = 0.5 * (cov + cov.T)
-    pose = UncertainPose(Pose(t, quat_from_matrix(R), normalize=True), cov)
+    if np.any(np.linalg.eigvalsh(C)[:, 0] <= 0):
+        raise ValueError("a point covariance is not positive definite")
+    t, q, cov, point_chi2 = fit_pose_cov(
+        np.ascontiguousarray(m), np.ascontiguousarray(x), np.ascontiguousarray(C), int(iterations)
+    )
+    pose = UncertainPose(Pose(t, q, normalize=True), cov)
     return PoseFit(pose, float(point_chi2.sum()), point_chi2)

@@ -27,9 +27,8 @@ import numpy as np
 from scipy.special import chdtri
 
 from ..filters import MotionModel, PoseKalmanFilter
-from ..math import UncertainPose, skew
-from ._kernels import guided_assign, pack_cameras, refine_points_packed
-from .absolute_orientation import fit_pose
+from ..math import Pose, UncertainPose, skew
+from ._kernels import fit_pose_cov, guided_assign, pack_cameras, refine_points_packed
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
@@ -266,17 +265,23 @@ class OpticalTracker:
         for _ in range(len(m)):
             if ok.sum() < c.min_markers_tracked:
                 return None
-            fit = fit_pose(m.points[ok], X[ok], C[ok])
-            worst = int(np.argmax(fit.point_chi2))
-            if fit.point_chi2[worst] <= self._gate3:
+            try:
+                t, q, cov, pc = fit_pose_cov(m.points[ok], X[ok], C[ok], 2)
+            except np.linalg.LinAlgError:  # degenerate (e.g. three nearly collinear markers)
+                return None
+            worst = int(np.argmax(pc))
+            if pc[worst] <= self._gate3:
                 break
             ok[np.flatnonzero(ok)[worst]] = False
         else:
             return None
-        if pred is not None and pose_nis(pred, fit.pose) > self._gate6:
+        if not (np.all(np.isfinite(cov)) and np.linalg.eigvalsh(cov)[0] > 0):
+            return None
+        pose = UncertainPose(Pose(t, q, normalize=True), cov)
+        if pred is not None and pose_nis(pred, pose) > self._gate6:
             self.stats["rejected_prediction"] += 1
             return None
-        return fit.pose, ok
+        return pose, ok
 
     # -- search -----------------------------------------------------------------------------
     def _search(self, t, models, preds, blobs, used, results) -> None:
