@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import ndimage
 
 from trackflow.optical.blobs import detect_blobs
@@ -75,3 +77,20 @@ def test_bad_images_and_thresholds():
     with pytest.raises(ValueError, match="overexposed"):
         detect_blobs(np.tile(np.array([255, 0], np.uint8), (50, 50)), 10, max_runs=100)
     assert len(detect_blobs(img, 10)) == 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    thr=st.integers(1, 255),
+    width=st.sampled_from([16, 32, 48, 20]),
+    seed=st.integers(0, 2**31),
+)
+def test_word_prefilter_finds_every_bright_pixel(thr, width, seed):
+    """The 8-pixels-at-a-time pre-filter (widths that are multiples of 16) gives the same
+    blobs as the generic path for every threshold."""
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 256, (9, width)).astype(np.uint8)
+    a = detect_blobs(img, thr)
+    b = detect_blobs(img.astype(np.uint16), thr)  # generic path
+    np.testing.assert_array_equal(np.sort(a.area), np.sort(b.area))
+    np.testing.assert_allclose(np.sort(a.flux), np.sort(b.flux))

@@ -72,18 +72,51 @@ def _bright_chunks(img, thr):
     return out
 
 
+_LOW7 = np.uint64(0x7F7F7F7F7F7F7F7F)
+_HIGH = np.uint64(0x8080808080808080)
+_ONES = np.uint64(0x0101010101010101)
+
+
 @numba.njit(cache=True, nogil=True)
-def _runs_and_moments(img, thr, bg, max_runs):
+def _bright_chunks_u8(words, thr):
+    """:func:`_bright_chunks` for 8-bit images read as 64-bit words (8 pixels at a time, two
+    words per chunk): a byte ``b >= thr`` sets its high bit in ``(b & 0x7f) + (128 - thr)``
+    (no carry between bytes) or has it set already (``thr <= 128``); for ``thr > 128`` the
+    byte's own high bit and ``(b & 0x7f) + (256 - thr)`` must both have it."""
+    H, n = words.shape[0], words.shape[1] // 2
+    out = np.zeros((H, n), np.bool_)
+    if thr <= 128:
+        add = np.uint64(128 - thr) * _ONES
+        for y in range(H):
+            for k in range(n):
+                a = words[y, 2 * k]
+                b = words[y, 2 * k + 1]
+                t = (((a & _LOW7) + add) | a) | (((b & _LOW7) + add) | b)
+                out[y, k] = (t & _HIGH) != 0
+    else:
+        add = np.uint64(256 - thr) * _ONES
+        for y in range(H):
+            for k in range(n):
+                a = words[y, 2 * k]
+                b = words[y, 2 * k + 1]
+                t = (((a & _LOW7) + add) & a) | (((b & _LOW7) + add) & b)
+                out[y, k] = (t & _HIGH) != 0
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _runs_and_moments(img, flags, thr, bg, max_runs):
     H, W = img.shape
-    flags = _bright_chunks(img, thr)
-    r_row = np.empty(max_runs, np.int32)
-    r_start = np.empty(max_runs, np.int32)
-    r_end = np.empty(max_runs, np.int32)  # inclusive
-    parent = np.empty(max_runs, np.int64)
-    s0 = np.zeros(max_runs)
-    sx = np.zeros(max_runs)
-    sy = np.zeros(max_runs)
-    cnt = np.zeros(max_runs, np.int64)
+    # a run starts in a flagged chunk, at most 8 per 16 pixels: allocate only that much
+    cap = min(max_runs, 8 * int(flags.sum()) + 1)
+    r_row = np.empty(cap, np.int32)
+    r_start = np.empty(cap, np.int32)
+    r_end = np.empty(cap, np.int32)  # inclusive
+    parent = np.empty(cap, np.int64)
+    s0 = np.empty(cap)
+    sx = np.empty(cap)
+    sy = np.empty(cap)
+    cnt = np.empty(cap, np.int64)
     n = 0
     prev_lo = 0  # runs of the previous row: [prev_lo, prev_hi)
     prev_hi = 0
@@ -103,7 +136,7 @@ def _runs_and_moments(img, thr, bg, max_runs):
                     a += w
                     ax += w * x
                     x += 1
-                if n == max_runs:
+                if n == cap:
                     return -1, r_row, parent, s0, sx, sy, cnt
                 r_row[n] = y
                 r_start[n] = x0
@@ -198,10 +231,14 @@ def detect_blobs(
         raise ValueError(f"threshold {threshold} is outside the range of {img.dtype} images")
     if not img.flags.c_contiguous:
         img = np.ascontiguousarray(img)
+    thr = img.dtype.type(np.ceil(threshold)) if img.dtype.kind in "ui" else threshold
+    if img.dtype == np.uint8 and img.shape[1] % _CHUNK == 0:
+        flags = _bright_chunks_u8(img.view(np.uint64), int(thr))
+    else:
+        flags = _bright_chunks(img, thr)
     n, _, parent, s0, sx, sy, cnt = _runs_and_moments(
-        img, img.dtype.type(np.ceil(threshold)) if img.dtype.kind in "ui" else threshold,
-        float(background), int(max_runs),
-    )  # fmt: skip
+        img, flags, thr, float(background), int(max_runs)
+    )
     if n < 0:
         raise ValueError(f"more than {max_runs} runs of bright pixels: overexposed image?")
     a, ax, ay, c = _components(n, parent, s0, sx, sy, cnt)
