@@ -3,6 +3,7 @@ identities of similar bodies, recovery after a full occlusion, the dataflow sens
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -74,16 +75,21 @@ def test_recovers_after_a_full_occlusion(shared_data):
             assert np.linalg.norm(b.pose.position - fr.poses["A"].position) < 0.005
 
 
-def test_optical_sensor_in_a_dataflow_network(shared_data, tmp_path):
+def _example(shared_data, tmp_path, seconds=0.25) -> Path:
+    """examples/optical.yaml with absolute paths and a short duration."""
     doc = yaml.safe_load((ROOT / "examples" / "optical.yaml").read_text())
     for tc in doc["render"]["trajectories"].values():
         tc["recording"] = str(shared_data / Path(tc["recording"]).relative_to("../../shared/data"))
-    doc["render"]["duration_s"] = 0.25
+    doc["render"]["duration_s"] = seconds
     doc["setup"] = str(ROOT / "examples" / "optical_setup.yaml")
     doc["calibration"] = str(ROOT / "examples" / "optical_cameras.yml")
     p = tmp_path / "optical.yaml"
     p.write_text(yaml.safe_dump(doc))
-    opt = load_optical_setup(p)
+    return p
+
+
+def test_optical_sensor_in_a_dataflow_network(shared_data, tmp_path):
+    opt = load_optical_setup(_example(shared_data, tmp_path))
     sources = opt.sources()
     assert all(isinstance(s, OpticalBodySensor) for s in sources.values())
     net, sink = opt.setup.plan().build(sources)
@@ -128,3 +134,16 @@ def test_bad_input(shared_data, tmp_path):
         with pytest.raises(ValueError, match=match) as e:
             load_optical_setup(p)
         assert str(p) in str(e.value)
+
+
+def test_command_line_answers_the_query_and_records(shared_data, tmp_path, capsys):
+    from trackflow.cli.main import main
+    from trackflow.io import read_stream
+
+    out = tmp_path / "wand_in_tool.tfrec"
+    assert main(["optical", str(_example(shared_data, tmp_path, 0.2)), "--out", str(out)]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["query"] == "wand_in_tool" and d["frames"] == 25 and d["results"] > 0
+    assert set(d["sensors"]) == {"tracker_wand", "tracker_tool"}
+    stream, _ = read_stream(out)
+    assert len(stream.t_ns) == d["results"] and stream.covariance is not None
