@@ -42,20 +42,23 @@ def three_body_scene(
     seed: int = 0,
     settings: RenderSettings | None = None,
     occluder: bool = True,
+    extent=(0.2, 0.16, 0.08),
+    min_separation: float = 0.045,
 ) -> tuple[CameraRig, list[MarkerModel], FrameRenderer]:
     """Rig, models ``A``, ``B`` (``A`` with two markers moved by 2 cm) and ``C``, and a
     renderer of their frames (times in seconds of the recordings).
+
+    The markers lie on an ellipsoid of semi-axes ``extent`` [m], ``min_separation`` apart (the
+    defaults keep the images of 20 markers seen from 3 m mostly apart; denser layouts merge
+    many blobs).
 
     ``settings`` default: :class:`RenderSettings` (0.1 px jitter, mirror, reflections) plus,
     with ``occluder``, a person walking around the volume.
     """
     rng = np.random.default_rng(seed)
-    a = random_model("A", n_markers, rng)
-    models = [
-        a,
-        similar_model(a, "B", rng, n_moved=2, shift=0.02),
-        random_model("C", n_markers, rng),
-    ]
+    a = random_model("A", n_markers, rng, extent, min_separation)
+    b = similar_model(a, "B", rng, n_moved=2, shift=0.02)
+    models = [a, b, random_model("C", n_markers, rng, extent, min_separation)]
     trajs = {}
     for m, rec, c in zip(models, RECORDINGS, CENTERS):
         stream, _ = read_stream(Path(data) / rec)
