@@ -65,7 +65,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--frames", type=int, default=264)
-    ap.add_argument("--sigma-px", type=float, default=0.105, help="tracker's centroid noise")
+    ap.add_argument("--sigma-px", type=float, default=0.104, help="tracker's centroid noise")
     args = ap.parse_args()
     data = shared_data_dir()
     if not (data / "README.md").is_file():

@@ -155,7 +155,8 @@ class OpticalTracker:
             "rejected_prediction": 0,
             "searches": 0,
         }
-        self._res = [0.0, 0]  # sum of chi2 at sigma_px, degrees of freedom
+        self._res = [0.0, 0]  # triangulation chi2 at sigma_px, degrees of freedom
+        self._fit_res = [0.0, 0]  # absolute-orientation chi2, degrees of freedom
         self._last_search: float | None = None
 
     # -- public -----------------------------------------------------------------------------
@@ -205,10 +206,18 @@ class OpticalTracker:
                 results[m.name] = BodyResult(None, filt, "lost")
         return FrameResult(float(t), results, int(sum(len(b) for b in blobs)))
 
-    def pixel_sigma_estimate(self) -> float:
-        """Centroid noise [px] implied by the reprojection residuals seen so far: ``sigma_px *
-        sqrt(sum chi2 / sum dof)`` over every triangulated marker (NaN before any)."""
-        chi, dof = self._res
+    def pixel_sigma_estimate(self, level: str = "points") -> float:
+        """Centroid noise [px] implied by the residuals of the tracked markers seen so far
+        (NaN before any): ``sigma_px * sqrt(sum chi2 / sum dof)``.
+
+        ``level="points"``: the reprojection residuals of the triangulated markers (2 n - 3
+        degrees of freedom each). ``level="poses"``: the residuals of the triangulated markers
+        about the fitted rigid model (3 M - 6 per pose), which checks the point covariances
+        that the pose covariance is made from.
+        """
+        if level not in ("points", "poses"):
+            raise ValueError(f"level must be 'points' or 'poses', got {level!r}")
+        chi, dof = self._res if level == "points" else self._fit_res
         return float(self.config.sigma_px * np.sqrt(chi / dof)) if dof else float("nan")
 
     # -- guided --------------------------------------------------------------------------
@@ -248,6 +257,8 @@ class OpticalTracker:
             if res is None:
                 continue
             pose, ok = res
+            self._fit_res[0] += self._fit_last[0]
+            self._fit_res[1] += self._fit_last[1]
             q_used = np.flatnonzero(ok) + sl.start
             self._res[0] += float(chi2[q_used].sum())
             self._res[1] += int(dof[q_used].sum())
@@ -277,6 +288,7 @@ class OpticalTracker:
             return None
         if not (np.all(np.isfinite(cov)) and np.linalg.eigvalsh(cov)[0] > 0):
             return None
+        self._fit_last = (float(pc.sum()), 3 * int(ok.sum()) - 6)
         pose = UncertainPose(Pose(t, q, normalize=True), cov)
         if pred is not None and pose_nis(pred, pose) > self._gate6:
             self.stats["rejected_prediction"] += 1
