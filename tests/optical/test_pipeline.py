@@ -39,8 +39,9 @@ def _track(r, n, sigma, t0=5.0, rate=120.0):
 @pytest.mark.slow
 def test_tracks_three_bodies_consistently_without_swaps(shared_data):
     cal, _ = _track(renderer(shared_data, seed=5), 30, 0.12)
-    sigma = cal.pixel_sigma_estimate()
+    sigma = cal.pixel_sigma_estimate("poses")
     assert 0.08 < sigma < 0.14  # 0.1 px jitter plus the centroid's own error
+    assert abs(cal.pixel_sigma_estimate("points") / sigma - 1) < 0.1
     trk, frames = _track(renderer(shared_data, seed=1), 90, sigma)
     nees, measured = [], 0
     for fr, res in frames:
@@ -118,6 +119,9 @@ def test_bad_input(shared_data, tmp_path):
         TrackerConfig(sigma_px=0.0)
     with pytest.raises(ValueError, match="unique names"):
         OpticalTracker(r.rig, r.models + r.models[:1])
+    with pytest.raises(ValueError, match="level"):
+        trk.pixel_sigma_estimate("frames")
+    assert np.isnan(trk.pixel_sigma_estimate())  # nothing measured yet
     res = trk.process_blobs(0.0, [np.zeros((0, 2))] * 4)  # nothing seen: all lost, no crash
     assert all(b.mode == "lost" and b.pose is None for b in res.bodies.values())
     base = yaml.safe_load((ROOT / "examples" / "optical.yaml").read_text())
