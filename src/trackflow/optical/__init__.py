@@ -11,19 +11,57 @@ Conventions: ``docs/conventions.md``; the tracker: ``docs/optical.md``.
 """
 
 from .absolute_orientation import PoseFit, fit_pose, umeyama
+from .blobs import Blobs, detect_blobs
 from .calibration import CalibrationFileError, read_opencv_calibration, write_opencv_calibration
 from .camera import Camera, CameraRig, ring_rig
+from .correspondence import PointCandidates, match_epipolar
+from .matching import BodyMatch, identify, pose_nis
+from .models import MarkerModel, model_separation, random_model, similar_model
+from .pipeline import BodyResult, FrameResult, OpticalTracker, TrackerConfig
+from .render import Cylinder, Frame, FrameRenderer, RenderSettings, trajectory_from_stream
+from .source import (
+    OpticalBodySensor,
+    OpticalRun,
+    OpticalSetup,
+    RenderedFrames,
+    load_optical_setup,
+)
 from .triangulation import Triangulation, triangulate, triangulate_linear
 
 __all__ = [
+    "Blobs",
+    "BodyMatch",
+    "BodyResult",
     "CalibrationFileError",
     "Camera",
     "CameraRig",
+    "Cylinder",
+    "Frame",
+    "FrameRenderer",
+    "FrameResult",
+    "MarkerModel",
+    "OpticalBodySensor",
+    "OpticalRun",
+    "OpticalSetup",
+    "OpticalTracker",
+    "PointCandidates",
     "PoseFit",
+    "RenderSettings",
+    "RenderedFrames",
+    "TrackerConfig",
     "Triangulation",
+    "detect_blobs",
     "fit_pose",
+    "identify",
+    "load_optical_setup",
+    "match_epipolar",
+    "model_separation",
+    "pose_nis",
+    "random_model",
     "read_opencv_calibration",
     "ring_rig",
+    "similar_model",
+    "trajectory_from_stream",
     "triangulate",
     "triangulate_linear",
     "umeyama",
