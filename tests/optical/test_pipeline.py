@@ -124,6 +124,10 @@ def test_bad_input(shared_data, tmp_path):
     assert np.isnan(trk.pixel_sigma_estimate())  # nothing measured yet
     res = trk.process_blobs(0.0, [np.zeros((0, 2))] * 4)  # nothing seen: all lost, no crash
     assert all(b.mode == "lost" and b.pose is None for b in res.bodies.values())
+    with pytest.raises(ValueError, match="not after the previous frame"):
+        trk.process_blobs(0.0, [np.zeros((0, 2))] * 4)
+    res = trk.process_blobs(0.01, [np.full((3, 2), np.nan)] + [np.zeros((0, 2))] * 3)
+    assert trk.stats["rejected_blobs"] == 3 and res.n_blobs == 0
     base = yaml.safe_load((ROOT / "examples" / "optical.yaml").read_text())
     base["setup"] = str(ROOT / "examples" / "optical_setup.yaml")
     base["calibration"] = str(ROOT / "examples" / "optical_cameras.yml")

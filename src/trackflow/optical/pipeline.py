@@ -88,7 +88,8 @@ class BodyResult:
     pose : UncertainPose or None
         Measured ``T_world_body`` with its 6x6 covariance (``None``: not measured).
     filtered : UncertainPose or None
-        The filter's estimate after this frame (``None`` while never measured).
+        The filter's estimate after this frame; for a lost body its prediction (``None`` while
+        never measured).
     mode : str
         ``"tracked"`` (guided by the prediction), ``"found"`` (searched) or ``"lost"``.
     n_markers : int
@@ -154,7 +155,9 @@ class OpticalTracker:
             "lost": 0,
             "rejected_prediction": 0,
             "searches": 0,
+            "rejected_blobs": 0,
         }
+        self._last_t: float | None = None
         self._res = [0.0, 0]  # triangulation chi2 at sigma_px, degrees of freedom
         self._fit_res = [0.0, 0]  # absolute-orientation chi2, degrees of freedom
         self._last_search: float | None = None
@@ -175,7 +178,15 @@ class OpticalTracker:
         """Track one frame given the blob centroids (K_c, 2) [px] of every camera."""
         if len(blobs) != len(self.rig):
             raise ValueError(f"need blobs of {len(self.rig)} cameras, got {len(blobs)}")
+        if not np.isfinite(t) or (self._last_t is not None and t <= self._last_t):
+            raise ValueError(f"frame time {t} is not after the previous frame ({self._last_t})")
+        self._last_t = float(t)
         blobs = [np.asarray(b, dtype=float).reshape(-1, 2) for b in blobs]
+        finite = [np.all(np.isfinite(b), axis=1) for b in blobs]
+        bad = int(sum((~f).sum() for f in finite))
+        if bad:
+            self.stats["rejected_blobs"] += bad  # non-finite centroids: counted, not used
+            blobs = [b[f] for b, f in zip(blobs, finite)]
         self.stats["frames"] += 1
         used = [np.zeros(len(b), bool) for b in blobs]
         results: dict[str, BodyResult] = {}
@@ -201,9 +212,7 @@ class OpticalTracker:
         for m in self.models:
             if m.name not in results:
                 self.stats["lost"] += 1
-                tr = self.tracks[m.name]
-                filt = preds.get(m.name)
-                results[m.name] = BodyResult(None, filt, "lost")
+                results[m.name] = BodyResult(None, preds.get(m.name), "lost")
         return FrameResult(float(t), results, int(sum(len(b) for b in blobs)))
 
     def pixel_sigma_estimate(self, level: str = "points") -> float:
