@@ -157,3 +157,39 @@ def test_command_line_answers_the_query_and_records(shared_data, tmp_path, capsy
     assert set(d["sensors"]) == {"tracker_wand", "tracker_tool"}
     stream, _ = read_stream(out)
     assert len(stream.t_ns) == d["results"] and stream.covariance is not None
+
+
+def test_merged_blobs_are_not_used_while_tracking(shared_data):
+    """A blob far larger than its body's other blobs in that image (two merged markers) is
+    not assigned: the marker whose blobs are declared merged in every camera drops out."""
+    import copy
+
+    from trackflow.optical.blobs import detect_blobs
+
+    r = renderer(shared_data, seed=3)
+    trk = OpticalTracker(r.rig, r.models, TrackerConfig(sigma_px=0.105))
+    for i in range(6):
+        fr = r.render(5.0 + i / 120)
+        trk.process(fr.t, fr.images)
+    fr = r.render(5.0 + 6 / 120)
+    bl = [detect_blobs(im, 20, 6) for im in fr.images]
+    # the A marker seen by most cameras, and its blob in each of them
+    seen = {}
+    for c, b in enumerate(bl):
+        lab, uvt = fr.blob_label[c], fr.blob_uv[c]
+        for k in np.flatnonzero((lab >= 0) & (lab < 1000)):
+            d = np.linalg.norm(b.uv - uvt[k], axis=1)
+            if d.min() < 0.3:
+                seen.setdefault(lab[k], []).append((c, int(d.argmin())))
+    marker = max(seen, key=lambda m: len(seen[m]))
+    assert len(seen[marker]) >= 2
+    areas = [b.area.astype(float) for b in bl]
+    merged = [a.copy() for a in areas]
+    for c, k in seen[marker]:
+        merged[c][k] *= 10
+    normal = copy.deepcopy(trk).process_blobs(fr.t, [b.uv for b in bl], areas)
+    flagged = trk.process_blobs(fr.t, [b.uv for b in bl], merged)
+    assert normal.bodies["A"].mode == flagged.bodies["A"].mode == "tracked"
+    assert flagged.bodies["A"].n_markers == normal.bodies["A"].n_markers - 1
+    with pytest.raises(ValueError, match="one value per blob"):
+        trk.process_blobs(fr.t + 0.01, [b.uv for b in bl], areas[:2])

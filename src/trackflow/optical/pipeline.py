@@ -66,6 +66,7 @@ class TrackerConfig:
     )
     lost_after_s: float = 0.25
     search_interval_s: float = 0.02
+    merged_area_ratio: float = 1.6
     max_prediction_sigma_m: float = 0.005
 
     def __post_init__(self):
@@ -169,24 +170,35 @@ class OpticalTracker:
             raise ValueError(f"need {len(self.rig)} images (one per camera), got {len(images)}")
         c = self.config
         blobs = [
-            detect_blobs(img, c.threshold, c.background, c.min_area, c.max_area).uv
-            for img in images
+            detect_blobs(img, c.threshold, c.background, c.min_area, c.max_area) for img in images
         ]
-        return self.process_blobs(t, blobs)
+        return self.process_blobs(t, [b.uv for b in blobs], [b.area for b in blobs])
 
-    def process_blobs(self, t: float, blobs: Sequence[np.ndarray]) -> FrameResult:
-        """Track one frame given the blob centroids (K_c, 2) [px] of every camera."""
+    def process_blobs(
+        self, t: float, blobs: Sequence[np.ndarray], areas: Sequence[np.ndarray] | None = None
+    ) -> FrameResult:
+        """Track one frame given the blob centroids (K_c, 2) [px] of every camera, and
+        optionally their areas (K_c,) [px]: a tracked marker's blob more than
+        ``merged_area_ratio`` times the median area of its body's blobs in that image is taken
+        for two merged markers and not used."""
         if len(blobs) != len(self.rig):
             raise ValueError(f"need blobs of {len(self.rig)} cameras, got {len(blobs)}")
         if not np.isfinite(t) or (self._last_t is not None and t <= self._last_t):
             raise ValueError(f"frame time {t} is not after the previous frame ({self._last_t})")
         self._last_t = float(t)
         blobs = [np.asarray(b, dtype=float).reshape(-1, 2) for b in blobs]
+        if areas is None:
+            areas = [np.ones(len(b)) for b in blobs]
+        areas = [np.asarray(a, dtype=float).reshape(-1) for a in areas]
+        if len(areas) != len(blobs) or any(len(a) != len(b) for a, b in zip(areas, blobs)):
+            raise ValueError("areas must give one value per blob of every camera")
         finite = [np.all(np.isfinite(b), axis=1) for b in blobs]
         bad = int(sum((~f).sum() for f in finite))
         if bad:
             self.stats["rejected_blobs"] += bad  # non-finite centroids: counted, not used
             blobs = [b[f] for b, f in zip(blobs, finite)]
+            areas = [a[f] for a, f in zip(areas, finite)]
+        self._areas = np.concatenate(areas) if areas else np.zeros(0)
         self.stats["frames"] += 1
         used = [np.zeros(len(b), bool) for b in blobs]
         results: dict[str, BodyResult] = {}
@@ -252,6 +264,7 @@ class OpticalTracker:
         P, R, tt = self._packed
         s2 = c.sigma_px**2
         uv_obs, claim = guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
+        self._drop_merged(models, uv_obs, claim, start)
         Xr, cov, chi2, n_views = refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
         dof = 2 * n_views - 3
         with np.errstate(invalid="ignore"):
@@ -277,6 +290,27 @@ class OpticalTracker:
             for ci in range(len(self.rig)):
                 used[ci] |= hit[start[ci] : start[ci + 1]]
             self._update(m, t, pose, "tracked", int(ok.sum()), results)
+
+    def _drop_merged(self, models, uv_obs, claim, start) -> None:
+        """Unassign blobs much larger than the median blob of their body in their image."""
+        ratio = self.config.merged_area_ratio
+        if not ratio or not len(claim):
+            return
+        owner = np.repeat(np.arange(len(models)), [len(m) for m in models])
+        for ci in range(len(start) - 1):
+            k = np.arange(start[ci], start[ci + 1])
+            k = k[claim[k] >= 0]
+            if len(k) < 3:
+                continue
+            body = owner[claim[k]]
+            for b in np.unique(body):
+                kb = k[body == b]
+                if len(kb) < 3:
+                    continue
+                a = self._areas[kb]
+                big = a > ratio * np.median(a)
+                uv_obs[ci, claim[kb[big]]] = np.nan
+                claim[kb[big]] = -1
 
     def _pose_from_markers(self, m, X, C, ok, pred):
         """Robust absolute orientation on labelled markers; ``None`` if too few or the pose
