@@ -325,3 +325,31 @@ def fit_pose_cov(m, x, C, iterations):
     cov = np.linalg.inv(H)
     cov = 0.5 * (cov + cov.T)
     return t, quat_of_matrix(R), cov, pc
+
+
+@numba.njit(cache=True, nogil=True)
+def drop_merged(uv, claim, owner, n_bodies, areas, start, ratio):
+    """Unassign (in place) every claimed blob whose area exceeds ``ratio`` times the median
+    area of the blobs claimed by the same body in the same image (at least 3 of them).
+
+    ``owner`` (Q,) is the body of each predicted marker, ``claim`` (K,) the marker of each
+    blob (-1: none), ``uv`` (C, Q, 2) the assignment made by :func:`guided_assign`.
+    """
+    C = len(start) - 1
+    buf = np.empty(claim.shape[0])
+    for c in range(C):
+        for b in range(n_bodies):
+            n = 0
+            for k in range(start[c], start[c + 1]):
+                if claim[k] >= 0 and owner[claim[k]] == b:
+                    buf[n] = areas[k]
+                    n += 1
+            if n < 3:
+                continue
+            med = np.median(buf[:n])
+            for k in range(start[c], start[c + 1]):
+                q = claim[k]
+                if q >= 0 and owner[q] == b and areas[k] > ratio * med:
+                    uv[c, q, 0] = np.nan
+                    uv[c, q, 1] = np.nan
+                    claim[k] = -1

@@ -28,7 +28,13 @@ from scipy.special import chdtri
 
 from ..filters import MotionModel, PoseKalmanFilter
 from ..math import Pose, UncertainPose, skew
-from ._kernels import fit_pose_cov, guided_assign, pack_cameras, refine_points_packed
+from ._kernels import (
+    drop_merged,
+    fit_pose_cov,
+    guided_assign,
+    pack_cameras,
+    refine_points_packed,
+)
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
@@ -264,7 +270,9 @@ class OpticalTracker:
         P, R, tt = self._packed
         s2 = c.sigma_px**2
         uv_obs, claim = guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
-        self._drop_merged(models, uv_obs, claim, start)
+        if c.merged_area_ratio:
+            owner = np.repeat(np.arange(len(models)), [len(m) for m in models])
+            drop_merged(uv_obs, claim, owner, len(models), self._areas, start, c.merged_area_ratio)
         Xr, cov, chi2, n_views = refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
         dof = 2 * n_views - 3
         with np.errstate(invalid="ignore"):
@@ -290,27 +298,6 @@ class OpticalTracker:
             for ci in range(len(self.rig)):
                 used[ci] |= hit[start[ci] : start[ci + 1]]
             self._update(m, t, pose, "tracked", int(ok.sum()), results)
-
-    def _drop_merged(self, models, uv_obs, claim, start) -> None:
-        """Unassign blobs much larger than the median blob of their body in their image."""
-        ratio = self.config.merged_area_ratio
-        if not ratio or not len(claim):
-            return
-        owner = np.repeat(np.arange(len(models)), [len(m) for m in models])
-        for ci in range(len(start) - 1):
-            k = np.arange(start[ci], start[ci + 1])
-            k = k[claim[k] >= 0]
-            if len(k) < 3:
-                continue
-            body = owner[claim[k]]
-            for b in np.unique(body):
-                kb = k[body == b]
-                if len(kb) < 3:
-                    continue
-                a = self._areas[kb]
-                big = a > ratio * np.median(a)
-                uv_obs[ci, claim[kb[big]]] = np.nan
-                claim[kb[big]] = -1
 
     def _pose_from_markers(self, m, X, C, ok, pred):
         """Robust absolute orientation on labelled markers; ``None`` if too few or the pose
