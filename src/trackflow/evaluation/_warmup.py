@@ -14,10 +14,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..filters import TwistARModel
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, get_backend, quat_exp
 from ._model_file import filter_stream
 from ._ops import infer_streams
+from ._predictor import TwistARPredictor
 from ._trajectory import Trajectory
 from ._tuning import evaluate_recording
 
@@ -47,7 +49,11 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     steps = []
 
     say("tuning and scoring (evaluate, tune, plot)")
-    report = evaluate_recording(Trajectory.check(t, pos, quat), ar_orders=(3,))
+    recording = Trajectory.check(t, pos, quat)
+    report = evaluate_recording(recording, ar_orders=(3,))
+    # the learned model's filter, whether or not the tuning above chose it
+    model = TwistARModel.fit(t, pos, quat, order=3)
+    TwistARPredictor(model, 3e-4, 1e-3).predict(recording, np.array([0.05, 0.1]))
     steps.append("evaluate")
 
     say("filtering with covariances and predictions (filter)")

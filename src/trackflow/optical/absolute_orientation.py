@@ -1,0 +1,118 @@
+"""Absolute orientation: the pose of a rigid body from measured points of its markers.
+
+Closed form first (Umeyama / Arun / Horn: the weighted cross-covariance's SVD, no scale), then
+Gauss-Newton with each point's full 3x3 covariance, which makes the estimate the
+best linear unbiased one and gives its 6x6 covariance in trackflow's convention
+(``docs/conventions.md``): error ``(dt, dtheta)`` with ``t_true = t + dt`` (world frame, m)
+and ``R_true = R Exp(dtheta)`` (body frame, rad).
+
+A measured point ``x_i`` of model point ``m_i`` is ``x_i = R m_i + t + n_i`` with
+``n_i ~ N(0, C_i)``; the residual's Jacobian with respect to the pose error is
+``J_i = [I, -R [m_i]x]`` and the covariance is ``(sum_i J_i^T C_i^-1 J_i)^-1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..math import Pose, UncertainPose
+from ._kernels import fit_pose_cov
+
+__all__ = ["PoseFit", "fit_pose", "umeyama"]
+
+
+def umeyama(model, measured, weights=None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form rigid fit ``measured ~ R model + t`` (no scale).
+
+    Parameters
+    ----------
+    model, measured : array_like (M, 3)
+        Corresponding points, ``M >= 3`` not collinear.
+    weights : array_like (M,), optional
+        Non-negative weights (default equal).
+
+    Returns
+    -------
+    R : ndarray (3, 3)
+        Proper rotation (det = +1).
+    t : ndarray (3,)
+    """
+    a = np.asarray(model, dtype=float)
+    b = np.asarray(measured, dtype=float)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or len(a) < 3:
+        raise ValueError(f"need two (M, 3) point sets with M >= 3, got {a.shape} and {b.shape}")
+    w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (len(a),) or np.any(w < 0) or not w.sum() > 0:
+        raise ValueError("weights must be (M,) non-negative with a positive sum")
+    w = w / w.sum()
+    ca, cb = w @ a, w @ b
+    S = ((b - cb) * w[:, None]).T @ (a - ca)  # cross-covariance
+    U, sv, Vt = np.linalg.svd(S)
+    if sv[1] < 1e-12 * max(sv[0], 1e-300):
+        raise ValueError("the points are collinear: the rotation about their line is unknown")
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    return R, cb - R @ ca
+
+
+@dataclass
+class PoseFit:
+    """Result of :func:`fit_pose`.
+
+    Attributes
+    ----------
+    pose : UncertainPose
+        ``T_world_body`` with its 6x6 covariance over ``(dt, dtheta)``.
+    chi2 : float
+        ``sum_i r_i^T C_i^-1 r_i`` (chi-square with ``3 M - 6`` degrees of freedom).
+    point_chi2 : ndarray (M,)
+        Each point's Mahalanobis residual.
+    """
+
+    pose: UncertainPose
+    chi2: float
+    point_chi2: np.ndarray
+
+
+def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
+    """Pose ``T_world_body`` of a rigid body and its covariance from measured marker points.
+
+    Parameters
+    ----------
+    model : array_like (M, 3)
+        Marker positions in the body frame [m].
+    measured : array_like (M, 3)
+        The same markers measured in the world frame [m].
+    covariance : array_like (M, 3, 3)
+        Covariance of each measured point [m^2] (independent points).
+    iterations : int
+        Gauss-Newton steps after the closed form (one is enough to first order).
+
+    Returns
+    -------
+    PoseFit
+    """
+    m = np.asarray(model, dtype=float)
+    x = np.asarray(measured, dtype=float)
+    C = np.asarray(covariance, dtype=float)
+    if C.shape != m.shape + (3,) or x.shape != m.shape:
+        raise ValueError(
+            f"model (M, 3), measured (M, 3) and covariance (M, 3, 3) must agree, got "
+            f"{m.shape}, {x.shape}, {C.shape}"
+        )
+    if not (np.all(np.isfinite(m)) and np.all(np.isfinite(x)) and np.all(np.isfinite(C))):
+        raise ValueError("model, measured points and covariances must be finite")
+    if len(m) < 3:
+        raise ValueError(f"need at least 3 points, got {len(m)}")
+    sv = np.linalg.svd(m - m.mean(axis=0), compute_uv=False)
+    if sv[1] <= 1e-9 * sv[0]:
+        raise ValueError("the points are collinear: the rotation about their line is unknown")
+    if np.any(np.linalg.eigvalsh(C)[:, 0] <= 0):
+        raise ValueError("a point covariance is not positive definite")
+    t, q, cov, point_chi2 = fit_pose_cov(
+        np.ascontiguousarray(m), np.ascontiguousarray(x), np.ascontiguousarray(C), int(iterations)
+    )
+    pose = UncertainPose(Pose(t, q, normalize=True), cov)
+    return PoseFit(pose, float(point_chi2.sum()), point_chi2)
