@@ -21,6 +21,7 @@ LAYERS = {
     "evaluation": 2,
     "demo": 3,
     "trackers": 3,
+    "optical": 3,
     "calibration": 3,
     "distributed": 3,
     "cli": 4,
