@@ -93,18 +93,7 @@ def run_filter(
     -------
     FilterResult
     """
-    t = np.ascontiguousarray(times, dtype=float).reshape(-1)
-    if not isinstance(poses, UncertainPose) or poses.shape != t.shape:
-        raise ValueError(
-            f"poses must be an UncertainPose batch of shape {t.shape}, "
-            f"got {type(poses).__name__} {getattr(poses, 'shape', '')}"
-        )
-    if not np.all(np.isfinite(t)):
-        bad = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise ValueError(f"times must be finite (row {bad} is {t[bad]})")
-    h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
-    if not np.all(np.isfinite(h)) or np.any(h < 0):
-        raise ValueError(f"horizons must be finite and >= 0, got {h.tolist()}")
+    t, h = _checked_inputs(times, poses, horizons, max_gap)
     # validates the options the same way as the streaming filter
     kf = PoseKalmanFilter(
         model,
@@ -113,7 +102,7 @@ def run_filter(
         max_angular_velocity=max_angular_velocity,
         reset_after=reset_after,
     )
-    n_dp, n_do, add, kind, sp, so = kf._params
+    n_dp, n_do = kf._params[:2]
     order = np.argsort(t, kind="stable")
     out_of_order = int(np.count_nonzero(order != np.arange(t.size)))
     sort = out_of_order > 0  # in-order input (the usual case) is used without copies
@@ -121,55 +110,20 @@ def run_filter(
     def ordered(a):
         return np.ascontiguousarray(a[order] if sort else a, dtype=float)
 
-    ts = ordered(t)
-    pos = ordered(poses.position)
-    quat = ordered(poses.quaternion)
-    cov = ordered(poses.covariance)
-    if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 0):
-        raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap}")
-    n = t.size
-    nh = h.size
-    out_t, out_q = np.zeros((n, 3)), np.zeros((n, 4))
-    pred_t, pred_q = np.zeros((nh, n, 3)), np.zeros((nh, n, 4))
-    m = n if covariance else 0  # the loop leaves the covariance outputs alone without them
-    out_c, pred_c = np.zeros((m, 6, 6)), np.zeros((nh, m, 6, 6))
-    nis = np.full(n, math.nan)
-    status = np.zeros(n, dtype=np.int8)
-    dof = 3 if (n_dp < 0 or n_do < 0) else 6
-    gate = chi2_gate(gate_probability, dof)
-    # segments between dropouts longer than max_gap are filtered independently
-    cuts = [0, n]
-    if max_gap is not None and n > 1:
-        cuts = [0, *(np.flatnonzero(np.diff(ts) > max_gap) + 1).tolist(), n]
-    k = kernels()
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        x, p = kf._x0.copy(), kf._p0.copy()
-        seg = slice(a, b)
-        cseg = seg if covariance else slice(0, 0)
-        k.run(
-            ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
-            gate, float(max_angular_velocity), int(reset_after), bool(covariance), out_t[seg],
-            out_q[seg], out_c[cseg], pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg], nis[seg],
-            status[seg],
-        )  # fmt: skip
+    rows = (
+        ordered(t),
+        ordered(poses.position),
+        ordered(poses.quaternion),
+        ordered(poses.covariance),
+    )
+    gate = chi2_gate(gate_probability, 3 if (n_dp < 0 or n_do < 0) else 6)
+    out = _run_segments(kf, rows, h, gate, max_angular_velocity, reset_after, covariance, max_gap)
+    out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status = out
     if sort:
         inv = np.empty_like(order)
-        inv[order] = np.arange(n)
+        inv[order] = np.arange(t.size)
     else:
         inv = slice(None)
-    counts = np.bincount(status, minlength=6)
-    stats = {
-        "updates": int(
-            counts[FilterStatus.ACCEPTED]
-            + counts[FilterStatus.INITIALIZED]
-            + counts[FilterStatus.RESET]
-            + counts[FilterStatus.DIVERGED]
-        ),
-        "rejected_gate": int(counts[FilterStatus.GATED]),
-        "rejected_invalid": int(counts[FilterStatus.INVALID]),
-        "resets": int(counts[FilterStatus.RESET] + counts[FilterStatus.DIVERGED]),
-        "out_of_order": out_of_order,
-    }
     if covariance:
         filtered = UncertainPose._trusted(out_t[inv], out_q[inv], out_c[inv])
         preds = {
@@ -186,8 +140,71 @@ def run_filter(
         predictions=preds,
         nis=nis[inv],
         status=status[inv],
-        stats=stats,
+        stats={**_counts(status), "out_of_order": out_of_order},
     )
+
+
+def _checked_inputs(times, poses, horizons, max_gap) -> tuple[np.ndarray, np.ndarray]:
+    """Times (N,) and horizons (H,) as contiguous floats; ``ValueError`` naming the problem."""
+    t = np.ascontiguousarray(times, dtype=float).reshape(-1)
+    if not isinstance(poses, UncertainPose) or poses.shape != t.shape:
+        raise ValueError(
+            f"poses must be an UncertainPose batch of shape {t.shape}, "
+            f"got {type(poses).__name__} {getattr(poses, 'shape', '')}"
+        )
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(f"times must be finite (row {bad} is {t[bad]})")
+    h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(h)) or np.any(h < 0):
+        raise ValueError(f"horizons must be finite and >= 0, got {h.tolist()}")
+    if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 0):
+        raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap}")
+    return t, h
+
+
+def _run_segments(kf, rows, h, gate, wmax, reset_after, covariance, max_gap):
+    """The compiled loop over each segment between dropouts longer than ``max_gap`` (each
+    filtered from scratch); returns the output arrays in time order."""
+    ts, pos, quat, cov = rows
+    n_dp, n_do, add, kind, sp, so = kf._params
+    n, nh = ts.size, h.size
+    out_t, out_q = np.zeros((n, 3)), np.zeros((n, 4))
+    pred_t, pred_q = np.zeros((nh, n, 3)), np.zeros((nh, n, 4))
+    m = n if covariance else 0  # the loop leaves the covariance outputs alone without them
+    out_c, pred_c = np.zeros((m, 6, 6)), np.zeros((nh, m, 6, 6))
+    nis = np.full(n, math.nan)
+    status = np.zeros(n, dtype=np.int8)
+    cuts = [0, n]
+    if max_gap is not None and n > 1:
+        cuts = [0, *(np.flatnonzero(np.diff(ts) > max_gap) + 1).tolist(), n]
+    k = kernels()
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        x, p = kf._x0.copy(), kf._p0.copy()
+        seg = slice(a, b)
+        cseg = seg if covariance else slice(0, 0)
+        k.run(
+            ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
+            gate, float(wmax), int(reset_after), bool(covariance), out_t[seg], out_q[seg],
+            out_c[cseg], pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg], nis[seg], status[seg],
+        )  # fmt: skip
+    return out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status
+
+
+def _counts(status: np.ndarray) -> dict:
+    """The offline statistics of the status codes (``FilterResult.stats``)."""
+    counts = np.bincount(status, minlength=len(FilterStatus))
+    return {
+        "updates": int(
+            counts[FilterStatus.ACCEPTED]
+            + counts[FilterStatus.INITIALIZED]
+            + counts[FilterStatus.RESET]
+            + counts[FilterStatus.DIVERGED]
+        ),
+        "rejected_gate": int(counts[FilterStatus.GATED]),
+        "rejected_invalid": int(counts[FilterStatus.INVALID]),
+        "resets": int(counts[FilterStatus.RESET] + counts[FilterStatus.DIVERGED]),
+    }
 
 
 def _means(position: np.ndarray, quaternion: np.ndarray) -> Pose:
