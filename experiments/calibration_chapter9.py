@@ -29,7 +29,13 @@ from trackflow.calibration import (
     solve_hand_eye,
 )
 from trackflow.calibration.report import plot_residuals
-from trackflow.evaluation import default_predictor, predict_kalman, predict_linear, tune_model
+from trackflow.evaluation import (
+    Trajectory,
+    default_predictor,
+    predict_kalman,
+    predict_linear,
+    tune_model,
+)
 from trackflow.io import PoseStream, read_stream
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,8 +87,8 @@ def tuned_predictor(stream: PoseStream, horizon: float):
     from trackflow.math import quat_make_continuous
 
     q = quat_make_continuous(np.asarray(stream.quaternion, float))
-    res = tune_model(t, np.asarray(stream.position, float), q,
-                     horizons=(horizon, horizon + 0.03), ar_orders=())  # fmt: skip
+    recording = Trajectory.check(t, np.asarray(stream.position, float), q)
+    res = tune_model(recording, horizons=(horizon, horizon + 0.03), ar_orders=())
     return res.predictor
 
 
@@ -123,7 +129,7 @@ def simultaneity(robot, quest, X, offset, Z, predictor=None):
     out["uncorrected"] = err(p, q)
     hs = np.round(np.arange(lead.min() - 0.002, lead.max() + 0.002, 0.001), 4)
     pred = predictor if predictor is not None else default_predictor(ta, pa, qa)
-    pk, qk, _ = predict_kalman(ta, pa, qa, pred, hs, max_gap=3.0 * period)
+    pk, qk, _ = predict_kalman(Trajectory.check(ta, pa, qa, gap_s=3.0 * period), pred, hs)
     h_idx = np.clip(np.round((lead - hs[0]) / 0.001).astype(int), 0, len(hs) - 1)
     out["prediction (Kalman)"] = err(pk[h_idx, k], qk[h_idx, k])
     pl = np.empty((len(k), 3))

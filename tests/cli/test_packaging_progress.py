@@ -70,7 +70,7 @@ def test_progress_bar_percentages():
 @pytest.mark.slow
 def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
     import trackflow.plotting as plotting
-    from trackflow.evaluation import default_predictor
+    from trackflow.evaluation import Trajectory, default_predictor
     from trackflow.io import read_stream
 
     seen = {}
@@ -90,8 +90,8 @@ def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
     s, _ = read_stream(GT)
     t = s.elapsed_s
     pred = default_predictor(t, s.position, s.quaternion)
-    plotting.plot_sequence(tmp_path / "s.png", t, s.position, s.quaternion, pred, 0.1, (2, 4),
-                           title="fr1")  # fmt: skip
+    recording = Trajectory.check(t, s.position, s.quaternion)
+    plotting.plot_sequence(tmp_path / "s.png", recording, pred, 0.1, (2, 4), title="fr1")
     assert seen["title"].startswith("fr1: measured, filtered and predicted")
     labels = sorted(sum(seen["legends"], []))
     assert {"x", "y", "z", "measured", "Kalman filtered"} <= set(labels)
@@ -99,7 +99,6 @@ def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
     marker_z = max(z for z, ls, m in seen["z"] if m == ".")
     assert all(z > marker_z for z, ls, m in seen["z"] if m != "." and ls == "-" and z >= 4)
     with pytest.raises(ValueError, match="holds 0 samples"):
-        plotting.plot_sequence(tmp_path / "e.png", t, s.position, s.quaternion, pred, 0.1,
-                               (1000, 1003))  # fmt: skip
+        plotting.plot_sequence(tmp_path / "e.png", recording, pred, 0.1, (1000, 1003))
     assert not (tmp_path / "e.png").exists()
     assert np.isfinite(t).all()

@@ -127,7 +127,7 @@ def _dynamic(t, p, q, k):
 
 
 def _innovation(t, p, q, tune: bool, rounds: int = 3):
-    from ..evaluation import KalmanPredictor, default_predictor, tune_model
+    from ..evaluation import KalmanPredictor, Trajectory, default_predictor, tune_model
     from ..math import Pose, UncertainPose
 
     dt = np.diff(t)
@@ -139,7 +139,8 @@ def _innovation(t, p, q, tune: bool, rounds: int = 3):
         )
     pred = default_predictor(t, p, q)
     if tune:
-        tuned = tune_model(t, p, q, horizons=(h, 2 * h), ar_orders=()).predictor
+        recording = Trajectory.check(t, p, q)
+        tuned = tune_model(recording, horizons=(h, 2 * h), ar_orders=()).predictor
         if isinstance(tuned, KalmanPredictor):
             pred = tuned
     R = pred.measurement_covariance()
