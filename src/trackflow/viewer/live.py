@@ -1,0 +1,487 @@
+"""The live view of a running :class:`trackflow.dataflow.Network` (thesis 8.2).
+
+:func:`attach_view` wires :class:`~trackflow.viewer.monitor.Tap` components behind every
+sensor filter (or source) and behind two samplers per query that the view adds (one at the
+query's own time offset, one at that offset plus the prediction slider), then starts a
+separate thread that, at the view rate (30-60 Hz), turns what the taps hold into scene and
+panel updates. The dataflow thread never waits for the view: it only hands over references.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Setup
+from ..math import Pose, UncertainPose
+from .graph_panel import EdgeStatus, classify, render_panel
+from .monitor import Tap
+from .scene import PALETTE, PoseDrawing, Style, frame_node
+from .server import ViewServer
+
+__all__ = ["LiveView", "attach_view"]
+
+
+@dataclass
+class _Edge:
+    """One monitored SRG edge: its description, the tap and the components behind it."""
+
+    name: str
+    source: str
+    target: str
+    static: bool
+    tap: Tap | None = None
+    player: RecordingPlayer | None = None
+    kalman: KalmanFilter | None = None
+    value: UncertainPose | None = None  # static edges
+    rate_hz: float = math.inf
+    offset_ms: float = math.nan
+    drawing: PoseDrawing | None = None
+    trail: list = field(default_factory=list)
+    gated_seen: int = 0
+    gated_at: float = -math.inf
+    rate_count: int = 0
+    rate_wall: float = 0.0
+    rate_est: float = math.nan
+
+
+@dataclass
+class _QueryView:
+    name: str
+    source: str
+    target: str
+    path_edges: tuple[str, ...]
+    now: Tap | None = None
+    ahead: Tap | None = None
+    ahead_sampler: Sampler | None = None
+    base_offset_ns: int = 0
+    drawing: PoseDrawing | None = None
+    trail: list = field(default_factory=list)
+    error: str = ""
+
+
+class LiveView:
+    """A viser page following a network; made by :func:`attach_view`.
+
+    Attributes
+    ----------
+    frames_sent : int
+        View frames pushed to the page so far (the decimated rate is ``frames_sent`` over the
+        running time).
+    """
+
+    def __init__(
+        self,
+        network: Network,
+        edges: list[_Edge],
+        queries: list[_QueryView],
+        frames: list[str],
+        root: str,
+        *,
+        host: str,
+        port: int,
+        rate_hz: float,
+        style: Style | None,
+    ):
+        if not 1.0 <= rate_hz <= 120.0:
+            raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
+        self.network, self.edges, self.queries = network, edges, queries
+        self.frames, self.root = frames, root
+        self.rate_hz = float(rate_hz)
+        self.style = style or Style(axes_length=0.08, magnify=1.0)
+        self.view = ViewServer(host, port, title="trackflow live")
+        self.view.look_at((0.3, 0.0, 0.2), 1.2)
+        self.frames_sent = 0
+        self.paused = False
+        self.show_sensors = True
+        self.selected_query = queries[0].name if queries else None
+        self.selected_edge = next((e.name for e in edges if not e.static), None)
+        self._stop = threading.Event()
+        self._lock = threading.RLock()
+        self._panel_html = ""
+        self._framed = False
+        self._panel_wall = 0.0
+        self._plot_wall = 0.0
+        self._build_scene()
+        self._build_controls()
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="trackflow-view")
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return self.view.url
+
+    # -- construction ----------------------------------------------------------------------------
+    def _build_scene(self) -> None:
+        scene, st = self.view.scene, self.style
+        self.frame_nodes = {
+            f: frame_node(scene, f"/{f}", st.axes_length * 1.2, f) for f in self.frames
+        }
+        for f, node in self.frame_nodes.items():
+            node.visible = f == self.root
+        k = 0
+        for e in self.edges:
+            if not e.static:
+                e.drawing = PoseDrawing(
+                    scene, f"/{e.source}/sensor_{e.name}", PALETTE[k % len(PALETTE)], st, e.name
+                )
+                e.drawing.set_visible(False)
+                k += 1
+        for q in self.queries:
+            if q.now is not None:
+                q.drawing = PoseDrawing(
+                    scene, f"/{q.source}/query_{q.name}", PALETTE[k % len(PALETTE)], st, q.name
+                )
+                q.drawing.set_visible(False)
+                k += 1
+
+    def _build_controls(self) -> None:
+        gui = self.view.gui
+        with gui.add_folder("View"):
+            names = tuple(q.name for q in self.queries) or ("(none)",)
+            self.c_query = gui.add_dropdown("query", names, initial_value=names[0])
+            self.c_sigma = gui.add_dropdown("sigma", ("1", "2", "3"), initial_value="1")
+            self.c_offset = gui.add_slider(
+                "prediction [ms]", min=0.0, max=300.0, step=5.0, initial_value=0.0
+            )
+            self.c_magnify = gui.add_number("magnify", self.style.magnify, min=1.0, step=1.0)
+            self.c_sensors = gui.add_checkbox("sensors", True)
+            self.c_pause = gui.add_checkbox("pause", False)
+        self.c_query.on_update(lambda _: self._set(selected_query=self.c_query.value))
+        self.c_sigma.on_update(lambda _: self.set_sigma(float(self.c_sigma.value)))
+        self.c_offset.on_update(lambda _: self.set_offset(self.c_offset.value * 1e-3))
+        self.c_magnify.on_update(lambda _: self._set_style(magnify=float(self.c_magnify.value)))
+        self.c_sensors.on_update(lambda _: self._set(show_sensors=bool(self.c_sensors.value)))
+        self.c_pause.on_update(lambda _: self._set(paused=bool(self.c_pause.value)))
+        with gui.add_folder("Spatial relationship graph"):
+            self.panel = gui.add_html("")
+        with gui.add_folder("Time plots", expand_by_default=False):
+            names = tuple(e.name for e in self.edges if not e.static) or ("(none)",)
+            self.c_edge = gui.add_dropdown("edge", names, initial_value=names[0])
+            self.c_edge.on_update(lambda _: self._set(selected_edge=self.c_edge.value))
+            empty = (np.zeros(2), np.zeros(2))
+            self.plots = {
+                key: gui.add_uplot(
+                    data=empty,
+                    series=({"label": "t [s]"}, {"label": label, "stroke": colour}),
+                    title=label,
+                    aspect=2.5,
+                )  # fmt: skip
+                for key, label, colour in (
+                    ("pos", "position sigma [mm]", "#c0c"),
+                    ("ori", "orientation sigma [deg]", "#08c"),
+                    ("lat", "latency [ms]", "#d60"),
+                    ("nis", "NIS", "#333"),
+                )
+            }
+
+    # -- controls (also the Python API) ------------------------------------------------------------
+    def _set(self, **kw) -> None:
+        with self._lock:
+            for k, v in kw.items():
+                setattr(self, k, v)
+
+    def _set_style(self, **kw) -> None:
+        with self._lock:
+            for k, v in kw.items():
+                setattr(self.style, k, v)
+
+    def set_sigma(self, sigma: float) -> None:
+        """Sigma level (1, 2 or 3) of every ellipsoid."""
+        self._set_style(sigma=float(sigma))
+
+    def set_offset(self, offset_s: float) -> None:
+        """Prediction offset [s]: each query is also drawn this far ahead of its own time."""
+        off = int(round(max(0.0, float(offset_s)) * 1e9))
+        for q in self.queries:
+            if q.ahead_sampler is not None:
+                q.ahead_sampler.offset_ns = q.base_offset_ns + off  # one int store
+        self._set(offset_s=off * 1e-9)
+
+    offset_s = 0.0
+
+    # -- the view thread -------------------------------------------------------------------------
+    def _loop(self) -> None:
+        period = 1.0 / self.rate_hz
+        nxt = time.perf_counter()
+        while not self._stop.is_set():
+            nxt += period
+            delay = nxt - time.perf_counter()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                nxt = time.perf_counter()  # behind: skip frames instead of catching up
+            if self.paused:
+                continue
+            with self._lock:
+                self.render_frame()
+
+    def render_frame(self) -> None:
+        """Draw one view frame from what the taps hold (called by the view thread)."""
+        now_wall = time.perf_counter()
+        now_ns = self.network.clock.now_ns
+        places = self._place_frames()
+        if not self._framed and len(places) == len(self.frames):
+            # aim the initial camera of later clients at the frames once all are placed
+            pts = np.array([p for p, _ in places.values()])
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            self.view.look_at(0.5 * (lo + hi), max(float(np.max(hi - lo)), 0.3))
+            self._framed = True
+        scene_server = self.view.server
+        with scene_server.atomic():
+            for f, node in self.frame_nodes.items():
+                pose = places.get(f)
+                node.visible = pose is not None
+                if pose is not None:
+                    node.position, node.wxyz = pose
+            for e in self.edges:
+                if e.drawing is None or e.tap is None:
+                    continue
+                m = e.tap.latest
+                e.tap.request_filtered()
+                visible = self.show_sensors and m is not None and e.source in places
+                e.drawing.set_visible(visible)
+                if visible:
+                    pose = e.tap.filtered if e.tap.filtered is not None else m.pose
+                    e.trail.append(np.asarray(pose.position, float))
+                    del e.trail[: max(0, len(e.trail) - int(self.style.trail_s * self.rate_hz))]
+                    e.drawing.update(pose, None, np.array(e.trail))
+            for q in self.queries:
+                if q.drawing is None:
+                    continue
+                m = q.now.latest if q.now is not None else None
+                visible = m is not None and q.source in places
+                q.drawing.set_visible(visible)
+                if visible:
+                    ahead = q.ahead.latest if (q.ahead and self.offset_s > 0) else None
+                    q.trail.append(np.asarray(m.pose.position, float))
+                    del q.trail[: max(0, len(q.trail) - int(self.style.trail_s * self.rate_hz))]
+                    q.drawing.update(m.pose, ahead.pose if ahead else None, np.array(q.trail))
+        if now_wall - self._panel_wall > 0.2:
+            self._panel_wall = now_wall
+            self._update_panel(now_ns, now_wall)
+        if now_wall - self._plot_wall > 0.5:
+            self._plot_wall = now_wall
+            self._update_plots()
+        self.frames_sent += 1
+        self.view.set_status(
+            f"**live** - network t = {now_ns * 1e-9:.2f} s - {self.style.sigma:g} sigma"
+            + (f", ellipsoids x{self.style.magnify:g}" if self.style.magnify != 1 else "")
+            + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if self.offset_s > 0 else "")
+        )
+
+    def _place_frames(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """World placement (position, wxyz) of every frame reachable from the root through
+        static values and the newest measurements."""
+        known: dict[str, Pose] = {self.root: Pose.identity()}
+        values = []
+        for e in self.edges:
+            if e.static and e.value is not None:
+                values.append((e.source, e.target, e.value.pose))
+            elif e.tap is not None and e.tap.latest is not None:
+                values.append((e.source, e.target, e.tap.latest.pose.pose))
+        changed = True
+        while changed:
+            changed = False
+            for a, b, T_a_b in values:
+                if a in known and b not in known:
+                    known[b] = known[a] @ T_a_b
+                    changed = True
+                elif b in known and a not in known:
+                    known[a] = known[b] @ T_a_b.inverse()
+                    changed = True
+        from .glyphs import to_wxyz
+
+        return {f: (np.asarray(p.position, float), to_wxyz(p.quaternion)) for f, p in known.items()}
+
+    def edge_statuses(self, now_ns: int | None = None) -> list[EdgeStatus]:
+        """The panel's view of every edge and of every query without a path."""
+        now_ns = self.network.clock.now_ns if now_ns is None else now_ns
+        now_wall = time.perf_counter()
+        q = next((q for q in self.queries if q.name == self.selected_query), None)
+        on_path = set(q.path_edges) if q else set()
+        used = {n for qq in self.queries for n in qq.path_edges} if self.queries else None
+        out = []
+        for e in self.edges:
+            if e.static:
+                out.append(
+                    EdgeStatus(e.name, e.source, e.target, "static", on_path=e.name in on_path)
+                )
+                continue
+            rej: dict[str, int] = {}
+            for comp in (e.player, e.kalman):
+                if comp is not None:
+                    for k, v in dict(comp.stats.rejections).items():
+                        rej[k] = rej.get(k, 0) + v
+            gated = rej.get("filter rejected update", 0)
+            if gated > e.gated_seen:
+                e.gated_seen, e.gated_at = gated, now_wall
+            tap = e.tap
+            age = None if tap is None or tap.latest is None else (now_ns - tap.arrival_ns) * 1e-9
+            if tap is not None:
+                if now_wall - e.rate_wall >= 1.0:
+                    if e.rate_wall > 0:
+                        e.rate_est = (tap.count - e.rate_count) / (now_wall - e.rate_wall)
+                    e.rate_count, e.rate_wall = tap.count, now_wall
+            recent = list(tap.recent)[-50:] if tap is not None else []
+            lat = float(np.median([r[1] for r in recent])) * 1e-6 if recent else math.nan
+            state = classify(
+                static=False,
+                used=used is None or e.name in used,
+                age_s=age,
+                rate_hz=e.rate_hz,
+                gated_recently=now_wall - e.gated_at < 1.0,
+            )
+            out.append(
+                EdgeStatus(e.name, e.source, e.target, state, e.rate_est, lat, e.offset_ms, rej,
+                           e.name in on_path)
+            )  # fmt: skip
+        for qq in self.queries:
+            if qq.error:
+                out.append(EdgeStatus(qq.name, qq.source, qq.target, "no path"))
+        return out
+
+    def _update_panel(self, now_ns: int, now_wall: float) -> None:
+        html = render_panel(self.frames, self.edge_statuses(now_ns))
+        if html != self._panel_html:
+            self._panel_html = html
+            self.panel.content = html
+
+    def _update_plots(self) -> None:
+        e = next((e for e in self.edges if e.name == self.selected_edge), None)
+        if e is None or e.tap is None:
+            return
+        recent = list(e.tap.recent)
+        if len(recent) < 2:
+            return
+        arr = np.array(recent, dtype=float)
+        t = arr[:, 0] * 1e-9
+        pose = e.tap.filtered
+        # the ring holds time, latency and NIS; sigmas come from the newest filtered poses,
+        # kept per view frame in a small ring of their own
+        ring = getattr(e, "_sig", None)
+        if ring is None:
+            ring = e._sig = []  # type: ignore[attr-defined]
+        if pose is not None and e.tap.latest is not None:
+            c = pose.covariance
+            pos_mm = math.sqrt(max(np.linalg.eigvalsh(c[:3, :3])[-1], 0.0)) * 1e3
+            ori_deg = math.degrees(math.sqrt(max(np.linalg.eigvalsh(c[3:, 3:])[-1], 0.0)))
+            ring.append((e.tap.latest.t_ns * 1e-9, pos_mm, ori_deg))
+            del ring[:-300]
+        if len(ring) >= 2:
+            s = np.array(ring)
+            self.plots["pos"].data = (s[:, 0], s[:, 1])
+            self.plots["ori"].data = (s[:, 0], s[:, 2])
+        self.plots["lat"].data = (t, arr[:, 1] * 1e-6)
+        self.plots["nis"].data = (t, np.nan_to_num(arr[:, 2]))
+
+    def close(self) -> None:
+        """Stop the view thread and the server (the network keeps its taps; they are cheap)."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.view.close()
+
+
+def _tap_after(network: Network, comp, name: str, kalman=None) -> Tap:
+    tap = network.add(Tap(name, kalman=kalman))
+    network.connect(comp, tap, mode="push")
+    return tap
+
+
+def _query_output(network: Network, plan: Plan, prefix: str):
+    """The pull-able component feeding a query's sink (behind its sampler for push queries)."""
+    node = plan.node(plan.output)
+    src = node.inputs[0][0]
+    if plan.node(src).kind == "sampler":
+        src = plan.node(src).inputs[0][0]
+    comp = network.components.get(prefix + src) or network.components.get(src)
+    if comp is None:
+        raise ValueError(f"query {plan.query.name!r}: no component {src!r} in the network")
+    return comp
+
+
+def attach_view(
+    network: Network,
+    setup: Setup | None = None,
+    plans: dict[str, tuple[Plan, str]] | None = None,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    rate_hz: float = 30.0,
+    style: Style | None = None,
+    errors: dict[str, str] | None = None,
+) -> LiveView:
+    """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
+
+    Parameters
+    ----------
+    network : Network
+        Any network. Without ``setup`` every source is drawn as a relationship ``world ->
+        source`` (its raw measurements).
+    setup : Setup, optional
+        The SRG the network was planned from: frames, static values and edge properties.
+    plans : dict query name -> (Plan, prefix), optional
+        The plans built into ``network`` (with the component-name prefix used): each query is
+        drawn (sampled by two view samplers at ``rate_hz``) and its path highlighted.
+    errors : dict query name -> message, optional
+        Queries of the setup that have no path (drawn as "no path" in the panel).
+    rate_hz : float
+        View frames per second (the decimation: taps hand over the newest event only).
+    """
+    comps = network.components
+    kalmans = {c.name: c for c in comps.values() if isinstance(c, KalmanFilter)}
+    players = {c.name: c for c in comps.values() if isinstance(c, RecordingPlayer)}
+    edges: list[_Edge] = []
+    frames: list[str]
+    if setup is not None:
+        g = setup.graph
+        frames = list(g.frames)
+        for edge in g.edges:
+            if edge.kind == "static":
+                edges.append(_Edge(edge.name, edge.source, edge.target, True, value=edge.value()))
+                continue
+            player = players.get(edge.name)
+            fed = [c for c, _ in player.consumers] if player is not None else []
+            kf = kalmans.get(edge.name) or next(
+                (c for c in fed if isinstance(c, KalmanFilter)), None
+            )
+            behind = kf if kf is not None else player
+            tap = _tap_after(network, behind, f"view:{edge.name}", kf) if behind else None
+            edges.append(
+                _Edge(edge.name, edge.source, edge.target, False, tap, player, kf,
+                      rate_hz=float(edge.rate_hz), offset_ms=float(edge.stamp_offset_s) * 1e3)
+            )  # fmt: skip
+        root = next(iter(setup.queries.values())).source if setup.queries else frames[0]
+    else:
+        frames = ["world", *players]
+        root = "world"
+        for name, player in players.items():
+            tap = _tap_after(network, player, f"view:{name}")
+            edges.append(_Edge(name, "world", name, False, tap, player, None,
+                               rate_hz=float(1e9 / np.median(np.diff(player.t_ns)))
+                               if len(player.t_ns) > 1 else math.inf))  # fmt: skip
+    queries: list[_QueryView] = []
+    for qname, (plan, prefix) in (plans or {}).items():
+        q = plan.query
+        path_edges = tuple(s.edge.name for p in plan.paths for s in p.steps)
+        qv = _QueryView(qname, q.source, q.target, path_edges)
+        out = _query_output(network, plan, prefix)
+        qv.base_offset_ns = int(round(q.time_offset_s * 1e9))
+        now = network.add(Sampler(f"view:{qname}:now", rate_hz, qv.base_offset_ns))
+        network.connect(out, now, mode="pull")
+        qv.ahead_sampler = network.add(Sampler(f"view:{qname}:ahead", rate_hz, qv.base_offset_ns))
+        network.connect(out, qv.ahead_sampler, mode="pull")
+        qv.now = _tap_after(network, now, f"view:{qname}:now:tap")
+        qv.ahead = _tap_after(network, qv.ahead_sampler, f"view:{qname}:ahead:tap")
+        queries.append(qv)
+    for qname, msg in (errors or {}).items():
+        q = setup.queries[qname] if setup is not None else None
+        if q is not None:
+            queries.append(_QueryView(qname, q.source, q.target, (), error=msg))
+    return LiveView(
+        network, edges, queries, frames, root, host=host, port=port, rate_hz=rate_hz, style=style
+    )
