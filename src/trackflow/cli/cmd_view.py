@@ -26,6 +26,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--sigma", type=int, choices=(1, 2, 3), default=1, help="sigma level")
     p.add_argument("--offset-ms", type=float, default=0.0, help="prediction offset [ms]")
     p.add_argument("--query", default=None, help="setup: the selected query (default first)")
+    p.add_argument(
+        "--posetool",
+        action="store_true",
+        help="recording: the PoseTool page (hand-tune the Kalman predictor beside the "
+        "automatic tuning; --offset-ms sets the starting horizon)",
+    )
     p.add_argument("--width", type=int, default=1280, help="snapshot width [px]")
     p.add_argument("--height", type=int, default=800, help="snapshot height [px]")
     p.set_defaults(func=run)
@@ -44,6 +50,7 @@ def run(args) -> int:
         query=args.query,
         format=args.format,
         clean=args.clean,
+        posetool=args.posetool,
     )
     out = serve(args.target, opts, snapshot=args.snapshot, size=(args.width, args.height))
     if out is not None:

@@ -30,6 +30,8 @@ class ViewOptions:
     duration_s: float = 120.0
     rate_hz: float = 30.0
     seed: int = 0
+    posetool: bool = False
+    tune_fraction: float = 0.5
 
 
 def is_setup(path: str | Path) -> bool:
@@ -129,6 +131,8 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
     stream, report = read_stream(target, format=opts.format, clean=opts.clean)
     if opts.clean:
         print(str(report), file=sys.stderr)
+    if opts.posetool:
+        return _posetool(stream, opts, snapshot, size)
     view = RecordingView(RecordingTrack.from_stream(stream), opts.host, opts.port)
     try:
         view.set_sigma(opts.sigma)
@@ -144,6 +148,22 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
         return _block(view.url, view)
     finally:
         view.close()
+
+
+def _posetool(stream, opts: ViewOptions, snapshot, size) -> Path | None:
+    from .browser import snapshot as take
+    from .posetool import PoseToolPage
+
+    page = PoseToolPage(stream, opts.host, opts.port, tune_fraction=opts.tune_fraction)
+    try:
+        if opts.offset_s > 0:
+            page.horizon.value = opts.offset_s * 1e3
+        if snapshot is None:
+            return _block(page.url, page)
+        rev = page.wait_tuned(timeout_s=600.0)
+        return take(page.url, snapshot, f"revision {rev} ", *size)
+    finally:
+        page.close()
 
 
 def _block(url: str, what) -> None:

@@ -7,6 +7,11 @@ import numpy as np
 __all__ = ["ViewServer"]
 
 
+def _refuse_share(*_args, **_kwargs) -> None:
+    """Stands in for ``ViserServer.request_share_url``: sharing is never started."""
+    return None
+
+
 class ViewServer:
     """A viser server bound to ``host:port`` (``port=0``: a free port) with a status line.
 
@@ -22,6 +27,12 @@ class ViewServer:
             raise RuntimeError("the viewer needs viser: pip install 'trackflow[viewer]'") from exc
         self.server = viser.ViserServer(host=host, port=int(port), label=title, verbose=False)
         self.scene, self.gui = self.server.scene, self.server.gui
+        # viser can publish a page through its share service (a tunnel to an outside server) when
+        # a client asks; this view serves only its own page on the bound address: no share
+        # button, and a share request from a client is refused (the handler looks the method up
+        # on the instance at call time).
+        self.server.request_share_url = _refuse_share
+        self.gui.configure_theme(control_width="large", show_share_button=False)
         self.scene.set_up_direction("+z")
         self.status = self.gui.add_markdown("starting", order=-100)
 
