@@ -63,7 +63,7 @@ def to_wxyz(q_xyzw: np.ndarray) -> np.ndarray:
     return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
 
 
-_PERMS = [np.array(p) for p in permutations(range(3))]
+_PERMS = np.array(list(permutations(range(3))))  # (6, 3)
 
 
 def stable_axes(
@@ -73,31 +73,40 @@ def stable_axes(
 
     Parameters
     ----------
-    radii : ndarray (3,)
+    radii : ndarray (..., 3)
         Semi-axes in eigenvalue order.
-    axes : ndarray (3, 3)
+    axes : ndarray (..., 3, 3)
         Matching unit directions as columns.
-    previous : ndarray (3, 3) or None
+    previous : ndarray (..., 3, 3) or None
         The axes drawn last time (columns).
 
     Returns
     -------
     radii, axes
-        Permuted so that column ``k`` is the one closest to ``previous[:, k]``, each column's
-        sign chosen to point the same way, and the frame made right-handed.
+        Permuted so that column ``k`` is the one closest to ``previous[..., :, k]`` (the
+        permutation with the largest summed overlap), each column's sign chosen to point the
+        same way, and the frame made right-handed by flipping the smallest axis if needed.
     """
+    radii = np.array(radii, dtype=float)
+    axes = np.array(axes, dtype=float)
+    shape = radii.shape
+    r, a = radii.reshape(-1, 3), axes.reshape(-1, 3, 3)
     if previous is not None:
-        overlap = np.abs(previous.T @ axes)  # [k, j] = |prev_k . new_j|
-        best = max(_PERMS, key=lambda p: overlap[np.arange(3), p].sum())
-        radii, axes = radii[best], axes[:, best]
-        signs = np.sign(np.einsum("ij,ij->j", previous, axes))
-        axes = axes * np.where(signs == 0, 1.0, signs)
-    if np.linalg.det(axes) < 0:
+        prev = np.asarray(previous, float).reshape(-1, 3, 3)
+        overlap = np.abs(np.einsum("nik,nij->nkj", prev, a))  # [n, k, j] = |prev_k . new_j|
+        score = overlap[:, np.arange(3), _PERMS].sum(axis=-1)  # (n, 6)
+        best = _PERMS[np.argmax(score, axis=1)]  # (n, 3)
+        r = np.take_along_axis(r, best, axis=1)
+        a = np.take_along_axis(a, best[:, None, :], axis=2)
+        signs = np.sign(np.einsum("nij,nij->nj", prev, a))
+        a = a * np.where(signs == 0, 1.0, signs)[:, None, :]
+    left = np.linalg.det(a) < 0
+    if left.any():
         # flip the smallest axis (a flat ellipsoid's normal: a flip is invisible there)
-        k = int(np.argmin(radii))
-        axes = axes.copy()
-        axes[:, k] *= -1.0
-    return radii, axes
+        k = np.argmin(r, axis=1)
+        idx = np.flatnonzero(left)
+        a[idx, :, k[idx]] *= -1.0
+    return r.reshape(shape), a.reshape(*shape, 3)
 
 
 def position_glyph(

@@ -17,10 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Setup
-from ..math import Pose, UncertainPose
+from ..math import Pose, UncertainPose, quat_multiply
+from .batch import BatchDrawing, BodyFrame
+from .glyphs import to_wxyz
 from .graph_panel import EdgeStatus, classify, render_panel
 from .monitor import Tap
-from .scene import PALETTE, PoseDrawing, Style, frame_node
+from .scene import PALETTE, Style, frame_node
 from .server import ViewServer
 
 __all__ = ["LiveView", "attach_view"]
@@ -40,7 +42,6 @@ class _Edge:
     value: UncertainPose | None = None  # static edges
     rate_hz: float = math.inf
     offset_ms: float = math.nan
-    drawing: PoseDrawing | None = None
     trail: list = field(default_factory=list)
     gated_seen: int = 0
     gated_at: float = -math.inf
@@ -59,7 +60,6 @@ class _QueryView:
     ahead: Tap | None = None
     ahead_sampler: Sampler | None = None
     base_offset_ns: int = 0
-    drawing: PoseDrawing | None = None
     trail: list = field(default_factory=list)
     error: str = ""
 
@@ -72,6 +72,8 @@ class LiveView:
     frames_sent : int
         View frames pushed to the page so far (the decimated rate is ``frames_sent`` over the
         running time).
+    frame_cost_s : float
+        Smoothed wall time of drawing one frame [s].
     """
 
     def __init__(
@@ -86,6 +88,7 @@ class LiveView:
         port: int,
         rate_hz: float,
         style: Style | None,
+        cpu_share: float = 0.25,
     ):
         if not 1.0 <= rate_hz <= 120.0:
             raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
@@ -96,6 +99,10 @@ class LiveView:
         self.view = ViewServer(host, port, title="trackflow live")
         self.view.look_at((0.3, 0.0, 0.2), 1.2)
         self.frames_sent = 0
+        self.frame_cost_s = 0.0
+        self.cpu_share = float(cpu_share)
+        if not 0.0 < self.cpu_share <= 1.0:
+            raise ValueError(f"cpu_share must be in (0, 1], got {cpu_share}")
         self.paused = False
         self.show_sensors = True
         self.selected_query = queries[0].name if queries else None
@@ -123,21 +130,15 @@ class LiveView:
         }
         for f, node in self.frame_nodes.items():
             node.visible = f == self.root
-        k = 0
-        for e in self.edges:
-            if not e.static:
-                e.drawing = PoseDrawing(
-                    scene, f"/{e.source}/sensor_{e.name}", PALETTE[k % len(PALETTE)], st, e.name
-                )
-                e.drawing.set_visible(False)
-                k += 1
-        for q in self.queries:
-            if q.now is not None:
-                q.drawing = PoseDrawing(
-                    scene, f"/{q.source}/query_{q.name}", PALETTE[k % len(PALETTE)], st, q.name
-                )
-                q.drawing.set_visible(False)
-                k += 1
+        self.bodies = [e for e in self.edges if not e.static and e.tap is not None]
+        self.bodies += [q for q in self.queries if q.now is not None]
+        colours = [PALETTE[k % len(PALETTE)] for k in range(len(self.bodies))]
+        self.batch = BatchDrawing(scene, "/bodies", colours, st) if self.bodies else None
+        self.labels = [
+            scene.add_label(f"/bodies/label_{k}", b.name, visible=False)
+            for k, b in enumerate(self.bodies)
+        ]
+        self._label_wall = 0.0
 
     def _build_controls(self) -> None:
         gui = self.view.gui
@@ -206,19 +207,22 @@ class LiveView:
 
     # -- the view thread -------------------------------------------------------------------------
     def _loop(self) -> None:
+        """Render at ``rate_hz`` at most, and never more than ``cpu_share`` of the wall time:
+        a frame that took ``c`` seconds is followed by at least ``c / cpu_share`` seconds
+        before the next, so a slow machine gets fewer view frames, not a slower dataflow."""
         period = 1.0 / self.rate_hz
         nxt = time.perf_counter()
         while not self._stop.is_set():
-            nxt += period
             delay = nxt - time.perf_counter()
-            if delay > 0:
-                self._stop.wait(delay)
-            else:
-                nxt = time.perf_counter()  # behind: skip frames instead of catching up
-            if self.paused:
-                continue
-            with self._lock:
-                self.render_frame()
+            if delay > 0 and self._stop.wait(delay):
+                break
+            start = time.perf_counter()
+            if not self.paused:
+                with self._lock:
+                    self.render_frame()
+            cost = time.perf_counter() - start
+            self.frame_cost_s = 0.9 * self.frame_cost_s + 0.1 * cost
+            nxt = max(nxt + period, start + cost / self.cpu_share)
 
     def render_frame(self) -> None:
         """Draw one view frame from what the taps hold (called by the view thread)."""
@@ -227,40 +231,25 @@ class LiveView:
         places = self._place_frames()
         if not self._framed and len(places) == len(self.frames):
             # aim the initial camera of later clients at the frames once all are placed
-            pts = np.array([p for p, _ in places.values()])
+            pts = np.array([p.position for p in places.values()])
             lo, hi = pts.min(axis=0), pts.max(axis=0)
             self.view.look_at(0.5 * (lo + hi), max(float(np.max(hi - lo)), 0.3))
             self._framed = True
-        scene_server = self.view.server
-        with scene_server.atomic():
+        bodies, trails = self._collect(places)
+        with self.view.server.atomic():
             for f, node in self.frame_nodes.items():
                 pose = places.get(f)
                 node.visible = pose is not None
                 if pose is not None:
-                    node.position, node.wxyz = pose
-            for e in self.edges:
-                if e.drawing is None or e.tap is None:
-                    continue
-                m = e.tap.latest
-                e.tap.request_filtered()
-                visible = self.show_sensors and m is not None and e.source in places
-                e.drawing.set_visible(visible)
-                if visible:
-                    pose = e.tap.filtered if e.tap.filtered is not None else m.pose
-                    e.trail.append(np.asarray(pose.position, float))
-                    del e.trail[: max(0, len(e.trail) - int(self.style.trail_s * self.rate_hz))]
-                    e.drawing.update(pose, None, np.array(e.trail))
-            for q in self.queries:
-                if q.drawing is None:
-                    continue
-                m = q.now.latest if q.now is not None else None
-                visible = m is not None and q.source in places
-                q.drawing.set_visible(visible)
-                if visible:
-                    ahead = q.ahead.latest if (q.ahead and self.offset_s > 0) else None
-                    q.trail.append(np.asarray(m.pose.position, float))
-                    del q.trail[: max(0, len(q.trail) - int(self.style.trail_s * self.rate_hz))]
-                    q.drawing.update(m.pose, ahead.pose if ahead else None, np.array(q.trail))
+                    node.position, node.wxyz = pose.position, to_wxyz(pose.quaternion)
+            if self.batch is not None:
+                self.batch.update(bodies, trails)
+            if now_wall - self._label_wall > 0.5:  # labels follow at 2 Hz
+                self._label_wall = now_wall
+                for label, b in zip(self.labels, bodies):
+                    label.visible = b is not None
+                    if b is not None:
+                        label.position = b.position + [0.0, 0.0, self.style.axes_length * 0.6]
         if now_wall - self._panel_wall > 0.2:
             self._panel_wall = now_wall
             self._update_panel(now_ns, now_wall)
@@ -274,8 +263,8 @@ class LiveView:
             + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if self.offset_s > 0 else "")
         )
 
-    def _place_frames(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """World placement (position, wxyz) of every frame reachable from the root through
+    def _place_frames(self) -> dict[str, Pose]:
+        """World placement ``T_root_frame`` of every frame reachable from the root through
         static values and the newest measurements."""
         known: dict[str, Pose] = {self.root: Pose.identity()}
         values = []
@@ -294,9 +283,38 @@ class LiveView:
                 elif b in known and a not in known:
                     known[a] = known[b] @ T_a_b.inverse()
                     changed = True
-        from .glyphs import to_wxyz
+        return known
 
-        return {f: (np.asarray(p.position, float), to_wxyz(p.quaternion)) for f, p in known.items()}
+    def _collect(self, places: dict[str, Pose]):
+        """Every body's pose (and prediction) in the world frame, with its trail."""
+        bodies: list[BodyFrame | None] = []
+        trails: list[np.ndarray | None] = []
+        keep = max(2, int(self.style.trail_s * self.rate_hz))
+        for b in self.bodies:
+            frame = places.get(b.source)
+            if isinstance(b, _Edge):
+                m = b.tap.latest
+                b.tap.request_filtered()
+                pose = None
+                if m is not None and self.show_sensors:
+                    pose = b.tap.filtered if b.tap.filtered is not None else m.pose
+                ahead = None
+            else:
+                m = b.now.latest
+                pose = None if m is None else m.pose
+                a = b.ahead.latest if (b.ahead is not None and self.offset_s > 0) else None
+                ahead = None if a is None else a.pose
+            if pose is None or frame is None:
+                bodies.append(None)
+                trails.append(None)
+                continue
+            world = _to_world(frame, pose)
+            pred = None if ahead is None else _to_world(frame, ahead)
+            bodies.append(BodyFrame(*world, predicted=pred))
+            b.trail.append(world[0])
+            del b.trail[:-keep]
+            trails.append(np.array(b.trail))
+        return bodies, trails
 
     def edge_statuses(self, now_ns: int | None = None) -> list[EdgeStatus]:
         """The panel's view of every edge and of every query without a path."""
@@ -386,6 +404,19 @@ class LiveView:
         self.view.close()
 
 
+def _to_world(T_w_a: Pose, pose: UncertainPose):
+    """``T_w_a @ pose`` with ``T_w_a`` exact: position, quaternion and covariance in the world
+    frame (the translation error rotates with ``R_w_a``; the body-frame rotation error does
+    not change)."""
+    r = T_w_a.rotation_matrix
+    pos = r @ np.asarray(pose.position, float) + T_w_a.position
+    quat = quat_multiply(T_w_a.quaternion, pose.quaternion)
+    c = np.array(pose.covariance, float)
+    c[:3, :] = r @ c[:3, :]
+    c[:, :3] = c[:, :3] @ r.T
+    return pos, quat, c
+
+
 def _tap_after(network: Network, comp, name: str, kalman=None) -> Tap:
     tap = network.add(Tap(name, kalman=kalman))
     network.connect(comp, tap, mode="push")
@@ -414,6 +445,7 @@ def attach_view(
     rate_hz: float = 30.0,
     style: Style | None = None,
     errors: dict[str, str] | None = None,
+    cpu_share: float = 0.25,
 ) -> LiveView:
     """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
 
@@ -431,6 +463,9 @@ def attach_view(
         Queries of the setup that have no path (drawn as "no path" in the panel).
     rate_hz : float
         View frames per second (the decimation: taps hand over the newest event only).
+    cpu_share : float
+        Most of the wall time the view thread may spend drawing; a slower machine gets fewer
+        frames per second than ``rate_hz``.
     """
     comps = network.components
     kalmans = {c.name: c for c in comps.values() if isinstance(c, KalmanFilter)}
@@ -483,5 +518,6 @@ def attach_view(
         if q is not None:
             queries.append(_QueryView(qname, q.source, q.target, (), error=msg))
     return LiveView(
-        network, edges, queries, frames, root, host=host, port=port, rate_hz=rate_hz, style=style
-    )
+        network, edges, queries, frames, root, host=host, port=port, rate_hz=rate_hz,
+        style=style, cpu_share=cpu_share,
+    )  # fmt: skip
