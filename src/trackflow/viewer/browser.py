@@ -59,10 +59,19 @@ class Browser:
         Viewport in CSS pixels (screenshots have this size).
     timeout_s : float
         Bound of every wait (page load, text to appear).
+    executable : path, optional
+        The browser to launch (default :func:`find_chromium`).
     """
 
-    def __init__(self, width: int = 1280, height: int = 800, timeout_s: float = 60.0):
+    def __init__(
+        self,
+        width: int = 1280,
+        height: int = 800,
+        timeout_s: float = 60.0,
+        executable: str | Path | None = None,
+    ):
         self.width, self.height, self.timeout_ms = int(width), int(height), timeout_s * 1e3
+        self.executable = executable
         self._pw = self._browser = None
 
     def __enter__(self) -> Browser:
@@ -72,7 +81,7 @@ class Browser:
             raise RuntimeError(
                 "snapshots need playwright: pip install 'trackflow[viewer]'"
             ) from exc
-        exe = find_chromium()
+        exe = self.executable or find_chromium()
         self._pw = sync_playwright().start()
         try:
             self._browser = self._pw.chromium.launch(

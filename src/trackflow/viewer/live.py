@@ -88,7 +88,7 @@ class LiveView:
         port: int,
         rate_hz: float,
         style: Style | None,
-        cpu_share: float = 0.25,
+        cpu_share: float = 0.15,
     ):
         if not 1.0 <= rate_hz <= 120.0:
             raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
@@ -445,7 +445,7 @@ def attach_view(
     rate_hz: float = 30.0,
     style: Style | None = None,
     errors: dict[str, str] | None = None,
-    cpu_share: float = 0.25,
+    cpu_share: float = 0.15,
 ) -> LiveView:
     """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
 
