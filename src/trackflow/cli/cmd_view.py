@@ -25,6 +25,13 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--at", type=float, default=None, help="time [s] of the snapshot/start")
     p.add_argument("--sigma", type=int, choices=(1, 2, 3), default=1, help="sigma level")
     p.add_argument("--offset-ms", type=float, default=0.0, help="prediction offset [ms]")
+    p.add_argument(
+        "--magnify",
+        type=float,
+        default=None,
+        help="draw ellipsoids this many times their size (default: 1 live, automatic for a "
+        "recording)",
+    )
     p.add_argument("--query", default=None, help="setup: the selected query (default first)")
     p.add_argument(
         "--posetool",
@@ -51,6 +58,7 @@ def run(args) -> int:
         format=args.format,
         clean=args.clean,
         posetool=args.posetool,
+        magnify=args.magnify,
     )
     out = serve(args.target, opts, snapshot=args.snapshot, size=(args.width, args.height))
     if out is not None:

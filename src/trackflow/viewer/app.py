@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -30,6 +31,7 @@ class ViewOptions:
     duration_s: float = 120.0
     rate_hz: float = 30.0
     seed: int = 0
+    magnify: float | None = None
     posetool: bool = False
     tune_fraction: float = 0.5
 
@@ -77,6 +79,8 @@ class SetupRun:
             self.view.selected_query = opts.query
         self.view.set_sigma(opts.sigma)
         self.view.set_offset(opts.offset_s)
+        if opts.magnify is not None:
+            self.view.set_magnify(opts.magnify)
         self._stop = threading.Event()
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, daemon=True, name="trackflow-network")
@@ -99,9 +103,12 @@ class SetupRun:
                 raise RuntimeError(f"the network did not reach t = {t_s} s in {timeout_s} s")
             time.sleep(0.02)
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop the view and let the network finish its current run (a run cannot be
+        interrupted; with short data - as for a snapshot - it ends within ``timeout_s``)."""
         self._stop.set()
         self.view.close()
+        self._thread.join(timeout=timeout_s)
 
 
 def start_setup(path: str | Path, opts: ViewOptions) -> SetupRun:
@@ -115,6 +122,10 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
     from .browser import snapshot as take
 
     if is_setup(target):
+        if snapshot is not None:
+            # data just past the snapshot time, so the network thread ends soon after it
+            at = 3.0 if opts.at_s is None else float(opts.at_s)
+            opts = dataclasses.replace(opts, duration_s=min(opts.duration_s, at + 2.0))
         run = start_setup(target, opts)
         try:
             if snapshot is not None:
@@ -137,6 +148,8 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
     try:
         view.set_sigma(opts.sigma)
         view.set_offset(opts.offset_s)
+        if opts.magnify is not None:
+            view.magnify.value = float(opts.magnify)
         at = 0.0 if opts.at_s is None else float(opts.at_s)
         if not 0.0 <= at <= view.track.duration:
             raise ValueError(

@@ -9,6 +9,7 @@ construction (a hidden body is drawn with zero size), so the arrays never change
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -149,6 +150,7 @@ class BatchDrawing:
         self.pos_err.batched_positions = pos
         self.pos_err.batched_wxyzs = to_wxyz(quat_from_matrix(axes))
         self.pos_err.batched_scales = self._scales(radii, shown)
+        time.sleep(0)  # hand the interpreter to the dataflow thread if it waits (see live.py)
         if st.show_orientation:
             r = quat_to_matrix(quat)  # (n, 3, 3)
             c_rot = cov[:, 3:, 3:]
@@ -167,7 +169,9 @@ class BatchDrawing:
             self.ori_err.batched_scales = self._scales(tr, np.repeat(shown, 3))
         else:
             self.ori_err.batched_scales = np.full((3 * n, 3), _HIDDEN)
+        time.sleep(0)
         self._update_ghosts(bodies)
+        time.sleep(0)
         self._update_trails(trails)
 
     def _scales(self, radii: np.ndarray, shown: np.ndarray) -> np.ndarray:

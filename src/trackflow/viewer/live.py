@@ -23,7 +23,7 @@ from .glyphs import to_wxyz
 from .graph_panel import EdgeStatus, classify, render_panel
 from .monitor import Tap
 from .scene import PALETTE, Style, frame_node
-from .server import ViewServer
+from .server import SECONDS_AXIS, ViewServer
 
 __all__ = ["LiveView", "attach_view"]
 
@@ -155,7 +155,7 @@ class LiveView:
         self.c_query.on_update(lambda _: self._set(selected_query=self.c_query.value))
         self.c_sigma.on_update(lambda _: self.set_sigma(float(self.c_sigma.value)))
         self.c_offset.on_update(lambda _: self.set_offset(self.c_offset.value * 1e-3))
-        self.c_magnify.on_update(lambda _: self._set_style(magnify=float(self.c_magnify.value)))
+        self.c_magnify.on_update(lambda _: self.set_magnify(float(self.c_magnify.value)))
         self.c_sensors.on_update(lambda _: self._set(show_sensors=bool(self.c_sensors.value)))
         self.c_pause.on_update(lambda _: self._set(paused=bool(self.c_pause.value)))
         with gui.add_folder("Spatial relationship graph"):
@@ -167,6 +167,7 @@ class LiveView:
             empty = (np.zeros(2), np.zeros(2))
             self.plots = {
                 key: gui.add_uplot(
+                    scales=SECONDS_AXIS,
                     data=empty,
                     series=({"label": "t [s]"}, {"label": label, "stroke": colour}),
                     title=label,
@@ -194,6 +195,14 @@ class LiveView:
     def set_sigma(self, sigma: float) -> None:
         """Sigma level (1, 2 or 3) of every ellipsoid."""
         self._set_style(sigma=float(sigma))
+        if self.c_sigma.value != str(int(sigma)):
+            self.c_sigma.value = str(int(sigma))
+
+    def set_magnify(self, magnify: float) -> None:
+        """Draw every ellipsoid ``magnify`` times its size (1: true to scale)."""
+        self._set_style(magnify=float(magnify))
+        if self.c_magnify.value != float(magnify):
+            self.c_magnify.value = float(magnify)
 
     def set_offset(self, offset_s: float) -> None:
         """Prediction offset [s]: each query is also drawn this far ahead of its own time."""
@@ -202,6 +211,8 @@ class LiveView:
             if q.ahead_sampler is not None:
                 q.ahead_sampler.offset_ns = q.base_offset_ns + off  # one int store
         self._set(offset_s=off * 1e-9)
+        if abs(self.c_offset.value - off * 1e-6) > 1e-9:
+            self.c_offset.value = off * 1e-6
 
     offset_s = 0.0
 
@@ -236,6 +247,11 @@ class LiveView:
             self.view.look_at(0.5 * (lo + hi), max(float(np.max(hi - lo)), 0.3))
             self._framed = True
         bodies, trails = self._collect(places)
+        # Between the phases of a frame the view sleeps for zero seconds: that releases the
+        # interpreter lock, so a dataflow thread waiting for it runs now instead of after the
+        # interpreter's switch interval (5 ms), and a frame never holds the dataflow up for
+        # longer than one phase.
+        time.sleep(0)
         with self.view.server.atomic():
             for f, node in self.frame_nodes.items():
                 pose = places.get(f)
@@ -250,6 +266,7 @@ class LiveView:
                     label.visible = b is not None
                     if b is not None:
                         label.position = b.position + [0.0, 0.0, self.style.axes_length * 0.6]
+        time.sleep(0)
         if now_wall - self._panel_wall > 0.2:
             self._panel_wall = now_wall
             self._update_panel(now_ns, now_wall)

@@ -26,7 +26,7 @@ from ..evaluation import (
 )
 from ..filters import MotionModel
 from ..io import PoseStream
-from .server import ViewServer
+from .server import SECONDS_AXIS, ViewServer
 
 __all__ = ["PoseToolPage", "manual_predictor"]
 
@@ -146,6 +146,7 @@ class PoseToolPage:
         self.tuned_text = gui.add_markdown("automatic tuning: running ...")
         zeros = (np.zeros(2),) * 5
         self.curves = gui.add_uplot(
+                scales=SECONDS_AXIS,
             data=zeros,
             series=(
                 {"label": "t [s]"},
@@ -157,6 +158,7 @@ class PoseToolPage:
             title="x position: predictions made one horizon earlier", aspect=1.6,
         )  # fmt: skip
         self.errors = gui.add_uplot(
+                scales=SECONDS_AXIS,
             data=(np.zeros(2),) * 3,
             series=(
                 {"label": "t [s]"},

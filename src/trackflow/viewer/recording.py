@@ -20,7 +20,7 @@ from ..evaluation import KalmanPredictor, default_gap, default_predictor
 from ..io import PoseStream
 from ..math import Pose, UncertainPose
 from .scene import PALETTE, PoseDrawing, Style, frame_node
-from .server import ViewServer
+from .server import SECONDS_AXIS, ViewServer
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_magnify"]
 
@@ -189,6 +189,7 @@ class RecordingView:
                 ("NIS", nis, ""),
             ):
                 gui.add_uplot(
+                scales=SECONDS_AXIS,
                     data=(t[::step], np.asarray(y[::step], float)),
                     series=({"label": "t [s]"}, {"label": f"{title} {unit}", "stroke": "#c0c"}),
                     title=title, aspect=2.0,

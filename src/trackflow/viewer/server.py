@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ViewServer"]
+__all__ = ["SECONDS_AXIS", "ViewServer"]
+
+#: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
+SECONDS_AXIS = {"x": {"time": False}}
 
 
 def _refuse_share(*_args, **_kwargs) -> None:
