@@ -26,6 +26,7 @@ shared.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import tempfile
@@ -126,6 +127,18 @@ def _runs(args, browser, without, with_, fps, late_without, late_with) -> None:
         fps.append(f)
 
 
+def _measure(args, exe):
+    run_once(1.0, False, None, args.rate_hz)  # warm-up: compiled kernels loaded
+    without, with_, fps, late_without, late_with = [], [], [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        nice = Path(tmp) / "chromium-nice"
+        nice.write_text(f'#!/bin/sh\nexec nice -n 19 "{exe}" "$@"\n')
+        nice.chmod(0o755)
+        with Browser(1000, 700, timeout_s=120, executable=nice) as browser:
+            _runs(args, browser, without, with_, fps, late_without, late_with)
+    return without, with_, fps, late_without, late_with
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", action="store_true")
@@ -134,14 +147,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rate-hz", type=float, default=RATE_HZ, help="sensor rate [Hz]")
     args = ap.parse_args(argv)
     exe = find_chromium()
-    run_once(1.0, False, None)  # warm-up: compiled kernels loaded, caches filled
-    without, with_, fps, late_without, late_with = [], [], [], [], []
-    with tempfile.TemporaryDirectory() as tmp:
-        nice = Path(tmp) / "chromium-nice"
-        nice.write_text(f'#!/bin/sh\nexec nice -n 19 "{exe}" "$@"\n')
-        nice.chmod(0o755)
-        with Browser(1000, 700, timeout_s=120, executable=nice) as browser:
-            _runs(args, browser, without, with_, fps, late_without, late_with)
+    with contextlib.redirect_stdout(sys.stderr):  # stdout carries the result only
+        without, with_, fps, late_without, late_with = _measure(args, exe)
     result = {
         "dataflow_p99_us_without": round(min(without), 1),
         "dataflow_p99_us_with": round(min(with_), 1),

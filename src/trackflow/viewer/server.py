@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+
 import numpy as np
 
 __all__ = ["SECONDS_AXIS", "ViewServer"]
@@ -28,7 +31,10 @@ class ViewServer:
             import viser
         except ImportError as exc:  # pragma: no cover - the viewer extra installs it
             raise RuntimeError("the viewer needs viser: pip install 'trackflow[viewer]'") from exc
-        self.server = viser.ViserServer(host=host, port=int(port), label=title, verbose=False)
+        # viser prints a banner (and "Server stopped") on stdout whatever ``verbose`` says;
+        # stdout belongs to the command (``--json`` output), so the banner is dropped
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server = viser.ViserServer(host=host, port=int(port), label=title, verbose=False)
         self.scene, self.gui = self.server.scene, self.server.gui
         # viser can publish a page through its share service (a tunnel to an outside server) when
         # a client asks; this view serves only its own page on the bound address: no share
@@ -67,4 +73,5 @@ class ViewServer:
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def close(self) -> None:
-        self.server.stop()
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server.stop()
