@@ -141,7 +141,10 @@ def snapshot(
     height: int = 800,
     timeout_s: float = 90.0,
 ) -> Path:
-    """Render ``url`` in headless Chromium and write a PNG to ``out``; returns the path."""
+    """Render ``url`` in headless Chromium and write a PNG to ``out``; returns the path.
+
+    Starts its own :class:`Browser` (Playwright's sync API: not from inside another
+    ``Browser`` context of the same thread)."""
     out = Path(out)
     with Browser(width, height, timeout_s) as b:
         page = b.open(url, wait_text)

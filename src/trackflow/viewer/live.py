@@ -485,7 +485,6 @@ def attach_view(
         frames per second than ``rate_hz``.
     """
     comps = network.components
-    kalmans = {c.name: c for c in comps.values() if isinstance(c, KalmanFilter)}
     players = {c.name: c for c in comps.values() if isinstance(c, RecordingPlayer)}
     edges: list[_Edge] = []
     frames: list[str]
@@ -498,9 +497,8 @@ def attach_view(
                 continue
             player = players.get(edge.name)
             fed = [c for c, _ in player.consumers] if player is not None else []
-            kf = kalmans.get(edge.name) or next(
-                (c for c in fed if isinstance(c, KalmanFilter)), None
-            )
+            # the planner puts the sensor's filter right behind its source
+            kf = next((c for c in fed if isinstance(c, KalmanFilter)), None)
             behind = kf if kf is not None else player
             tap = _tap_after(network, behind, f"view:{edge.name}", kf) if behind else None
             edges.append(
