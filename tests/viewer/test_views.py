@@ -170,3 +170,21 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     bad.write_text("sensors:\n  - {name: a, source: A}\n")
     assert main(["view", str(bad), "--snapshot", str(tmp_path / "y.png")]) == 1
     assert "bad.yaml" in capsys.readouterr().err
+
+
+def test_a_setup_runs_live_on_the_wall_clock(tmp_path):
+    import yaml
+
+    from trackflow.viewer import ViewOptions, start_setup
+
+    path = tmp_path / "setup.yaml"
+    path.write_text(yaml.safe_dump(SETUP))
+    run = start_setup(path, ViewOptions(port=0, duration_s=2.0, rate_hz=20))
+    try:
+        run.wait_network_time(1.0, timeout_s=120)
+        states = {s.name: s.state for s in run.view.edge_statuses()}
+        assert states == {"art": "live", "lost": "no path"}
+        assert run.network["view:art"].count > 50
+    finally:
+        run.close()
+    assert run.error is None
