@@ -100,7 +100,8 @@ def run_once(
     view = page = None
     if with_view:
         view = attach_view(net, setup, plans, port=0, rate_hz=30.0)
-        page = browser.open(view.url, "live")
+        if browser is not None:
+            page = browser.open(view.url, "live")
     try:
         t0 = time.perf_counter()
         frames0 = view.frames_sent if view else 0
@@ -130,6 +131,9 @@ def _runs(args, browser, without, with_, fps, late_without, late_with) -> None:
 def _measure(args, exe):
     run_once(1.0, False, None, args.rate_hz)  # warm-up: compiled kernels loaded
     without, with_, fps, late_without, late_with = [], [], [], [], []
+    if args.no_browser:  # the view's own cost, without a page to serve
+        _runs(args, None, without, with_, fps, late_without, late_with)
+        return without, with_, fps, late_without, late_with
     with tempfile.TemporaryDirectory() as tmp:
         nice = Path(tmp) / "chromium-nice"
         nice.write_text(f'#!/bin/sh\nexec nice -n 19 "{exe}" "$@"\n')
@@ -145,6 +149,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--rate-hz", type=float, default=RATE_HZ, help="sensor rate [Hz]")
+    ap.add_argument("--no-browser", action="store_true", help="attach the view, connect no page")
     args = ap.parse_args(argv)
     exe = find_chromium()
     with contextlib.redirect_stdout(sys.stderr):  # stdout carries the result only

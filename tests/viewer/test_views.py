@@ -188,3 +188,25 @@ def test_a_setup_runs_live_on_the_wall_clock(tmp_path):
     finally:
         run.close()
     assert run.error is None
+
+
+def test_the_view_measures_how_late_the_dataflow_runs():
+    net = Network()
+    t = np.arange(0, 0.1, 0.01)
+    stamps = np.round(t * 1e9).astype(np.int64)
+    quats = np.tile([0, 0, 0, 1.0], (len(t), 1))
+    net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
+    live = attach_view(net, port=0, rate_hz=10)
+    try:
+        live.paused = True  # the test drives the clock
+        c = net.clock
+        c.now_ns, c.dispatch_wall_ns = 1_000_000_000, 5_000_000_000
+        assert live.dataflow_lag_s() == 0.0
+        c.now_ns, c.dispatch_wall_ns = 2_000_000_000, 6_050_000_000  # 50 ms behind
+        assert live.dataflow_lag_s() == pytest.approx(0.05)
+        c.now_ns, c.dispatch_wall_ns = 3_000_000_000, 7_000_000_000  # caught up
+        assert live.dataflow_lag_s() == pytest.approx(0.0)
+        c.now_ns, c.dispatch_wall_ns = 500_000_000, 9_000_000_000  # a new run starts
+        assert live.dataflow_lag_s() == 0.0
+    finally:
+        live.close()

@@ -74,6 +74,8 @@ class LiveView:
         running time).
     frame_cost_s : float
         Smoothed wall time of drawing one frame [s].
+    frames_skipped : int
+        Frames not drawn because the dataflow ran more than ``max_lag_s`` (20 ms) late.
     """
 
     def __init__(
@@ -99,6 +101,11 @@ class LiveView:
         self.view = ViewServer(host, port, title="trackflow live")
         self.view.look_at((0.3, 0.0, 0.2), 1.2)
         self.frames_sent = 0
+        self.frames_skipped = 0
+        self.max_lag_s = 0.02
+        self._lag_ref: int | None = None
+        self._lag_now = 0
+        self._skip_note = 0.0
         self.frame_cost_s = 0.0
         self.cpu_share = float(cpu_share)
         if not 0.0 < self.cpu_share <= 1.0:
@@ -220,7 +227,8 @@ class LiveView:
     def _loop(self) -> None:
         """Render at ``rate_hz`` at most, and never more than ``cpu_share`` of the wall time:
         a frame that took ``c`` seconds is followed by at least ``c / cpu_share`` seconds
-        before the next, so a slow machine gets fewer view frames, not a slower dataflow."""
+        before the next, so a slow machine gets fewer view frames, not a slower dataflow. While
+        the dataflow runs late (:meth:`dataflow_lag_s` above ``max_lag_s``) no frame is drawn."""
         period = 1.0 / self.rate_hz
         nxt = time.perf_counter()
         while not self._stop.is_set():
@@ -228,12 +236,35 @@ class LiveView:
             if delay > 0 and self._stop.wait(delay):
                 break
             start = time.perf_counter()
-            if not self.paused:
-                with self._lock:
-                    self.render_frame()
+            lag = 0.0 if self.paused else self.dataflow_lag_s()
+            if self.paused or lag > self.max_lag_s:
+                if not self.paused:
+                    self.frames_skipped += 1
+                    if start - self._skip_note > 1.0:  # say why the picture stands still
+                        self._skip_note = start
+                        self.view.set_status(
+                            f"**live** - view held: the dataflow runs {lag * 1e3:.0f} ms late"
+                        )
+                nxt = start + period
+                continue
+            with self._lock:
+                self.render_frame()
             cost = time.perf_counter() - start
             self.frame_cost_s = 0.9 * self.frame_cost_s + 0.1 * cost
             nxt = max(nxt + period, start + cost / self.cpu_share)
+
+    def dataflow_lag_s(self) -> float:
+        """How late the network dispatches its events on the wall clock [s], relative to the
+        least-late dispatch seen in this run (0 for a virtual-clock run, which is never late)."""
+        c = self.network.clock
+        now_ns, wall_ns = c.now_ns, c.dispatch_wall_ns
+        if not wall_ns:
+            return 0.0
+        offset = wall_ns - now_ns
+        if self._lag_ref is None or now_ns < self._lag_now or offset < self._lag_ref:
+            self._lag_ref = offset  # first event, a new run, or a less late one
+        self._lag_now = now_ns
+        return (offset - self._lag_ref) * 1e-9
 
     def render_frame(self) -> None:
         """Draw one view frame from what the taps hold (called by the view thread)."""
