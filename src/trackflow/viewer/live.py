@@ -58,7 +58,7 @@ class _QueryView:
     path_edges: tuple[str, ...]
     now: Tap | None = None
     ahead: Tap | None = None
-    ahead_sampler: Sampler | None = None
+    ahead_sampler: _ViewSampler | None = None
     base_offset_ns: int = 0
     trail: list = field(default_factory=list)
     error: str = ""
@@ -217,6 +217,7 @@ class LiveView:
         for q in self.queries:
             if q.ahead_sampler is not None:
                 q.ahead_sampler.offset_ns = q.base_offset_ns + off  # one int store
+                q.ahead_sampler.enabled = off > 0
         self._set(offset_s=off * 1e-9)
         if abs(self.c_offset.value - off * 1e-6) > 1e-9:
             self.c_offset.value = off * 1e-6
@@ -471,16 +472,32 @@ def _tap_after(network: Network, comp, name: str, kalman=None) -> Tap:
     return tap
 
 
-def _query_output(network: Network, plan: Plan, prefix: str):
-    """The pull-able component feeding a query's sink (behind its sampler for push queries)."""
-    node = plan.node(plan.output)
-    src = node.inputs[0][0]
-    if plan.node(src).kind == "sampler":
-        src = plan.node(src).inputs[0][0]
-    comp = network.components.get(prefix + src) or network.components.get(src)
+def _component(network: Network, plan: Plan, prefix: str, node_id: str):
+    comp = network.components.get(prefix + node_id) or network.components.get(node_id)
     if comp is None:
-        raise ValueError(f"query {plan.query.name!r}: no component {src!r} in the network")
+        raise ValueError(f"query {plan.query.name!r}: no component {node_id!r} in the network")
     return comp
+
+
+def _query_ends(network: Network, plan: Plan, prefix: str):
+    """``(pull-able component feeding the query's sink, the query's own sampler or None)``."""
+    src = plan.node(plan.output).inputs[0][0]
+    sampler = None
+    if plan.node(src).kind == "sampler":
+        sampler = _component(network, plan, prefix, src)
+        src = plan.node(src).inputs[0][0]
+    return _component(network, plan, prefix, src), sampler
+
+
+class _ViewSampler(Sampler):
+    """A sampler the view can switch off: a disabled tick costs one attribute test."""
+
+    kind = "view sampler"
+    enabled = True
+
+    def tick(self, t_ns: int) -> None:
+        if self.enabled:
+            super().tick(t_ns)
 
 
 def attach_view(
@@ -550,13 +567,19 @@ def attach_view(
         q = plan.query
         path_edges = tuple(s.edge.name for p in plan.paths for s in p.steps)
         qv = _QueryView(qname, q.source, q.target, path_edges)
-        out = _query_output(network, plan, prefix)
+        out, own = _query_ends(network, plan, prefix)
         qv.base_offset_ns = int(round(q.time_offset_s * 1e9))
-        now = network.add(Sampler(f"view:{qname}:now", rate_hz, qv.base_offset_ns))
-        network.connect(out, now, mode="pull")
-        qv.ahead_sampler = network.add(Sampler(f"view:{qname}:ahead", rate_hz, qv.base_offset_ns))
+        if own is not None:  # a push query: its own answers, no extra work in the dataflow
+            qv.now = _tap_after(network, own, f"view:{qname}:now:tap")
+        else:  # a pull query: the view samples it at the view rate
+            now = network.add(_ViewSampler(f"view:{qname}:now", rate_hz, qv.base_offset_ns))
+            network.connect(out, now, mode="pull")
+            qv.now = _tap_after(network, now, f"view:{qname}:now:tap")
+        # the prediction ghost: ticks only while a prediction offset is set
+        ahead = _ViewSampler(f"view:{qname}:ahead", rate_hz, qv.base_offset_ns)
+        ahead.enabled = False
+        qv.ahead_sampler = network.add(ahead)
         network.connect(out, qv.ahead_sampler, mode="pull")
-        qv.now = _tap_after(network, now, f"view:{qname}:now:tap")
         qv.ahead = _tap_after(network, qv.ahead_sampler, f"view:{qname}:ahead:tap")
         queries.append(qv)
     for qname, msg in (errors or {}).items():
