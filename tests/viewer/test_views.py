@@ -203,13 +203,17 @@ def test_the_view_measures_how_late_the_dataflow_runs():
     try:
         live.paused = True  # the test drives the clock
         c = net.clock
-        c.now_ns, c.dispatch_wall_ns = 1_000_000_000, 5_000_000_000
+        # a network dispatching now (wall times within the last 100 ms)
+        w = time.perf_counter_ns()
+        c.now_ns, c.dispatch_wall_ns = 1_000_000_000, w
         assert live.dataflow_lag_s() == 0.0
-        c.now_ns, c.dispatch_wall_ns = 2_000_000_000, 6_050_000_000  # 50 ms behind
+        c.now_ns, c.dispatch_wall_ns = 1_020_000_000, w + 70_000_000  # 50 ms behind
         assert live.dataflow_lag_s() == pytest.approx(0.05)
-        c.now_ns, c.dispatch_wall_ns = 3_000_000_000, 7_000_000_000  # caught up
+        c.now_ns, c.dispatch_wall_ns = 1_090_000_000, w + 90_000_000  # caught up
         assert live.dataflow_lag_s() == pytest.approx(0.0)
-        c.now_ns, c.dispatch_wall_ns = 500_000_000, 9_000_000_000  # a new run starts
+        c.now_ns, c.dispatch_wall_ns = 500_000_000, w + 95_000_000  # a new run starts
+        assert live.dataflow_lag_s() == 0.0
+        c.now_ns, c.dispatch_wall_ns = 900_000_000, w - 2_000_000_000  # idle for 2 s
         assert live.dataflow_lag_s() == 0.0
     finally:
         live.close()

@@ -256,11 +256,12 @@ class LiveView:
 
     def dataflow_lag_s(self) -> float:
         """How late the network dispatches its events on the wall clock [s], relative to the
-        least-late dispatch seen in this run (0 for a virtual-clock run, which is never late)."""
+        least-late dispatch seen in this run; 0 while nothing was dispatched in the last 100 ms
+        (an idle or finished network, or a virtual-clock run that has ended)."""
         c = self.network.clock
         now_ns, wall_ns = c.now_ns, c.dispatch_wall_ns
-        if not wall_ns:
-            return 0.0
+        if not wall_ns or time.perf_counter_ns() - wall_ns > 100_000_000:
+            return 0.0  # nothing dispatched for 100 ms: an idle (or finished) network is not late
         offset = wall_ns - now_ns
         if self._lag_ref is None or now_ns < self._lag_now or offset < self._lag_ref:
             self._lag_ref = offset  # first event, a new run, or a less late one
