@@ -5,12 +5,12 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-min lint demo demo-live bench clean
+.PHONY: venv test test-min lint demo demo-live bench clean browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,distributed]'
+	$(PY) -m pip install --quiet -e '.[dev,distributed,viewer]'
 	# compile the numba kernels once, at install, so no command's first run waits for it
 	$(VENV)/bin/trackflow compile
 	touch $(STAMP)
@@ -21,7 +21,14 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests bench experiments
 	$(VENV)/bin/ruff format --check src tests bench experiments
 
-test: lint
+# Headless Chromium for the viewer's browser tests and `trackflow view --snapshot`: Debian's
+# package (Playwright drives it; it downloads no browser).
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
+		{ $(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq chromium; }
+
+test: lint browser
 	$(PY) -m pytest -q -n 2 --dist loadfile
 
 # The suite on the declared minimum versions (constraints/min.txt), in a venv of its own.
@@ -48,7 +55,7 @@ demo-live: $(STAMP)
 
 # Benchmarks compare against peers that are never runtime dependencies.
 $(VENV)/.bench: $(STAMP)
-	$(PY) -m pip install --quiet -e '.[dev,distributed,bench]'
+	$(PY) -m pip install --quiet -e '.[dev,distributed,viewer,bench]'
 	touch $(VENV)/.bench
 
 bench: $(VENV)/.bench

@@ -1,0 +1,66 @@
+"""``trackflow view``: the browser view of a live setup or a recording (thesis 8.2)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import add_input
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "view",
+        help="3D browser view of a setup (live) or a recording (timeline), with error ellipsoids",
+        description="Serve a viser page showing poses with their position and orientation error "
+        "glyphs. A YAML setup runs its network (simulated sensors where no recording is given) "
+        "and shows every frame, sensor and query with the SRG panel; a recording gets a "
+        "timeline. With --snapshot nothing is served for long: one frame is rendered to PNG "
+        "through headless Chromium and the command exits.",
+    )
+    add_input(p, "target")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default loopback only)")
+    p.add_argument("--port", type=int, default=8080, help="port (0: any free port)")
+    p.add_argument("--snapshot", type=Path, default=None, help="write one frame to this PNG")
+    p.add_argument("--at", type=float, default=None, help="time [s] of the snapshot/start")
+    p.add_argument("--sigma", type=int, choices=(1, 2, 3), default=1, help="sigma level")
+    p.add_argument("--offset-ms", type=float, default=0.0, help="prediction offset [ms]")
+    p.add_argument(
+        "--magnify",
+        type=float,
+        default=None,
+        help="draw ellipsoids this many times their size (default: 1 live, automatic for a "
+        "recording)",
+    )
+    p.add_argument("--query", default=None, help="setup: the selected query (default first)")
+    p.add_argument(
+        "--posetool",
+        action="store_true",
+        help="recording: the PoseTool page (hand-tune the Kalman predictor beside the "
+        "automatic tuning; --offset-ms sets the starting horizon)",
+    )
+    p.add_argument("--width", type=int, default=1280, help="snapshot width [px]")
+    p.add_argument("--height", type=int, default=800, help="snapshot height [px]")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    from ..viewer import ViewOptions, serve
+
+    opts = ViewOptions(
+        host=args.host,
+        port=0 if args.snapshot is not None else args.port,
+        at_s=args.at,
+        sigma=args.sigma,
+        offset_s=args.offset_ms * 1e-3,
+        query=args.query,
+        format=args.format,
+        clean=args.clean,
+        posetool=args.posetool,
+        magnify=args.magnify,
+    )
+    out = serve(args.target, opts, snapshot=args.snapshot, size=(args.width, args.height))
+    if out is not None:
+        print(f"snapshot written to {out}")
+    return 0

@@ -1,0 +1,191 @@
+"""What ``trackflow view`` runs: a setup live, or a recording on a timeline; or one snapshot."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..dataflow import Network, Plan, Setup, load_setup
+from .live import LiveView, attach_view
+from .simulate import setup_sources
+
+__all__ = ["SetupRun", "ViewOptions", "is_setup", "serve", "start_setup"]
+
+
+@dataclass
+class ViewOptions:
+    """Options of :func:`serve` (the command line's flags)."""
+
+    host: str = "127.0.0.1"
+    port: int = 8080
+    at_s: float | None = None
+    sigma: int = 1
+    offset_s: float = 0.0
+    query: str | None = None
+    format: str | None = None
+    clean: bool = False
+    duration_s: float = 120.0
+    rate_hz: float = 30.0
+    seed: int = 0
+    magnify: float | None = None
+    posetool: bool = False
+    tune_fraction: float = 0.5
+
+
+def is_setup(path: str | Path) -> bool:
+    """A YAML file is a setup; anything else is read as a recording."""
+    return Path(path).suffix.lower() in (".yaml", ".yml")
+
+
+class SetupRun:
+    """A setup's network running on the wall clock in a background thread, with its view.
+
+    The network plans every query of the setup (queries without a path are listed in the
+    view's panel as "no path"), plays recordings or simulated sensors for ``duration_s`` and
+    starts over until :meth:`close`.
+    """
+
+    def __init__(self, setup: Setup, opts: ViewOptions):
+        self.setup = setup
+        self.network = Network()
+        sources = setup_sources(setup, opts.duration_s, opts.seed)
+        plans: dict[str, tuple[Plan, str]] = {}
+        errors: dict[str, str] = {}
+        for name, q in setup.queries.items():
+            try:
+                plan = setup.plan(q)
+            except ValueError as exc:
+                errors[name] = str(exc)
+                continue
+            prefix = f"{name}:"
+            plan.build(sources, network=self.network, prefix=prefix)
+            plans[name] = (plan, prefix)
+        if not plans and not sources:
+            raise ValueError(f"{setup.source}: nothing to show (no sensors and no queries)")
+        for name, player in sources.items():  # sensors no query uses still run and show
+            if name not in self.network.components:
+                self.network.add(player)
+        self.view: LiveView = attach_view(
+            self.network, setup, plans, host=opts.host, port=opts.port, rate_hz=opts.rate_hz,
+            errors=errors,
+        )  # fmt: skip
+        if opts.query:
+            if opts.query not in plans:
+                raise ValueError(f"{setup.source}: no plannable query {opts.query!r}")
+            self.view.selected_query = opts.query
+        self.view.set_sigma(opts.sigma)
+        self.view.set_offset(opts.offset_s)
+        if opts.magnify is not None:
+            self.view.set_magnify(opts.magnify)
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, daemon=True, name="trackflow-network")
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self.network.run(realtime=True)
+        except (ValueError, RuntimeError) as exc:  # reported by serve()
+            self.error = exc
+
+    def wait_network_time(self, t_s: float, timeout_s: float) -> None:
+        """Block until the network clock passed ``t_s`` seconds (bounded by ``timeout_s``)."""
+        end = time.monotonic() + timeout_s
+        while self.network.clock.now_ns * 1e-9 < t_s:
+            if self.error is not None:
+                raise RuntimeError(f"the network stopped: {self.error}")
+            if time.monotonic() > end:
+                raise RuntimeError(f"the network did not reach t = {t_s} s in {timeout_s} s")
+            time.sleep(0.02)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop the view and let the network finish its current run (a run cannot be
+        interrupted; with short data - as for a snapshot - it ends within ``timeout_s``)."""
+        self._stop.set()
+        self.view.close()
+        self._thread.join(timeout=timeout_s)
+
+
+def start_setup(path: str | Path, opts: ViewOptions) -> SetupRun:
+    """Load a YAML setup and start its network with a view (see :class:`SetupRun`)."""
+    return SetupRun(load_setup(path), opts)
+
+
+def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | None:
+    """Serve the view of ``target`` (a setup or a recording) until interrupted, or, with
+    ``snapshot``, render one frame to that PNG through headless Chromium and return its path."""
+    from .browser import snapshot as take
+
+    if is_setup(target):
+        if snapshot is not None:
+            # data just past the snapshot time, so the network thread ends soon after it
+            at = 3.0 if opts.at_s is None else float(opts.at_s)
+            opts = dataclasses.replace(opts, duration_s=min(opts.duration_s, at + 2.0))
+        run = start_setup(target, opts)
+        try:
+            if snapshot is not None:
+                at = 3.0 if opts.at_s is None else float(opts.at_s)
+                run.wait_network_time(at, timeout_s=at * 3 + 300)  # a first run compiles kernels
+                run.view.paused = True  # hold this frame while the browser loads
+                return take(run.view.url, snapshot, "live", *size)
+            return _block(run.view.url, run)
+        finally:
+            run.close()
+    from ..io import read_stream
+    from .recording import RecordingTrack, RecordingView
+
+    stream, report = read_stream(target, format=opts.format, clean=opts.clean)
+    if opts.clean:
+        print(str(report), file=sys.stderr)
+    if opts.posetool:
+        return _posetool(stream, opts, snapshot, size)
+    view = RecordingView(RecordingTrack.from_stream(stream), opts.host, opts.port)
+    try:
+        view.set_sigma(opts.sigma)
+        view.set_offset(opts.offset_s)
+        if opts.magnify is not None:
+            view.magnify.value = float(opts.magnify)
+        at = 0.0 if opts.at_s is None else float(opts.at_s)
+        if not 0.0 <= at <= view.track.duration:
+            raise ValueError(
+                f"--at {at} s is outside the recording (0 to {view.track.duration:.3f} s)"
+            )
+        view.show(at)
+        if snapshot is not None:
+            return take(view.url, snapshot, f"t = {view.t_s:.3f} s", *size)
+        return _block(view.url, view)
+    finally:
+        view.close()
+
+
+def _posetool(stream, opts: ViewOptions, snapshot, size) -> Path | None:
+    from .browser import snapshot as take
+    from .posetool import PoseToolPage
+
+    page = PoseToolPage(stream, opts.host, opts.port, tune_fraction=opts.tune_fraction)
+    try:
+        if opts.offset_s > 0:
+            page.horizon.value = opts.offset_s * 1e3
+        if snapshot is None:
+            return _block(page.url, page)
+        rev = page.wait_tuned(timeout_s=600.0)
+        return take(page.url, snapshot, f"revision {rev} ", *size)
+    finally:
+        page.close()
+
+
+def _block(url: str, what) -> None:
+    print(f"trackflow view: {url} (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(0.5)
+            err = getattr(what, "error", None)
+            if err is not None:
+                raise RuntimeError(f"the network stopped: {err}")
+    except KeyboardInterrupt:
+        return None

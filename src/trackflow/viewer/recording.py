@@ -1,0 +1,261 @@
+"""``trackflow view RECORDING``: a recording on a timeline with its filtered error.
+
+The recording is filtered once by the untuned default Kalman predictor of
+:mod:`trackflow.evaluation` (noise estimated from the data); the view shows, at the chosen
+time, the measured pose, the filtered pose with its position and orientation error glyphs, a
+fading trail and - with a prediction offset - the pose predicted that far ahead from the state
+at the chosen time, drawn beside the recording at that later time. A slider scrubs the
+timeline; a play button plays it at a chosen speed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..evaluation import KalmanPredictor, default_gap, default_predictor
+from ..io import PoseStream
+from ..math import Pose, UncertainPose
+from .scene import PALETTE, PoseDrawing, Style, frame_node
+from .server import SECONDS_AXIS, ViewServer
+
+__all__ = ["RecordingTrack", "RecordingView", "auto_magnify"]
+
+
+@dataclass
+class RecordingTrack:
+    """A recording ``T_a_b`` with its Kalman-filtered poses, ready to draw.
+
+    Attributes
+    ----------
+    stream : PoseStream
+    t : ndarray (N,)
+        Times relative to the first sample [s].
+    filtered : UncertainPose (N,)
+        Posterior at every sample, 6x6 covariance over ``(dt, dtheta)``.
+    nis : ndarray (N,)
+        Normalised innovation squared per sample (NaN where none was formed).
+    predictor : KalmanPredictor
+    """
+
+    stream: PoseStream
+    t: np.ndarray
+    filtered: UncertainPose
+    nis: np.ndarray
+    predictor: KalmanPredictor
+    _predictions: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_stream(cls, stream: PoseStream, predictor: KalmanPredictor | None = None):
+        """Filter ``stream`` (restarting after gaps, :func:`trackflow.evaluation.default_gap`)."""
+        if len(stream.t_ns) < 3:
+            raise ValueError(f"recording {stream.source}->{stream.target}: fewer than 3 samples")
+        t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
+        p, q = np.asarray(stream.position, float), np.asarray(stream.quaternion, float)
+        pred = predictor or default_predictor(t, p, q)
+        res = pred.run(t, pred.measurements(p, q), (0.0,), default_gap(t), covariance=True)
+        return cls(stream, t, res.filtered, np.asarray(res.nis, float), pred)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def index(self, t_s: float) -> int:
+        """Index of the newest sample at or before ``t_s`` [s] (clipped to the recording)."""
+        return int(np.clip(np.searchsorted(self.t, t_s, side="right") - 1, 0, len(self.t) - 1))
+
+    def measured(self, k: int) -> Pose:
+        return Pose(self.stream.position[k], self.stream.quaternion[k])
+
+    def predicted(self, offset_s: float) -> UncertainPose:
+        """Poses predicted ``offset_s`` ahead of every sample (cached per offset), (N,)."""
+        key = round(float(offset_s), 4)
+        if key not in self._predictions:
+            p = np.asarray(self.stream.position, float)
+            q = np.asarray(self.stream.quaternion, float)
+            meas = self.predictor.measurements(p, q)
+            res = self.predictor.run(self.t, meas, (key,), default_gap(self.t), covariance=True)
+            if len(self._predictions) > 16:
+                self._predictions.clear()
+            self._predictions[key] = res.predictions[key]
+        return self._predictions[key]
+
+    def sigmas(self) -> tuple[np.ndarray, np.ndarray]:
+        """Largest 1-sigma position semi-axis [mm] and orientation sigma [deg] per sample."""
+        c = self.filtered.covariance
+        pos = np.sqrt(np.linalg.eigvalsh(c[:, :3, :3])[:, -1]) * 1e3
+        ori = np.degrees(np.sqrt(np.linalg.eigvalsh(c[:, 3:, 3:])[:, -1]))
+        return pos, ori
+
+
+def auto_magnify(track: RecordingTrack, extent: float, sigma: float = 1.0) -> float:
+    """A power of ten making the median position ellipsoid about 3 % of the scene ``extent``."""
+    pos_mm, _ = track.sigmas()
+    r = max(float(np.nanmedian(pos_mm)) * 1e-3 * sigma, 1e-9)
+    return float(10.0 ** max(0, round(np.log10(0.03 * extent / r))))
+
+
+class RecordingView:
+    """A viser page showing one recording with a timeline.
+
+    Parameters
+    ----------
+    track : RecordingTrack
+    host, port : str, int
+        Where the page is served (``127.0.0.1`` by default; ``port=0`` picks a free one).
+    style : Style, optional
+        Drawing options; by default the ellipsoids are magnified (:func:`auto_magnify`).
+    """
+
+    def __init__(self, track: RecordingTrack, host="127.0.0.1", port=8080, style=None):
+        self.track = track
+        s = track.stream
+        self.view = ViewServer(host, port, title=f"trackflow: {s.source} -> {s.target}")
+        pos = np.asarray(s.position, float)
+        lo, hi = np.nanmin(pos, axis=0), np.nanmax(pos, axis=0)
+        extent = float(np.max(hi - lo))
+        self.style = style or Style(axes_length=max(extent * 0.08, 0.02))
+        if style is None:
+            self.style.magnify = auto_magnify(track, extent)
+        self.view.look_at(0.5 * (lo + hi), extent)
+        scene = self.view.scene
+        frame_node(scene, f"/{s.source}", self.style.axes_length * 1.5, s.source)
+        self.body = PoseDrawing(scene, f"/{s.source}/{s.target}", PALETTE[0], self.style, s.target)
+        self.measured = scene.add_icosphere(
+            f"/{s.source}/{s.target}_measured", radius=self.style.axes_length * 0.08,
+            color=(60, 60, 60),
+        )  # fmt: skip
+        self.truth_ahead = scene.add_icosphere(
+            f"/{s.source}/{s.target}_recorded_ahead", radius=self.style.axes_length * 0.08,
+            color=(0, 0, 0), visible=False,
+        )  # fmt: skip
+        self._lock = threading.RLock()
+        self._echo = False  # set while the view itself moves the slider
+        self.t_s = 0.0
+        self.offset_s = 0.0
+        self._playing = threading.Event()
+        self._stop = threading.Event()
+        self._build_controls()
+        self.show(0.0)
+        self._player = threading.Thread(target=self._play_loop, daemon=True, name="view-play")
+        self._player.start()
+
+    @property
+    def url(self) -> str:
+        return self.view.url
+
+    # -- controls --------------------------------------------------------------------------------
+    def _build_controls(self) -> None:
+        gui, tr = self.view.gui, self.track
+        with gui.add_folder("Timeline"):
+            self.slider = gui.add_slider(
+                "time [s]", min=0.0, max=round(tr.duration, 3), step=0.01, initial_value=0.0
+            )
+            self.play = gui.add_checkbox("play", False)
+            self.speed = gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
+        with gui.add_folder("Error display"):
+            self.sigma = gui.add_dropdown("sigma", ("1", "2", "3"), initial_value="1")
+            self.offset = gui.add_slider(
+                "prediction [ms]", min=0.0, max=500.0, step=5.0, initial_value=0.0
+            )
+            self.magnify = gui.add_number("magnify", self.style.magnify, min=1.0, step=1.0)
+            self.show_ori = gui.add_checkbox("orientation error", self.style.show_orientation)
+        self.slider.on_update(
+            lambda _: None if self._echo else self.show(self.slider.value, from_slider=True)
+        )
+        self.play.on_update(
+            lambda _: self._playing.set() if self.play.value else self._playing.clear()
+        )
+        self.sigma.on_update(lambda _: self._restyle())
+        self.magnify.on_update(lambda _: self._restyle())
+        self.show_ori.on_update(lambda _: self._restyle())
+        self.offset.on_update(
+            lambda _: None if self._echo else self.set_offset(self.offset.value * 1e-3)
+        )
+        pos_mm, ori_deg = tr.sigmas()
+        self._plots(pos_mm, ori_deg)
+
+    def _plots(self, pos_mm: np.ndarray, ori_deg: np.ndarray) -> None:
+        gui, t = self.view.gui, self.track.t
+        step = max(1, len(t) // 2000)  # a plot needs no more points than pixels
+        nis = np.nan_to_num(self.track.nis, nan=0.0)
+        with gui.add_folder("Time plots", expand_by_default=False):
+            for title, y, unit in (
+                ("position sigma (largest axis)", pos_mm, "mm"),
+                ("orientation sigma (largest axis)", ori_deg, "deg"),
+                ("NIS", nis, ""),
+            ):
+                gui.add_uplot(
+                scales=SECONDS_AXIS,
+                    data=(t[::step], np.asarray(y[::step], float)),
+                    series=({"label": "t [s]"}, {"label": f"{title} {unit}", "stroke": "#c0c"}),
+                    title=title, aspect=2.0,
+                )  # fmt: skip
+
+    def _restyle(self) -> None:
+        self.style.sigma = float(self.sigma.value)
+        self.style.magnify = float(self.magnify.value)
+        self.style.show_orientation = bool(self.show_ori.value)
+        self.show(self.t_s)
+
+    # -- state -----------------------------------------------------------------------------------
+    def set_offset(self, offset_s: float) -> None:
+        """Set the prediction offset [s] (0 hides the predicted pose)."""
+        self.offset_s = max(0.0, float(offset_s))
+        if abs(self.offset.value - self.offset_s * 1e3) > 1e-6:
+            self._echo = True
+            try:
+                self.offset.value = self.offset_s * 1e3
+            finally:
+                self._echo = False
+        self.show(self.t_s)
+
+    def set_sigma(self, sigma: float) -> None:
+        self.sigma.value = str(int(sigma))
+        self._restyle()
+
+    def show(self, t_s: float, from_slider: bool = False) -> None:
+        """Draw the recording at time ``t_s`` [s] (relative to its first sample)."""
+        tr, st = self.track, self.style
+        with self._lock:
+            self.t_s = float(np.clip(t_s, 0.0, tr.duration))
+            k = tr.index(self.t_s)
+            pred = tr.predicted(self.offset_s)[k] if self.offset_s > 0 else None
+            k0 = tr.index(self.t_s - st.trail_s)
+            self.body.update(tr.filtered[k], pred, tr.filtered.position[k0 : k + 1])
+            self.measured.position = np.asarray(tr.stream.position[k], float)
+            if pred is not None:
+                j = tr.index(tr.t[k] + self.offset_s)
+                self.truth_ahead.position = np.asarray(tr.stream.position[j], float)
+            self.truth_ahead.visible = pred is not None
+            if not from_slider:
+                self._echo = True
+                try:
+                    self.slider.value = round(self.t_s, 2)
+                finally:
+                    self._echo = False
+            self.view.set_status(
+                f"**t = {self.t_s:.3f} s** / {tr.duration:.1f} s - sample {k} - "
+                f"{st.sigma:g} sigma, ellipsoids x{st.magnify:g}"
+                + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if pred is not None else "")
+            )
+
+    def _play_loop(self) -> None:
+        last = time.monotonic()
+        while not self._stop.is_set():
+            if not self._playing.wait(timeout=0.2):
+                last = time.monotonic()
+                continue
+            time.sleep(1 / 30)
+            now = time.monotonic()
+            t = self.t_s + (now - last) * float(self.speed.value)
+            last = now
+            self.show(0.0 if t > self.track.duration else t)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._player.join(timeout=2.0)
+        self.view.close()

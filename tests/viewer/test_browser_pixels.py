@@ -1,0 +1,179 @@
+"""The views rendered by real headless Chromium (SwiftShader WebGL), asserted on pixels.
+
+Needs Debian's ``chromium`` (``make browser``) and the ``viewer`` extra (viser, playwright);
+skips with the reason when either is missing. One browser serves the whole module; every wait
+is bounded by the browser's timeout.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
+pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+
+from trackflow.dataflow import Network, SimulatedSensor, parse_setup
+from trackflow.io import PoseStream
+from trackflow.math import Pose, UncertainPose, quat_exp
+from trackflow.viewer import (
+    COLOURS,
+    Browser,
+    PoseDrawing,
+    RecordingTrack,
+    RecordingView,
+    Style,
+    ViewServer,
+    attach_view,
+    edge_motion,
+    find_chromium,
+)
+
+pytestmark = pytest.mark.slow
+
+W, H = 900, 600
+
+
+@pytest.fixture(scope="module")
+def browser():
+    try:
+        find_chromium()
+    except FileNotFoundError as exc:
+        pytest.skip(str(exc))
+    with Browser(W, H, timeout_s=90) as b:
+        yield b
+
+
+def _mask(img: np.ndarray, rgb, tol: int = 40) -> np.ndarray:
+    """Pixels within ``tol`` of ``rgb`` in every channel."""
+    return np.all(np.abs(img.astype(int) - np.asarray(rgb)) <= tol, axis=-1)
+
+
+def _magenta(img: np.ndarray) -> np.ndarray:
+    """Shaded magenta (red and blue well above green, about equal): the body colour."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (r > g + 70) & (b > g + 70) & (np.abs(r - b) < 70)
+
+
+def _scene_part(img: np.ndarray) -> np.ndarray:
+    """The 3D canvas left of the control panel (viser docks it on the right)."""
+    return img[:, : int(W * 0.6)]
+
+
+def test_four_times_the_covariance_covers_four_times_the_area(browser):
+    view = ViewServer(port=0)
+    try:
+        view.look_at((0.0, 0.0, 0.0), 0.4)
+        style = Style(axes_length=0.005, opacity=None, show_orientation=False)
+        body = PoseDrawing(view.scene, "/world/body", (230, 0, 230), style)
+        sigma = 0.03
+        areas = []
+        page = None
+        for k, factor in enumerate((1.0, 4.0)):
+            cov = np.diag([sigma**2 * factor] * 3 + [1e-6] * 3)
+            body.update(UncertainPose(Pose.identity(), cov))
+            view.set_status(f"covariance step {k}")
+            if page is None:
+                page = browser.open(view.url, f"covariance step {k}")
+            else:
+                browser.wait_text(page, f"covariance step {k}")
+            areas.append(int(_magenta(_scene_part(browser.capture(page))).sum()))
+        assert areas[0] > 500, f"the ellipsoid is hardly visible ({areas[0]} px)"
+        # radii double -> the projected area is four times as large (perspective: about)
+        assert 3.3 < areas[1] / areas[0] < 4.7, areas
+    finally:
+        view.close()
+
+
+SETUP = {
+    "frames": ["A", "T", "C", "M"],
+    "sensors": [
+        {"name": "art", "source": "A", "target": "T", "rate_hz": 60, "latency_ms": 20,
+         "sigma_pos_mm": 2.0, "sigma_ori_deg": 1.0},
+        {"name": "cam", "source": "C", "target": "M", "rate_hz": 30, "latency_ms": 30,
+         "sigma_pos_mm": 3.0, "sigma_ori_deg": 1.0},
+    ],
+    "statics": [{"name": "mount", "source": "T", "target": "C", "position": [0.0, 0.0, 0.1]}],
+    "queries": [{"name": "view", "source": "A", "target": "M", "mode": "push", "rate_hz": 30}],
+}  # fmt: skip
+
+
+def _sensor(name, rate, end_s, k, rng, sigma):
+    return SimulatedSensor(
+        name, edge_motion(k), rate_hz=rate, latency_s=0.02, sigma_pos=sigma,
+        sigma_ori=0.02, rng=rng, start_s=0.0, end_s=end_s,
+    )  # fmt: skip
+
+
+def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
+    setup = parse_setup(SETUP)
+    rng = np.random.default_rng(0)
+    # the art tracker stops after 1 s; the camera keeps the clock going until 4 s
+    sources = {
+        "art": _sensor("art", 60, 1.0, 0, rng, 0.002),
+        "cam": _sensor("cam", 30, 4.0, 1, rng, 0.003),
+    }
+    net = Network()
+    plan = setup.plan("view")
+    plan.build(sources, network=net, prefix="view:")
+    live = attach_view(net, setup, {"view": (plan, "view:")}, port=0, rate_hz=20)
+    try:
+        shots = []
+        page = None
+        for until_s in (0.9, 3.0):
+            net.run(until_ns=int(until_s * 1e9))
+            text = f"network t = {until_s:.2f} s"
+            if page is None:
+                page = browser.open(live.url, text)
+            else:
+                browser.wait_text(page, text)
+            browser.settle(page, 700)  # the panel redraws at 5 Hz
+            states = {s.name: s.state for s in live.edge_statuses()}
+            shots.append((browser.capture(page), states))
+        (img0, st0), (img1, st1) = shots
+        assert st0["art"] == "live" and st1["art"] == "stale" and st1["cam"] == "live"
+        panel = slice(int(W * 0.55), W)
+        green0 = _mask(img0[:, panel], (26, 158, 58)).sum()
+        red0 = _mask(img0[:, panel], (214, 39, 40)).sum()
+        green1 = _mask(img1[:, panel], (26, 158, 58)).sum()
+        red1 = _mask(img1[:, panel], (214, 39, 40)).sum()
+        assert COLOURS["stale"] == "#d62728" and COLOURS["live"] == "#1a9e3a"
+        assert red0 < 0.2 * red1, (red0, red1)  # the red arrow appeared
+        assert red1 > 150, red1
+        assert green1 < green0 - 100, (green0, green1)  # and replaced a green one
+    finally:
+        live.close()
+
+
+def _circle_stream(duration_s=6.0, rate=100.0) -> PoseStream:
+    t = np.arange(0.0, duration_s, 1.0 / rate)
+    ang = 2 * np.pi * t / duration_s
+    pos = np.stack([0.4 * np.cos(ang), 0.4 * np.sin(ang), 0.1 + 0 * t], axis=1)
+    rng = np.random.default_rng(5)
+    pos = pos + rng.normal(0, 0.001, pos.shape)
+    q = quat_exp(np.stack([0 * t, 0 * t, ang], axis=1))
+    return PoseStream("world", "body", np.round(t * 1e9).astype(np.int64), pos, q)
+
+
+def test_scrubbing_a_recording_moves_the_body(browser):
+    track = RecordingTrack.from_stream(_circle_stream())
+    # a big body marker so the centroid is well defined
+    view = RecordingView(track, port=0, style=Style(axes_length=0.12, magnify=10.0))
+    try:
+        centroids = []
+        page = None
+        for t in (0.5, 2.0):  # a quarter turn apart
+            view.show(t)
+            text = f"t = {t:.3f} s"
+            if page is None:
+                page = browser.open(view.url, text)
+            else:
+                browser.wait_text(page, text)
+            m = _magenta(_scene_part(browser.capture(page)))
+            assert m.sum() > 30, "the body is not visible"
+            ys, xs = np.nonzero(m)
+            centroids.append(np.array([xs.mean(), ys.mean()]))
+        moved = float(np.linalg.norm(centroids[1] - centroids[0]))
+        assert moved > 40.0, f"the body moved only {moved:.1f} px"
+    finally:
+        view.close()

@@ -1,0 +1,219 @@
+"""The views without a browser: loopback binding, what the server serves, the live view's
+edge states and decimation, the PoseTool page's recomputation, and the command line."""
+
+from __future__ import annotations
+
+import time
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
+
+from trackflow.cli.main import main
+from trackflow.dataflow import Network, RecordingPlayer, parse_setup
+from trackflow.evaluation import evaluate_predictors
+from trackflow.io import PoseStream, write_stream
+from trackflow.math import quat_exp
+from trackflow.viewer import ViewServer, attach_view, setup_sources
+from trackflow.viewer.posetool import PoseToolPage, manual_predictor
+
+
+def _get(url: str) -> tuple[int, bytes]:
+    try:
+        with urllib.request.urlopen(url, timeout=10) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, b""
+
+
+def test_binds_loopback_and_serves_only_its_page():
+    view = ViewServer(port=0)
+    try:
+        assert view.server.get_host() == "127.0.0.1"
+        status, body = _get(view.url)
+        assert status == 200 and b"<html" in body.lower()
+        for path in ("../pyproject.toml", "%2e%2e/%2e%2e/etc/passwd", "does-not-exist.js"):
+            code, body = _get(view.url + path)
+            assert code == 404 or b"root:" not in body and b"[project]" not in body
+        # a client's share request never opens a tunnel
+        assert view.server.request_share_url() is None
+    finally:
+        view.close()
+
+
+SETUP = {
+    "frames": ["A", "T"],
+    "sensors": [{"name": "art", "source": "A", "target": "T", "rate_hz": 100, "latency_ms": 10,
+                 "sigma_pos_mm": 1.0, "sigma_ori_deg": 0.5}],
+    "queries": [{"name": "q", "source": "A", "target": "T", "mode": "push", "rate_hz": 50},
+                {"name": "lost", "source": "T", "target": "A", "exclude": ["art"]}],
+}  # fmt: skip
+
+
+def test_live_view_taps_states_and_no_path(tmp_path):
+    setup = parse_setup(SETUP)
+    sources = setup_sources(setup, 2.0, seed=3)
+    net = Network()
+    plan = setup.plan("q")
+    plan.build(sources, network=net, prefix="q:")
+    with pytest.raises(ValueError):
+        setup.plan("lost")
+    live = attach_view(
+        net, setup, {"q": (plan, "q:")}, port=0, rate_hz=10, errors={"lost": "no path"}
+    )
+    try:
+        net.run(until_ns=int(1.5e9))
+        tap = net["view:art"]
+        # every accepted measurement reached the tap, behind the sensor's filter
+        kf = net["kf_art"].stats
+        # samples at 0, 10, ..., 1490 ms arrived (10 ms latency) by 1.5 s
+        assert kf.events_in == 150
+        assert tap.count == kf.events_in - kf.rejected
+        assert tap.latest.t_ns == 1_490_000_000
+        lat_ms = np.array([r[1] for r in tap.recent]) * 1e-6
+        np.testing.assert_allclose(lat_ms, 10.0)  # the configured sensor latency
+        assert np.isfinite([r[2] for r in tap.recent][5:]).all()  # NIS of every update
+        states = {s.name: s for s in live.edge_statuses()}
+        assert states["art"].state == "live" and states["art"].on_path
+        assert states["lost"].state == "no path"
+        # a push query is drawn from its own answers (50 Hz), with no extra pulls ...
+        own = net["q:sampler"].stats
+        assert net["view:q:now:tap"].count == own.events_in - own.rejected > 70
+        # ... and the prediction sampler ticks only while an offset is set
+        assert net["view:q:ahead:tap"].count == 0
+        live.render_frame()  # decimated drawing reads the taps without running the network
+        assert live.frames_sent >= 1
+        # two seconds of data end; the clock runs on (the query's sampler) -> stale
+        states = {s.name: s.state for s in live.edge_statuses(now_ns=int(2.6e9))}
+        assert states["art"] == "stale"
+    finally:
+        live.close()
+
+
+def test_attach_view_to_a_bare_network():
+    t = np.arange(0, 1.0, 0.01)
+    n = len(t)
+    stamps = np.round(t * 1e9).astype(np.int64)
+    quats = np.tile([0, 0, 0, 1.0], (n, 1))
+    p = RecordingPlayer("cam", stamps, np.zeros((n, 3)), quats, np.eye(6) * 1e-6)
+    net = Network()
+    net.add(p)
+    live = attach_view(net, port=0, rate_hz=10)
+    try:
+        net.run()
+        assert net["view:cam"].count == n
+        assert [s.name for s in live.edge_statuses()] == ["cam"]
+    finally:
+        live.close()
+
+
+def _stream(duration=8.0, rate=100.0, seed=0) -> PoseStream:
+    t = np.arange(0, duration, 1 / rate)
+    rng = np.random.default_rng(seed)
+    pos = np.stack([0.3 * np.sin(1.3 * t), 0.2 * np.cos(0.7 * t), 0.1 * np.sin(2.1 * t)], 1)
+    pos += rng.normal(0, 5e-4, pos.shape)
+    q = quat_exp(np.stack([0.3 * np.sin(t), 0.2 * np.sin(0.5 * t), 0 * t], 1))
+    return PoseStream("world", "head", np.round(t * 1e9).astype(np.int64), pos, q)
+
+
+def test_manual_predictor_layout():
+    from trackflow.evaluation import default_predictor
+
+    s = _stream()
+    t = (s.t_ns - s.t_ns[0]) * 1e-9
+    base = default_predictor(t, s.position, s.quaternion)
+    m = manual_predictor(base, 3, 2, 1.0, -1.0).model
+    assert (m.n_dp, m.n_do) == (3, 2)
+    np.testing.assert_allclose(
+        m.noise, [base.pos_sigma, 0, 0, 10.0, base.ori_sigma, 0, 0.1], rtol=1e-12
+    )
+
+
+@pytest.mark.slow
+def test_posetool_recomputes_when_a_slider_moves():
+    page = PoseToolPage(_stream(), port=0, tune_fraction=0.5)
+    try:
+        rev = page.wait_tuned(timeout_s=600)
+        before = page.last_rows
+        assert set(before) == {"Kalman (hand)", "Kalman (tuned)", "linear", "none"}
+        page.log_pos.value = -2.0
+        deadline = time.monotonic() + 120
+        while page.revision == rev and time.monotonic() < deadline:
+            time.sleep(0.05)
+        while page._dirty.is_set() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        after = page.last_rows
+        assert after["Kalman (hand)"] != before["Kalman (hand)"]
+        # the page shows exactly what the library computes for the slider setting
+        pred = manual_predictor(page.base, 2, 1, -2.0, float(page.log_ori.value))
+        rep = evaluate_predictors(
+            page.t, page.p, page.q, pred, (0.1,), scored_from=page.split, gap_s=page.gap
+        )
+        assert after["Kalman (hand)"] == rep.stats["kalman"][100]
+        # baselines and the tuning's choice do not depend on the hand setting
+        assert after["linear"] == before["linear"]
+        assert after["Kalman (tuned)"] == before["Kalman (tuned)"]
+    finally:
+        page.close()
+
+
+def test_cli_errors_are_clear(tmp_path, capsys):
+    assert main(["view", str(tmp_path / "missing.tum"), "--snapshot", str(tmp_path / "x.png")]) == 1
+    assert "missing.tum" in capsys.readouterr().err
+    rec = tmp_path / "rec.tum"
+    write_stream(rec, _stream(duration=2.0))
+    code = main(["view", str(rec), "--snapshot", str(tmp_path / "x.png"), "--at", "5"])
+    assert code == 1
+    assert "outside the recording" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sensors:\n  - {name: a, source: A}\n")
+    assert main(["view", str(bad), "--snapshot", str(tmp_path / "y.png")]) == 1
+    assert "bad.yaml" in capsys.readouterr().err
+
+
+def test_a_setup_runs_live_on_the_wall_clock(tmp_path):
+    import yaml
+
+    from trackflow.viewer import ViewOptions, start_setup
+
+    path = tmp_path / "setup.yaml"
+    path.write_text(yaml.safe_dump(SETUP))
+    run = start_setup(path, ViewOptions(port=0, duration_s=2.0, rate_hz=20))
+    try:
+        run.wait_network_time(1.0, timeout_s=120)
+        states = {s.name: s.state for s in run.view.edge_statuses()}
+        assert states == {"art": "live", "lost": "no path"}
+        assert run.network["view:art"].count > 50
+    finally:
+        run.close()
+    assert run.error is None
+
+
+def test_the_view_measures_how_late_the_dataflow_runs():
+    net = Network()
+    t = np.arange(0, 0.1, 0.01)
+    stamps = np.round(t * 1e9).astype(np.int64)
+    quats = np.tile([0, 0, 0, 1.0], (len(t), 1))
+    net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
+    live = attach_view(net, port=0, rate_hz=10)
+    try:
+        live.paused = True  # the test drives the clock
+        c = net.clock
+        # a network dispatching now (wall times within the last 100 ms)
+        w = time.perf_counter_ns()
+        c.now_ns, c.dispatch_wall_ns = 1_000_000_000, w
+        assert live.dataflow_lag_s() == 0.0
+        c.now_ns, c.dispatch_wall_ns = 1_020_000_000, w + 70_000_000  # 50 ms behind
+        assert live.dataflow_lag_s() == pytest.approx(0.05)
+        c.now_ns, c.dispatch_wall_ns = 1_090_000_000, w + 90_000_000  # caught up
+        assert live.dataflow_lag_s() == pytest.approx(0.0)
+        c.now_ns, c.dispatch_wall_ns = 500_000_000, w + 95_000_000  # a new run starts
+        assert live.dataflow_lag_s() == 0.0
+        c.now_ns, c.dispatch_wall_ns = 900_000_000, w - 2_000_000_000  # idle for 2 s
+        assert live.dataflow_lag_s() == 0.0
+    finally:
+        live.close()
