@@ -22,6 +22,7 @@ LAYERS = {
     "demo": 3,
     "trackers": 3,
     "optical": 3,
+    "viewer": 3,
     "calibration": 3,
     "distributed": 3,
     "cli": 4,
