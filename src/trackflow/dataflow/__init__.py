@@ -2,12 +2,14 @@
 
 Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 ``(dt, dtheta)`` (``t_true = t + dt``, ``R_true = R Exp(dtheta)``), see
-``docs/conventions.md``.
+``docs/conventions.md``. IMUs on body frames (setup key ``imus``) drive the filters behind
+those bodies' pose sensors (``docs/inertial.md``).
 """
 
 from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
 from ._events import ComponentStats, Measurement
+from ._inertial import ImuPlayer, ImuSample, ImuSpec, InertialKalmanFilter
 from ._inputs import InputSpec, parse_input
 from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
@@ -22,7 +24,11 @@ __all__ = [
     "CallbackSink",
     "Component",
     "ComponentStats",
+    "ImuPlayer",
+    "ImuSample",
+    "ImuSpec",
     "Inference",
+    "InertialKalmanFilter",
     "InputSpec",
     "Inversion",
     "KalmanFilter",

@@ -163,15 +163,25 @@ class Plan:
                     c = net.components[c.name]
                 else:
                     net.add(c)
+            elif n.kind == "imu source":  # an IMU on a body frame (dataflow/_inertial.py)
+                if p["imu"] not in sources:
+                    raise ValueError(f"no recording or sensor given for IMU {p['imu']!r}")
+                c = sources[p["imu"]]
+                c = net.components[c.name] if c.name in net.components else net.add(c)
             elif n.kind == "kalman":
-                kf = KalmanFilter(
+                cls, extra = KalmanFilter, {"filter_factory": filter_factory}
+                if "imu" in p:
+                    from ._inertial import InertialKalmanFilter
+
+                    cls, extra = InertialKalmanFilter, {"imu": p["imu"]}
+                kf = cls(
                     name,
                     p["motion"],
                     role=p["role"],
                     history_s=history_s,
                     stamp_offset_ns=p.get("stamp_offset_ns", 0),
-                    filter_factory=filter_factory,
                     prior=p.get("prior"),
+                    **extra,
                 )
                 shared = net.components.get(n.id) if "edge" in p else None
                 if isinstance(shared, KalmanFilter) and shared.same_filter(kf):

@@ -77,6 +77,7 @@ class Setup:
     source: str = "<python>"
     #: live inputs of sensors: name -> :class:`trackflow.dataflow.InputSpec`
     inputs: dict = field(default_factory=dict)
+    imus: dict = field(default_factory=dict)  # name -> ImuSpec (dataflow/_inertial.py)
 
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
@@ -92,9 +93,14 @@ class Setup:
         """Plan a query of this setup (a :class:`Query`, a query name, or the first)."""
         q = query if isinstance(query, Query) else self.query(query)
         try:
-            return plan_query(self.graph, q, align=align)
+            plan = plan_query(self.graph, q, align=align)
         except ValueError as exc:
             raise ValueError(f"{self.source}: {exc}") from None
+        if self.imus and align:
+            from ._inertial import attach_imus
+
+            attach_imus(plan, self.graph, self.imus)
+        return plan
 
     def players(self) -> dict[str, RecordingPlayer]:
         """Players for every measured edge with a recording (read with ``trackflow.io``)."""
@@ -107,6 +113,14 @@ class Setup:
             out[name] = RecordingPlayer.from_stream(
                 name, stream, int(round(edge.latency_s * 1e9)), covariance=edge.covariance
             )
+        if self.imus:
+            from ..io import read_imu
+            from ._inertial import ImuPlayer
+
+            for name, spec in self.imus.items():
+                if spec.recording is not None:
+                    imu, _ = read_imu(spec.recording)
+                    out[name] = ImuPlayer(name, imu, spec.latency_ns, spec.clock_offset_ns)
         return out
 
 
@@ -309,7 +323,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
     """Build a :class:`Setup` from a parsed YAML document (a mapping)."""
     if not isinstance(doc, dict):
         raise ValueError(f"{source}: a setup must be a mapping with sensors/statics/queries")
-    unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include"}
+    unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include", "imus"}
     if unknown:
         raise _err(source, doc, f"unknown top-level keys {sorted(unknown)}")
     if "include" in doc:
@@ -409,7 +423,17 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             )
         except (TypeError, ValueError) as exc:
             raise _err(source, q, f"{what}: {exc}") from exc
-    return Setup(g, queries, recordings, source, inputs)
+    imus = {}
+    if doc.get("imus"):
+        from ._inertial import parse_imus
+
+        imus = parse_imus(source, doc["imus"], base_dir, lambda item, msg: _err(source, item, msg))
+        for spec in imus.values():
+            try:
+                g.check_frame(spec.body)
+            except ValueError as exc:
+                raise _err(source, doc, f"IMU {spec.name}: {exc}") from exc
+    return Setup(g, queries, recordings, source, inputs, imus)
 
 
 def load_setup(path: str | Path) -> Setup:

@@ -17,6 +17,11 @@
 * ``factory``: the filter the dataflow builds for a relationship (:func:`make_filter`, and the
   seed filters' factories).
 
+* ``inertial``: IMU-aided tracking (thesis 10.3.3): :class:`InertialFilter` /
+  :func:`run_inertial`, an error-state filter driven by gyro and accelerometer (or the gyro
+  alone) and corrected by tracker poses, with biases, gravity and the IMU-to-body pose
+  (``docs/inertial.md``).
+
 All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/conventions.md``;
 ``docs/architecture.md`` maps the package.
 """
@@ -31,6 +36,16 @@ from .factory import (
     relative_motion_factory,
 )
 from .gating import GatePolicy, chi2_gate
+from .inertial import (
+    ImuExtrinsics,
+    ImuNoise,
+    InertialFilter,
+    InertialModel,
+    estimate_imu_rotation,
+    noise_from_static,
+    run_imu_orientation,
+    run_inertial,
+)
 from .measurements import numerical_jacobian
 from .quaternion_space import (
     CameraObservation,
@@ -57,6 +72,10 @@ __all__ = [
     "FilterStatus",
     "GatePolicy",
     "MeasurementFunction",
+    "ImuExtrinsics",
+    "ImuNoise",
+    "InertialFilter",
+    "InertialModel",
     "MotionModel",
     "PinholeCamera",
     "PoseFilter",
@@ -77,6 +96,10 @@ __all__ = [
     "filter_noise",
     "make_filter",
     "numerical_jacobian",
+    "estimate_imu_rotation",
+    "noise_from_static",
+    "run_imu_orientation",
+    "run_inertial",
     "quaternion_space_factory",
     "relative_motion_factory",
     "run_filter",

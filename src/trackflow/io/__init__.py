@@ -6,6 +6,7 @@ per-format functions are exported too. Every writer follows one output policy
 (``atomic_output``: temporary file in the target directory, rename when complete, no silent
 overwrite, nothing left behind on failure); ``"-"`` is standard input/output. Formats,
 conversions and quirks: ``docs/formats.md``.
+IMU recordings: ``read_imu(path) -> (ImuStream, ReadReport)`` (EuRoC IMU csv, BROAD ``.mat``).
 """
 
 from ._api import FORMATS, guess_format, read_stream, write_stream
@@ -17,6 +18,7 @@ from ._devices import (
     write_broad,
     write_quest,
 )
+from ._imu import IMU_FORMATS, ImuStream, read_broad_imu, read_euroc_imu, read_imu
 from ._kitti import KITTI_RATE_HZ, read_kitti, write_kitti
 from ._native import RecordingWriter, read_native, write_native
 from ._output import STDIO, atomic_output, remove_stale_temporaries
@@ -33,6 +35,8 @@ __all__ = [
     "FLAG_ORIENTATION",
     "FLAG_POSITION",
     "FORMATS",
+    "IMU_FORMATS",
+    "ImuStream",
     "KITTI_RATE_HZ",
     "MESSAGE_TYPES",
     "PoseStream",
@@ -42,8 +46,11 @@ __all__ = [
     "atomic_output",
     "guess_format",
     "read_broad",
+    "read_broad_imu",
     "read_csv",
     "read_euroc",
+    "read_euroc_imu",
+    "read_imu",
     "read_kitti",
     "read_native",
     "read_quest",
