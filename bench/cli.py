@@ -62,6 +62,7 @@ def main() -> int:
     ap.add_argument("--recording", type=Path, default=None, help="recording for the commands")
     ap.add_argument("--data", type=Path, default=SHARED, help="the shared recordings folder")
     args = ap.parse_args()
+    args.data = args.data.resolve()  # the commands run in a temporary directory
     default = args.data / "tum_rgbd" / "freiburg1_xyz-groundtruth.txt"
     rec = args.recording or (default if default.exists() else FALLBACK_RECORDING)
     euroc = args.data / "euroc" / "V1_01_easy_groundtruth_200hz.txt"

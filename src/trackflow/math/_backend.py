@@ -150,7 +150,11 @@ def _locator_class():
     """A numba cache locator for trackflow's own functions (installed once)."""
     from numba.core import caching
 
-    class TrackflowCacheLocator(caching.UserProvidedCacheLocator):
+    # numba >= 0.61 made these public; 0.60 (the declared floor) has the underscored names
+    base = getattr(caching, "UserProvidedCacheLocator", None) or caching._UserProvidedCacheLocator
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+
+    class TrackflowCacheLocator(base):
         def __init__(self, py_func, py_file):
             self._py_file = py_file
             self._lineno = py_func.__code__.co_firstlineno
@@ -166,7 +170,7 @@ def _locator_class():
                 return None
             return cls(py_func, py_file)
 
-    caching.CacheImpl._locator_classes.insert(0, TrackflowCacheLocator)
+    impl._locator_classes.insert(0, TrackflowCacheLocator)
     return TrackflowCacheLocator
 
 
