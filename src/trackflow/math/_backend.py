@@ -174,6 +174,17 @@ def _locator_class():
     return TrackflowCacheLocator
 
 
+def install_cache_locator() -> None:
+    """Route the on-disk cache of every numba function of trackflow (kernel sources and any
+    module decorating its own functions) to trackflow's cache directory, once per process.
+
+    Called when this module is imported, so that functions compiled at import time and those
+    compiled later through :func:`kernels` use the same place.
+    """
+    if numba_available():
+        _locator_class()
+
+
 def _drop_stale_cache(name: str, path: str) -> None:
     """Remove cached machine code of ``path`` if a kernel source it depends on changed."""
     locator = _locator_class()
@@ -241,3 +252,6 @@ def _compiled(name: str) -> types.ModuleType:
     for kernel in source.KERNELS:
         setattr(mod, kernel, numba.njit(**_JIT_OPTIONS)(getattr(mod, kernel)))
     return mod
+
+
+install_cache_locator()
