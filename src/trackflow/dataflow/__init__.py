@@ -8,7 +8,14 @@ Timestamps are integer nanoseconds; poses are ``T_a_b`` with covariance over
 from ..filters import make_filter  # the default filter factory, re-exported for plans
 from ._component import Component
 from ._events import ComponentStats, Measurement
-from ._inputs import InputSpec, parse_input
+from ._inputs import (
+    NETWORK_PROTOCOLS,
+    InputSpec,
+    PoseFeed,
+    feed_factory,
+    parse_input,
+    register_feed,
+)
 from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
@@ -24,6 +31,10 @@ __all__ = [
     "ComponentStats",
     "Inference",
     "InputSpec",
+    "NETWORK_PROTOCOLS",
+    "PoseFeed",
+    "feed_factory",
+    "register_feed",
     "Inversion",
     "KalmanFilter",
     "LatestValue",
