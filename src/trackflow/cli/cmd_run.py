@@ -11,7 +11,7 @@ from pathlib import Path
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "run",
-        help="run a setup live on its trackers (DTrack, NatNet, VRPN) or replay a run",
+        help="run a setup live on its trackers (DTrack, NatNet, VRPN, optical) or replay a run",
         description="Connect to the trackers named in the setup's 'input:' keys, run the "
         "query's dataflow until Ctrl-C (or --duration) with a status line per sensor, record "
         "every input and answer (--record), serve the answers over VRPN (--vrpn-port); or "
@@ -44,6 +44,9 @@ def run(args) -> int:
         print(json.dumps(out) if args.json else _lines(out))
         return 0 if r.identical else 1
     from ..trackers.runtime import run_live
+
+    if any(spec.protocol == "optical" for spec in setup.inputs.values()):
+        from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 4 wires it)
 
     server = None
     if args.vrpn_port is not None:

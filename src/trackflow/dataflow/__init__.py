@@ -10,7 +10,14 @@ from ..filters import make_filter  # the default filter factory, re-exported for
 from ._component import Component
 from ._events import ComponentStats, Measurement
 from ._inertial import ImuPlayer, ImuSample, ImuSpec, InertialKalmanFilter
-from ._inputs import InputSpec, parse_input
+from ._inputs import (
+    NETWORK_PROTOCOLS,
+    InputSpec,
+    PoseFeed,
+    feed_factory,
+    parse_input,
+    register_feed,
+)
 from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
@@ -30,6 +37,10 @@ __all__ = [
     "Inference",
     "InertialKalmanFilter",
     "InputSpec",
+    "NETWORK_PROTOCOLS",
+    "PoseFeed",
+    "feed_factory",
+    "register_feed",
     "Inversion",
     "KalmanFilter",
     "LatestValue",

@@ -5,6 +5,13 @@ Examples (YAML)::
     input: {natnet: {server: 127.0.0.1, body: head}, up: y}
     input: {dtrack: {port: 5000, body: 3}}
     input: {vrpn: {device: "Tracker0@127.0.0.1", sensor: 0}}
+    input: {optical: {config: optical.yaml, body: wand}}
+
+``optical`` is an in-process feed rather than a network tracker: the optical tracker of an
+optical setup file (``config``, relative to the setup file; docs/optical.md) measuring the
+marker model ``body``. Such feeds implement :class:`PoseFeed` and are made by a factory that
+their package registers with :func:`register_feed` (dataflow knows neither the trackers
+nor the optical package; the live runtime looks the factory up by the protocol's name).
 
 Common keys next to the protocol: ``up`` (``z``: frames as sent; ``y``: the tracker sends
 Y-up frames, converted to Z-up, see ``docs/conventions.md``), ``unit`` (unit of positions on
@@ -15,12 +22,25 @@ the wire: ``m``, ``cm`` or ``mm``; default per protocol: DTrack mm, NatNet and V
 from __future__ import annotations
 
 import ipaddress
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
 
-__all__ = ["PROTOCOLS", "InputSpec", "parse_input"]
+import numpy as np
+
+__all__ = [
+    "NETWORK_PROTOCOLS",
+    "PROTOCOLS",
+    "InputSpec",
+    "PoseFeed",
+    "feed_factory",
+    "parse_input",
+    "register_feed",
+]
 
 _UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
-_DEFAULT_UNIT = {"natnet": "m", "dtrack": "mm", "vrpn": "m"}
+_DEFAULT_UNIT = {"natnet": "m", "dtrack": "mm", "vrpn": "m", "optical": "m"}
 
 # key -> (type, default); a default of ... means required
 _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
@@ -49,6 +69,10 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
         "clock": (str, "map"),
         "latency_ms": ((int, float), 0.0),
         "timeout_ms": ((int, float), 2000),
+    },
+    "optical": {
+        "config": (str, ...),
+        "body": (str, ...),
     },
 }
 PROTOCOLS = tuple(_OPTIONS)
@@ -96,8 +120,63 @@ def _check_host(value: str, what: str) -> None:
             raise ValueError(f"{what}: {value!r} is not a host address") from None
 
 
-def parse_input(doc) -> InputSpec:
-    """Validate an ``input:`` mapping; ``ValueError`` names the offending key."""
+class PoseFeed(Protocol):
+    """An in-process live source of poses, produced frame by frame at its own rate.
+
+    Attributes
+    ----------
+    t_ns : numpy.ndarray
+        (N,) int64 exposure times of its frames [ns] on its own clock, strictly increasing;
+        the runtime paces frame ``i`` at ``start + t_ns[i] - t_ns[0]`` on the host clock.
+    """
+
+    t_ns: np.ndarray
+
+    def warm_up(self) -> None:
+        """Prepare before real-time pacing starts (compile kernels, open devices); the
+        feed's state afterwards is as if new."""
+        ...
+
+    def has_body(self, body: str) -> bool:
+        """Whether ``body`` (an ``input.<protocol>.body`` selector) is measured."""
+        ...
+
+    def measure(self, index: int) -> Mapping:
+        """Process frame ``index`` (increasing from call to call; frames may be skipped):
+        ``{body: UncertainPose or None}``, each ``T_world_body`` [m] with its 6x6
+        covariance over ``(dt, dtheta)``; ``None`` = not measured in this frame."""
+        ...
+
+
+#: network trackers, implemented by trackflow.trackers itself (not feeds)
+NETWORK_PROTOCOLS = ("natnet", "dtrack", "vrpn")
+#: protocol -> factory(options) of its feed, registered by the package implementing it
+_FEEDS: dict[str, Callable[[dict], PoseFeed]] = {}
+
+
+def register_feed(protocol: str, factory: Callable[[dict], PoseFeed]) -> None:
+    """Register the factory building the :class:`PoseFeed` of ``input: {protocol: ...}``
+    from the parsed options (done by the implementing package when imported)."""
+    if protocol not in _OPTIONS or protocol in NETWORK_PROTOCOLS:
+        raise ValueError(f"{protocol!r} is not a feed protocol")
+    _FEEDS[protocol] = factory
+
+
+def feed_factory(protocol: str) -> Callable[[dict], PoseFeed]:
+    """The registered factory of ``protocol``; ``ValueError`` naming the package to import."""
+    try:
+        return _FEEDS[protocol]
+    except KeyError:
+        raise ValueError(
+            f"input.{protocol}: no feed registered (import trackflow.{protocol} first)"
+        ) from None
+
+
+def parse_input(doc, base_dir=None) -> InputSpec:
+    """Validate an ``input:`` mapping; ``ValueError`` names the offending key.
+
+    ``base_dir`` (the setup file's folder) resolves a relative ``optical.config`` path.
+    """
     if not isinstance(doc, dict):
         raise ValueError("input must be a mapping like {natnet: {server: ..., body: ...}}")
     protos = [k for k in doc if k in _OPTIONS]
@@ -142,6 +221,12 @@ def parse_input(doc) -> InputSpec:
             raise ValueError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
         if opts["clock"] not in ("map", "host"):
             raise ValueError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
+    if proto == "optical":
+        if not opts["config"].strip():
+            raise ValueError("input.optical.config: empty path")
+        cfg = Path(opts["config"])
+        if not cfg.is_absolute() and base_dir is not None:
+            opts["config"] = str(Path(base_dir) / cfg)
     for key in ("latency_ms", "timeout_ms"):
         if key in opts and not 0 <= float(opts[key]) < 1e5:
             raise ValueError(f"input.{proto}.{key}: {opts[key]} out of range")

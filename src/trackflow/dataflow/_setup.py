@@ -376,7 +376,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             from ._inputs import parse_input
 
             try:
-                inputs[str(s["name"])] = parse_input(s["input"])
+                inputs[str(s["name"])] = parse_input(s["input"], base_dir)
             except ValueError as exc:
                 raise _err(source, s.get("input") or s, f"{what}: {exc}") from exc
     for i, s in enumerate(doc.get("statics") or []):

@@ -15,6 +15,7 @@ from .blobs import Blobs, detect_blobs
 from .calibration import CalibrationFileError, read_opencv_calibration, write_opencv_calibration
 from .camera import Camera, CameraRig, ring_rig
 from .correspondence import PointCandidates, match_epipolar
+from .live import OpticalFeed, optical_feed
 from .matching import BodyMatch, identify, pose_nis
 from .models import MarkerModel, model_separation, random_model, similar_model
 from .pipeline import BodyResult, FrameResult, OpticalTracker, TrackerConfig
@@ -29,6 +30,8 @@ from .source import (
 from .triangulation import Triangulation, triangulate, triangulate_linear
 
 __all__ = [
+    "OpticalFeed",
+    "optical_feed",
     "Blobs",
     "BodyMatch",
     "BodyResult",

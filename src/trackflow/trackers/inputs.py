@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..dataflow import InputSpec
+from ..dataflow import NETWORK_PROTOCOLS, InputSpec
 from . import dtrack, natnet, vrpn
 from ._packet import PacketError
 from .axes import BoundaryConversion
@@ -147,6 +147,8 @@ class LiveInput:
             "natnet": ("server", "command_port", "data_port", "multicast", "group", "interface"),
             "dtrack": ("interface", "port", "group", "command", "command_port"),
         }.get(spec.protocol)
+        if spec.protocol not in NETWORK_PROTOCOLS:  # a feed: one per set of options
+            return (spec.protocol, *sorted((k, v) for k, v in o.items() if k != "body"))
         if keys is None:
             return (spec.protocol, spec.vrpn_address[1:], o["timeout_ms"])
         return (spec.protocol, *(o[k] for k in keys))
@@ -577,9 +579,19 @@ class VrpnInput(LiveInput):
 _INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
 
 
+def _input_class(protocol: str) -> type[LiveInput]:
+    """The input of a network tracker, else a :class:`~trackflow.trackers.feed.FeedInput`
+    (in-process feeds such as ``optical``, see :func:`trackflow.dataflow.register_feed`)."""
+    if protocol in _INPUTS:
+        return _INPUTS[protocol]
+    from .feed import FeedInput  # imports this module
+
+    return FeedInput
+
+
 def make_input(name: str, spec: InputSpec, covariance) -> LiveInput:
     """A live input (one connection) feeding the one sensor ``name``."""
-    inp = _INPUTS[spec.protocol](spec)
+    inp = _input_class(spec.protocol)(spec)
     inp.add_body(name, spec, covariance)
     return inp
 
@@ -591,6 +603,6 @@ def make_inputs(sensors: dict[str, tuple[InputSpec, np.ndarray]]) -> list[LiveIn
     for name, (spec, cov) in sensors.items():
         key = LiveInput.connection_key(spec)
         if key not in by_key:
-            by_key[key] = _INPUTS[spec.protocol](spec)
+            by_key[key] = _input_class(spec.protocol)(spec)
         by_key[key].add_body(name, spec, cov)
     return list(by_key.values())
