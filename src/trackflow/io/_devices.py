@@ -133,7 +133,7 @@ def read_broad(
     path = Path(path)
     try:
         mat = loadmat(path)
-    except (ValueError, OSError, TypeError) as exc:
+    except (ValueError, OSError, TypeError, IndexError) as exc:  # scipy 1.13 raises IndexError
         raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from exc
     for key in ("opt_quat", "opt_pos"):
         if key not in mat:

@@ -144,7 +144,13 @@ def read_broad_imu(
     path = Path(path)
     try:
         mat = loadmat(path)
-    except (ValueError, OSError, TypeError, MatReadError) as exc:
+    except (
+        ValueError,
+        OSError,
+        TypeError,
+        IndexError,
+        MatReadError,
+    ) as exc:  # scipy 1.13: IndexError
         raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from exc
     cols = {}
     for key in ("imu_gyr", "imu_acc"):

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..evaluation import (
     KalmanPredictor,
+    Trajectory,
     default_gap,
     default_predictor,
     evaluate_predictors,
@@ -98,6 +99,7 @@ class PoseToolPage:
         self.t, self.p = t, np.asarray(stream.position, float)
         self.q = np.asarray(stream.quaternion, float)
         self.gap = default_gap(t)
+        self.recording = Trajectory.check(t, self.p, self.q, gap_s=self.gap)
         self.split = float(t[-1]) * float(tune_fraction)
         self.base = default_predictor(t, self.p, self.q)
         self.window_s = float(window_s)
@@ -183,7 +185,7 @@ class PoseToolPage:
     def _tune(self) -> None:
         m = self.t <= self.split
         try:
-            res = tune_model(self.t[m], self.p[m], self.q[m], horizons=(0.05, 0.1))
+            res = tune_model(self.recording.select(m), horizons=(0.05, 0.1))
         except ValueError as exc:
             self.tuned_text.content = f"automatic tuning failed: {exc}"
             return
@@ -212,14 +214,15 @@ class PoseToolPage:
             self._publish(*out, h)
 
     def _compute(self, pred: KalmanPredictor, h: float):
-        t, p, q = self.t, self.p, self.q
+        t, p = self.t, self.p
+        rec = self.recording
         rows = {}
-        rep = evaluate_predictors(t, p, q, pred, (h,), scored_from=self.split, gap_s=self.gap)
+        rep = evaluate_predictors(rec, pred, (h,), scored_from=self.split)
         hm = rep.horizons_ms[0]
         rows["Kalman (hand)"] = rep.stats["kalman"][hm]
         tuned = self.tuned
         if tuned is not None:
-            rt = evaluate_predictors(t, p, q, tuned, (h,), scored_from=self.split, gap_s=self.gap)
+            rt = evaluate_predictors(rec, tuned, (h,), scored_from=self.split)
             rows["Kalman (tuned)"] = rt.stats["kalman"][hm]
         else:
             rows["Kalman (tuned)"] = None
@@ -228,7 +231,7 @@ class PoseToolPage:
         w0 = float(self.start.value)
         sel = (t >= w0) & (t <= w0 + self.window_s)
         curves = [t[sel], p[sel, 0]]
-        filt, _, _ = predict_kalman(t, p, q, pred, (0.0, h), max_gap=self.gap)
+        filt, _, _ = predict_kalman(rec, pred, (0.0, h))
         curves.append(filt[0][sel, 0])
         err = [t[sel]]
         cloud = {"measured": p[sel]}
@@ -237,7 +240,7 @@ class PoseToolPage:
                 curves.append(np.full(sel.sum(), np.nan))
                 err.append(np.full(sel.sum(), np.nan))
                 continue
-            pp = filt[1] if model is pred else predict_kalman(t, p, q, model, (h,), self.gap)[0][0]
+            pp = filt[1] if model is pred else predict_kalman(rec, model, (h,))[0][0]
             ahead = (t + h >= w0) & (t + h <= w0 + self.window_s)
             cloud[label] = pp[ahead]
             # the prediction made at t_k for t_k + h, drawn at its target time
