@@ -150,9 +150,7 @@ def test_posetool_recomputes_when_a_slider_moves():
         assert after["Kalman (hand)"] != before["Kalman (hand)"]
         # the page shows exactly what the library computes for the slider setting
         pred = manual_predictor(page.base, 2, 1, -2.0, float(page.log_ori.value))
-        rep = evaluate_predictors(
-            page.t, page.p, page.q, pred, (0.1,), scored_from=page.split, gap_s=page.gap
-        )
+        rep = evaluate_predictors(page.recording, pred, (0.1,), scored_from=page.split)
         assert after["Kalman (hand)"] == rep.stats["kalman"][100]
         # baselines and the tuning's choice do not depend on the hand setting
         assert after["linear"] == before["linear"]
