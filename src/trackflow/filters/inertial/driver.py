@@ -31,6 +31,7 @@ __all__ = [
     "run_inertial",
 ]
 
+
 def kernels() -> types.ModuleType:
     """The kernel namespace of the active backend (the library's one seam,
     :func:`trackflow.math.kernels_for`; compiled lazily on first use)."""
