@@ -172,11 +172,7 @@ def hand_eye_residuals(A_p, A_q, B_p, B_q, X, Z, B_v=None, B_w=None, jacobians=F
     J_r_offset : ndarray, shape (M, 6)
         With respect to the offset (needs ``B_v``, ``B_w``); when jacobians.
     """
-    pP, qP = _compose(A_p, A_q, X[0], X[1])
-    pQ, qQ = _compose(Z[0], Z[1], B_p, B_q)
-    qE = quat_multiply(quat_conjugate(qQ), qP)
-    rR = quat_log(qE)
-    r = np.concatenate([pP - pQ, rR], axis=1)
+    r, rR, qE = _difference(_compose(A_p, A_q, X[0], X[1]), _compose(Z[0], Z[1], B_p, B_q))
     if not jacobians:
         return r
     m = len(r)
@@ -201,6 +197,14 @@ def hand_eye_residuals(A_p, A_q, B_p, B_q, X, Z, B_v=None, B_w=None, jacobians=F
     return r, J_X, J_Z, J_off
 
 
+def _difference(P, Q):
+    """``r = (t_P - t_Q, Log(q_Q^* q_P))`` (M, 6) of two pose batches ``(t, q)``, with the
+    rotation part ``rR`` and the error quaternion ``qE = q_Q^* q_P``."""
+    qE = quat_multiply(quat_conjugate(Q[1]), P[1])
+    rR = quat_log(qE)
+    return np.concatenate([P[0] - Q[0], rR], axis=1), rR, qE
+
+
 def _relative(p, q, i, j):
     qi_inv = quat_conjugate(q[i])
     return quat_rotate(qi_inv, p[j] - p[i]), quat_multiply(qi_inv, q[j])
@@ -212,11 +216,7 @@ def pair_residuals(Ap, Aq, Bp, Bq, X, jacobians=False):
     Returns ``r`` (M, 6) with ``P = A_ij X`` and ``Q = X B_ij`` and, with jacobians,
     ``J_r_X`` (M, 6, 6).
     """
-    pP, qP = _compose(Ap, Aq, X[0], X[1])
-    pQ, qQ = _compose(X[0], X[1], Bp, Bq)
-    qE = quat_multiply(quat_conjugate(qQ), qP)
-    rR = quat_log(qE)
-    r = np.concatenate([pP - pQ, rR], axis=1)
+    r, rR, qE = _difference(_compose(Ap, Aq, X[0], X[1]), _compose(X[0], X[1], Bp, Bq))
     if not jacobians:
         return r
     m = len(r)
