@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackflow.math import Pose, UncertainPose
+from trackflow.math import Pose, UncertainPose, frozen
 
 from ..contract import FilterStatus
 from ..gating import chi2_gate
@@ -108,7 +108,7 @@ def run_filter(
     sort = out_of_order > 0  # in-order input (the usual case) is used without copies
 
     def ordered(a):
-        return np.ascontiguousarray(a[order] if sort else a, dtype=float)
+        return frozen(a[order] if sort else a)
 
     rows = (
         ordered(t),
@@ -117,7 +117,8 @@ def run_filter(
         ordered(poses.covariance),
     )
     gate = chi2_gate(gate_probability, 3 if (n_dp < 0 or n_do < 0) else 6)
-    out = _run_segments(kf, rows, h, gate, max_angular_velocity, reset_after, covariance, max_gap)
+    wmax = max_angular_velocity
+    out = _run_segments(kf, rows, frozen(h), gate, wmax, reset_after, covariance, max_gap)
     out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status = out
     if sort:
         inv = np.empty_like(order)
@@ -183,11 +184,16 @@ def _run_segments(kf, rows, h, gate, wmax, reset_after, covariance, max_gap):
         x, p = kf._x0.copy(), kf._p0.copy()
         seg = slice(a, b)
         cseg = seg if covariance else slice(0, 0)
+        # the per-horizon outputs of one segment are strided views of the whole arrays: the
+        # kernel writes into contiguous buffers (one compiled specialisation), copied back
+        seg_pt, seg_pq = np.zeros((nh, b - a, 3)), np.zeros((nh, b - a, 4))
+        seg_pc = np.zeros((nh, (b - a) if covariance else 0, 6, 6))
         k.run(
             ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
             gate, float(wmax), int(reset_after), bool(covariance), out_t[seg], out_q[seg],
-            out_c[cseg], pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg], nis[seg], status[seg],
+            out_c[cseg], seg_pt, seg_pq, seg_pc, nis[seg], status[seg],
         )  # fmt: skip
+        pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg] = seg_pt, seg_pq, seg_pc
     return out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status
 
 
