@@ -319,19 +319,19 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
     return t_ns, values
 
 
-def _places(tokens: list[str]) -> np.ndarray:
-    """Value of one unit in the last printed digit of each decimal token (``"0.25"`` -> 0.01,
+def _place(token: str) -> float:
+    """Value of one unit in the last printed digit of a decimal token (``"0.25"`` -> 0.01,
     ``"1.5e-3"`` -> 1e-4; an unreadable exponent counts as 0)."""
-    if not tokens:
-        return np.zeros(0)
-    parts = np.char.partition(np.char.lower(np.char.strip(np.asarray(tokens, dtype=str))), "e")
-    decimals = np.char.str_len(np.char.partition(parts[:, 0], ".")[:, 2])
-    exp = parts[:, 2]
-    digits = np.char.lstrip(exp, "+-")
-    signs = np.char.str_len(exp) - np.char.str_len(digits)
-    readable = np.char.isdigit(digits) & (signs <= 1)
-    e = np.zeros(len(tokens))
-    e[readable] = exp[readable].astype(float)
+    token = token.strip()
+    if "e" not in token and "E" not in token:  # the usual case, cheaply (EuRoC: 115k tokens)
+        dot = token.find(".")
+        return 10.0 ** (dot + 1 - len(token)) if dot >= 0 else 1.0
+    mant, _, exp = token.lower().partition("e")
+    decimals = len(mant.partition(".")[2])
+    try:
+        e = int(exp) if exp else 0
+    except ValueError:
+        e = 0
     return 10.0 ** (e - decimals)
 
 
@@ -348,9 +348,7 @@ def quat_tolerance_from_tokens(
     """
 
     def tol(rows: np.ndarray) -> np.ndarray:
-        place = np.zeros(len(rows))
-        for c in cols:  # vectorised over the rows: EuRoC has 28k rows to check
-            place = np.maximum(place, _places([tokens[r][c] for r in rows]))
+        place = np.array([max([_place(tokens[r][c]) for c in cols]) for r in rows])
         return np.maximum(TEXT_UNIT_TOLERANCE, np.minimum(2.0 * place, 1e-3))
 
     return tol
