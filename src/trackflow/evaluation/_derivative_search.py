@@ -116,6 +116,7 @@ class _PartSearch:
         """The chosen count's levels refined locally (+-1 decade) on all the tuning data (the
         held-out tail is the most recent motion, so it should shape the final noise too)."""
         from scipy.optimize import minimize  # ~0.4 s: only when searching
+
         self.bar.start(f"{self.part} ({nd} deriv., all)")
         f = self.objective(nd, 2)
         z0 = x if nd > 0 else x[:1]
