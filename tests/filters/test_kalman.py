@@ -12,6 +12,7 @@ from scipy.stats import chi2
 
 from trackflow import Pose, UncertainPose
 from trackflow.filters import MotionModel, PoseKalmanFilter, chi2_gate, run_filter
+from trackflow.filters.gating import chi2_survival
 from trackflow.math import quat_exp, quat_multiply, use_backend
 
 
@@ -491,8 +492,18 @@ def test_past_queries_are_consistent_smoothed_estimates():
     assert np.sqrt(np.mean(err_mid)) < 1e-3  # measurement noise: 1.7 mm RMS
 
 
-@pytest.mark.parametrize("dof", [1, 3, 6])
-@pytest.mark.parametrize("probability", [0.9, 0.99, 0.999])
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 6, 9, 15, 40])
+@pytest.mark.parametrize("probability", [1e-4, 0.5, 0.9, 0.99, 0.999, 1 - 1e-9])
 def test_chi2_gate_is_the_chi_square_quantile(probability, dof):
+    """The closed-form quantile (no scipy at filter import) against scipy's."""
     assert chi2_gate(probability, dof) == pytest.approx(chi2.ppf(probability, dof), rel=1e-10)
+    x = chi2.ppf(probability, dof)
+    assert chi2_survival(x, dof) == pytest.approx(chi2.sf(x, dof), rel=1e-10)
     assert chi2_gate(None, dof) == float("inf")
+    assert chi2_gate(1.0, dof) == float("inf")
+
+
+@pytest.mark.parametrize("bad", [(1.5, 3), (-0.1, 3), (0.9, 0), (0.9, 2.5)])
+def test_chi2_gate_rejects_bad_arguments(bad):
+    with pytest.raises(ValueError, match="probability"):
+        chi2_gate(*bad)

@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..filters import MotionModel
 from ._predictor import KalmanPredictor
@@ -116,6 +115,8 @@ class _PartSearch:
     def refine_on_all(self, nd: int, x: np.ndarray, opts: dict, budget: int) -> np.ndarray:
         """The chosen count's levels refined locally (+-1 decade) on all the tuning data (the
         held-out tail is the most recent motion, so it should shape the final noise too)."""
+        from scipy.optimize import minimize  # ~0.4 s: only when searching
+
         self.bar.start(f"{self.part} ({nd} deriv., all)")
         f = self.objective(nd, 2)
         z0 = x if nd > 0 else x[:1]

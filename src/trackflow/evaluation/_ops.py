@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..filters import PoseKalmanFilter
+from ..filters import smooth_filter
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, quat_conjugate, quat_log, quat_multiply
 from ._predictor import KalmanPredictor, default_predictor
@@ -115,14 +115,14 @@ def infer_streams(
     ``progress(done, total)``, if given, is called as the filters advance (``total`` counts
     every measurement and query of both recordings).
 
-    ``method="filter"`` (default): each recording runs through a pose Kalman filter
-    (:class:`trackflow.filters.PoseKalmanFilter` keeping its whole history; motion model and
-    measurement noise from ``predictor_a`` / ``predictor_b``, default
+    ``method="filter"`` (default): each recording runs through a pose Kalman filter and a
+    Rauch-Tung-Striebel smoother over the whole recording (:func:`trackflow.filters.smooth_filter`;
+    motion model and measurement noise from ``predictor_a`` / ``predictor_b``, default
     :func:`default_predictor` of that recording; a recording's own covariances are used when it
-    has them). Both filters are queried at the union of the two recordings' timestamps inside
-    their common time span: a query between two stored states is smoothed (one
-    Rauch-Tung-Striebel step between the filtered states around it), so each relation is
-    estimated at the other's times from its measurements before and after.
+    has them). Both are queried at the union of the two recordings' timestamps inside their
+    common time span (a query between two states is one smoothing step from the filtered state
+    before it to the smoothed state after it), so each relation is estimated at the other's
+    times from all its measurements.
     ``method="interpolate"``: ``b`` is interpolated to ``a``'s times (linear position, slerp,
     covariances interpolated) and ``a`` is taken as measured.
 
@@ -171,28 +171,17 @@ def _inside(tq: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _filtered_at(
     s: PoseStream, predictor, t0: int, ts: np.ndarray, progress=None, done: int = 0, total: int = 0
 ) -> UncertainPose:
-    """Run ``s`` through a pose Kalman filter and query it (smoothed) at ``ts`` [s from t0]."""
+    """Filter and smooth ``s`` and query it at ``ts`` [s from t0]."""
     t = (s.t_ns - t0).astype(float) * 1e-9
     p, q = np.asarray(s.position, float), np.asarray(s.quaternion, float)
     pred = predictor if predictor is not None else default_predictor(t, p, q)
     meas = s.uncertain_poses if s.covariance is not None else pred.measurements(p, q)
-    kf = PoseKalmanFilter(
-        pred.model, history=float(t[-1] - t[0]) + 1.0, gate_probability=pred.gate_probability
-    )
-    step = 4096
-    for k in range(len(t)):
-        kf.update_pose(float(t[k]), meas[k])
-        if progress is not None and k % step == 0:
-            progress(done + k, total)
-    out = []
-    for k, v in enumerate(ts):
-        out.append(kf.predict(float(v)))
-        if progress is not None and k % step == 0:
-            progress(done + len(t) + k, total)
-    return UncertainPose(
-        Pose(np.stack([u.position for u in out]), np.stack([u.quaternion for u in out])),
-        np.stack([u.covariance for u in out]),
-    )
+    if progress is not None:
+        progress(done, total)
+    out = smooth_filter(t, meas, pred.model, ts, gate_probability=pred.gate_probability)
+    if progress is not None:
+        progress(done + len(t) + len(ts), total)
+    return out
 
 
 def _infer_interpolated(a: PoseStream, b: PoseStream) -> PoseStream:

@@ -7,7 +7,6 @@ import time
 from typing import TextIO
 
 import numpy as np
-from scipy.optimize import minimize
 
 __all__ = ["BOUNDS", "Progress", "grid", "grid_then_powell", "huber", "refine"]
 
@@ -58,6 +57,8 @@ def grid(cost, starts) -> tuple[np.ndarray, np.ndarray]:
 
 def refine(cost, pts, values, options, n_starts: int = 2) -> np.ndarray:
     """Powell from the best basins of a grid (see :func:`grid_then_powell`)."""
+    from scipy.optimize import minimize  # ~0.4 s: only when searching
+
     step = np.array([np.min(np.diff(np.unique(c))) if np.unique(c).size > 1 else 1.0
                      for c in pts.T])  # fmt: skip
     near = np.all(np.abs(pts[:, None, :] - pts[None, :, :]) <= 1.5 * step, axis=2)

@@ -27,9 +27,11 @@ __all__ = ["compile_kernels"]
 
 
 def _synthetic(seconds: float = 12.0, rate: float = 100.0):
-    """A smooth hand-held-like motion with 0.3 mm / 0.05 deg noise (seeded)."""
+    """A smooth hand-held-like motion with 0.3 mm / 0.05 deg noise (seeded) and a 1 s dropout,
+    so that the filters run on several segments as they do on real recordings."""
     rng = np.random.default_rng(0)
     t = np.arange(0.0, seconds, 1.0 / rate)
+    t = t[(t < 0.5 * seconds) | (t >= 0.5 * seconds + 1.0)]
     pos = np.stack([0.3 * np.sin(0.9 * t), 0.2 * np.cos(1.3 * t), 0.1 * np.sin(0.4 * t)], 1)
     rot = np.stack([0.4 * np.sin(0.7 * t), 0.3 * np.cos(0.5 * t), 0.2 * t], 1)
     pos = pos + rng.normal(0.0, 3e-4, pos.shape)
@@ -46,10 +48,13 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
         return []
     say = progress or (lambda step: None)
     t, pos, quat = _synthetic()
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    # through a stream, as the commands read recordings (its arrays are read-only)
+    stream = PoseStream.from_poses("world", "body", t_ns, Pose(pos, quat))
     steps = []
 
     say("tuning and scoring (evaluate, tune, plot)")
-    recording = Trajectory.check(t, pos, quat)
+    recording = Trajectory.from_stream(stream)
     report = evaluate_recording(recording, ar_orders=(3,))
     # the learned model's filter, whether or not the tuning above chose it
     model = TwistARModel.fit(t, pos, quat, order=3)
@@ -57,8 +62,6 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     steps.append("evaluate")
 
     say("filtering with covariances and predictions (filter)")
-    t_ns = np.round(t * 1e9).astype(np.int64)
-    stream = PoseStream.from_poses("world", "body", t_ns, Pose(pos, quat))
     for horizon in (0.0, 0.05):
         filter_stream(stream, report.predictor, horizon, calibrate=True)
     steps.append("filter")

@@ -27,7 +27,14 @@ All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/con
 """
 
 from .contract import STATS_KEYS, FilterStatus, MeasurementFunction, PoseFilter
-from .derivative import FORMULATIONS, FilterResult, MotionModel, PoseKalmanFilter, run_filter
+from .derivative import (
+    FORMULATIONS,
+    FilterResult,
+    MotionModel,
+    PoseKalmanFilter,
+    run_filter,
+    smooth_filter,
+)
 from .factory import (
     constant_velocity_densities,
     filter_noise,
@@ -103,5 +110,6 @@ __all__ = [
     "quaternion_space_factory",
     "relative_motion_factory",
     "run_filter",
+    "smooth_filter",
     "run_twist_ar",
 ]

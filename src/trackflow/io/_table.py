@@ -320,8 +320,13 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
 
 
 def _place(token: str) -> float:
-    """Value of one unit in the last printed digit of a decimal token (``"0.25"`` -> 0.01)."""
-    mant, _, exp = token.strip().lower().partition("e")
+    """Value of one unit in the last printed digit of a decimal token (``"0.25"`` -> 0.01,
+    ``"1.5e-3"`` -> 1e-4; an unreadable exponent counts as 0)."""
+    token = token.strip()
+    if "e" not in token and "E" not in token:  # the usual case, cheaply (EuRoC: 115k tokens)
+        dot = token.find(".")
+        return 10.0 ** (dot + 1 - len(token)) if dot >= 0 else 1.0
+    mant, _, exp = token.lower().partition("e")
     decimals = len(mant.partition(".")[2])
     try:
         e = int(exp) if exp else 0
@@ -343,10 +348,7 @@ def quat_tolerance_from_tokens(
     """
 
     def tol(rows: np.ndarray) -> np.ndarray:
-        out = np.empty(len(rows))
-        for k, r in enumerate(rows):
-            place = max(_place(tokens[r][c]) for c in cols)
-            out[k] = max(TEXT_UNIT_TOLERANCE, min(2.0 * place, 1e-3))
-        return out
+        place = np.array([max([_place(tokens[r][c]) for c in cols]) for r in rows])
+        return np.maximum(TEXT_UNIT_TOLERANCE, np.minimum(2.0 * place, 1e-3))
 
     return tol

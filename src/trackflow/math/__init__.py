@@ -3,7 +3,7 @@
 Conventions (frames, quaternion order, error model) are in ``docs/conventions.md``.
 """
 
-from ._backend import get_backend, numba_available, set_backend, use_backend
+from ._backend import frozen, get_backend, numba_available, set_backend, use_backend
 from ._backend import kernels as kernels_for
 from ._checks import (
     UNIT_TOLERANCE,
@@ -70,6 +70,7 @@ __all__ = [
     "cov_to_thesis",
     "ellipsoid",
     "evaluate_covariance",
+    "frozen",
     "get_backend",
     "jacobian_inverse",
     "kernels_for",

@@ -20,6 +20,13 @@ numba checks only a function's own source file for staleness, so each compiled c
 records a fingerprint of all the kernel sources it depends on and drops its cached entries when
 any of them changed.
 
+Each kernel compiles one machine-code *specialisation* per combination of argument types, and
+numba's types include an array's layout (contiguous or strided) and whether it is writeable.
+Drivers pass their array inputs through :func:`frozen` (C-contiguous, float64, read-only) and
+give the kernels contiguous output buffers, so a kernel has one specialisation whatever arrays
+the caller holds, and the one ``trackflow compile`` made ahead of time is the one every command
+finds in the cache.
+
 The backend is chosen once at import (``TRACKFLOW_BACKEND=numpy`` forces NumPy) and can be
 switched for a block of code with :func:`use_backend`, which always restores the previous one.
 """
@@ -39,6 +46,7 @@ from pathlib import Path
 
 __all__ = [
     "cache_is_warm",
+    "frozen",
     "get_backend",
     "kernels",
     "numba_available",
@@ -51,6 +59,19 @@ _PACKAGE_DIR = str(Path(__file__).resolve().parents[1])
 # error_model="numpy": division by zero gives inf/nan like NumPy (caught by the divergence
 # checks) instead of a raising branch in every inner loop.
 _JIT_OPTIONS = {"cache": True, "error_model": "numpy"}
+
+
+def frozen(array, dtype=float):
+    """A C-contiguous, read-only view of ``array`` as ``dtype`` (a copy only when needed).
+
+    The one argument form of every array a driver passes into a kernel (see the module notes:
+    one compiled specialisation per kernel). The caller's array is never made read-only.
+    """
+    import numpy as np
+
+    view = np.ascontiguousarray(array, dtype=dtype).view()
+    view.flags.writeable = False
+    return view
 
 
 @functools.cache

@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtri
 
+from ..filters import chi2_gate
 from ..math import skew
 from .camera import CameraRig
 from .triangulation import refine_points, triangulate_normalized
@@ -186,7 +186,8 @@ def match_epipolar(
     xn, _ = _gather(norm, tracks)
     tri = refine_points(rig, triangulate_normalized(rig, xn, mask), uv, mask, sigma_px, 2)
     dof = np.maximum(2 * n_views - 3, 1)
-    ok = tri.valid & (tri.chi2 <= chdtri(dof, 1.0 - gate_probability))
+    gates = np.array([chi2_gate(gate_probability, int(d)) for d in dof])
+    ok = tri.valid & (tri.chi2 <= gates)
     order = np.lexsort((np.where(ok, tri.chi2 / dof, np.inf), -n_views))
     order = order[ok[order]]
     # 4. greedy acceptance: multi-view tracks first, each blob used once

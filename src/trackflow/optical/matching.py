@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.special import chdtri
 
+from ..filters import chi2_gate
 from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
 from .absolute_orientation import PoseFit, fit_pose
 from .correspondence import PointCandidates
@@ -291,8 +291,8 @@ def identify(
     unknown = set(predictions) - set(names)
     if unknown:
         raise ValueError(f"predictions for unknown models {sorted(unknown)}")
-    chi_gate = float(chdtri(3, 1.0 - gate_probability))
-    gate6 = float(chdtri(6, 1.0 - gate_probability))
+    chi_gate = chi2_gate(gate_probability, 3)
+    gate6 = chi2_gate(gate_probability, 6)
     avail = np.ones(len(candidates), bool)
     remaining = list(models)
     found: dict[str, BodyMatch] = {}

@@ -24,9 +24,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import chdtri
 
-from ..filters import MotionModel, PoseKalmanFilter
+from ..filters import MotionModel, PoseKalmanFilter, chi2_gate
 from ..math import Pose, UncertainPose, skew
 from ._kernels import (
     drop_merged,
@@ -144,11 +143,11 @@ class OpticalTracker:
             raise ValueError(f"need marker models with unique names, got {names}")
         self.config = config or TrackerConfig()
         c = self.config
-        self._gate2 = float(chdtri(2, 1.0 - c.gate_probability))
-        self._gate3 = float(chdtri(3, 1.0 - c.gate_probability))
-        self._gate6 = float(chdtri(6, 1.0 - c.gate_probability))
-        dofs = np.arange(1, 2 * len(rig))
-        self._chi_gates = np.concatenate([[np.inf], chdtri(dofs, 1.0 - c.gate_probability)])
+        self._gate2 = chi2_gate(c.gate_probability, 2)
+        self._gate3 = chi2_gate(c.gate_probability, 3)
+        self._gate6 = chi2_gate(c.gate_probability, 6)
+        gates = [chi2_gate(c.gate_probability, d) for d in range(1, 2 * len(rig))]
+        self._chi_gates = np.array([np.inf, *gates])
         self._packed = pack_cameras(rig)
         self.reset()
 

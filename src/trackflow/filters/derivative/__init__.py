@@ -2,12 +2,19 @@
 
 ``model`` (:class:`MotionModel`: state layout and process noise), ``kernels`` (the compiled
 prediction, update and offline loop), ``streaming`` (:class:`PoseKalmanFilter`: predict,
-interpolate, fuse, estimate static poses) and ``offline`` (:func:`run_filter` over whole
-recordings). See ``docs/filters.md``.
+interpolate, fuse, estimate static poses) and ``offline`` (:func:`run_filter` and the smoother
+:func:`smooth_filter` over whole recordings). See ``docs/filters.md``.
 """
 
 from .model import FORMULATIONS, MotionModel
-from .offline import FilterResult, run_filter
+from .offline import FilterResult, run_filter, smooth_filter
 from .streaming import PoseKalmanFilter
 
-__all__ = ["FORMULATIONS", "FilterResult", "MotionModel", "PoseKalmanFilter", "run_filter"]
+__all__ = [
+    "FORMULATIONS",
+    "FilterResult",
+    "MotionModel",
+    "PoseKalmanFilter",
+    "run_filter",
+    "smooth_filter",
+]

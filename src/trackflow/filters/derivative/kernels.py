@@ -90,6 +90,7 @@ KERNELS = (
     "measurement_cov",
     "row_is_finite",
     "run",
+    "smooth_run",
 )
 KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
 
@@ -841,8 +842,12 @@ def row_is_finite(pos, quat, cov, i):
 def run(
     times, pos, quat, cov, horizons, x, p, n_dp, n_do, additive, kind, sig_p, sig_o,
     gate, wmax, reset_after, covariance, out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status,
+    out_x, out_p,
 ):  # fmt: skip
     """Offline run over time-sorted pose measurements; fills the output arrays.
+
+    ``out_x, out_p`` (N, nx) and (N, nc, nc), or empty: the whole filter state after each
+    measurement (the prediction where a row was skipped), for :func:`smooth_run`.
 
     ``x, p`` hold the initial (uninitialised) state. Rows with non-finite values are skipped
     (status INVALID) and get the prediction; gating and resets follow
@@ -917,6 +922,9 @@ def run(
         if status[i] != INVALID:
             xs[:] = x
             ps[:, :] = p
+        if out_x.shape[0] > 0:
+            out_x[i] = xs
+            out_p[i] = ps
         if covariance:
             t, q, c = pose_of(xs, ps, n_dp, n_do, additive)
             out_t[i] = t
@@ -940,3 +948,50 @@ def run(
             else:
                 mean_transition_into(x, dt, n_dp, n_do, xs, pws[0], pws[1], pws[2])
                 pose_mean_into(xs, n_dp, n_do, additive, pred_t[hz, i], pred_q[hz, i])
+
+
+def smooth_run(
+    times, xs, ps, status, queries, n_dp, n_do, additive, kind, sig_p, sig_o, out_t, out_q, out_c
+):  # fmt: skip
+    """Rauch-Tung-Striebel smoothing of a whole run, answered at sorted query times.
+
+    ``xs, ps`` (N, nx), (N, nc, nc): the filtered states of :func:`run` (``out_x, out_p``),
+    overwritten from the newest backwards by the smoothed ones. A segment (from one
+    initialisation or reset to the next) is smoothed on its own: its newest state is its own
+    smoothed state. A query between two states of one segment is one :func:`smooth` step
+    from the filtered state before it to the smoothed state after it; a query at a state is
+    that smoothed state; a query after the newest state of a segment is predicted from it.
+    ``queries`` (Q,) must be ascending; those before ``times[0]`` are left unanswered.
+
+    Returns
+    -------
+    int
+        The number of queries answered (the newest ones), written to ``out_t`` (Q, 3),
+        ``out_q`` (Q, 4) and ``out_c`` (Q, 6, 6).
+    """
+    n = times.shape[0]
+    j = queries.shape[0] - 1
+    answered = 0
+    for i in range(n - 1, -1, -1):
+        ends = i + 1 >= n or status[i + 1] == INITIALIZED or status[i + 1] == RESET
+        ends = ends or status[i + 1] == DIVERGED
+        while j >= 0 and queries[j] > times[i]:  # strictly between state i and state i + 1
+            if ends:
+                x, p = predict(xs[i], ps[i], queries[j] - times[i], n_dp, n_do, additive,
+                               kind, sig_p, sig_o)  # fmt: skip
+            else:
+                x, p = smooth(xs[i], ps[i], times[i], xs[i + 1], ps[i + 1], times[i + 1],
+                              queries[j], n_dp, n_do, additive, kind, sig_p, sig_o)  # fmt: skip
+            out_t[j], out_q[j], out_c[j] = pose_of(x, p, n_dp, n_do, additive)
+            j -= 1
+            answered += 1
+        if not ends:
+            x, p = smooth(xs[i], ps[i], times[i], xs[i + 1], ps[i + 1], times[i + 1], times[i],
+                          n_dp, n_do, additive, kind, sig_p, sig_o)  # fmt: skip
+            xs[i] = x
+            ps[i] = p
+        while j >= 0 and queries[j] == times[i]:
+            out_t[j], out_q[j], out_c[j] = pose_of(xs[i], ps[i], n_dp, n_do, additive)
+            j -= 1
+            answered += 1
+    return answered

@@ -8,14 +8,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackflow.math import Pose, UncertainPose
+from trackflow.math import Pose, UncertainPose, frozen
 
 from ..contract import FilterStatus
-from ..gating import chi2_gate
 from .model import MotionModel
 from .streaming import PoseKalmanFilter, kernels
 
-__all__ = ["FilterResult", "run_filter"]
+__all__ = ["FilterResult", "run_filter", "smooth_filter"]
 
 
 @dataclass(frozen=True)
@@ -93,37 +92,12 @@ def run_filter(
     -------
     FilterResult
     """
-    t, h = _checked_inputs(times, poses, horizons, max_gap)
-    # validates the options the same way as the streaming filter
-    kf = PoseKalmanFilter(
-        model,
-        gate_probability=gate_probability,
-        formulation=formulation,
-        max_angular_velocity=max_angular_velocity,
-        reset_after=reset_after,
-    )
-    n_dp, n_do = kf._params[:2]
-    order = np.argsort(t, kind="stable")
-    out_of_order = int(np.count_nonzero(order != np.arange(t.size)))
-    sort = out_of_order > 0  # in-order input (the usual case) is used without copies
-
-    def ordered(a):
-        return np.ascontiguousarray(a[order] if sort else a, dtype=float)
-
-    rows = (
-        ordered(t),
-        ordered(poses.position),
-        ordered(poses.quaternion),
-        ordered(poses.covariance),
-    )
-    gate = chi2_gate(gate_probability, 3 if (n_dp < 0 or n_do < 0) else 6)
-    out = _run_segments(kf, rows, h, gate, max_angular_velocity, reset_after, covariance, max_gap)
-    out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status = out
-    if sort:
-        inv = np.empty_like(order)
-        inv[order] = np.arange(t.size)
-    else:
-        inv = slice(None)
+    opts = (gate_probability, formulation, max_angular_velocity, reset_after)
+    kf, t, h, order, rows = _prepared(times, poses, model, horizons, max_gap, *opts)
+    out = _run_segments(kf, rows, h, covariance, max_gap)
+    out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status, _, _ = out
+    out_of_order = 0 if order is None else int(np.count_nonzero(order != np.arange(t.size)))
+    inv = slice(None) if order is None else np.argsort(order, kind="stable")
     if covariance:
         filtered = UncertainPose._trusted(out_t[inv], out_q[inv], out_c[inv])
         preds = {
@@ -142,6 +116,85 @@ def run_filter(
         status=status[inv],
         stats={**_counts(status), "out_of_order": out_of_order},
     )
+
+
+def smooth_filter(
+    times,
+    poses: UncertainPose,
+    model: MotionModel,
+    queries,
+    gate_probability: float | None = 0.999,
+    formulation: str = "error_state",
+    max_angular_velocity: float = 50.0,
+    reset_after: int = 10,
+    max_gap: float | None = None,
+) -> UncertainPose:
+    """Smoothed poses at any times, from a whole recording, in two compiled passes.
+
+    The recording is filtered forwards (as :func:`run_filter`), then smoothed backwards
+    (Rauch-Tung-Striebel) and answered at ``queries``: the batch form of what a
+    :class:`PoseKalmanFilter` holding the whole recording in its history answers with
+    ``predict(t)``, in the same steps (a query between two states: one smoothing step from the
+    filtered state before it to the smoothed state after it; at a state: the smoothed state;
+    after the newest state of a segment: the motion model's prediction).
+
+    Parameters
+    ----------
+    times, poses, model, gate_probability, formulation, max_angular_velocity, reset_after, max_gap
+        As for :func:`run_filter`.
+    queries : array_like (Q,)
+        Times (s, same clock as ``times``), in any order, none before the first measurement.
+
+    Returns
+    -------
+    UncertainPose (Q,)
+        ``T_a_b`` at each query, 6x6 covariance over ``(dt, dtheta)`` with
+        ``t_true = t + dt``, ``R_true = R Exp(dtheta)``.
+    """
+    opts = (gate_probability, formulation, max_angular_velocity, reset_after)
+    kf, t, _, _, rows = _prepared(times, poses, model, (), max_gap, *opts)
+    tq = np.ascontiguousarray(queries, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(tq)):
+        raise ValueError("query times must be finite")
+    q_order = np.argsort(tq, kind="stable")
+    tq_sorted = frozen(tq[q_order])
+    if tq.size and tq_sorted[0] < rows[0][0]:
+        raise ValueError(
+            f"query at t={tq_sorted[0]:.6f} s is before the first measurement "
+            f"(t={rows[0][0]:.6f} s); a smoother answers only from its first state on"
+        )
+    *_, status, xs, ps = _run_segments(kf, rows, frozen(()), False, max_gap, states=True)
+    n_dp, n_do, add, kind, sp, so = kf._params
+    out_t, out_q, out_c = np.zeros((tq.size, 3)), np.zeros((tq.size, 4)), np.zeros((tq.size, 6, 6))
+    kernels().smooth_run(
+        rows[0], xs, ps, status, tq_sorted, n_dp, n_do, add, kind, sp, so, out_t, out_q, out_c
+    )
+    inv = np.argsort(q_order, kind="stable")
+    return UncertainPose._trusted(out_t[inv], out_q[inv], out_c[inv])
+
+
+def _prepared(times, poses, model, horizons, max_gap, gate_probability, formulation, wmax, reset):
+    """Checked inputs of a whole-recording run: the filter holding the validated options, the
+    times and horizons, the sorting permutation (``None`` when already in order) and the rows
+    ``(t, position, quaternion, covariance)`` in time order, as kernel inputs."""
+    t, h = _checked_inputs(times, poses, horizons, max_gap)
+    # validates the options the same way as the streaming filter
+    kf = PoseKalmanFilter(
+        model,
+        gate_probability=gate_probability,
+        formulation=formulation,
+        max_angular_velocity=wmax,
+        reset_after=reset,
+    )
+    order = np.argsort(t, kind="stable")
+    if not np.any(order != np.arange(t.size)):  # in-order input (the usual case): no copies
+        order = None
+
+    def ordered(a):
+        return frozen(a if order is None else a[order])
+
+    rows = (ordered(t), ordered(poses.position), ordered(poses.quaternion))
+    return kf, t, frozen(h), order, (*rows, ordered(poses.covariance))
 
 
 def _checked_inputs(times, poses, horizons, max_gap) -> tuple[np.ndarray, np.ndarray]:
@@ -163,11 +216,14 @@ def _checked_inputs(times, poses, horizons, max_gap) -> tuple[np.ndarray, np.nda
     return t, h
 
 
-def _run_segments(kf, rows, h, gate, wmax, reset_after, covariance, max_gap):
+def _run_segments(kf, rows, h, covariance, max_gap, states=False):
     """The compiled loop over each segment between dropouts longer than ``max_gap`` (each
-    filtered from scratch); returns the output arrays in time order."""
+    filtered from scratch); returns the output arrays in time order, and with ``states`` the
+    filter states after each row (:func:`smooth_filter`)."""
     ts, pos, quat, cov = rows
     n_dp, n_do, add, kind, sp, so = kf._params
+    gate = kf._gates[3 if (n_dp < 0 or n_do < 0) else 6]
+    wmax, reset_after = kf._wmax, kf._policy.reset_after
     n, nh = ts.size, h.size
     out_t, out_q = np.zeros((n, 3)), np.zeros((n, 4))
     pred_t, pred_q = np.zeros((nh, n, 3)), np.zeros((nh, n, 4))
@@ -175,6 +231,8 @@ def _run_segments(kf, rows, h, gate, wmax, reset_after, covariance, max_gap):
     out_c, pred_c = np.zeros((m, 6, 6)), np.zeros((nh, m, 6, 6))
     nis = np.full(n, math.nan)
     status = np.zeros(n, dtype=np.int8)
+    ns = n if states else 0
+    out_x, out_p = np.zeros((ns, kf._x0.size)), np.zeros((ns, *kf._p0.shape))
     cuts = [0, n]
     if max_gap is not None and n > 1:
         cuts = [0, *(np.flatnonzero(np.diff(ts) > max_gap) + 1).tolist(), n]
@@ -183,12 +241,18 @@ def _run_segments(kf, rows, h, gate, wmax, reset_after, covariance, max_gap):
         x, p = kf._x0.copy(), kf._p0.copy()
         seg = slice(a, b)
         cseg = seg if covariance else slice(0, 0)
+        sseg = seg if states else slice(0, 0)
+        # the per-horizon outputs of one segment are strided views of the whole arrays: the
+        # kernel writes into contiguous buffers (one compiled specialisation), copied back
+        seg_pt, seg_pq = np.zeros((nh, b - a, 3)), np.zeros((nh, b - a, 4))
+        seg_pc = np.zeros((nh, (b - a) if covariance else 0, 6, 6))
         k.run(
             ts[seg], pos[seg], quat[seg], cov[seg], h, x, p, n_dp, n_do, add, kind, sp, so,
             gate, float(wmax), int(reset_after), bool(covariance), out_t[seg], out_q[seg],
-            out_c[cseg], pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg], nis[seg], status[seg],
+            out_c[cseg], seg_pt, seg_pq, seg_pc, nis[seg], status[seg], out_x[sseg], out_p[sseg],
         )  # fmt: skip
-    return out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status
+        pred_t[:, seg], pred_q[:, seg], pred_c[:, cseg] = seg_pt, seg_pq, seg_pc
+    return out_t, out_q, out_c, pred_t, pred_q, pred_c, nis, status, out_x, out_p
 
 
 def _counts(status: np.ndarray) -> dict:

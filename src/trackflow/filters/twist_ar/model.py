@@ -39,6 +39,7 @@ import numpy as np
 
 from trackflow.math import (
     check_trajectory,
+    frozen,
     kernels_for,
     quat_conjugate,
     quat_exp,
@@ -529,9 +530,8 @@ def run_twist_ar(
     r_diag = np.array([pos_sigma**2] * 3 + [ori_sigma**2] * 3)
     status = np.zeros(n_s, dtype=np.int8)
     out_p, out_q, out_h, out_c, nis, restarts = kernels_for(_source).twist_ar_run(
-        np.ascontiguousarray(t), np.ascontiguousarray(pm), np.ascontiguousarray(qm),
-        model._a_cat(), np.ascontiguousarray(model.noise),
-        np.ascontiguousarray(model.twist_covariance), r_diag, float(model.dt), gap,
+        frozen(t), frozen(pm), frozen(qm), frozen(model._a_cat()), frozen(model.noise),
+        frozen(model.twist_covariance), frozen(r_diag), float(model.dt), gap,
         policy.threshold(6), policy.reset_after, status,
     )  # fmt: skip
     out_h = out_h.reshape(n_s, model.order, 6)
