@@ -1,0 +1,226 @@
+"""Numeric kernels of the IMU-only orientation filter (plain NumPy, compiled by numba if present).
+
+The model is documented in :mod:`.orientation`. Nominal state: ``R`` (3, 3) = ``R_w_s`` and
+``x`` (9,) = ``(b_g, v_w, p_w)``; error state (12,) = ``(dtheta, db_g, dv, dp)`` with
+``R_true = R Exp(dtheta)`` (right, sensor frame), ``b_true = b + db`` and so on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trackflow.filters.inertial.kernel import exp_so3, right_jacobian, skew3
+
+__all__ = [
+    "KERNELS",
+    "orientation_transition",
+    "orientation_step",
+    "heading_of",
+    "heading_jacobian",
+    "scalar_update",
+    "run_orientation",
+]
+
+KERNEL_SOURCES = ("trackflow.filters.inertial.kernel",)
+KERNELS = (
+    "orientation_transition",
+    "orientation_step",
+    "heading_of",
+    "heading_jacobian",
+    "scalar_update",
+    "run_orientation",
+)
+
+# error-state blocks
+ITH, IBG, IV, IP = 0, 3, 6, 9
+N_STATES = 12
+
+
+def orientation_transition(r, x, gyro, accel, dt):
+    """``J_xnext_x`` (12, 12): the exact Jacobian of :func:`orientation_step`'s mean update.
+
+    Parameters
+    ----------
+    r : ndarray (3, 3)
+        ``R_w_s`` before the step.
+    x : ndarray (9,)
+        ``(b_g, v, p)`` before the step.
+    gyro, accel : ndarray (3,)
+        Angular velocity [rad/s] and specific force [m/s^2] held over the step (sensor frame).
+    dt : float
+        Step [s].
+    """
+    phi = (gyro - x[0:3]) * dt
+    e = exp_so3(phi).T
+    jr = right_jacobian(phi)
+    rf = r @ skew3(accel)
+    F = np.eye(N_STATES)
+    for i in range(3):
+        for j in range(3):
+            F[ITH + i, ITH + j] = e[i, j]
+            F[ITH + i, IBG + j] = -jr[i, j] * dt
+            F[IV + i, ITH + j] = -rf[i, j] * dt
+            F[IP + i, ITH + j] = -0.5 * rf[i, j] * dt * dt
+        F[IP + i, IV + i] = dt
+    return F
+
+
+def orientation_step(r, x, P, gyro, accel, dt, g, noise):
+    """One prediction step in place (``x``, ``P``); returns the new ``R_w_s`` (3, 3).
+
+    The sample is held over the step: ``R' = R Exp((omega - b_g) dt)``, ``v' = v + a dt``,
+    ``p' = p + v dt + a dt^2 / 2`` with ``a = R f + g``. ``noise`` (3,) holds the white-noise
+    densities of the gyro [rad/s/sqrt(Hz)], the gyro bias random walk [rad/s^2/sqrt(Hz)] and
+    the accelerometer [m/s^2/sqrt(Hz)].
+    """
+    if dt <= 0.0:
+        return r
+    F = orientation_transition(r, x, gyro, accel, dt)
+    a = r @ accel + g
+    for i in range(3):
+        x[6 + i] += x[3 + i] * dt + 0.5 * a[i] * dt * dt
+        x[3 + i] += a[i] * dt
+    r_new = r @ exp_so3((gyro - x[0:3]) * dt)
+    Pn = F @ P @ F.T
+    qg = noise[0] * noise[0] * dt
+    qb = noise[1] * noise[1] * dt
+    qa = noise[2] * noise[2] * dt
+    for i in range(3):
+        Pn[ITH + i, ITH + i] += qg
+        Pn[IBG + i, IBG + i] += qb
+        Pn[IV + i, IV + i] += qa
+        Pn[IP + i, IP + i] += qa * dt * dt / 3.0
+        Pn[IP + i, IV + i] += qa * dt / 2.0
+        Pn[IV + i, IP + i] += qa * dt / 2.0
+    P[:, :] = 0.5 * (Pn + Pn.T)
+    return r_new
+
+
+def heading_of(r, mag):
+    """Heading residual [rad] of a magnetometer sample ``mag`` (3,) under ``R_w_s``.
+
+    The world frame is east-north-up: the horizontal part of ``R mag`` should point north
+    (+y). Returns ``atan2(m_x, m_y)`` of ``m = R mag``: 0 when it does, positive when the
+    estimate has to turn by that angle about the world z axis (right-handed) to align.
+    """
+    m = r @ mag
+    return np.arctan2(m[0], m[1])
+
+
+def heading_jacobian(r, mag):
+    """``J_heading_x`` (12,): derivative of :func:`heading_of` by the error state."""
+    m = r @ mag
+    h2 = m[0] * m[0] + m[1] * m[1]
+    # d atan2(mx, my) = (my dmx - mx dmy) / h2 ; dm = -R [mag]x dtheta
+    dm = -(r @ skew3(mag))
+    H = np.zeros(N_STATES)
+    if h2 <= 0.0:
+        return H
+    for j in range(3):
+        H[ITH + j] = (m[1] * dm[0, j] - m[0] * dm[1, j]) / h2
+    return H
+
+
+def scalar_update(r, x, P, H, y, var):
+    """Fuse a scalar innovation ``y`` with row ``H`` (12,) and variance ``var`` in place.
+
+    Returns the new ``R_w_s``. Joseph form for a scalar measurement (numerically safe at
+    the small variances of the rest and pseudo-measurements).
+    """
+    PH = P @ H
+    s = H @ PH + var
+    K = PH / s
+    dx = K * y
+    for i in range(3):
+        x[i] += dx[IBG + i]
+        x[3 + i] += dx[IV + i]
+        x[6 + i] += dx[IP + i]
+    r_new = r @ exp_so3(dx[ITH : ITH + 3])
+    # (I - K H) P (I - K H)^T + K var K^T
+    A = P - np.outer(K, PH)
+    Pn = A - np.outer(A @ H, K) + np.outer(K, K) * var
+    P[:, :] = 0.5 * (Pn + Pn.T)
+    return r_new
+
+
+def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, rest, out_r, out_rest):
+    """Run the filter over a recording (the offline loop), writing ``R_w_s`` after each sample.
+
+    Parameters
+    ----------
+    t : float (M,)
+        Increasing sample times [s].
+    gyro, accel, mag : (M, 3)
+        Sensor-frame angular velocity [rad/s], specific force [m/s^2], magnetic field (any
+        unit; only its direction is used).
+    use_mag : bool
+        Fuse the magnetometer as a heading measurement.
+    r, x, P : initial state (``x`` and ``P`` modified in place)
+    g : (3,) gravity in the world frame [m/s^2]
+    noise : (3,) see :func:`orientation_step`
+    bounds : (4,)
+        ``(velocity_sigma [m/s], position_sigma [m], correlation_time [s], heading_sigma [rad])``:
+        the pseudo-measurements ``v = 0`` and ``p = 0`` and the heading measurement each carry
+        the variance ``sigma^2 * correlation_time / dt`` (one independent look per correlation
+        time, spread over the samples).
+    rest : (4,)
+        ``(gyro_threshold [rad/s], accel_threshold [m/s^2], rest_time [s], filter_tau [s])``:
+        the sensor is at rest when the low-passed gyro and accelerometer deviations stay below
+        the thresholds for ``rest_time``; at rest the gyro reading measures the bias.
+    out_r : (M, 3, 3)
+        ``R_w_s`` after each sample.
+    out_rest : bool (M,)
+        Whether each sample was classified as rest.
+
+    Returns
+    -------
+    R_w_s (3, 3) after the last sample.
+    """
+    m_count = t.shape[0]
+    w_lp = gyro[0].copy()
+    a_lp = accel[0].copy()
+    dev_w = 0.0
+    dev_a = 0.0
+    rest_for = 0.0
+    H = np.zeros(N_STATES)
+    for k in range(m_count):
+        dt = t[k] - t[k - 1] if k > 0 else 0.0
+        if dt > 0.0:
+            r = orientation_step(r, x, P, gyro[k], accel[k], dt, g, noise)
+            for i in range(6):
+                blk = IV if i < 3 else IP
+                sig = bounds[0] if i < 3 else bounds[1]
+                H[:] = 0.0
+                H[blk + i % 3] = 1.0
+                y = -(x[3 + i])
+                r = scalar_update(r, x, P, H, y, sig * sig * bounds[2] / dt)
+            if use_mag:
+                H = heading_jacobian(r, mag[k])
+                y = -heading_of(r, mag[k])
+                r = scalar_update(r, x, P, H, y, bounds[3] * bounds[3] * bounds[2] / dt)
+                H = np.zeros(N_STATES)
+            # rest detection: deviations from a first-order low pass of each signal
+            al = 1.0 - np.exp(-dt / rest[3])
+            for i in range(3):
+                w_lp[i] += al * (gyro[k, i] - w_lp[i])
+                a_lp[i] += al * (accel[k, i] - a_lp[i])
+            dw = gyro[k] - w_lp
+            da = accel[k] - a_lp
+            dev_w += al * (dw @ dw - dev_w)
+            dev_a += al * (da @ da - dev_a)
+            still = (
+                np.sqrt(dev_w) < rest[0]
+                and np.sqrt(dev_a) < rest[1]
+                and np.sqrt(w_lp @ w_lp) < 4.0 * rest[0]
+            )
+            rest_for = rest_for + dt if still else 0.0
+            if rest_for >= rest[2]:
+                for i in range(3):  # at rest the reading is the bias plus white noise
+                    H[:] = 0.0
+                    H[IBG + i] = 1.0
+                    r = scalar_update(r, x, P, H, gyro[k, i] - x[i], noise[0] * noise[0] / dt)
+        out_rest[k] = rest_for >= rest[2]
+        for i in range(3):
+            for j in range(3):
+                out_r[k, i, j] = r[i, j]
+    return r
