@@ -2,8 +2,9 @@
 
 * :mod:`.model`: ``InertialModel`` (mode, ``ImuNoise``, ``ImuExtrinsics`` ``T_b_s``, gravity).
 * :mod:`.kernel`: the strapdown step, the pose and gravity updates and their Jacobians.
-* :mod:`.driver`: ``InertialFilter`` (streaming), ``run_inertial`` (whole recordings) and
-  ``run_imu_orientation`` (IMU alone).
+* :mod:`.driver`: ``InertialFilter`` (streaming) and ``run_inertial`` (whole recordings).
+* :mod:`.orientation`: ``run_imu_orientation``, orientation from the IMU alone (gyro and
+  accelerometer, optionally magnetometer), kernels in :mod:`.orientation_kernel`.
 * :mod:`.calibration`: noise from a static segment (Allan deviation), clock offset, IMU-to-body
   rotation and gravity from data.
 
@@ -23,12 +24,17 @@ from .driver import (
     InertialFilter,
     InertialResult,
     InertialState,
-    run_imu_orientation,
     run_inertial,
-    tilt_from_accel,
 )
 from .extrapolation import GyroExtrapolation, fit_gyro_extrapolation
 from .model import GRAVITY, MODES, ImuExtrinsics, ImuNoise, InertialModel
+from .orientation import (
+    ImuOrientationModel,
+    ImuOrientationResult,
+    heading_inclination_errors,
+    initial_orientation,
+    run_imu_orientation,
+)
 
 __all__ = [
     "GRAVITY",
@@ -37,6 +43,8 @@ __all__ = [
     "MODES",
     "ImuExtrinsics",
     "ImuNoise",
+    "ImuOrientationModel",
+    "ImuOrientationResult",
     "InertialFilter",
     "InertialModel",
     "InertialResult",
@@ -46,9 +54,10 @@ __all__ = [
     "estimate_clock_offset",
     "estimate_gravity",
     "estimate_imu_rotation",
+    "heading_inclination_errors",
+    "initial_orientation",
     "noise_from_static",
     "run_imu_orientation",
     "run_inertial",
-    "tilt_from_accel",
     "world_acceleration",
 ]

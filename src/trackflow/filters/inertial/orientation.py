@@ -40,12 +40,17 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from trackflow.math import kernels_for, quat_from_matrix
+from trackflow.math import kernels_for, quat_conjugate, quat_from_matrix, quat_multiply
 
 from . import orientation_kernel as _okernel
 
-__all__ = ["ImuOrientationModel", "ImuOrientationResult", "initial_orientation",
-           "run_imu_orientation"]  # fmt: skip
+__all__ = [
+    "ImuOrientationModel",
+    "ImuOrientationResult",
+    "heading_inclination_errors",
+    "initial_orientation",
+    "run_imu_orientation",
+]
 
 
 def kernels() -> types.ModuleType:
@@ -248,3 +253,34 @@ def run_imu_orientation(
         np.array([0.0, 0.0, -g_mag]), model.noise(), model.bounds(), model.rest(), out_r, out_rest,
     )  # fmt: skip
     return ImuOrientationResult(quat_from_matrix(out_r), out_rest, x[0:3].copy(), P, g_mag)
+
+
+def heading_inclination_errors(q_est, q_ref) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orientation error split as in BROAD (Laidig et al., Data 2021): heading, inclination, total.
+
+    The error rotation ``E = R_est R_ref^T`` is taken in the earth frame (z up) and split into
+    a rotation about the vertical (heading) and one about a horizontal axis (inclination, the
+    angle between the two estimates of "up": ``acos(e_z . E e_z)``).
+
+    Parameters
+    ----------
+    q_est, q_ref : array_like (..., 4)
+        ``R_w_s`` estimated and true ``(x, y, z, w)``; both earth frames z-up.
+
+    Returns
+    -------
+    heading, inclination, total : ndarray (...)
+        Error angles [rad] in ``[0, pi]``.
+    """
+    qe = np.asarray(q_est, dtype=float)
+    qr = np.asarray(q_ref, dtype=float)
+    qe = qe / np.linalg.norm(qe, axis=-1, keepdims=True)
+    qr = qr / np.linalg.norm(qr, axis=-1, keepdims=True)
+    e = quat_multiply(qe, quat_conjugate(qr))
+    w, z = np.abs(e[..., 3]), e[..., 2]
+    total = 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
+    # twist about z: (z, w) normalised; swing: the rest (cos(incl / 2) = sqrt(w^2 + z^2))
+    heading = 2.0 * np.arctan2(np.abs(z), w)
+    heading = np.minimum(heading, 2.0 * np.pi - heading)
+    inclination = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
+    return heading, inclination, total
