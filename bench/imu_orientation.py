@@ -16,9 +16,12 @@ the vertical) and its inclination part, RMSE in degrees over the trial's ``movem
 samples. 6D methods are scored by inclination (their heading is arbitrary), 9D ones by the
 total error (BROAD's headline figure).
 
-Tuning: each method's parameters are chosen on trial 01 (slow rotation) alone from a small
-grid (below), then all four trials are run with them; the ratios use the three other trials
-(held out). Usage: ``python bench/imu_orientation.py [--json] [--plot PNG]``.
+Tuning, the same for every method: leave one trial out. Each trial is scored with the
+parameters (from a small grid per method, below) that have the lowest mean error on the three
+other trials; no trial is scored with parameters tuned on it. The ratio is trackflow's mean
+over the four trials against the best peer's. ``tagp`` is BROAD's own in-sample figure (one
+common parameter chosen on all trials). Usage:
+``python bench/imu_orientation.py [--json] [--plot PNG]``.
 """
 
 from __future__ import annotations
@@ -41,7 +44,6 @@ TRIALS = (
     "10_undisturbed_slow_translation_A",
     "15_undisturbed_fast_translation_A",
 )
-TUNING_TRIAL = TRIALS[0]
 METHODS = ("trackflow", "vqf", "imufusion")
 
 
@@ -81,21 +83,20 @@ def broad_rmse(q_est, q_ref, movement) -> dict:
     return {"total": rms(total), "heading": rms(head), "inclination": rms(incl)}
 
 
-# -- the three estimators: (trial, 9D?, parameter) -> R_w_s (M, 4) (x, y, z, w) --------------
+# -- the three estimators: (trial, 9D?, parameters) -> R_w_s (M, 4) (x, y, z, w) -------------
 def run_trackflow(d: dict, nine: bool, par: tuple) -> np.ndarray:
-    gyro_noise, velocity_sigma, heading_sigma = par
-    model = ImuOrientationModel(
-        gyro_noise=gyro_noise, velocity_sigma=velocity_sigma, heading_sigma=heading_sigma
-    )
-    return run_imu_orientation(d["t"], d["gyro"], d["accel"], d["mag"] if nine else None,
-                               model).quaternions  # fmt: skip
+    gyro_noise, velocity_sigma, *rest = par
+    kw = {"heading_sigma": rest[0]} if nine else {}
+    model = ImuOrientationModel(gyro_noise=gyro_noise, velocity_sigma=velocity_sigma, **kw)
+    mag = d["mag"] if nine else None
+    return run_imu_orientation(d["t"], d["gyro"], d["accel"], mag, model).quaternions
 
 
 def run_vqf(d: dict, nine: bool, par: tuple) -> np.ndarray:
     from vqf import VQF
 
-    tau_acc, tau_mag = par
-    v = VQF(1.0 / d["rate"], tauAcc=tau_acc, tauMag=tau_mag)
+    tau_acc, *rest = par
+    v = VQF(1.0 / d["rate"], tauAcc=tau_acc, **({"tauMag": rest[0]} if nine else {}))
     out = v.updateBatch(d["gyro"], d["accel"], d["mag"])
     return out["quat9D" if nine else "quat6D"][:, [1, 2, 3, 0]]
 
@@ -103,13 +104,13 @@ def run_vqf(d: dict, nine: bool, par: tuple) -> np.ndarray:
 def run_imufusion(d: dict, nine: bool, par: tuple) -> np.ndarray:
     import imufusion
 
-    (gain,) = par
+    acc_rejection, gain = par
     s = imufusion.AhrsSettings()
     s.convention = imufusion.CONVENTION_ENU
     s.sample_rate = d["rate"]
     s.gain = gain
     s.gyroscope_range = 2000.0
-    s.acceleration_rejection = 10.0
+    s.acceleration_rejection = acc_rejection
     s.magnetic_rejection = 10.0
     s.rejection_timeout = int(5 * d["rate"])
     ahrs = imufusion.Ahrs()
@@ -133,61 +134,92 @@ def run_imufusion(d: dict, nine: bool, par: tuple) -> np.ndarray:
 
 
 RUNNERS = {"trackflow": run_trackflow, "vqf": run_vqf, "imufusion": run_imufusion}
-# parameter grids searched on the tuning trial (6D: the 9D-only parameter at its default)
-GRIDS = {
-    "trackflow": {
-        "6D": [(gn, vs, 1.0) for gn in (4e-3, 6e-3, 1e-2) for vs in (0.1, 0.25, 0.5)],
-        "9D": [(6e-3, 0.1, hs) for hs in (0.3, 1.0, 3.0)],
-    },
-    "vqf": {
-        "6D": [(ta, 10.0) for ta in (1.0, 2.0, 3.0, 4.5, 6.0, 10.0)],
-        "9D": [(3.0, tm) for tm in (3.0, 9.0, 15.0, 30.0)],
-    },
-    "imufusion": {
-        "6D": [(g,) for g in (0.1, 0.25, 0.5, 1.0)],
-        "9D": [(g,) for g in (0.1, 0.25, 0.5, 1.0)],
-    },
+# Grids: the 6D parameters, then the 9D grid built from a chosen 6D parameter tuple
+# (magnetometer time constant or noise on top of it; imufusion re-tunes its one gain).
+GRIDS_6D = {
+    "trackflow": [(gn, vs) for gn in (4e-3, 6e-3, 1e-2) for vs in (0.1, 0.25, 0.5)],
+    "vqf": [(ta,) for ta in (1.0, 2.0, 3.0, 4.5, 6.0, 10.0)],
+    "imufusion": [(rej, g) for rej in (5.0, 10.0, 20.0) for g in (0.1, 0.25, 0.5, 1.0)],
+}
+GRIDS_9D = {
+    "trackflow": lambda p6: [p6 + (hs,) for hs in (0.3, 0.5, 1.0, 2.0)],
+    "vqf": lambda p6: [p6 + (tm,) for tm in (3.0, 9.0, 15.0, 30.0)],
+    "imufusion": lambda p6: [(p6[0], g) for g in (0.1, 0.25, 0.5, 1.0)],
 }
 METRIC = {"6D": "inclination", "9D": "total"}
 
 
-def compare(trials=TRIALS, tuning=TUNING_TRIAL) -> dict:
-    """Tune each method on ``tuning`` (per 6D/9D), then score it on every trial.
+class _Table:
+    """RMSE dicts per (method, 9D?, parameters, trial), computed once on first use."""
 
-    Returns ``{"6D"|"9D": {method: {"parameter", "trials": {name: rmse dict}, "held_out_mean",
-    "all_mean", "seconds"}}, "ratio": {...}}`` with the RMSE of the variant's metric.
+    def __init__(self, data: dict):
+        self.data, self.cache, self.seconds = data, {}, {}
+
+    def __call__(self, method: str, nine: bool, par: tuple, trial: str) -> dict:
+        key = (method, nine, par, trial)
+        if key not in self.cache:
+            d = self.data[trial]
+            t0 = time.perf_counter()
+            q = RUNNERS[method](d, nine, par)
+            self.seconds[key] = time.perf_counter() - t0
+            self.cache[key] = broad_rmse(q, d["q_ref"], d["movement"])
+        return self.cache[key]
+
+
+def _choose(table, method, nine, grid, trials, metric) -> tuple:
+    """The grid point with the lowest mean ``metric`` over ``trials`` (BROAD's TAGP rule)."""
+    means = [np.mean([table(method, nine, p, n)[metric] for n in trials]) for p in grid]
+    return grid[int(np.argmin(means))]
+
+
+def compare(trials=TRIALS) -> dict:
+    """Leave-one-trial-out comparison of the three methods, 6D and 9D.
+
+    For every trial, each method's parameters are chosen on the *other* trials (the lowest
+    mean error over them, BROAD's "trial-agnostic good parameter" rule) and the trial is
+    scored with them; no trial is scored with parameters tuned on it. ``tagp`` also gives the
+    in-sample figure of BROAD's paper (one common parameter chosen on all trials).
+
+    Returns
+    -------
+    dict
+        ``{"6D"|"9D": {method: {"trials": {trial: {"rmse", "parameter", "all": rmse dict}},
+        "mean", "tagp": {"parameter", "mean"}, "seconds_per_trial"}}, "ratio_6D", "ratio_9D"}``
+        with ``rmse`` the variant's metric [deg] (6D inclination, 9D total).
     """
-    data = {n: load_trial(n) for n in trials}
+    table = _Table({n: load_trial(n) for n in trials})
     out: dict = {}
     for variant, nine in (("6D", False), ("9D", True)):
-        key = METRIC[variant]
+        metric = METRIC[variant]
         res = {}
         for name in METHODS:
-            run = RUNNERS[name]
-            grid = GRIDS[name][variant]
-            d = data[tuning]
-            if variant == "9D" and name != "imufusion":  # 6D-tuned part fixed, tune the rest
-                base = out["6D"][name]["parameter"]
-                grid = [tuple(base[:-1]) + (p[-1],) for p in grid]
-            scores = [broad_rmse(run(d, nine, p), d["q_ref"], d["movement"])[key] for p in grid]
-            best = grid[int(np.argmin(scores))]
-            per, secs = {}, 0.0
-            for n, dn in data.items():
-                t0 = time.perf_counter()
-                q = run(dn, nine, best)
-                secs += time.perf_counter() - t0
-                per[n] = broad_rmse(q, dn["q_ref"], dn["movement"])
-            held = [per[n][key] for n in trials if n != tuning]
+
+            def grid_for(train, name=name, nine=nine):
+                if not nine:
+                    return GRIDS_6D[name]
+                p6 = _choose(table, name, False, GRIDS_6D[name], train, "inclination")
+                return GRIDS_9D[name](p6)
+
+            per = {}
+            for n in trials:
+                train = [m for m in trials if m != n]
+                best = _choose(table, name, nine, grid_for(train), train, metric)
+                rm = table(name, nine, best, n)
+                per[n] = {"rmse": rm[metric], "parameter": list(best), "all": rm}
+            tagp = _choose(table, name, nine, grid_for(list(trials)), trials, metric)
+            secs = [v for k, v in table.seconds.items() if k[0] == name and k[1] == nine]
             res[name] = {
-                "parameter": list(best),
                 "trials": per,
-                "held_out_mean": float(np.mean(held)),
-                "all_mean": float(np.mean([per[n][key] for n in trials])),
-                "seconds": secs,
+                "mean": float(np.mean([per[n]["rmse"] for n in trials])),
+                "tagp": {
+                    "parameter": list(tagp),
+                    "mean": float(np.mean([table(name, nine, tagp, n)[metric] for n in trials])),
+                },
+                "seconds_per_trial": float(np.median(secs)),
             }
-        peers = min(res[n]["held_out_mean"] for n in METHODS if n != "trackflow")
         out[variant] = res
-        out[f"ratio_{variant}"] = res["trackflow"]["held_out_mean"] / peers
+        best_peer = min(res[n]["mean"] for n in METHODS if n != "trackflow")
+        out[f"ratio_{variant}"] = res["trackflow"]["mean"] / best_peer
     return out
 
 
@@ -210,7 +242,8 @@ def plot(result: dict, path: Path, trial: str = TRIALS[3]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series = error_over_time(trial, {n: result["6D"][n]["parameter"] for n in METHODS})
+    series = error_over_time(trial, {n: result["6D"][n]["trials"][trial]["parameter"]
+                                     for n in METHODS})  # fmt: skip
     fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), gridspec_kw={"height_ratios": [3, 2]})
     ax = axes[0]
     t = series["t"]
@@ -222,7 +255,7 @@ def plot(result: dict, path: Path, trial: str = TRIALS[3]) -> None:
                     transform=ax.get_xaxis_transform(), label="rest (not scored)")  # fmt: skip
     ax.set_ylabel("inclination error (deg)")
     ax.set_xlabel("time (s)")
-    ax.set_title(f"BROAD {trial}, 6D (gyro + accelerometer), parameters tuned on trial 01")
+    ax.set_title(f"BROAD {trial}, 6D (gyro + accelerometer), parameters tuned on the other trials")
     ax.set_ylim(0, max(3.0, float(np.nanpercentile(series["imufusion"], 99.5))))
     ax.legend(fontsize=8, loc="upper left")
     ax = axes[1]
@@ -230,13 +263,12 @@ def plot(result: dict, path: Path, trial: str = TRIALS[3]) -> None:
     width = 0.13
     labels = [n.split("_", 1)[1].replace("undisturbed_", "").replace("_A", "") for n in TRIALS]
     for i, (variant, name) in enumerate((v, n) for v in ("6D", "9D") for n in METHODS):
-        vals = [result[variant][name]["trials"][n][METRIC[variant]] for n in TRIALS]
+        vals = [result[variant][name]["trials"][n]["rmse"] for n in TRIALS]
         ax.bar(x + (i - 2.5) * width, vals, width, color=f"C{(0, 2, 1)[i % 3]}",
                alpha=1.0 if variant == "6D" else 0.5,
                label=f"{name} {variant} ({METRIC[variant]})")  # fmt: skip
     ax.set_xticks(x)
-    ax.set_xticklabels([f"{lb}{' (tuning)' if n == TUNING_TRIAL else ''}"
-                        for lb, n in zip(labels, TRIALS)])  # fmt: skip
+    ax.set_xticklabels(labels)
     ax.set_ylabel("RMSE (deg)")
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
@@ -256,21 +288,19 @@ def main() -> None:
         print(json.dumps({
             "imu_only_6d_ratio": round(res["ratio_6D"], 4),
             "imu_only_9d_ratio": round(res["ratio_9D"], 4),
-            **{f"{v}_{n}": {t: round(r[METRIC[v]], 4) for t, r in res[v][n]["trials"].items()}
+            **{f"{v}_{n}": {t: round(r["rmse"], 4) for t, r in res[v][n]["trials"].items()}
                for v in ("6D", "9D") for n in METHODS},
-            "parameters": {f"{v}_{n}": res[v][n]["parameter"] for v in ("6D", "9D")
-                           for n in METHODS},
         }))  # fmt: skip
         return
     for v in ("6D", "9D"):
-        print(f"{v}: {METRIC[v]} RMSE (deg), tuned on {TUNING_TRIAL}")
+        print(f"{v}: {METRIC[v]} RMSE (deg), each trial with parameters tuned on the others")
         for n in METHODS:
             r = res[v][n]
-            cells = " ".join(f"{r['trials'][t][METRIC[v]]:6.3f}" for t in TRIALS)
-            print(f"  {n:>10} {cells}  held-out mean {r['held_out_mean']:.3f}  "
-                  f"all {r['all_mean']:.3f}  param {r['parameter']}  "
-                  f"{r['seconds']:.1f} s")  # fmt: skip
-        print(f"  ratio trackflow / best peer (held out): {res[f'ratio_{v}']:.3f}")
+            cells = " ".join(f"{r['trials'][t]['rmse']:6.3f}" for t in TRIALS)
+            tagp = f"(TAGP {r['tagp']['mean']:.3f} at {r['tagp']['parameter']})"
+            print(f"  {n:>10} {cells}  mean {r['mean']:.3f}  {tagp}  "
+                  f"{r['seconds_per_trial']:.2f} s/trial")  # fmt: skip
+        print(f"  ratio trackflow / best peer: {res[f'ratio_{v}']:.3f}")
 
 
 if __name__ == "__main__":

@@ -92,13 +92,13 @@ class ImuOrientationModel:
         absorbs an accelerometer scale error).
     """
 
-    gyro_noise: float = 4e-3
+    gyro_noise: float = 6e-3
     gyro_bias_walk: float = 1e-4
     accel_noise: float = 0.05
-    velocity_sigma: float = 0.5
+    velocity_sigma: float = 0.1
     position_sigma: float = 0.3
     correlation_time: float = 0.1
-    heading_sigma: float = 0.1
+    heading_sigma: float = 0.5
     rest_gyro: float = float(np.radians(2.0))
     rest_accel: float = 0.5
     rest_time: float = 1.5

@@ -107,17 +107,18 @@ def heading_of(r, mag):
     return np.arctan2(m[0], m[1])
 
 
-def heading_jacobian(r, mag):
-    """``J_heading_x`` (12,): derivative of :func:`heading_of` by the error state."""
-    m = r @ mag
-    h2 = m[0] * m[0] + m[1] * m[1]
-    # d atan2(mx, my) = (my dmx - mx dmy) / h2 ; dm = -R [mag]x dtheta
-    dm = -(r @ skew3(mag))
+def heading_jacobian(r):
+    """``J_heading_x`` (12,) of :func:`heading_of` for a turn about the world's vertical.
+
+    Turning the estimate by ``alpha`` about world z (``R -> Exp(alpha e_z) R``, i.e.
+    ``alpha = e_z^T R dtheta``) changes the residual by ``-alpha`` whatever the field's dip, so
+    the row is ``-e_z^T R`` on ``dtheta``. The residual's dependence on the tilt (through the
+    field's vertical part) is left out on purpose: the magnetometer corrects heading only and
+    a disturbed field cannot tilt the estimate.
+    """
     H = np.zeros(N_STATES)
-    if h2 <= 0.0:
-        return H
     for j in range(3):
-        H[ITH + j] = (m[1] * dm[0, j] - m[0] * dm[1, j]) / h2
+        H[ITH + j] = -r[2, j]
     return H
 
 
@@ -195,7 +196,7 @@ def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, res
                 y = -(x[3 + i])
                 r = scalar_update(r, x, P, H, y, sig * sig * bounds[2] / dt)
             if use_mag:
-                H = heading_jacobian(r, mag[k])
+                H = heading_jacobian(r)
                 y = -heading_of(r, mag[k])
                 r = scalar_update(r, x, P, H, y, bounds[3] * bounds[3] * bounds[2] / dt)
                 H = np.zeros(N_STATES)
