@@ -74,12 +74,22 @@ def test_scalar_update_is_the_kalman_update():
     H, y, var = rng.normal(size=12), 0.3, 0.05
     x, r = np.zeros(9), np.eye(3)
     P1 = P.copy()
-    r1 = OK.scalar_update(r, x, P1, H, y, var)
+    r1 = OK.scalar_update(r, x, P1, H, y, var, False)
     k = P @ H / (H @ P @ H + var)
     np.testing.assert_allclose(P1, P - np.outer(k, H @ P), atol=1e-12)
     dx = k * y
     np.testing.assert_allclose(x, dx[3:], atol=1e-15)
     np.testing.assert_allclose(r1, K.exp_so3(dx[:3]), atol=1e-15)
+    # consider update: the bias stays, the covariance is the Joseph form of the masked gain
+    x2, P2 = np.zeros(9), P.copy()
+    OK.scalar_update(r, x2, P2, H, y, var, True)
+    km = k.copy()
+    km[3:6] = 0.0
+    ikh = np.eye(12) - np.outer(km, H)
+    np.testing.assert_allclose(P2, ikh @ P @ ikh.T + var * np.outer(km, km), atol=1e-12)
+    np.testing.assert_array_equal(x2[0:3], 0.0)
+    assert np.linalg.eigvalsh(P2).min() > 0
+    np.testing.assert_allclose(P2[3:6, 3:6], P[3:6, 3:6], atol=1e-12)  # its bias block stays
 
 
 def test_initial_orientation_levels_and_points_north():

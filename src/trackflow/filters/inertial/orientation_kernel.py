@@ -122,15 +122,20 @@ def heading_jacobian(r):
     return H
 
 
-def scalar_update(r, x, P, H, y, var):
+def scalar_update(r, x, P, H, y, var, keep_bias):
     """Fuse a scalar innovation ``y`` with row ``H`` (12,) and variance ``var`` in place.
 
     Returns the new ``R_w_s``. Joseph form for a scalar measurement (numerically safe at
-    the small variances of the rest and pseudo-measurements).
+    the small variances of the rest and pseudo-measurements, and exact for any gain).
+    ``keep_bias`` leaves the gyro bias out of the update (a Schmidt "consider" update: the
+    measurement's errors are not allowed to teach the bias; its uncertainty still counts).
     """
     PH = P @ H
     s = H @ PH + var
     K = PH / s
+    if keep_bias:
+        for i in range(3):
+            K[IBG + i] = 0.0
     dx = K * y
     for i in range(3):
         x[i] += dx[IBG + i]
@@ -194,11 +199,13 @@ def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, res
                 H[:] = 0.0
                 H[blk + i % 3] = 1.0
                 y = -(x[3 + i])
-                r = scalar_update(r, x, P, H, y, sig * sig * bounds[2] / dt)
+                r = scalar_update(r, x, P, H, y, sig * sig * bounds[2] / dt, False)
             if use_mag:
                 H = heading_jacobian(r)
                 y = -heading_of(r, mag[k])
-                r = scalar_update(r, x, P, H, y, bounds[3] * bounds[3] * bounds[2] / dt)
+                # the field's orientation-dependent errors must not teach the gyro bias
+                var = bounds[3] * bounds[3] * bounds[2] / dt
+                r = scalar_update(r, x, P, H, y, var, True)
                 H = np.zeros(N_STATES)
             # rest detection: deviations from a first-order low pass of each signal
             al = 1.0 - np.exp(-dt / rest[3])
@@ -219,7 +226,8 @@ def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, res
                 for i in range(3):  # at rest the reading is the bias plus white noise
                     H[:] = 0.0
                     H[IBG + i] = 1.0
-                    r = scalar_update(r, x, P, H, gyro[k, i] - x[i], noise[0] * noise[0] / dt)
+                    var = noise[0] * noise[0] / dt
+                    r = scalar_update(r, x, P, H, gyro[k, i] - x[i], var, False)
         out_rest[k] = rest_for >= rest[2]
         for i in range(3):
             for j in range(3):
