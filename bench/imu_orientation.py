@@ -247,10 +247,10 @@ def plot(result: dict, path: Path, trial: str = TRIALS[3]) -> None:
     fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), gridspec_kw={"height_ratios": [3, 2]})
     ax = axes[0]
     t = series["t"]
-    for name, colour in zip(METHODS, ("C0", "C2", "C1")):
+    for name, colour, z in zip(METHODS, ("C0", "C2", "C1"), (3, 2, 1)):
         e = series[name]
         rms = np.sqrt(np.nanmean(e[series["movement"]] ** 2))
-        ax.plot(t, e, colour, lw=0.7, label=f"{name} (RMSE {rms:.2f} deg)")
+        ax.plot(t, e, colour, lw=0.6, zorder=z, label=f"{name} (RMSE {rms:.2f} deg)")
     ax.fill_between(t, 0, 1, where=~series["movement"], color="0.9",
                     transform=ax.get_xaxis_transform(), label="rest (not scored)")  # fmt: skip
     ax.set_ylabel("inclination error (deg)")
