@@ -229,3 +229,29 @@ def test_heading_inclination_split_of_known_errors():
     _, i, _ = heading_inclination_errors(q_est, q_ref)
     np.testing.assert_allclose(np.degrees(i), _up_angle_deg(q_est, quat_to_matrix(q_ref)),
                                atol=1e-5)  # fmt: skip
+
+
+def test_streaming_filter_reproduces_the_recording_function():
+    from trackflow.filters import ImuOrientationFilter
+
+    noise = np.array([5e-4, 1e-5, 1e-2])
+    t, gyro, accel, mag, _, _ = _simulate(7, n=1500, noise=noise)
+    model = _exact_model(noise)
+    for use_mag in (False, True):
+        ref = run_imu_orientation(t, gyro, accel, mag if use_mag else None, model)
+        f = ImuOrientationFilter(model, magnetometer=use_mag)
+        out = [f.update(tk, w, a, m if use_mag else None)
+               for tk, w, a, m in zip(t, gyro, accel, mag)]  # fmt: skip
+        first = next(k for k, q in enumerate(out) if q is not None)
+        assert t[first] > t[0] + model.init_time >= t[first - 1]
+        q = np.array(out[first:])
+        dots = np.abs(np.sum(q * ref.quaternions[first:], axis=1))
+        np.testing.assert_allclose(dots, 1.0, atol=1e-12)
+        np.testing.assert_allclose(f.gyro_bias, ref.gyro_bias, atol=1e-12)
+        assert f.at_rest == ref.rest[-1]
+    with pytest.raises(ValueError, match="not after the previous one"):
+        f.update(t[-1], gyro[0], accel[0], mag[0])
+    with pytest.raises(ValueError, match="mag missing"):
+        f.update(t[-1] + 1.0, gyro[0], accel[0])
+    with pytest.raises(ValueError, match="not finite"):
+        f.update(t[-1] + 1.0, [np.nan, 0, 0], accel[0], mag[0])

@@ -39,6 +39,7 @@ from .gating import GatePolicy, chi2_gate
 from .inertial import (
     ImuExtrinsics,
     ImuNoise,
+    ImuOrientationFilter,
     ImuOrientationModel,
     InertialFilter,
     InertialModel,
@@ -76,6 +77,7 @@ __all__ = [
     "MeasurementFunction",
     "ImuExtrinsics",
     "ImuNoise",
+    "ImuOrientationFilter",
     "ImuOrientationModel",
     "InertialFilter",
     "InertialModel",

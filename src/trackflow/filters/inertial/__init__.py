@@ -3,8 +3,9 @@
 * :mod:`.model`: ``InertialModel`` (mode, ``ImuNoise``, ``ImuExtrinsics`` ``T_b_s``, gravity).
 * :mod:`.kernel`: the strapdown step, the pose and gravity updates and their Jacobians.
 * :mod:`.driver`: ``InertialFilter`` (streaming) and ``run_inertial`` (whole recordings).
-* :mod:`.orientation`: ``run_imu_orientation``, orientation from the IMU alone (gyro and
-  accelerometer, optionally magnetometer), kernels in :mod:`.orientation_kernel`.
+* :mod:`.orientation`: orientation from the IMU alone (gyro and accelerometer, optionally
+  magnetometer): ``run_imu_orientation`` (recordings) and ``ImuOrientationFilter`` (live);
+  kernels in :mod:`.orientation_kernel`.
 * :mod:`.calibration`: noise from a static segment (Allan deviation), clock offset, IMU-to-body
   rotation and gravity from data.
 
@@ -29,6 +30,7 @@ from .driver import (
 from .extrapolation import GyroExtrapolation, fit_gyro_extrapolation
 from .model import GRAVITY, MODES, ImuExtrinsics, ImuNoise, InertialModel
 from .orientation import (
+    ImuOrientationFilter,
     ImuOrientationModel,
     ImuOrientationResult,
     heading_inclination_errors,
@@ -43,6 +45,7 @@ __all__ = [
     "MODES",
     "ImuExtrinsics",
     "ImuNoise",
+    "ImuOrientationFilter",
     "ImuOrientationModel",
     "ImuOrientationResult",
     "InertialFilter",

@@ -48,6 +48,7 @@ from trackflow.math import kernels_for, quat_conjugate, quat_from_matrix, quat_m
 from . import orientation_kernel as _okernel
 
 __all__ = [
+    "ImuOrientationFilter",
     "ImuOrientationModel",
     "ImuOrientationResult",
     "heading_inclination_errors",
@@ -242,10 +243,22 @@ def run_imu_orientation(
         k = int(np.flatnonzero(~(np.diff(t) > 0))[0]) + 1 if np.isfinite(t).all() else 0
         raise ValueError(f"IMU times must be finite and increase strictly (sample {k})")
     head = t <= t[0] + model.init_time
-    a0 = a[head].mean(axis=0)
     m0 = arrays["mag"][head].mean(axis=0) if mag is not None else None
-    r0 = initial_orientation(a0, m0)
-    g_mag = float(np.linalg.norm(a0)) if model.gravity is None else float(model.gravity)
+    r0, x, P, g = _initial_state(model, a[head].mean(axis=0), m0)
+    out_r = np.empty((m_count, 3, 3))
+    out_rest = np.zeros(m_count, dtype=bool)
+    mags = arrays["mag"] if mag is not None else np.zeros((m_count, 3))
+    kernels().run_orientation(
+        t, w, a, mags, mag is not None, r0, x, P, g, model.noise(), model.bounds(), model.rest(),
+        out_r, out_rest,
+    )  # fmt: skip
+    return ImuOrientationResult(quat_from_matrix(out_r), out_rest, x[0:3].copy(), P, -g[2])
+
+
+def _initial_state(model: ImuOrientationModel, accel, mag):
+    """``(R_w_s, x (9,), P (12, 12), g (3,))`` from the mean accelerometer (and field) at rest."""
+    r0 = np.ascontiguousarray(initial_orientation(accel, mag))
+    g_mag = float(np.linalg.norm(accel)) if model.gravity is None else float(model.gravity)
     P = np.zeros((12, 12))
     heading_var = model.heading_sigma**2 if mag is not None else np.pi**2
     # tilt about the world's horizontal axes, heading about its vertical, in the sensor frame
@@ -253,15 +266,96 @@ def run_imu_orientation(
     P[3:6, 3:6] = np.eye(3) * model.gyro_bias_sigma**2
     P[6:9, 6:9] = np.eye(3) * model.velocity_sigma**2
     P[9:12, 9:12] = np.eye(3) * model.position_sigma**2
-    x = np.zeros(9)
-    out_r = np.empty((m_count, 3, 3))
-    out_rest = np.zeros(m_count, dtype=bool)
-    mags = arrays["mag"] if mag is not None else np.zeros((m_count, 3))
-    kernels().run_orientation(
-        t, w, a, mags, mag is not None, np.ascontiguousarray(r0), x, P,
-        np.array([0.0, 0.0, -g_mag]), model.noise(), model.bounds(), model.rest(), out_r, out_rest,
-    )  # fmt: skip
-    return ImuOrientationResult(quat_from_matrix(out_r), out_rest, x[0:3].copy(), P, g_mag)
+    return r0, np.zeros(9), P, np.array([0.0, 0.0, -g_mag])
+
+
+class ImuOrientationFilter:
+    """The filter of :func:`run_imu_orientation`, one sample at a time (live IMUs).
+
+    The first ``model.init_time`` seconds of samples are buffered; the first sample after
+    them initialises the filter from their mean and replays them, so from then on every
+    :meth:`update` gives the same orientation as :func:`run_imu_orientation` on the whole
+    recording.
+
+    Parameters
+    ----------
+    model : ImuOrientationModel, optional
+    magnetometer : bool
+        Fuse a magnetometer ("9D"); :meth:`update` then needs ``mag``.
+    """
+
+    def __init__(self, model: ImuOrientationModel | None = None, magnetometer: bool = False):
+        self.model = model if model is not None else ImuOrientationModel()
+        self.magnetometer = bool(magnetometer)
+        self._k = kernels()
+        self._args = (self.model.noise(), self.model.bounds(), self.model.rest())
+        self._buffer: list = []
+        self._state = None
+        self._t: float | None = None
+
+    @property
+    def initialized(self) -> bool:
+        return self._state is not None
+
+    @property
+    def quaternion(self) -> np.ndarray | None:
+        """Current ``R_w_s`` ``(x, y, z, w)`` (``None`` while initialising)."""
+        return None if self._state is None else quat_from_matrix(self._state[0])
+
+    @property
+    def at_rest(self) -> bool:
+        """Whether the rest detector classifies the last sample as rest."""
+        return self._state is not None and self._det[8] >= self.model.rest_time
+
+    @property
+    def gyro_bias(self) -> np.ndarray | None:
+        """Gyro bias estimate [rad/s] (``None`` while initialising)."""
+        return None if self._state is None else self._state[1][0:3].copy()
+
+    def update(self, t: float, gyro, accel, mag=None) -> np.ndarray | None:
+        """Fuse one sample (sensor frame: rad/s, m/s^2, any field unit) at time ``t`` [s].
+
+        Returns ``R_w_s`` ``(x, y, z, w)`` after it, or ``None`` while initialising. Raises
+        ``ValueError`` naming the problem for a non-finite sample or a time that does not
+        increase.
+        """
+        t = float(t)
+        w = np.asarray(gyro, dtype=float).reshape(3)
+        a = np.asarray(accel, dtype=float).reshape(3)
+        m = np.zeros(3) if mag is None else np.asarray(mag, dtype=float).reshape(3)
+        if self.magnetometer and mag is None:
+            raise ValueError(f"IMU sample at t={t}: the filter fuses a magnetometer, mag missing")
+        if not (np.isfinite(t) and np.isfinite(w).all() and np.isfinite(a).all()
+                and np.isfinite(m).all()):  # fmt: skip
+            raise ValueError(f"IMU sample at t={t} is not finite: gyro {w}, accel {a}, mag {m}")
+        if self._t is not None and t <= self._t:
+            raise ValueError(f"IMU sample at t={t} is not after the previous one (t={self._t})")
+        if self._state is None:
+            if not self._buffer or t <= self._buffer[0][0] + self.model.init_time:
+                self._buffer.append((t, w, a, m))
+                self._t = t
+                return None
+            self._start()
+        self._step(t, w, a, m)
+        return self.quaternion
+
+    def _start(self) -> None:
+        acc = np.mean([s[2] for s in self._buffer], axis=0)
+        mag = np.mean([s[3] for s in self._buffer], axis=0) if self.magnetometer else None
+        self._state = list(_initial_state(self.model, acc, mag))
+        self._det = np.zeros(10)
+        self._t = None
+        for sample in self._buffer:
+            self._step(*sample)
+        self._buffer = []
+
+    def _step(self, t, w, a, m) -> None:
+        r, x, P, g = self._state
+        dt = 0.0 if self._t is None else t - self._t
+        self._state[0] = self._k.orientation_sample(
+            r, x, P, self._det, w, a, m, self.magnetometer, dt, g, *self._args
+        )
+        self._t = t
 
 
 def heading_inclination_errors(q_est, q_ref) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

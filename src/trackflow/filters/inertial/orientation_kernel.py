@@ -18,6 +18,7 @@ __all__ = [
     "heading_of",
     "heading_jacobian",
     "scalar_update",
+    "orientation_sample",
     "run_orientation",
 ]
 
@@ -28,6 +29,7 @@ KERNELS = (
     "heading_of",
     "heading_jacobian",
     "scalar_update",
+    "orientation_sample",
     "run_orientation",
 )
 
@@ -149,19 +151,25 @@ def scalar_update(r, x, P, H, y, var, keep_bias):
     return r_new
 
 
-def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, rest, out_r, out_rest):
-    """Run the filter over a recording (the offline loop), writing ``R_w_s`` after each sample.
+def orientation_sample(r, x, P, det, gyro, accel, mag, use_mag, dt, g, noise, bounds, rest):
+    """Process one IMU sample in place; returns the new ``R_w_s`` (3, 3).
+
+    Predicts over ``dt`` with the sample, fuses the motion bound (``v = 0``, ``p = 0``), the
+    heading of ``mag`` (``use_mag``), runs the rest detector and, at rest, the gyro as a bias
+    measurement. ``dt = 0`` (the first sample) only starts the detector.
 
     Parameters
     ----------
-    t : float (M,)
-        Increasing sample times [s].
-    gyro, accel, mag : (M, 3)
+    r, x, P : nominal ``R_w_s`` (3, 3), ``(b_g, v, p)`` (9,), covariance (12, 12)
+    det : ndarray (10,)
+        Rest detector state: gyro and accelerometer low passes (3 + 3), their mean squared
+        deviations (2), time at rest so far [s], started flag. Zeros before the first sample.
+    gyro, accel, mag : ndarray (3,)
         Sensor-frame angular velocity [rad/s], specific force [m/s^2], magnetic field (any
         unit; only its direction is used).
     use_mag : bool
-        Fuse the magnetometer as a heading measurement.
-    r, x, P : initial state (``x`` and ``P`` modified in place)
+    dt : float
+        Time since the previous sample [s].
     g : (3,) gravity in the world frame [m/s^2]
     noise : (3,) see :func:`orientation_step`
     bounds : (4,)
@@ -171,8 +179,65 @@ def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, res
         time, spread over the samples).
     rest : (4,)
         ``(gyro_threshold [rad/s], accel_threshold [m/s^2], rest_time [s], filter_tau [s])``:
-        the sensor is at rest when the low-passed gyro and accelerometer deviations stay below
-        the thresholds for ``rest_time``; at rest the gyro reading measures the bias.
+        the sensor is at rest when the RMS deviations of gyro and accelerometer from their
+        low passes stay below the thresholds (and the low-passed rate below four times the
+        gyro threshold) for ``rest_time``.
+    """
+    if det[9] == 0.0:
+        for i in range(3):
+            det[i] = gyro[i]
+            det[3 + i] = accel[i]
+        det[6] = 0.0
+        det[7] = 0.0
+        det[8] = 0.0
+        det[9] = 1.0
+    if dt <= 0.0:
+        return r
+    r = orientation_step(r, x, P, gyro, accel, dt, g, noise)
+    H = np.zeros(N_STATES)
+    for i in range(6):
+        sig = bounds[0] if i < 3 else bounds[1]
+        H[:] = 0.0
+        H[IV + i] = 1.0  # v then p: the blocks are adjacent
+        r = scalar_update(r, x, P, H, -x[3 + i], sig * sig * bounds[2] / dt, False)
+    if use_mag:
+        # the field's orientation-dependent errors must not teach the gyro bias
+        var = bounds[3] * bounds[3] * bounds[2] / dt
+        r = scalar_update(r, x, P, heading_jacobian(r), -heading_of(r, mag), var, True)
+    al = 1.0 - np.exp(-dt / rest[3])
+    dw2 = 0.0
+    da2 = 0.0
+    lp2 = 0.0
+    for i in range(3):
+        det[i] += al * (gyro[i] - det[i])
+        det[3 + i] += al * (accel[i] - det[3 + i])
+        dw2 += (gyro[i] - det[i]) ** 2
+        da2 += (accel[i] - det[3 + i]) ** 2
+        lp2 += det[i] * det[i]
+    det[6] += al * (dw2 - det[6])
+    det[7] += al * (da2 - det[7])
+    still = np.sqrt(det[6]) < rest[0] and np.sqrt(det[7]) < rest[1] and np.sqrt(lp2) < 4 * rest[0]
+    det[8] = det[8] + dt if still else 0.0
+    if det[8] >= rest[2]:
+        for i in range(3):  # at rest the reading is the bias plus white noise
+            H[:] = 0.0
+            H[IBG + i] = 1.0
+            r = scalar_update(r, x, P, H, gyro[i] - x[i], noise[0] * noise[0] / dt, False)
+    return r
+
+
+def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, rest, out_r, out_rest):
+    """Run :func:`orientation_sample` over a recording, writing ``R_w_s`` after each sample.
+
+    Parameters
+    ----------
+    t : float (M,)
+        Increasing sample times [s].
+    gyro, accel, mag : (M, 3)
+        Sensor-frame angular velocity [rad/s], specific force [m/s^2], magnetic field.
+    use_mag : bool
+    r, x, P : initial state (``x`` and ``P`` modified in place)
+    g, noise, bounds, rest : see :func:`orientation_sample`
     out_r : (M, 3, 3)
         ``R_w_s`` after each sample.
     out_rest : bool (M,)
@@ -182,53 +247,13 @@ def run_orientation(t, gyro, accel, mag, use_mag, r, x, P, g, noise, bounds, res
     -------
     R_w_s (3, 3) after the last sample.
     """
-    m_count = t.shape[0]
-    w_lp = gyro[0].copy()
-    a_lp = accel[0].copy()
-    dev_w = 0.0
-    dev_a = 0.0
-    rest_for = 0.0
-    H = np.zeros(N_STATES)
-    for k in range(m_count):
+    det = np.zeros(10)
+    for k in range(t.shape[0]):
         dt = t[k] - t[k - 1] if k > 0 else 0.0
-        if dt > 0.0:
-            r = orientation_step(r, x, P, gyro[k], accel[k], dt, g, noise)
-            for i in range(6):
-                blk = IV if i < 3 else IP
-                sig = bounds[0] if i < 3 else bounds[1]
-                H[:] = 0.0
-                H[blk + i % 3] = 1.0
-                y = -(x[3 + i])
-                r = scalar_update(r, x, P, H, y, sig * sig * bounds[2] / dt, False)
-            if use_mag:
-                H = heading_jacobian(r)
-                y = -heading_of(r, mag[k])
-                # the field's orientation-dependent errors must not teach the gyro bias
-                var = bounds[3] * bounds[3] * bounds[2] / dt
-                r = scalar_update(r, x, P, H, y, var, True)
-                H = np.zeros(N_STATES)
-            # rest detection: deviations from a first-order low pass of each signal
-            al = 1.0 - np.exp(-dt / rest[3])
-            for i in range(3):
-                w_lp[i] += al * (gyro[k, i] - w_lp[i])
-                a_lp[i] += al * (accel[k, i] - a_lp[i])
-            dw = gyro[k] - w_lp
-            da = accel[k] - a_lp
-            dev_w += al * (dw @ dw - dev_w)
-            dev_a += al * (da @ da - dev_a)
-            still = (
-                np.sqrt(dev_w) < rest[0]
-                and np.sqrt(dev_a) < rest[1]
-                and np.sqrt(w_lp @ w_lp) < 4.0 * rest[0]
-            )
-            rest_for = rest_for + dt if still else 0.0
-            if rest_for >= rest[2]:
-                for i in range(3):  # at rest the reading is the bias plus white noise
-                    H[:] = 0.0
-                    H[IBG + i] = 1.0
-                    var = noise[0] * noise[0] / dt
-                    r = scalar_update(r, x, P, H, gyro[k, i] - x[i], var, False)
-        out_rest[k] = rest_for >= rest[2]
+        r = orientation_sample(
+            r, x, P, det, gyro[k], accel[k], mag[k], use_mag, dt, g, noise, bounds, rest
+        )
+        out_rest[k] = det[8] >= rest[2]
         for i in range(3):
             for j in range(3):
                 out_r[k, i, j] = r[i, j]
