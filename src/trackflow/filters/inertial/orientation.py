@@ -88,7 +88,7 @@ class ImuOrientationModel:
         Heading noise of the magnetometer [rad] (disturbances of the field).
     rest_gyro, rest_accel : float
         Rest thresholds on the RMS deviation of the gyro [rad/s] and accelerometer [m/s^2]
-        from their low passes.
+        from their low passes (and the low-passed rate must stay below ``4 * rest_gyro``).
     rest_time : float
         How long [s] the thresholds must hold before a sample counts as rest.
     rest_tau : float
