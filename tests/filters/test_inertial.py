@@ -11,7 +11,6 @@ from trackflow.filters import (
     ImuNoise,
     InertialFilter,
     InertialModel,
-    run_imu_orientation,
     run_inertial,
 )
 from trackflow.filters.inertial import (
@@ -270,19 +269,6 @@ def test_gyro_only_variant_tracks_orientation_and_gyro_bias():
     assert res.final.covariance.shape == (12, 12)
     np.testing.assert_allclose(res.final.gyro_bias, TRUE_BG, atol=3e-3)
     np.testing.assert_array_equal(res.final.accel_bias, 0.0)
-
-
-def test_imu_only_orientation_keeps_inclination():
-    t, gyro, _, _, _, _, _ = _recording(9)
-    _, _, _, _, r_s = TRUTH  # R_w_s; the body turns in place (no linear acceleration)
-    rng = np.random.default_rng(4)
-    accel = np.einsum("kji,j->ki", r_s, -G) + rng.normal(scale=0.3, size=(t.shape[0], 3))
-    model = InertialModel(mode="gyro", noise=NOISE, gravity=G, gravity_sigma=2.0)
-    q = run_imu_orientation(t, gyro, accel, model, quat_from_matrix(r_s[0]))
-    up_est = np.einsum("kji,j->ki", quat_to_matrix(q), [0, 0, 1.0])
-    up_true = np.einsum("kji,j->ki", r_s, [0, 0, 1.0])
-    incl = np.degrees(np.arccos(np.clip(np.sum(up_est * up_true, 1), -1, 1)))
-    assert np.sqrt(np.mean(incl[len(incl) // 2 :] ** 2)) < 3.0
 
 
 def test_bad_input_is_rejected_with_a_reason():

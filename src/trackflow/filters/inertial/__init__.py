@@ -2,8 +2,10 @@
 
 * :mod:`.model`: ``InertialModel`` (mode, ``ImuNoise``, ``ImuExtrinsics`` ``T_b_s``, gravity).
 * :mod:`.kernel`: the strapdown step, the pose and gravity updates and their Jacobians.
-* :mod:`.driver`: ``InertialFilter`` (streaming), ``run_inertial`` (whole recordings) and
-  ``run_imu_orientation`` (IMU alone).
+* :mod:`.driver`: ``InertialFilter`` (streaming) and ``run_inertial`` (whole recordings).
+* :mod:`.orientation`: orientation from the IMU alone (gyro and accelerometer, optionally
+  magnetometer): ``run_imu_orientation`` (recordings) and ``ImuOrientationFilter`` (live);
+  kernels in :mod:`.orientation_kernel`.
 * :mod:`.calibration`: noise from a static segment (Allan deviation), clock offset, IMU-to-body
   rotation and gravity from data.
 
@@ -23,12 +25,18 @@ from .driver import (
     InertialFilter,
     InertialResult,
     InertialState,
-    run_imu_orientation,
     run_inertial,
-    tilt_from_accel,
 )
 from .extrapolation import GyroExtrapolation, fit_gyro_extrapolation
 from .model import GRAVITY, MODES, ImuExtrinsics, ImuNoise, InertialModel
+from .orientation import (
+    ImuOrientationFilter,
+    ImuOrientationModel,
+    ImuOrientationResult,
+    heading_inclination_errors,
+    initial_orientation,
+    run_imu_orientation,
+)
 
 __all__ = [
     "GRAVITY",
@@ -37,6 +45,9 @@ __all__ = [
     "MODES",
     "ImuExtrinsics",
     "ImuNoise",
+    "ImuOrientationFilter",
+    "ImuOrientationModel",
+    "ImuOrientationResult",
     "InertialFilter",
     "InertialModel",
     "InertialResult",
@@ -46,9 +57,10 @@ __all__ = [
     "estimate_clock_offset",
     "estimate_gravity",
     "estimate_imu_rotation",
+    "heading_inclination_errors",
+    "initial_orientation",
     "noise_from_static",
     "run_imu_orientation",
     "run_inertial",
-    "tilt_from_accel",
     "world_acceleration",
 ]

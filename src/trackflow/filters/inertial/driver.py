@@ -20,14 +20,13 @@ from trackflow.math import (
 )
 
 from . import kernel as _kernel
-from .model import ImuNoise, InertialModel
+from .model import InertialModel
 
 __all__ = [
     "InertialFilter",
     "InertialResult",
     "InertialState",
     "kernels",
-    "run_imu_orientation",
     "run_inertial",
 ]
 
@@ -351,8 +350,8 @@ def run_inertial(
     t_ev = np.ascontiguousarray(np.maximum(t_ev[order], tp[start]))
     r, t_end = k.run_events(
         kind[order], t_ev, idx[order].astype(np.int64), w, a, p, z_r, Rm, x, r, P,
-        model.gravity, model.noise.as_array(), f._r_sb, f._t_sb, model.gate(), model.gravity_sigma,
-        model.gravity_tau, h, model.smoothing_s, model.use_slope,
+        model.gravity, model.noise.as_array(), f._r_sb, f._t_sb, model.gate(), h,
+        model.smoothing_s, model.use_slope,
         *model.extrapolation_weights(h), model.input_hold == "preceding", model.n_states,
         out_p, out_r, out_nis,
     )  # fmt: skip
@@ -367,81 +366,3 @@ def run_inertial(
         x[12:15].copy(), P.copy(),
     )  # fmt: skip
     return InertialResult(preds, out_nis, final)
-
-
-def tilt_from_accel(accel, gravity) -> np.ndarray:
-    """``R_w_s`` (3, 3) that turns the specific force ``accel`` (3,) against ``gravity`` (3,).
-
-    The rotation about the gravity axis is the smallest one (heading is not observable from an
-    accelerometer).
-    """
-    f = np.asarray(accel, dtype=float).reshape(3)
-    up_s = f / np.linalg.norm(f)
-    up_w = -np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
-    axis = np.cross(up_s, up_w)
-    s, c = np.linalg.norm(axis), float(up_s @ up_w)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    return _kernel.exp_so3(axis / s * np.arctan2(s, c))
-
-
-def run_imu_orientation(
-    imu_t, gyro, accel, model: InertialModel | None = None, initial_quaternion=None
-) -> np.ndarray:
-    """Orientation ``R_w_s`` from the IMU alone: gyro prediction, accelerometer as gravity.
-
-    The filter (``model.mode`` must be ``"gyro"``: orientation and gyro bias matter, the
-    position part is idle) fuses every accelerometer sample as the direction of gravity with
-    ``model.gravity_sigma``. Heading is unobservable and drifts with the gyro bias.
-
-    Parameters
-    ----------
-    imu_t : array_like (M,)
-    gyro, accel : array_like (M, 3)
-    model : InertialModel, optional
-        Default: gyro mode, 2e-3 rad/s/sqrt(Hz) gyro noise, gravity sigma 0.2 m/s^2 low-passed
-        over 3 s, each sample held over its preceding interval (tuned on BROAD).
-    initial_quaternion : array_like (4,), optional
-        ``R_w_s`` at the first sample; default the tilt of the first accelerometer sample.
-
-    Returns
-    -------
-    ndarray (M, 4)
-        ``R_w_s`` after each sample ``(x, y, z, w)``.
-    """
-    if model is None:  # the common parameters that did best on the BROAD trials
-        model = InertialModel(
-            mode="gyro", noise=ImuNoise(gyro=2e-3, accel=1.0, gyro_bias=2e-6),
-            gravity_sigma=0.2, gravity_tau=3.0, input_hold="preceding",
-        )  # fmt: skip
-    if model.mode != "gyro":
-        raise ValueError("IMU-only orientation uses mode='gyro' (no tracker corrects position)")
-    ti = np.ascontiguousarray(imu_t, dtype=float).reshape(-1)
-    w = np.ascontiguousarray(gyro, dtype=float).reshape(-1, 3)
-    a = np.ascontiguousarray(accel, dtype=float).reshape(-1, 3)
-    m = ti.shape[0]
-    if w.shape[0] != m or a.shape[0] != m or m < 2:
-        raise ValueError(f"need matching IMU arrays (M >= 2): {ti.shape}, {w.shape}, {a.shape}")
-    if initial_quaternion is None:
-        r0 = tilt_from_accel(a[0], model.gravity)
-    else:
-        r0 = quat_to_matrix(np.asarray(initial_quaternion, dtype=float).reshape(4))
-    k = kernels()
-    f = InertialFilter(model)
-    sigma = np.radians(5.0)
-    C = np.diag([1e-6] * 3 + [sigma**2] * 3)
-    r_sb = f._r_sb
-    f.initialize(
-        ti[0], UncertainPose(Pose(np.zeros(3), quat_from_matrix(r0 @ r_sb.T)), C), None, 1e-3
-    )
-    out_r = np.zeros((1, m, 3, 3))
-    none3 = np.zeros((1, 0, 3))
-    k.run_events(
-        np.full(m, 3, np.int8), ti, np.arange(m, dtype=np.int64), w, a, np.zeros((0, 3)),
-        np.zeros((0, 3, 3)), np.eye(6), f._x, f._r, f._P, model.gravity,
-        model.noise.as_array(), np.ascontiguousarray(r_sb), f._t_sb, 0.0, model.gravity_sigma,
-        model.gravity_tau, np.zeros(1), 0.0, False, np.zeros((1, 0)), np.zeros((1, 0)),
-        model.input_hold == "preceding", model.n_states, none3,
-        out_r, np.zeros(0),
-    )  # fmt: skip
-    return quat_from_matrix(out_r[0] @ r_sb.T)

@@ -402,8 +402,6 @@ def run_events(
     r_sb,
     t_sb,
     gate,
-    grav_sigma,
-    grav_tau,
     horizons,
     smooth,
     use_slope,
@@ -420,26 +418,20 @@ def run_events(
     Parameters
     ----------
     kind : int8 (E,)
-        0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it),
-        3 = IMU sample whose accelerometer is fused as gravity (IMU-only orientation).
+        0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it).
     t : float (E,)
         Event times [s].
     idx : int (E,)
         Row in ``gyro``/``accel`` (IMU events) or in ``z_p``/``z_r``/``out_*`` (pose events).
     gyro, accel : (M, 3); z_p : (K, 3); z_r : (K, 3, 3); Rm : (6, 6)
     x, r, P : initial state (modified in place)
-    grav_sigma, grav_tau : accelerometer sigma [m/s^2] and low-pass time constant [s] of the
-        gravity updates (kind 3): the world-frame specific force ``R f`` is low-passed (linear
-        accelerations average out), rotated along with every correction, and fused as
-        ``R^T a_lp``; ``grav_tau = 0`` fuses the raw sample
     smooth, use_slope : input trend for the predictions (:func:`update_trend`)
     coef : (H, 3 L) learned gyro extrapolation per horizon and axis (``L = 0``: the trend)
     coef_a : (H, La) learned world-acceleration extrapolation (``La = 0``: the trend)
     hold_preceding : integrate each IMU sample over the interval ending at its stamp (else the
         trapezoid of the two samples bounding the interval)
     out_p : (H, K, 3), out_r : (H, K, 3, 3)
-        Predicted poses ``T_w_b`` written at scored pose events (and at IMU events of kind 3
-        for ``out_r[0]`` with ``K = M``: the filtered orientation).
+        Predicted poses ``T_w_b`` written at scored pose events.
     out_nis : (K,) NIS of each pose update (``nan`` when gated out)
 
     Returns
@@ -452,12 +444,10 @@ def run_events(
     trend = np.zeros((4, 3))
     wbuf = np.zeros((coef.shape[1] // 3, 3))
     abuf = np.zeros((coef_a.shape[1], 3))
-    alp = np.zeros(3)
-    have_alp = False
     for e in range(t.shape[0]):
         k = kind[e]
         te = t[e]
-        if k == 0 or k == 3:
+        if k == 0:
             i = idx[e]
             if last >= 0:
                 if hold_preceding:  # each sample covers the interval that ends at its stamp
@@ -472,17 +462,6 @@ def run_events(
             t_state = te
             t_imu = te
             last = i
-            if k == 3:
-                a_w = r @ accel[i]
-                if grav_tau > 0.0 and have_alp:
-                    alp += (1.0 - np.exp(-dt_imu / grav_tau)) * (a_w - alp)
-                else:
-                    alp[:] = a_w
-                    have_alp = True
-                r_old = r
-                r, nis, ok = update_gravity(x, r, P, r.T @ alp, g, grav_sigma, gate, n)
-                alp = (r @ r_old.T) @ alp
-                out_r[0, i] = r @ r_sb
         else:
             if last < 0:
                 continue

@@ -133,11 +133,9 @@ class InertialModel:
     gyro_bias_sigma, accel_bias_sigma : float
         Initial standard deviation of the biases [rad/s], [m/s^2].
     gravity_sigma : float
-        Per-axis accelerometer sigma when the accelerometer is fused as a gravity direction
-        (IMU-only orientation) [m/s^2].
-    gravity_tau : float
-        Low-pass time constant [s] of the world-frame specific force fused as gravity (IMU-only
-        orientation); 0 fuses each raw sample.
+        Per-axis accelerometer sigma [m/s^2] of :meth:`InertialFilter.update_gravity` (an
+        accelerometer sample fused as the direction of gravity). Orientation from the IMU
+        alone is :func:`~trackflow.filters.run_imu_orientation` with its own model.
     gate_probability : float or None
         Chi-square gate on the pose innovation (``None``: no gate).
     input_hold : {"trapezoid", "preceding"}
@@ -164,7 +162,6 @@ class InertialModel:
     gyro_bias_sigma: float = 0.05
     accel_bias_sigma: float = 0.3
     gravity_sigma: float = 0.5
-    gravity_tau: float = 0.0
     gate_probability: float | None = None
     input_hold: str = "trapezoid"
     smoothing_s: float = 0.0
@@ -187,8 +184,6 @@ class InertialModel:
             raise ValueError(
                 f"input_hold must be 'trapezoid' or 'preceding', got {self.input_hold!r}"
             )
-        if not (np.isfinite(self.gravity_tau) and self.gravity_tau >= 0):
-            raise ValueError(f"gravity_tau must be finite and >= 0, got {self.gravity_tau!r}")
         if not (np.isfinite(self.smoothing_s) and self.smoothing_s >= 0):
             raise ValueError(f"smoothing_s must be finite and >= 0, got {self.smoothing_s!r}")
         p = self.gate_probability
@@ -234,7 +229,6 @@ class InertialModel:
             "gyro_bias_sigma": self.gyro_bias_sigma,
             "accel_bias_sigma": self.accel_bias_sigma,
             "gravity_sigma": self.gravity_sigma,
-            "gravity_tau": self.gravity_tau,
             "gate_probability": self.gate_probability,
             "input_hold": self.input_hold,
             "smoothing_s": self.smoothing_s,
