@@ -37,7 +37,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import make_inputs
-from trackflow.trackers.runtime import LiveSource
+from trackflow.trackers.runtime import LiveSource, calm_gc, warm_up
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,7 +148,6 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
         filters[name] = KalmanFilter(f"kf_{name}", motion)
         sources[name].consumers.append((filters[name], 0))
     for kf in filters.values():  # compile the filter kernels before listening
-        from trackflow.trackers.runtime import warm_up
 
         class _Net:
             components = {"kf": kf}
@@ -158,34 +157,34 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
     lock = threading.Lock()
     latencies: list[int] = []
     service: list[int] = []  # first sample of a packet taken from the queue -> last answer
-    first_taken = [0]
+
+    names = [b.name for b in inp.bodies]
 
     def sink(i, data, arrival):
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
         with lock:
             pairs = i.handle(data, arrival)
-            for k, (bi, smp) in enumerate(pairs):
-                events.put((t0, k == len(pairs) - 1, i.bodies[bi].name, smp))
+            if pairs:  # one queue item per packet, as the runtime's scheduler queues them
+                events.put((t0, [(names[bi], smp) for bi, smp in pairs]))
 
     stop = threading.Event()
 
     def schedule():
         while not stop.is_set():
             try:
-                t0, last, name, smp = events.get(timeout=0.1)
+                t0, samples = events.get(timeout=0.1)
             except queue.Empty:
                 continue
-            if not first_taken[0]:
-                first_taken[0] = time.time_ns()
-            sources[name].deliver(smp)
-            answer = filters[name].pull(smp.arrival_ns)
-            if last:
-                now = time.time_ns()
-                if answer is not None:
-                    latencies.append(now - t0)
-                    service.append(now - first_taken[0])
-                first_taken[0] = 0
+            taken = time.time_ns()
+            for name, smp in samples:
+                sources[name].deliver(smp)
+                answer = filters[name].pull(smp.arrival_ns)
+            now = time.time_ns()  # the last answer of the packet is delivered
+            if answer is not None:
+                latencies.append(now - t0)
+                service.append(now - taken)
 
+    calm_gc()  # as trackflow run does once the network is warm
     th = threading.Thread(target=schedule, daemon=True)
     th.start()
     inp.start(sink)

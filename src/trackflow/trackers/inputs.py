@@ -109,8 +109,10 @@ class Body:
         self.conv = BoundaryConversion(spec.unit_scale, spec.up)
         self.status = SensorStatus(name, spec.protocol)
         c = self.conv.covariance(self.nominal)
-        #: the nominal covariance in trackflow's frames, exactly symmetric
+        #: the nominal covariance in trackflow's frames, exactly symmetric; read-only, since
+        #: every sample without a covariance of its own shares it
         self.nominal_converted = 0.5 * (c + c.T)
+        self.nominal_converted.flags.writeable = False
         #: nominal position sigma [m] (NatNet's mean marker error is compared with it)
         self.nominal_sigma = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
 
