@@ -57,6 +57,7 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
     "dtrack": {
         "port": (int, 5000),
         "body": (int, ...),
+        "kind": (str, "body"),
         "interface": (str, "127.0.0.1"),
         "group": ((str, type(None)), None),
         "command": ((str, type(None)), None),
@@ -221,6 +222,11 @@ def parse_input(doc, base_dir=None) -> InputSpec:
             raise ValueError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
         if opts["clock"] not in ("map", "host"):
             raise ValueError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
+    if proto == "dtrack" and opts["kind"] not in ("body", "flystick", "tool", "hand"):
+        raise ValueError(
+            f"input.dtrack.kind must be 'body' (6d), 'flystick' (6df2), 'tool' (6dmt2) or "
+            f"'hand' (gl), got {opts['kind']!r}"
+        )
     if proto == "optical":
         if not opts["config"].strip():
             raise ValueError("input.optical.config: empty path")

@@ -299,13 +299,20 @@ class LiveInput:
 class DTrackInput(LiveInput):
     """DTrack bodies from the UDP output (``ts2`` latency preferred, else ``ts`` with the
     configured ``latency_ms``); the optional TCP command channel sends
-    ``dtrack2 tracking start``."""
+    ``dtrack2 tracking start``.
+
+    A sensor's ``kind`` picks the line its ``body`` id is looked up in: ``body`` (``6d``,
+    with its ``6dcov`` covariance when sent), ``flystick`` (``6df2``), ``tool`` (``6dmt2``:
+    the tip's position covariance replaces the nominal position block) or ``hand`` (``gl``,
+    the back of the hand). The newest ``st`` line is kept in :attr:`tracker_status`.
+    """
 
     protocol = "dtrack"
 
     def __init__(self, spec):
         super().__init__(spec)
         self.days = dtrack.DayUnwrapper()
+        self.tracker_status: dtrack.DTrackStatus | None = None
 
     def _handle(self, data, arrival_ns):
         f = dtrack.decode_dtrack(data)
@@ -320,18 +327,27 @@ class DTrackInput(LiveInput):
         else:
             raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         t = self._map(stamp + lat, lat, arrival_ns)
-        by_id = {x.id: x for x in f.bodies}
+        if f.status is not None:
+            self.tracker_status = f.status
+        lines = {"body": f.bodies, "flystick": f.flysticks, "tool": f.tools, "hand": f.hands}
+        by_id = {k: {x.id: x for x in v} for k, v in lines.items() if v}
         covs = {x.id: x for x in f.covariances}
 
         def one(b: Body):
-            body = by_id.get(b.options["body"])
+            kind = b.options["kind"]
+            body = by_id.get(kind, {}).get(b.options["body"])
             if body is None:
-                raise PacketError("body not in frame", f"body {b.options['body']}")
+                raise PacketError(f"{kind} not in frame", f"{kind} {b.options['body']}")
             _, q = dtrack.dtrack_pose(body)
-            c = covs.get(body.id)
             cov = None
-            if c is not None:
-                cov = dtrack.dtrack_covariance(np.asarray(body.rotation).reshape(3, 3), c)
+            if kind == "body" and body.id in covs:
+                R = np.asarray(body.rotation).reshape(3, 3)
+                cov = dtrack.dtrack_covariance(R, covs[body.id])
+            elif kind == "tool":
+                cov = np.array(b.nominal)
+                cov[:3, :] = cov[:, :3] = 0.0
+                pc = np.asarray(body.position_cov_mm2).reshape(3, 3)
+                cov[:3, :3] = pc * b.conv.scale**2
             return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
 
         return self._per_body(one)
