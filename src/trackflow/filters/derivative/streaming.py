@@ -471,11 +471,9 @@ class PoseKalmanFilter(FilterClock):
         identity with variance 1e12.
         """
         if self._t is not None and t >= self._t:  # fast path: only the pose rows
-            n_dp, n_do, add, kind, sp, so = self._params
-            pos, q, c = kernels().predict_pose(
-                self._x, self._p, float(t) - self._t, n_dp, n_do, add, kind, sp, so
-            )
-        else:
-            x, p = self.predict_state(t)
-            pos, q, c = kernels().pose_of(x, p, *self._params[:3])
+            out = np.empty(_source.POSE_OUT)
+            kernels().predict_pose_into(self._x, self._p, float(t) - self._t, *self._params, out)
+            return UncertainPose._trusted(out[:3], out[3:7], out[7:].reshape(6, 6))
+        x, p = self.predict_state(t)
+        pos, q, c = kernels().pose_of(x, p, *self._params[:3])
         return UncertainPose._trusted(pos, q, c)
