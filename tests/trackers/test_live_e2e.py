@@ -133,6 +133,8 @@ def test_short_natnet_stream_and_stale(room1, tmp_path):
     got, status, truth, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
     assert got and len(got) + status.rejected == len(truth), status.rejections
     assert status.stale(host_ns(), 0.2) and status.clock is not None
+    # the simulator answers echo requests: the mapping uses round trips (loopback: < 10 ms)
+    assert 0 < status.clock.transit_sigma_ns < 10_000_000
 
 
 def test_natnet_multicast(room1):

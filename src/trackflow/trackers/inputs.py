@@ -392,14 +392,23 @@ class DTrackInput(LiveInput):
 
 class NatNetInput(LiveInput):
     """NatNet rigid bodies: CONNECT/SERVERINFO handshake, MODELDEF for names, unicast
-    KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks."""
+    KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks.
+
+    From NatNet 3.0 on, ECHOREQUEST round trips (a few at the start, then one a second)
+    measure the transit delay, which the clock mapping then subtracts
+    (:meth:`ClockMapper.add_round_trip`); a server that does not know them (UNRECOGNIZED)
+    is not asked again."""
 
     protocol = "natnet"
+    #: round trips at the start, then the period between them [s]
+    ECHO_FIRST, ECHO_PERIOD_S = 8, 1.0
 
     def __init__(self, spec):
         super().__init__(spec)
         self.server: natnet.ServerInfo | None = None
         self.models: natnet.ModelDefinitions | None = None
+        self.echo = True  # the server answers echo requests (until it says otherwise)
+        self.echoes_sent = 0
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -420,6 +429,12 @@ class NatNetInput(LiveInput):
                 raise PacketError("no handshake yet", "MODELDEF before SERVERINFO")
             self.models = natnet.decode_model_definitions(payload, self.server.version)
             return []
+        if msg == natnet.ECHORESPONSE:
+            self._round_trip(payload, arrival_ns)
+            return []
+        if msg == natnet.UNRECOGNIZED:
+            self.echo = False  # the only request this client sends that a server may not know
+            return []
         if msg != natnet.FRAMEOFDATA:
             if msg in (natnet.MESSAGESTRING, natnet.RESPONSE, natnet.KEEPALIVE):
                 return []
@@ -431,9 +446,8 @@ class NatNetInput(LiveInput):
             return []
         freq = self.server.clock_frequency
         if natnet.exposure_and_latency(f, freq) is not None:
-            g = 1_000_000_000
-            tx_ns = f.transmit // freq * g + (f.transmit % freq) * g // freq
-            lat_ns = (f.transmit - f.mid_exposure) * g // freq
+            tx_ns = self._ticks_ns(f.transmit)
+            lat_ns = (f.transmit - f.mid_exposure) * 1_000_000_000 // freq
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
         t = self._map(tx_ns, lat_ns, arrival_ns)
@@ -457,6 +471,24 @@ class NatNetInput(LiveInput):
 
         return self._per_body(one)
 
+    def _ticks_ns(self, ticks: int) -> int:
+        """Server clock ticks -> tracker time [ns] (exact integers)."""
+        freq, g = self.server.clock_frequency, 1_000_000_000
+        return ticks // freq * g + (ticks % freq) * g // freq
+
+    def _round_trip(self, payload, arrival_ns: int) -> None:
+        if self.server is None or self.server.clock_frequency is None:
+            raise PacketError("no handshake yet", "ECHORESPONSE before a 3.0+ SERVERINFO")
+        token, ticks = natnet.decode_echo_response(payload)
+        if not self.clock.add_round_trip(token, self._ticks_ns(ticks), arrival_ns):
+            raise PacketError("bad round trip", f"{(arrival_ns - token) * 1e-6:.3f} ms")
+
+    def _echo_due(self, now: float, last: float) -> bool:
+        if not (self.echo and self.server is not None and self.server.clock_frequency):
+            return False
+        period = 0.05 if self.echoes_sent < self.ECHO_FIRST else self.ECHO_PERIOD_S
+        return now - last >= period
+
     def _run(self, sink):
         o = self.options
         server = (o["server"], o["command_port"])
@@ -474,7 +506,7 @@ class NatNetInput(LiveInput):
         sel = selectors.DefaultSelector()
         sel.register(cmd, selectors.EVENT_READ)
         sel.register(data, selectors.EVENT_READ)
-        next_cmd = next_keepalive = 0.0
+        next_cmd = next_keepalive = last_echo = 0.0
         need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
         try:
             while not self._stop.is_set():
@@ -491,6 +523,10 @@ class NatNetInput(LiveInput):
                         # unicast server streams to where it comes from
                         cmd.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
                         next_keepalive = now + 1.0
+                    if self._echo_due(now, last_echo):
+                        cmd.sendto(natnet.encode_echo_request(host_ns()), server)
+                        self.echoes_sent += 1
+                        last_echo = now
                 except OSError:
                     self._event_all("send failed")
                 for key, _ in sel.select(timeout=0.1):
