@@ -545,6 +545,10 @@ class NatNetInput(LiveInput):
 
 class VrpnInput(LiveInput):
     """VRPN tracker sensors over TCP (``Name@host[:port]``), reconnecting after errors.
+    ``connect: tcp`` connects to the server's port; ``connect: udp`` is the classic VRPN
+    client: it listens on a TCP port of its own, sends ``"IP PORT\0"`` by UDP to the server's
+    port (repeated every 0.25 s) and accepts the server's connection back, from the server's
+    address only.
     ``clock: map`` estimates the server's clock offset (subtracting ``latency_ms``, the
     server's known exposure-to-send latency); ``clock: host`` trusts the stamps as host
     time (a synchronised clock)."""
@@ -587,12 +591,40 @@ class VrpnInput(LiveInput):
             out.extend(self._per_body(one))
         return out
 
+    def _connect(self, timeout: float) -> socket.socket:
+        """A TCP connection to the server, direct or by UDP connect-back (class docstring)."""
+        if self.options["connect"] == "tcp":
+            return socket.create_connection((self.host, self.port), timeout=timeout)
+        server_ip = socket.gethostbyname(self.host)
+        with (
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ask,
+            socket.socket(socket.AF_INET, socket.SOCK_STREAM) as lst,
+        ):
+            ask.connect((server_ip, self.port))  # no packet: picks the local address to announce
+            lst.bind((ask.getsockname()[0], 0))
+            lst.listen(1)
+            lst.settimeout(0.25)
+            ip, port = lst.getsockname()
+            deadline = time.monotonic() + timeout
+            while not self._stop.is_set() and time.monotonic() < deadline:
+                ask.send(f"{ip} {port}\0".encode("ascii"))
+                try:
+                    conn, peer = lst.accept()
+                except TimeoutError:
+                    continue
+                if peer[0] == server_ip:
+                    conn.settimeout(timeout)
+                    return conn
+                conn.close()  # only the server may connect back
+                self._event_all("connect-back from another host")
+        raise OSError("no connect-back from the VRPN server")
+
     def _run(self, sink):
         timeout = self.options["timeout_ms"] * 1e-3
         devices = sorted({b.spec.vrpn_address[0] for b in self.bodies})
         while not self._stop.is_set():
             try:
-                conn = socket.create_connection((self.host, self.port), timeout=timeout)
+                conn = self._connect(timeout)
             except OSError:
                 self._event_all("connection failed")
                 self.ready.set()
