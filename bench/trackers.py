@@ -186,32 +186,32 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
                 service.append(now - taken)
                 service_cpu.append(time.thread_time_ns() - cpu)
 
-    calm_gc()  # as trackflow run does once the network is warm
-    th = threading.Thread(target=schedule, daemon=True)
-    th.start()
-    inp.start(sink)
-    inp.ready.wait(5)
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    sender = subprocess.Popen(
-        [
-            sys.executable, "-m", "trackflow.cli.main", "simulate", "natnet", str(recording),
-            "--port", str(port), "--bodies", str(BODIES), "--speed", str(RATE / 120),
-            "--duration", str(seconds * RATE / 120), "--jitter-ms", "0", "--wait", "30",
-        ],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        preexec_fn=lambda: os.sched_setaffinity(0, {other}),
-    )  # fmt: skip
-    try:
-        sender.communicate(timeout=seconds + 120)
-    finally:
-        if sender.poll() is None:
-            sender.kill()
-        time.sleep(0.2)
-        inp.stop()
-        stop.set()
-        th.join(2)
+    with calm_gc():  # as trackflow run does once the network is warm
+        th = threading.Thread(target=schedule, daemon=True)
+        th.start()
+        inp.start(sink)
+        inp.ready.wait(5)
+        env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+        sender = subprocess.Popen(
+            [
+                sys.executable, "-m", "trackflow.cli.main", "simulate", "natnet", str(recording),
+                "--port", str(port), "--bodies", str(BODIES), "--speed", str(RATE / 120),
+                "--duration", str(seconds * RATE / 120), "--jitter-ms", "0", "--wait", "30",
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            preexec_fn=lambda: os.sched_setaffinity(0, {other}),
+        )  # fmt: skip
+        try:
+            sender.communicate(timeout=seconds + 120)
+        finally:
+            if sender.poll() is None:
+                sender.kill()
+            time.sleep(0.2)
+            inp.stop()
+            stop.set()
+            th.join(2)
     lat = np.asarray(latencies[RATE:], dtype=float) * 1e-3  # skip the first second
     if len(lat) == 0:
         raise RuntimeError(f"no answers; input status: {inp.status.summary(time.time_ns())}")

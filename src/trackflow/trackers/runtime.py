@@ -17,6 +17,7 @@ and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch 
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import queue
@@ -133,13 +134,21 @@ def warm_up(net) -> None:
             f.predict(0.02)
 
 
-def calm_gc() -> None:
-    """Call once the network is built and warm: collect, then freeze every object alive so
-    far (:func:`gc.freeze`), so that the collections a live run triggers look only at the
-    objects made since (a full collection over the imported modules and compiled kernels
-    would otherwise stall one packet by milliseconds)."""
+@contextlib.contextmanager
+def calm_gc():
+    """Within the block, the garbage collector leaves alone everything alive at its start.
+
+    Entered once the network is built and warm: it collects, then freezes every object alive
+    (:func:`gc.freeze`), so that the collections a live run triggers look only at the objects
+    made since (a full collection over the imported modules and compiled kernels would
+    otherwise stall one packet by milliseconds). On exit they are unfrozen again.
+    """
     gc.collect()
     gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def input_paths(record, sensor: str) -> tuple[Path, Path]:
@@ -327,7 +336,6 @@ def run_live(
     sched = _Scheduler(net, sampler, sources, inputs, writers)
     bodies = [b for i in inputs for b in i.bodies]
     next_status = [0]
-    calm_gc()
 
     def status(now: int) -> None:
         if on_status is not None and now >= next_status[0]:
@@ -347,7 +355,8 @@ def run_live(
             inp.ready.wait(5.0)
         if on_status is not None:
             on_status([f"listening: {', '.join(b.name for b in bodies)}"])
-        sched.loop(next_tick, deadline, stop or threading.Event(), status)
+        with calm_gc():
+            sched.loop(next_tick, deadline, stop or threading.Event(), status)
     except KeyboardInterrupt:
         interrupted = True
     finally:
