@@ -20,7 +20,8 @@ from trackflow.trackers.dtrack import (
 
 # Written by hand from the DTrack2 manual's line formats: body 3 rotated +90 deg about z
 # (matrix column-wise on the wire: first column (0, 1, 0)), body 5 not tracked (dummy
-# zeros), one 6dcov, one marker, one hybrid body and a line this decoder does not know.
+# zeros), one 6dcov, one marker, one hybrid body and a line this decoder does not know
+# (6dj, the ART-Human model). Flysticks, tools, hands and status: test_dtrack_devices.py.
 GOLDEN = (
     b"fr 21753\r\n"
     b"ts 86399.995000\r\n"
@@ -37,14 +38,14 @@ GOLDEN = (
     b"3d 1 [84 1.000][270.980 -195.843 222.058]\r\n"
     b"6di 1 [0 2 0.125][1.000 2.000 3.000]"
     b"[1.000000 0.000000 0.000000 0.000000 1.000000 0.000000 0.000000 0.000000 1.000000]\r\n"
-    b"6df2 1 0\r\n"
+    b"6dj 1 0\r\n"
 )
 
 
 def test_golden_decodes_every_field():
     f = decode_dtrack(GOLDEN)
     assert f.frame == 21753 and f.ts == 86399.995 and f.ts2 == (1712345678, 250000, 4200)
-    assert f.calibrated == 6 and f.skipped == ("6df2",)
+    assert f.calibrated == 6 and f.skipped == ("6dj",)
     b3 = f.body(3)
     assert b3.position_mm == (100.0, -200.5, 1500.25)
     # column-wise on the wire -> rows: R = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
@@ -64,7 +65,7 @@ def test_golden_decodes_every_field():
 def test_golden_round_trips_bytes():
     f = decode_dtrack(GOLDEN)
     # the encoder writes exactly the golden text (minus the unknown line it never knew)
-    assert encode_dtrack(f) == GOLDEN.replace(b"6df2 1 0\r\n", b"")
+    assert encode_dtrack(f) == GOLDEN.replace(b"6dj 1 0\r\n", b"")
 
 
 def test_not_tracked_is_never_a_pose():
@@ -88,8 +89,8 @@ def test_exact_encoding_round_trips_doubles():
 
 
 def test_lf_only_and_unknown_lines():
-    f = decode_dtrack(b"fr 1\nst 0 1 2\n6d 0\n")
-    assert f.frame == 1 and f.bodies == () and f.skipped == ("st",)
+    f = decode_dtrack(b"fr 1\n6dmtr 0 1 2\n6d 0\n")
+    assert f.frame == 1 and f.bodies == () and f.skipped == ("6dmtr",)
 
 
 @pytest.mark.parametrize(

@@ -133,6 +133,8 @@ def test_short_natnet_stream_and_stale(room1, tmp_path):
     got, status, truth, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
     assert got and len(got) + status.rejected == len(truth), status.rejections
     assert status.stale(host_ns(), 0.2) and status.clock is not None
+    # the simulator answers echo requests: the mapping uses round trips (loopback: < 10 ms)
+    assert 0 < status.clock.transit_sigma_ns < 10_000_000
 
 
 def test_natnet_multicast(room1):
@@ -156,11 +158,12 @@ def test_natnet_multicast(room1):
     assert len(got) > 0.8 * report["sent"], inp.status.rejections
 
 
-def test_vrpn_server_output_to_a_vrpn_client():
+@pytest.mark.parametrize("connect", ["tcp", "udp"])
+def test_vrpn_server_output_to_a_vrpn_client(connect):
+    """Direct TCP, and the classic UDP request after which the server connects back."""
     with VrpnTrackerServer("Tracker0", "127.0.0.1", 0) as server:
-        spec = parse_input(
-            {"vrpn": {"device": f"Tracker0@127.0.0.1:{server.port}", "sensor": 0, "clock": "host"}}
-        )
+        dev = f"Tracker0@127.0.0.1:{server.port}"
+        spec = parse_input({"vrpn": {"device": dev, "clock": "host", "connect": connect}})
         inp = make_input("app", spec, COV)
         got = []
         inp.start(lambda i, data, a: got.extend(s for _, s in i.handle(data, a)))
@@ -180,6 +183,20 @@ def test_vrpn_server_output_to_a_vrpn_client():
     assert [s.position.tolist() for s in got] == [[k, 2.5, -1.0] for k in range(5)]
     assert [s.t_ns for s in got] == [1_700_000_000_000_000_000 + k * 1000 for k in range(5)]
     np.testing.assert_array_equal(got[0].quaternion, q / np.linalg.norm(q))
+
+
+def test_vrpn_udp_client_without_a_server_is_counted_and_stops():
+    port = _free_port()
+    spec = parse_input(
+        {"vrpn": {"device": f"T@127.0.0.1:{port}", "connect": "udp", "timeout_ms": 300}}
+    )
+    inp = make_input("app", spec, COV)
+    inp.start(lambda i, data, a: None)
+    assert inp.ready.wait(10)
+    t0 = time.monotonic()
+    inp.stop()
+    assert time.monotonic() - t0 < 3.0
+    assert inp.status.connection.get("connection failed", 0) >= 1
 
 
 def test_vrpn_server_connect_back_over_udp():

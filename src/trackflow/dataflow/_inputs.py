@@ -57,6 +57,7 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
     "dtrack": {
         "port": (int, 5000),
         "body": (int, ...),
+        "kind": (str, "body"),
         "interface": (str, "127.0.0.1"),
         "group": ((str, type(None)), None),
         "command": ((str, type(None)), None),
@@ -67,6 +68,7 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
         "device": (str, ...),
         "sensor": (int, 0),
         "clock": (str, "map"),
+        "connect": (str, "tcp"),
         "latency_ms": ((int, float), 0.0),
         "timeout_ms": ((int, float), 2000),
     },
@@ -221,6 +223,16 @@ def parse_input(doc, base_dir=None) -> InputSpec:
             raise ValueError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
         if opts["clock"] not in ("map", "host"):
             raise ValueError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
+        if opts["connect"] not in ("tcp", "udp"):
+            raise ValueError(
+                "input.vrpn.connect must be 'tcp' (connect directly) or 'udp' (ask by UDP, "
+                "the server connects back)"
+            )
+    if proto == "dtrack" and opts["kind"] not in ("body", "flystick", "tool", "hand"):
+        raise ValueError(
+            f"input.dtrack.kind must be 'body' (6d), 'flystick' (6df2), 'tool' (6dmt2) or "
+            f"'hand' (gl), got {opts['kind']!r}"
+        )
     if proto == "optical":
         if not opts["config"].strip():
             raise ValueError("input.optical.config: empty path")

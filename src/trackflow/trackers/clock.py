@@ -15,6 +15,13 @@ method can separate from the offset.
 
 Points are reduced to per-bin minima (``bin_s``) so a refit costs ``O(window / bin)``, done
 once per closed bin; between refits a new point below the line lowers the line at once.
+
+Round trips (:meth:`ClockMapper.add_round_trip`, NatNet's echo requests) separate the two:
+a request sent at host time ``s``, answered at tracker time ``x`` and received at ``r``
+bounds the offset to ``[s - x, r - x]``; with equal delays both ways it is the midpoint,
+within half the round trip time. Of the round trips in the window, the shortest one gives
+the minimum transport delay ``transit = line(x) - ((s + r) / 2 - x)`` (at least 0), which the
+published mapping subtracts.
 """
 
 from __future__ import annotations
@@ -43,6 +50,12 @@ class ClockEstimate:
         (a median, so that one stalled bin does not inflate it).
     points : int
         Bins in the fit.
+    transit_ns : float
+        Minimum transport delay found by round trips [ns], subtracted by :meth:`to_host`
+        (0 without round trips).
+    transit_sigma_ns : float
+        Half the shortest round trip time [ns]: the bound on ``transit_ns`` if the delays
+        both ways differ (0 without round trips).
     """
 
     offset_ns: float
@@ -50,11 +63,13 @@ class ClockEstimate:
     ref_ns: int
     sigma_ns: float
     points: int
+    transit_ns: float = 0.0
+    transit_sigma_ns: float = 0.0
 
     def to_host(self, tracker_ns: int) -> int:
         """Host time [ns] of a tracker time [ns]."""
         dx = tracker_ns - self.ref_ns
-        return tracker_ns + int(round(self.offset_ns + self.drift * dx))
+        return tracker_ns + int(round(self.offset_ns - self.transit_ns + self.drift * dx))
 
 
 def lower_envelope(x: list[float], y: list[float]) -> tuple[float, float]:
@@ -109,6 +124,8 @@ class ClockMapper:
         A stamp earlier than the newest one by more than this, or an offset sample below
         the line by more than this [s], is a step of the tracker's clock (a restart): the fit
         starts again from it.
+    max_rtt_s : float
+        Longer round trips (and negative ones) are rejected and counted [s].
     """
 
     def __init__(
@@ -120,6 +137,7 @@ class ClockMapper:
         anchor_s: float = 3.0,
         stall_s: float = 1e-4,
         step_s: float = 0.05,
+        max_rtt_s: float = 0.1,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
             raise ValueError("clock mapper: need window_s > bin_s > 0")
@@ -129,34 +147,41 @@ class ClockMapper:
         self.anchor_ns = int(anchor_s * 1e9)
         self.stall_ns = float(stall_s * 1e9)
         self.step_ns = int(step_s * 1e9)
+        self.max_rtt_ns = int(max_rtt_s * 1e9)
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
         self.max_drift = float(max_drift)
         self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
         self._cur: tuple[int, int] | None = None
         self._cur_bin: int | None = None
+        self._env: ClockEstimate | None = None  # the envelope fit alone
+        #: the published mapping (the envelope minus the transit found by round trips)
         self.estimate: ClockEstimate | None = None
+        self.round_trips: deque[tuple[int, int, int]] = deque()  # (tracker, rtt, offset)
+        #: round trips rejected (negative or longer than ``max_rtt_s``)
+        self.rejected_round_trips = 0
         self.count = 0
         self._newest = 0
 
     def reset(self) -> None:
         """Forget everything (the tracker restarted)."""
         self.bins.clear()
-        self._cur = self._cur_bin = self.estimate = None
+        self._cur = self._cur_bin = self._env = self.estimate = None
+        self.round_trips.clear()
         self._newest = 0
 
     def add(self, tracker_ns: int, host_ns: int) -> None:
         """Add one (tracker stamp, host receive time) pair [ns]."""
         self.count += 1
         y = host_ns - tracker_ns
-        e = self.estimate
+        e = self._env
         if e is not None and (
             tracker_ns < self._newest - self.step_ns
             or y < e.offset_ns + e.drift * (tracker_ns - e.ref_ns) - self.step_ns
         ):
             self.reset()
             self.steps += 1
-        self._newest = tracker_ns if self.estimate is None else max(self._newest, tracker_ns)
+        self._newest = tracker_ns if self._env is None else max(self._newest, tracker_ns)
         k = tracker_ns // self.bin_ns
         if self._cur_bin is None or k != self._cur_bin:
             if self._cur is not None:
@@ -167,15 +192,16 @@ class ClockMapper:
             self._cur_bin, self._cur = k, (tracker_ns, y)
         elif y < self._cur[1]:
             self._cur = (tracker_ns, y)
-        e = self.estimate
+        e = self._env
         if e is None:
-            self.estimate = ClockEstimate(float(y), 0.0, tracker_ns, 0.0, 1)
+            self._env = ClockEstimate(float(y), 0.0, tracker_ns, 0.0, 1)
         else:
             line = e.offset_ns + e.drift * (tracker_ns - e.ref_ns)
             if y < line:  # below the envelope: lower it now, keep the slope
-                self.estimate = ClockEstimate(
+                self._env = ClockEstimate(
                     e.offset_ns - (line - y), e.drift, e.ref_ns, e.sigma_ns, e.points
                 )
+        self._publish()
 
     def _refit(self) -> None:
         pts = sorted(self.bins)
@@ -203,12 +229,42 @@ class ClockMapper:
             a = a_full
         res = sorted(h - a for h in recent)
         sigma = max(res[len(res) // 2], 0.0)
-        self.estimate = ClockEstimate(a, b, ref_ns, sigma, len(pts))
+        self._env = ClockEstimate(a, b, ref_ns, sigma, len(pts))
         if self._cur is not None:  # the open bin may already hold a lower point
             x_c, y_c = self._cur
             line = a + b * (x_c - ref_ns)
             if y_c < line:
-                self.estimate = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, len(pts))
+                self._env = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, len(pts))
+
+    def add_round_trip(self, send_host_ns: int, tracker_ns: int, recv_host_ns: int) -> bool:
+        """Add one round trip: a request sent at host time ``send_host_ns``, answered at
+        tracker time ``tracker_ns`` and received at ``recv_host_ns`` [ns] (module docstring).
+        False (counted in :attr:`rejected_round_trips`) if its time is negative or longer
+        than ``max_rtt_s``."""
+        rtt = recv_host_ns - send_host_ns
+        if not 0 <= rtt <= self.max_rtt_ns:
+            self.rejected_round_trips += 1
+            return False
+        mid = (send_host_ns + recv_host_ns) // 2 - tracker_ns
+        self.round_trips.append((tracker_ns, rtt, mid))
+        newest = max(t for t, _, _ in self.round_trips)
+        while self.round_trips and newest - self.round_trips[0][0] > self.window_ns:
+            self.round_trips.popleft()
+        self._best = min(self.round_trips, key=lambda r: r[1])
+        self._publish()
+        return True
+
+    def _publish(self) -> None:
+        """:attr:`estimate`: the envelope fit minus the transit of the shortest round trip."""
+        e = self._env
+        if e is None or not self.round_trips:
+            self.estimate = e
+            return
+        x, rtt, mid = self._best
+        transit = max(e.offset_ns + e.drift * (x - e.ref_ns) - mid, 0.0)
+        self.estimate = ClockEstimate(
+            e.offset_ns, e.drift, e.ref_ns, e.sigma_ns, e.points, transit, rtt / 2
+        )
 
     def to_host(self, tracker_ns: int) -> int:
         """Host time [ns] of a tracker time [ns] (the latest estimate)."""

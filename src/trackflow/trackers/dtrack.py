@@ -19,8 +19,22 @@ ar-tracking/DTrackSDK ``DTrackParser.cpp``):
 * ``3d <n> [id qu][x y z]``             single markers [mm]
 * ``6di <n> [id st err][x y z][b0 .. b8]`` hybrid (inertial) bodies: state 0 not tracked,
   1 inertial only, 2 optical and inertial; drift error estimate [deg]
+* ``6df2 <ncal> <n> [id qu nbt njt][x y z][b0 .. b8][bt.. js..]`` Flysticks (ids ``0 ..
+  n-1`` in order): ``nbt`` buttons packed 32 to an integer word (bit ``j % 32`` of word
+  ``j // 32`` is button ``j``), then ``njt`` joystick values in ``[-1, 1]``
+* ``6dmt2 <ncal> <n> [id qu nbt r][x y z][b0 .. b8][bt..][c11 c12 c13 c22 c23 c33]``
+  measurement tools (ids in order): tip radius ``r`` [mm], button words as for Flysticks,
+  and the 3x3 covariance of the tip position [mm^2] (upper triangle row by row)
+* ``gl <n> [id qu lr nf][x y z][b0 .. b8]`` then per finger
+  ``[x y z][b0 .. b8][rt l0 a0 l1 a1 l2]``: Fingertracking hands (``lr`` 0 left, 1 right),
+  the back of the hand in room coordinates, each finger tip in hand coordinates [mm], tip
+  radius, phalanx lengths [mm] and the angles between them [deg]
+* ``st <ngrp> [0 nv][cams bodies markers] [1 nv][cam_err cam_warn err warn info]
+  [2 ncam nv][id refl used intensity] ..``  system status: general counts, message counts
+  and per camera the reflections seen and used and the maximal intensity; unknown groups
+  are skipped by their sizes
 
-Any other identifier (``6df2``, ``gl``, ``st`` ...) is skipped and listed in
+Any other identifier (``6dj``, ``6dmtr`` ...) is skipped and listed in
 :attr:`DTrackFrame.skipped`. Malformed known lines raise :class:`PacketError`.
 """
 
@@ -40,8 +54,13 @@ __all__ = [
     "DTrackBody",
     "DTrackCovariance",
     "DTrackFrame",
+    "DTrackFinger",
+    "DTrackFlystick",
+    "DTrackHand",
     "DTrackInertial",
     "DTrackMarker",
+    "DTrackStatus",
+    "DTrackTool",
     "DayUnwrapper",
     "decode_dtrack",
     "dtrack_covariance",
@@ -91,6 +110,71 @@ class DTrackInertial(NamedTuple):
     rotation: tuple[float, ...]
 
 
+class DTrackFlystick(NamedTuple):
+    """A ``6df2`` Flystick: pose as :class:`DTrackBody` (quality -1 = not tracked),
+    ``buttons`` (one bool per button) and ``joysticks`` (values in [-1, 1])."""
+
+    id: int
+    quality: float
+    position_mm: tuple[float, float, float]
+    rotation: tuple[float, ...]
+    buttons: tuple[bool, ...] = ()
+    joysticks: tuple[float, ...] = ()
+
+
+class DTrackTool(NamedTuple):
+    """A ``6dmt2`` measurement tool: pose as :class:`DTrackBody`, ``tip_radius_mm``,
+    ``buttons`` and ``position_cov_mm2`` the 3x3 covariance of the tip (9 values, row by
+    row, room coordinates [mm^2])."""
+
+    id: int
+    quality: float
+    position_mm: tuple[float, float, float]
+    rotation: tuple[float, ...]
+    tip_radius_mm: float = 0.0
+    buttons: tuple[bool, ...] = ()
+    position_cov_mm2: tuple[float, ...] = (0.0,) * 9
+
+
+class DTrackFinger(NamedTuple):
+    """One finger of a ``gl`` hand: the tip's ``position_mm`` and ``rotation`` (row by row)
+    in the hand's coordinates, ``tip_radius_mm``, ``phalanx_mm`` (outer, middle, inner
+    lengths) and ``angles_deg`` (outer-middle, middle-inner)."""
+
+    position_mm: tuple[float, float, float]
+    rotation: tuple[float, ...]
+    tip_radius_mm: float
+    phalanx_mm: tuple[float, float, float]
+    angles_deg: tuple[float, float]
+
+
+class DTrackHand(NamedTuple):
+    """A ``gl`` Fingertracking hand: the back of the hand as :class:`DTrackBody` (quality
+    -1 = not tracked), ``right`` (``lr`` 1) and its ``fingers``."""
+
+    id: int
+    quality: float
+    right: bool
+    position_mm: tuple[float, float, float]
+    rotation: tuple[float, ...]
+    fingers: tuple[DTrackFinger, ...] = ()
+
+
+class DTrackStatus(NamedTuple):
+    """An ``st`` line: general counts, message counts, and per camera ``(id, reflections,
+    reflections used, maximal intensity)``; -1 for a group the line did not have."""
+
+    cameras: int = -1
+    tracked_bodies: int = -1
+    tracked_markers: int = -1
+    camera_errors: int = -1
+    camera_warnings: int = -1
+    other_errors: int = -1
+    other_warnings: int = -1
+    infos: int = -1
+    camera_status: tuple[tuple[int, int, int, int], ...] = ()
+
+
 @dataclass(frozen=True, slots=True)
 class DTrackFrame:
     """One decoded DTrack datagram. ``ts`` [s of day] and ``ts2`` ``(sec, usec,
@@ -105,6 +189,10 @@ class DTrackFrame:
     markers: tuple[DTrackMarker, ...] = ()
     inertial: tuple[DTrackInertial, ...] = ()
     skipped: tuple[str, ...] = field(default=())
+    flysticks: tuple[DTrackFlystick, ...] = ()
+    tools: tuple[DTrackTool, ...] = ()
+    hands: tuple[DTrackHand, ...] = ()
+    status: DTrackStatus | None = None
 
     def body(self, body_id: int) -> DTrackBody | None:
         for b in self.bodies:
@@ -159,6 +247,181 @@ def _as_id(v: float, what: str) -> int:
     return int(v)
 
 
+#: Our bounds against garbage (DTrack sends far fewer): buttons, joystick values, fingers.
+_MAX_BUTTONS, _MAX_JOYSTICKS, _MAX_FINGERS = 128, 16, 5
+
+
+class _Cursor:
+    """The ``[...]`` blocks of one line, taken in order, each with an exact size."""
+
+    def __init__(self, rest: bytes, what: str, counts: int):
+        head, _, _ = rest.partition(b"[")
+        toks = head.split()
+        if len(toks) != counts:
+            raise PacketError("bad line", f"{what}: expected {counts} count(s) before the blocks")
+        self.counts = [_int(t, what) for t in toks]
+        if any(c < 0 for c in self.counts):
+            raise PacketError("bad line", f"{what}: negative count")
+        self.blocks = _BLOCK.findall(rest)
+        self.i = 0
+        self.what = what
+
+    def take(self, n: int) -> list[float]:
+        if self.i >= len(self.blocks):
+            raise PacketError("bad line", f"{self.what}: fewer blocks than announced")
+        self.i += 1
+        return _floats(self.blocks[self.i - 1], n, self.what)
+
+    def take_any(self) -> list[float]:
+        """The next block, whatever its size."""
+        if self.i >= len(self.blocks):
+            raise PacketError("bad line", f"{self.what}: fewer blocks than announced")
+        self.i += 1
+        b = self.blocks[self.i - 1]
+        return _floats(b, len(b.split()), self.what)
+
+    def done(self) -> None:
+        if self.i != len(self.blocks):
+            raise PacketError("bad line", f"{self.what}: more blocks than announced")
+
+
+def _small(v: float, limit: int, what: str) -> int:
+    if v != int(v) or not 0 <= v <= limit:
+        raise PacketError("bad line", f"{what}: {v} is not an integer in [0, {limit}]")
+    return int(v)
+
+
+def _buttons(words: list[float], n: int, what: str) -> tuple[bool, ...]:
+    """``n`` buttons from 32-bit words (bit ``j % 32`` of word ``j // 32``)."""
+    ints = [_small(w, 0xFFFFFFFF, what) for w in words]
+    return tuple(bool(ints[j // 32] >> (j % 32) & 1) for j in range(n))
+
+
+def _button_words(buttons: tuple[bool, ...]) -> list[int]:
+    words = [0] * (-(-len(buttons) // 32))
+    for j, b in enumerate(buttons):
+        words[j // 32] |= int(bool(b)) << (j % 32)
+    return words
+
+
+def _in_order(v: float, i: int, what: str) -> int:
+    if v != i:
+        raise PacketError("bad line", f"{what}: id {v} where {i} was expected (ids in order)")
+    return i
+
+
+def _line_6df2(rest: bytes) -> list[DTrackFlystick]:
+    c = _Cursor(rest, "6df2", 2)
+    out = []
+    for i in range(c.counts[1]):
+        a = c.take(4)
+        nbt = _small(a[2], _MAX_BUTTONS, "6df2 buttons")
+        njt = _small(a[3], _MAX_JOYSTICKS, "6df2 joysticks")
+        p, r = c.take(3), c.take(9)
+        nw = -(-nbt // 32)
+        tail = c.take(nw + njt)
+        out.append(
+            DTrackFlystick(
+                _in_order(a[0], i, "6df2"),
+                a[1],
+                (p[0], p[1], p[2]),
+                _col_to_rows(r),
+                _buttons(tail[:nw], nbt, "6df2 buttons"),
+                tuple(tail[nw:]),
+            )
+        )
+    c.done()
+    return out
+
+
+def _line_6dmt2(rest: bytes) -> list[DTrackTool]:
+    c = _Cursor(rest, "6dmt2", 2)
+    out = []
+    for i in range(c.counts[1]):
+        a = c.take(4)
+        nbt = _small(a[2], _MAX_BUTTONS, "6dmt2 buttons")
+        p, r = c.take(3), c.take(9)
+        words = c.take(-(-nbt // 32))
+        t = c.take(6)
+        cov = (t[0], t[1], t[2], t[1], t[3], t[4], t[2], t[4], t[5])
+        out.append(
+            DTrackTool(
+                _in_order(a[0], i, "6dmt2"),
+                a[1],
+                (p[0], p[1], p[2]),
+                _col_to_rows(r),
+                a[3],
+                _buttons(words, nbt, "6dmt2 buttons"),
+                cov,
+            )
+        )
+    c.done()
+    return out
+
+
+def _line_gl(rest: bytes) -> list[DTrackHand]:
+    c = _Cursor(rest, "gl", 1)
+    out = []
+    for _ in range(c.counts[0]):
+        a = c.take(4)
+        if a[2] not in (0.0, 1.0):
+            raise PacketError("bad line", f"gl: left/right {a[2]} is neither 0 nor 1")
+        nf = _small(a[3], _MAX_FINGERS, "gl fingers")
+        p, r = c.take(3), c.take(9)
+        fingers = []
+        for _ in range(nf):
+            fp, fr, d = c.take(3), c.take(9), c.take(6)
+            fingers.append(
+                DTrackFinger(
+                    (fp[0], fp[1], fp[2]), _col_to_rows(fr), d[0], (d[1], d[3], d[5]), (d[2], d[4])
+                )
+            )
+        out.append(
+            DTrackHand(
+                _as_id(a[0], "gl"),
+                a[1],
+                a[2] == 1.0,
+                (p[0], p[1], p[2]),
+                _col_to_rows(r),
+                tuple(fingers),
+            )
+        )
+    c.done()
+    return out
+
+
+def _line_st(rest: bytes) -> DTrackStatus:
+    c = _Cursor(rest, "st", 1)
+    general: list[float] = [-1.0] * 3
+    messages: list[float] = [-1.0] * 5
+    cams: list[tuple[int, int, int, int]] = []
+    for _ in range(c.counts[0]):
+        d = c.take_any()  # [id nval] or, for per-camera groups, [id ncam nval]
+        if len(d) not in (2, 3):
+            raise PacketError("bad line", "st: a group description has 2 or 3 numbers")
+        gid = d[0]
+        ncam = _small(d[1], 1000, "st cameras") if len(d) == 3 else 0
+        nval = _small(d[-1], 1000, "st values")
+        if len(d) == 2:
+            v = c.take(nval)
+            if gid == 0 and nval >= 3:
+                general = v[:3]
+            elif gid == 1 and nval >= 5:
+                messages = v[:5]
+            elif gid in (0, 1):
+                raise PacketError("bad line", f"st: group {gid:g} has only {nval} values")
+        else:
+            for _ in range(ncam):
+                v = c.take(1 + nval)
+                if gid == 2:
+                    if nval < 3:
+                        raise PacketError("bad line", f"st: camera status has {nval} values")
+                    cams.append(tuple(_small(x, 0xFFFFFFFF, "st") for x in v[:4]))
+    c.done()
+    ints = [-1 if x == -1.0 else _small(x, 0xFFFFFFFF, "st") for x in general + messages]
+    return DTrackStatus(*ints, tuple(cams))
+
+
 def _col_to_rows(b: list[float]) -> tuple[float, ...]:
     # wire: b0 b1 b2 = first column -> R[r][c] = b[3 c + r]
     return (b[0], b[3], b[6], b[1], b[4], b[7], b[2], b[5], b[8])
@@ -187,6 +450,10 @@ def decode_dtrack(data: bytes) -> DTrackFrame:
     covs: list[DTrackCovariance] = []
     markers: list[DTrackMarker] = []
     inertial: list[DTrackInertial] = []
+    flysticks: list[DTrackFlystick] = []
+    tools: list[DTrackTool] = []
+    hands: list[DTrackHand] = []
+    status = None
     skipped: list[str] = []
     known = 0
     for line in raw.replace(b"\r\n", b"\n").split(b"\n"):
@@ -248,6 +515,14 @@ def decode_dtrack(data: bytes) -> DTrackFrame:
                         _as_id(a[0], "6di"), int(a[1]), a[2], (p[0], p[1], p[2]), _col_to_rows(r)
                     )
                 )
+        elif key == b"6df2":
+            flysticks.extend(_line_6df2(rest))
+        elif key == b"6dmt2":
+            tools.extend(_line_6dmt2(rest))
+        elif key == b"gl":
+            hands.extend(_line_gl(rest))
+        elif key == b"st":
+            status = _line_st(rest)
         else:
             skipped.append(key.decode("ascii", "replace")[:16])
             continue
@@ -264,6 +539,10 @@ def decode_dtrack(data: bytes) -> DTrackFrame:
         tuple(markers),
         tuple(inertial),
         tuple(skipped),
+        tuple(flysticks),
+        tuple(tools),
+        tuple(hands),
+        status,
     )
 
 
@@ -320,7 +599,67 @@ def encode_dtrack(frame: DTrackFrame, digits: int | None = 3, rot_digits: int | 
                 f"[{nums(_rows_to_col(b.rotation), rot_digits)}]"
             )
         out.append(" ".join(parts))
+    out.extend(_encode_devices(frame, nums, digits, rot_digits))
     return ("\r\n".join(out) + "\r\n").encode("ascii")
+
+
+def _pose_blocks(d, nums, digits, rot_digits) -> str:
+    return f"[{nums(d.position_mm, digits)}][{nums(_rows_to_col(d.rotation), rot_digits)}]"
+
+
+def _encode_devices(frame: DTrackFrame, nums, digits, rot_digits) -> list[str]:
+    """The ``6df2``, ``6dmt2``, ``gl`` and ``st`` lines of :func:`encode_dtrack`."""
+    out = []
+    if frame.flysticks:
+        parts = [f"6df2 {len(frame.flysticks)} {len(frame.flysticks)}"]
+        for f in frame.flysticks:
+            words = " ".join(str(w) for w in _button_words(f.buttons))
+            tail = " ".join(x for x in (words, nums(f.joysticks, 2 if digits else None)) if x)
+            parts.append(
+                f"[{f.id} {_num(f.quality, 3)} {len(f.buttons)} {len(f.joysticks)}]"
+                f"{_pose_blocks(f, nums, digits, rot_digits)}[{tail}]"
+            )
+        out.append(" ".join(parts))
+    if frame.tools:
+        parts = [f"6dmt2 {len(frame.tools)} {len(frame.tools)}"]
+        for t in frame.tools:
+            c = t.position_cov_mm2
+            tri = (c[0], c[1], c[2], c[4], c[5], c[8])
+            words = " ".join(str(w) for w in _button_words(t.buttons))
+            parts.append(
+                f"[{t.id} {_num(t.quality, 3)} {len(t.buttons)} {_num(t.tip_radius_mm, digits)}]"
+                f"{_pose_blocks(t, nums, digits, rot_digits)}[{words}]"
+                f"[{nums(tri, None if digits is None else 6)}]"
+            )
+        out.append(" ".join(parts))
+    if frame.hands:
+        parts = [f"gl {len(frame.hands)}"]
+        for h in frame.hands:
+            text = (
+                f"[{h.id} {_num(h.quality, 3)} {int(h.right)} {len(h.fingers)}]"
+                f"{_pose_blocks(h, nums, digits, rot_digits)}"
+            )
+            for g in h.fingers:
+                ln, an = g.phalanx_mm, g.angles_deg
+                vals = (g.tip_radius_mm, ln[0], an[0], ln[1], an[1], ln[2])
+                text += f"{_pose_blocks(g, nums, digits, rot_digits)}[{nums(vals, digits)}]"
+            parts.append(text)
+        out.append(" ".join(parts))
+    if frame.status is not None:
+        s = frame.status
+        groups = []
+        if s.cameras != -1:
+            groups.append(f"[0 3][{s.cameras} {s.tracked_bodies} {s.tracked_markers}]")
+        if s.camera_errors != -1:
+            groups.append(
+                f"[1 5][{s.camera_errors} {s.camera_warnings} {s.other_errors} "
+                f"{s.other_warnings} {s.infos}]"
+            )
+        if s.camera_status:
+            cams = "".join("[{} {} {} {}]".format(*c) for c in s.camera_status)
+            groups.append(f"[2 {len(s.camera_status)} 3]{cams}")
+        out.append(" ".join([f"st {len(groups)}", *groups]))
+    return out
 
 
 class DayUnwrapper:
@@ -407,7 +746,9 @@ def dtrack_covariance(rotation: np.ndarray, cov: DTrackCovariance) -> np.ndarray
 
 
 def dtrack_pose(body: DTrackBody) -> tuple[np.ndarray, np.ndarray]:
-    """Position [m] (3,) and quaternion ``(x, y, z, w)`` (4,) of a tracked body.
+    """Position [m] (3,) and quaternion ``(x, y, z, w)`` (4,) of a tracked body (or
+    Flystick, tool or hand: anything with ``id``, ``quality``, ``position_mm`` and
+    ``rotation``).
 
     Raises
     ------

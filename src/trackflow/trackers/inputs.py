@@ -109,8 +109,10 @@ class Body:
         self.conv = BoundaryConversion(spec.unit_scale, spec.up)
         self.status = SensorStatus(name, spec.protocol)
         c = self.conv.covariance(self.nominal)
-        #: the nominal covariance in trackflow's frames, exactly symmetric
+        #: the nominal covariance in trackflow's frames, exactly symmetric; read-only, since
+        #: every sample without a covariance of its own shares it
         self.nominal_converted = 0.5 * (c + c.T)
+        self.nominal_converted.flags.writeable = False
         #: nominal position sigma [m] (NatNet's mean marker error is compared with it)
         self.nominal_sigma = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
 
@@ -297,13 +299,20 @@ class LiveInput:
 class DTrackInput(LiveInput):
     """DTrack bodies from the UDP output (``ts2`` latency preferred, else ``ts`` with the
     configured ``latency_ms``); the optional TCP command channel sends
-    ``dtrack2 tracking start``."""
+    ``dtrack2 tracking start``.
+
+    A sensor's ``kind`` picks the line its ``body`` id is looked up in: ``body`` (``6d``,
+    with its ``6dcov`` covariance when sent), ``flystick`` (``6df2``), ``tool`` (``6dmt2``:
+    the tip's position covariance replaces the nominal position block) or ``hand`` (``gl``,
+    the back of the hand). The newest ``st`` line is kept in :attr:`tracker_status`.
+    """
 
     protocol = "dtrack"
 
     def __init__(self, spec):
         super().__init__(spec)
         self.days = dtrack.DayUnwrapper()
+        self.tracker_status: dtrack.DTrackStatus | None = None
 
     def _handle(self, data, arrival_ns):
         f = dtrack.decode_dtrack(data)
@@ -318,18 +327,27 @@ class DTrackInput(LiveInput):
         else:
             raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         t = self._map(stamp + lat, lat, arrival_ns)
-        by_id = {x.id: x for x in f.bodies}
+        if f.status is not None:
+            self.tracker_status = f.status
+        lines = {"body": f.bodies, "flystick": f.flysticks, "tool": f.tools, "hand": f.hands}
+        by_id = {k: {x.id: x for x in v} for k, v in lines.items() if v}
         covs = {x.id: x for x in f.covariances}
 
         def one(b: Body):
-            body = by_id.get(b.options["body"])
+            kind = b.options["kind"]
+            body = by_id.get(kind, {}).get(b.options["body"])
             if body is None:
-                raise PacketError("body not in frame", f"body {b.options['body']}")
+                raise PacketError(f"{kind} not in frame", f"{kind} {b.options['body']}")
             _, q = dtrack.dtrack_pose(body)
-            c = covs.get(body.id)
             cov = None
-            if c is not None:
-                cov = dtrack.dtrack_covariance(np.asarray(body.rotation).reshape(3, 3), c)
+            if kind == "body" and body.id in covs:
+                R = np.asarray(body.rotation).reshape(3, 3)
+                cov = dtrack.dtrack_covariance(R, covs[body.id])
+            elif kind == "tool":
+                cov = np.array(b.nominal)
+                cov[:3, :] = cov[:, :3] = 0.0
+                pc = np.asarray(body.position_cov_mm2).reshape(3, 3)
+                cov[:3, :3] = pc * b.conv.scale**2
             return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
 
         return self._per_body(one)
@@ -374,14 +392,23 @@ class DTrackInput(LiveInput):
 
 class NatNetInput(LiveInput):
     """NatNet rigid bodies: CONNECT/SERVERINFO handshake, MODELDEF for names, unicast
-    KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks."""
+    KEEPALIVE (or multicast), exposure from the mid-exposure and transmit ticks.
+
+    From NatNet 3.0 on, ECHOREQUEST round trips (a few at the start, then one a second)
+    measure the transit delay, which the clock mapping then subtracts
+    (:meth:`ClockMapper.add_round_trip`); a server that does not know them (UNRECOGNIZED)
+    is not asked again."""
 
     protocol = "natnet"
+    #: round trips at the start, then the period between them [s]
+    ECHO_FIRST, ECHO_PERIOD_S = 8, 1.0
 
     def __init__(self, spec):
         super().__init__(spec)
         self.server: natnet.ServerInfo | None = None
         self.models: natnet.ModelDefinitions | None = None
+        self.echo = True  # the server answers echo requests (until it says otherwise)
+        self.echoes_sent = 0
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -402,6 +429,12 @@ class NatNetInput(LiveInput):
                 raise PacketError("no handshake yet", "MODELDEF before SERVERINFO")
             self.models = natnet.decode_model_definitions(payload, self.server.version)
             return []
+        if msg == natnet.ECHORESPONSE:
+            self._round_trip(payload, arrival_ns)
+            return []
+        if msg == natnet.UNRECOGNIZED:
+            self.echo = False  # the only request this client sends that a server may not know
+            return []
         if msg != natnet.FRAMEOFDATA:
             if msg in (natnet.MESSAGESTRING, natnet.RESPONSE, natnet.KEEPALIVE):
                 return []
@@ -413,9 +446,8 @@ class NatNetInput(LiveInput):
             return []
         freq = self.server.clock_frequency
         if natnet.exposure_and_latency(f, freq) is not None:
-            g = 1_000_000_000
-            tx_ns = f.transmit // freq * g + (f.transmit % freq) * g // freq
-            lat_ns = (f.transmit - f.mid_exposure) * g // freq
+            tx_ns = self._ticks_ns(f.transmit)
+            lat_ns = (f.transmit - f.mid_exposure) * 1_000_000_000 // freq
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
         t = self._map(tx_ns, lat_ns, arrival_ns)
@@ -439,6 +471,24 @@ class NatNetInput(LiveInput):
 
         return self._per_body(one)
 
+    def _ticks_ns(self, ticks: int) -> int:
+        """Server clock ticks -> tracker time [ns] (exact integers)."""
+        freq, g = self.server.clock_frequency, 1_000_000_000
+        return ticks // freq * g + (ticks % freq) * g // freq
+
+    def _round_trip(self, payload, arrival_ns: int) -> None:
+        if self.server is None or self.server.clock_frequency is None:
+            raise PacketError("no handshake yet", "ECHORESPONSE before a 3.0+ SERVERINFO")
+        token, ticks = natnet.decode_echo_response(payload)
+        if not self.clock.add_round_trip(token, self._ticks_ns(ticks), arrival_ns):
+            raise PacketError("bad round trip", f"{(arrival_ns - token) * 1e-6:.3f} ms")
+
+    def _echo_due(self, now: float, last: float) -> bool:
+        if not (self.echo and self.server is not None and self.server.clock_frequency):
+            return False
+        period = 0.05 if self.echoes_sent < self.ECHO_FIRST else self.ECHO_PERIOD_S
+        return now - last >= period
+
     def _run(self, sink):
         o = self.options
         server = (o["server"], o["command_port"])
@@ -456,7 +506,7 @@ class NatNetInput(LiveInput):
         sel = selectors.DefaultSelector()
         sel.register(cmd, selectors.EVENT_READ)
         sel.register(data, selectors.EVENT_READ)
-        next_cmd = next_keepalive = 0.0
+        next_cmd = next_keepalive = last_echo = 0.0
         need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
         try:
             while not self._stop.is_set():
@@ -473,6 +523,10 @@ class NatNetInput(LiveInput):
                         # unicast server streams to where it comes from
                         cmd.sendto(natnet.encode_message(natnet.KEEPALIVE), server)
                         next_keepalive = now + 1.0
+                    if self._echo_due(now, last_echo):
+                        cmd.sendto(natnet.encode_echo_request(host_ns()), server)
+                        self.echoes_sent += 1
+                        last_echo = now
                 except OSError:
                     self._event_all("send failed")
                 for key, _ in sel.select(timeout=0.1):
@@ -491,6 +545,10 @@ class NatNetInput(LiveInput):
 
 class VrpnInput(LiveInput):
     """VRPN tracker sensors over TCP (``Name@host[:port]``), reconnecting after errors.
+    ``connect: tcp`` connects to the server's port; ``connect: udp`` is the classic VRPN
+    client: it listens on a TCP port of its own, sends ``"IP PORT\0"`` by UDP to the server's
+    port (repeated every 0.25 s) and accepts the server's connection back, from the server's
+    address only.
     ``clock: map`` estimates the server's clock offset (subtracting ``latency_ms``, the
     server's known exposure-to-send latency); ``clock: host`` trusts the stamps as host
     time (a synchronised clock)."""
@@ -533,12 +591,40 @@ class VrpnInput(LiveInput):
             out.extend(self._per_body(one))
         return out
 
+    def _connect(self, timeout: float) -> socket.socket:
+        """A TCP connection to the server, direct or by UDP connect-back (class docstring)."""
+        if self.options["connect"] == "tcp":
+            return socket.create_connection((self.host, self.port), timeout=timeout)
+        server_ip = socket.gethostbyname(self.host)
+        with (
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ask,
+            socket.socket(socket.AF_INET, socket.SOCK_STREAM) as lst,
+        ):
+            ask.connect((server_ip, self.port))  # no packet: picks the local address to announce
+            lst.bind((ask.getsockname()[0], 0))
+            lst.listen(1)
+            lst.settimeout(0.25)
+            ip, port = lst.getsockname()
+            deadline = time.monotonic() + timeout
+            while not self._stop.is_set() and time.monotonic() < deadline:
+                ask.send(f"{ip} {port}\0".encode("ascii"))
+                try:
+                    conn, peer = lst.accept()
+                except TimeoutError:
+                    continue
+                if peer[0] == server_ip:
+                    conn.settimeout(timeout)
+                    return conn
+                conn.close()  # only the server may connect back
+                self._event_all("connect-back from another host")
+        raise OSError("no connect-back from the VRPN server")
+
     def _run(self, sink):
         timeout = self.options["timeout_ms"] * 1e-3
         devices = sorted({b.spec.vrpn_address[0] for b in self.bodies})
         while not self._stop.is_set():
             try:
-                conn = socket.create_connection((self.host, self.port), timeout=timeout)
+                conn = self._connect(timeout)
             except OSError:
                 self._event_all("connection failed")
                 self.ready.set()

@@ -37,6 +37,8 @@ __all__ = [
     "REQUEST",
     "REQUEST_MODELDEF",
     "RESPONSE",
+    "ECHOREQUEST",
+    "ECHORESPONSE",
     "SERVERINFO",
     "SUPPORTED_VERSIONS",
     "UNRECOGNIZED",
@@ -45,11 +47,14 @@ __all__ = [
     "NatNetRigidBody",
     "RigidBodyDescription",
     "ServerInfo",
+    "decode_echo_response",
     "decode_frame",
     "decode_message",
     "decode_model_definitions",
     "decode_server_info",
     "encode_connect",
+    "encode_echo_request",
+    "encode_echo_response",
     "encode_frame",
     "encode_message",
     "encode_model_definitions",
@@ -59,7 +64,7 @@ __all__ = [
 
 CONNECT, SERVERINFO, REQUEST, RESPONSE = 0, 1, 2, 3
 REQUEST_MODELDEF, MODELDEF, FRAMEOFDATA, MESSAGESTRING = 4, 5, 7, 8
-DISCONNECT, KEEPALIVE, UNRECOGNIZED = 9, 10, 100
+DISCONNECT, KEEPALIVE, ECHOREQUEST, ECHORESPONSE, UNRECOGNIZED = 9, 10, 12, 13, 100
 
 #: (major, minor) versions decoded and encoded here (Motive 1.x-3.1+).
 SUPPORTED_VERSIONS = ((2, 0), (2, 6), (2, 7), (2, 9), (2, 11), (3, 0), (3, 1), (4, 0), (4, 1))
@@ -186,6 +191,28 @@ def encode_connect(version: tuple[int, int, int, int] = (4, 1, 0, 0)) -> bytes:
     (4 bytes) and a NUL, 270 bytes, as the NatNet SDK's 4.1 sample client sends it; older
     servers read only the leading string."""
     return encode_message(CONNECT, b"Ping" + b"\0" * 261 + bytes(version) + b"\0")
+
+
+_ECHO = struct.Struct("<QQ")
+
+
+def encode_echo_request(token: int) -> bytes:
+    """ECHOREQUEST (NatNet 3.0+ clock synchronisation): a u64 the server echoes back; the
+    client sends its own send time [host ns], so the answer needs no bookkeeping."""
+    return encode_message(ECHOREQUEST, struct.pack("<Q", token))
+
+
+def encode_echo_response(token: int, server_ticks: int) -> bytes:
+    """ECHORESPONSE: the request's u64, then the server's high-resolution clock [ticks]
+    when it answered."""
+    return encode_message(ECHORESPONSE, _ECHO.pack(token, server_ticks))
+
+
+def decode_echo_response(payload) -> tuple[int, int]:
+    """``(token, server ticks)`` of an ECHORESPONSE payload (16 bytes; more are ignored)."""
+    if len(payload) < _ECHO.size:
+        raise PacketError("truncated", f"ECHORESPONSE of {len(payload)} bytes, needs 16")
+    return _ECHO.unpack_from(payload, 0)
 
 
 def decode_server_info(payload) -> ServerInfo:

@@ -17,6 +17,9 @@ and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch 
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import math
 import queue
 import threading
 import time
@@ -35,12 +38,13 @@ from ..dataflow import (
     Setup,
 )
 from ..io import RecordingWriter, read_stream
-from ..math import Pose, UncertainPose
+from ..math import Pose, UncertainPose, check_covariance
 from .inputs import LiveInput, Sample, host_ns, make_inputs
 
 __all__ = [
     "LiveSource",
     "ReplayResult",
+    "calm_gc",
     "RunResult",
     "input_paths",
     "replay",
@@ -65,20 +69,55 @@ class LiveSource(Component):
     def reset(self) -> None:
         super().reset()
         self._last_t: int | None = None
+        self._valid_cov = None  # the last read-only covariance found valid (checked once)
 
     def deliver(self, s: Sample) -> UncertainPose | None:
         self.stats.events_in += 1
         if self._last_t is not None and s.t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
             return None
-        try:
-            pose = UncertainPose(Pose(s.position, s.quaternion), s.covariance)
-        except ValueError:
-            self.stats.reject("invalid pose or covariance")
-            return None
+        pose = self._plain_pose(s)
+        if pose is None:  # not plainly valid: the full checks (they may normalise)
+            try:
+                pose = UncertainPose(Pose(s.position, s.quaternion), s.covariance)
+            except ValueError:
+                self.stats.reject("invalid pose or covariance")
+                return None
         self._last_t = s.t_ns
         self.emit(Measurement(s.t_ns, pose, s.t_ns))
         return pose
+
+    def _plain_pose(self, s: Sample) -> UncertainPose | None:
+        """The sample's pose without copies when it is plainly valid (float64 arrays of the
+        right shapes, a finite position, a quaternion of unit norm to rounding and a valid
+        covariance), else ``None``. What :meth:`LiveInput._sample` makes always is; the
+        pose shares the sample's arrays, and a read-only covariance (a body's nominal one)
+        is checked only the first time it is seen."""
+        p, q, c = s.position, s.quaternion, s.covariance
+        if not (
+            type(p) is np.ndarray
+            and type(q) is np.ndarray
+            and type(c) is np.ndarray
+            and p.shape == (3,)
+            and q.shape == (4,)
+            and p.dtype == q.dtype == np.float64
+        ):
+            return None
+        x, y, z = p.tolist()
+        qx, qy, qz, qw = q.tolist()
+        if not (
+            math.isfinite(x + y + z) and abs(qx * qx + qy * qy + qz * qz + qw * qw - 1.0) < 1e-12
+        ):
+            return None
+        if c is not self._valid_cov:
+            try:
+                if check_covariance(c) is not c:
+                    return None
+            except ValueError:
+                return None
+            if not c.flags.writeable:
+                self._valid_cov = c
+        return UncertainPose._trusted(p, q, c)
 
 
 def warm_up(net) -> None:
@@ -93,6 +132,23 @@ def warm_up(net) -> None:
             f.update_pose(0.0, u)
             f.update_pose(0.01, u)
             f.predict(0.02)
+
+
+@contextlib.contextmanager
+def calm_gc():
+    """Within the block, the garbage collector leaves alone everything alive at its start.
+
+    Entered once the network is built and warm: it collects, then freezes every object alive
+    (:func:`gc.freeze`), so that the collections a live run triggers look only at the objects
+    made since (a full collection over the imported modules and compiled kernels would
+    otherwise stall one packet by milliseconds). On exit they are unfrozen again.
+    """
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def input_paths(record, sensor: str) -> tuple[Path, Path]:
@@ -153,12 +209,19 @@ class _Scheduler:
         self.ticks = 0
 
     def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
-        """Decode a packet and queue its samples with strictly increasing dispatch times."""
+        """Decode a packet and queue its samples (one queue item) with strictly increasing
+        dispatch times ``a, a + 1, ...``."""
         with self.lock:
             a = max(stamp, self.last + 1, self.floor)
             pairs = inp.handle(data, a)
-            for k, (bi, s) in enumerate(pairs):
-                self.events.put((a + k, self.names[(id(inp), bi)], s._replace(arrival_ns=a + k)))
+            if pairs:
+                key = id(inp)
+                self.events.put(
+                    [
+                        (self.names[(key, bi)], Sample(s.t_ns, a + k, *s[2:]))
+                        for k, (bi, s) in enumerate(pairs)
+                    ]
+                )
             self.last = a + max(len(pairs) - 1, 0)
 
     def dispatch(self, arrival: int, name: str, s: Sample) -> None:
@@ -193,11 +256,11 @@ class _Scheduler:
             except queue.Empty:
                 item = None
             if item is not None:
-                arrival, name, s = item
-                while next_tick < arrival:  # ticks before it (a sample first at equal times)
-                    self.fire(next_tick)
-                    next_tick += period
-                self.dispatch(arrival, name, s)
+                for name, s in item:  # the samples of one packet
+                    while next_tick < s.arrival_ns:  # ticks before it (a sample first at ties)
+                        self.fire(next_tick)
+                        next_tick += period
+                    self.dispatch(s.arrival_ns, name, s)
                 continue
             if host_ns() >= next_tick:
                 with self.lock:  # no sample stamped before the tick may still be on its way
@@ -292,7 +355,8 @@ def run_live(
             inp.ready.wait(5.0)
         if on_status is not None:
             on_status([f"listening: {', '.join(b.name for b in bodies)}"])
-        sched.loop(next_tick, deadline, stop or threading.Event(), status)
+        with calm_gc():
+            sched.loop(next_tick, deadline, stop or threading.Event(), status)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import heapq
 import socket
+import struct
 import threading
 import time
 from dataclasses import dataclass
@@ -152,7 +153,7 @@ class Simulator:
             except OSError:
                 break
             try:
-                msg, _ = natnet.decode_message(data)
+                msg, payload = natnet.decode_message(data)
             except PacketError:
                 continue
             if msg == natnet.CONNECT:
@@ -163,6 +164,12 @@ class Simulator:
                 self.sock.sendto(natnet.encode_model_definitions(defs, c.version), addr)
             elif msg == natnet.KEEPALIVE:
                 self._clients.add(addr)
+            elif msg == natnet.ECHOREQUEST and c.version >= (3, 0) and len(payload) >= 8:
+                (token,) = struct.unpack_from("<Q", payload)
+                ticks = self.tracker_ns(time.time_ns()) * c.clock_frequency // 1_000_000_000
+                self.sock.sendto(natnet.encode_echo_response(token, ticks), addr)
+            elif msg == natnet.ECHOREQUEST:  # NatNet 2.x: unknown request
+                self.sock.sendto(natnet.encode_message(natnet.UNRECOGNIZED), addr)
 
     def _dtrack_commands(self) -> None:
         while not self.stop.is_set():

@@ -108,6 +108,8 @@ class SensorStatus:
             "clock_offset_ms": None if c is None else c.offset_ns * 1e-6,
             "clock_drift_ppm": None if c is None else c.drift * 1e6,
             "clock_sigma_ms": None if c is None else c.sigma_ns * 1e-6,
+            # the minimum transit delay found by round trips (NatNet echo), subtracted
+            "clock_transit_us": c.transit_ns * 1e-3 if c and c.transit_sigma_ns else None,
             "dropouts": self.dropouts,
             "rejections": dict(sorted(self.rejections.items())),
             "connection": dict(sorted(self.connection.items())),
@@ -120,6 +122,8 @@ class SensorStatus:
         lat = "-" if s["latency_ms_p50"] is None else f"{s['latency_ms_p50']:.2f} ms"
         off = "-" if s["clock_offset_ms"] is None else f"{s['clock_offset_ms']:+.3f} ms"
         sig = "" if s["clock_sigma_ms"] is None else f" +-{s['clock_sigma_ms'] * 1e3:.0f} us"
+        if s["clock_transit_us"] is not None:
+            sig += f" (transit {s['clock_transit_us']:.0f} us)"
         rej = ", ".join(f"{k} {v}" for k, v in s["rejections"].items()) or "0"
         flag = " STALE" if s["stale"] else ""
         conn = ", ".join(f"{k} {v}" for k, v in s["connection"].items())

@@ -84,6 +84,7 @@ KERNELS = (
     "initialize",
     "pose_of",
     "pose_mean_into",
+    "predict_pose_into",
     "predict_pose",
     "smooth",
     "step",
@@ -727,13 +728,25 @@ def pose_mean_into(x, n_dp, n_do, additive, pos, quat):
         quat[0], quat[1], quat[2], quat[3] = 0.0, 0.0, 0.0, 1.0
 
 
-def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
-    """Pose part of the prediction over ``dt``: ``(t, q, C)`` as :func:`pose_of` of
-    :func:`predict`, computing only the pose rows of ``A P A^T + Q``."""
+#: Length of :func:`predict_pose_into`'s output: position (3), quaternion (4), covariance (36).
+POSE_OUT = 43
+
+
+def predict_pose_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out):
+    """:func:`predict_pose` written into ``out`` (:data:`POSE_OUT`,): position, quaternion
+    ``(x, y, z, w)`` and the 6x6 covariance row by row (one array to return to Python
+    instead of three)."""
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    pos = out[:3]
+    q = out[3:7]
+    c = out[7:POSE_OUT].reshape((6, 6))
     if additive:
         xn, pn = predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
-        return pose_of(xn, pn, n_dp, n_do, additive)
+        t3, q4, c6 = pose_of(xn, pn, n_dp, n_do, additive)
+        pos[:] = t3
+        q[:] = q4
+        c[:, :] = c6
+        return
     xn, a = transition(x, dt, n_dp, n_do, additive)
     qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
     qo = 3 * npl
@@ -748,7 +761,6 @@ def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
             if v != 0.0:
                 for j in range(nc):
                     t[r, j] += v * p[k, j]
-    c = np.zeros((6, 6))
     for r in range(6):
         for col in range(r, 6):
             w = qm[sel[r], sel[col]]
@@ -756,8 +768,9 @@ def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
                 w += t[r, k] * a[sel[col], k]
             c[r, col] = w
             c[col, r] = w
-    pos = np.zeros(3)
-    q = np.zeros(4)
+    for k in range(3):
+        pos[k] = 0.0
+        q[k] = 0.0
     q[3] = 1.0
     if npl > 0:
         pos[:] = xn[:3]
@@ -775,7 +788,14 @@ def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
                 c[k, j] = 0.0
                 c[j, k] = 0.0
             c[k, k] = UNKNOWN_VARIANCE
-    return pos, q, c
+
+
+def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
+    """Pose part of the prediction over ``dt``: ``(t, q, C)`` as :func:`pose_of` of
+    :func:`predict`, computing only the pose rows of ``A P A^T + Q``."""
+    out = np.empty(POSE_OUT)
+    predict_pose_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out)
+    return out[:3], out[3:7], out[7:POSE_OUT].reshape((6, 6))
 
 
 def smooth(x0, p0, t0, x1, p1, t1, t, n_dp, n_do, additive, kind, sig_p, sig_o):

@@ -33,6 +33,13 @@ _PRIOR_SIGMA_RATE = 10.0  # rad/s, rad/s^2, ...
 _SEGMENT_START = (FilterStatus.INITIALIZED, FilterStatus.RESET, FilterStatus.DIVERGED)
 
 
+def _own(a) -> np.ndarray:
+    """A float array copy of ``a`` (the log keeps measurements for re-filtering)."""
+    if type(a) is np.ndarray and a.dtype == np.float64:
+        return a.copy()
+    return np.array(a, dtype=float)
+
+
 class _Entry:
     """One logged measurement and the filter state right after it."""
 
@@ -281,14 +288,14 @@ class PoseKalmanFilter(FilterClock):
         t = float(t)
         if not math.isfinite(t):
             raise ValueError(f"measurement time must be finite, got {t}")
-        e = _Entry(t, lp, lo, np.array(zp, dtype=float), np.array(zo, dtype=float), np.array(r), fn)
+        e = _Entry(t, lp, lo, _own(zp), _own(zo), _own(r), fn)
         self._smooth_cache = {}
         if self._t is None or t >= self._t:
             self._apply(e)
             self._log.append(e)
             self._times.append(t)
             self._prune()
-            return e.status != FilterStatus.GATED
+            return e.status != gating.GATED
         oldest = self._base.t if self._base is not None else -math.inf
         if t < self._t - self._history or t < oldest:
             self._counts["rejected_old"] += 1
@@ -374,7 +381,7 @@ class PoseKalmanFilter(FilterClock):
                 e.lp, e.lo, e.zp, e.zo, e.r, gate, self._wmax,
             )  # fmt: skip
             e.status, e.nis = int(status), float(nis)
-            if status == FilterStatus.DIVERGED:
+            if e.status == gating.DIVERGED:
                 self._reinit(e, "singular innovation covariance or non-finite state")
             self._gated_run = gating.next_gated_run(e.status, self._gated_run)
         self._t = e.t
@@ -464,11 +471,9 @@ class PoseKalmanFilter(FilterClock):
         identity with variance 1e12.
         """
         if self._t is not None and t >= self._t:  # fast path: only the pose rows
-            n_dp, n_do, add, kind, sp, so = self._params
-            pos, q, c = kernels().predict_pose(
-                self._x, self._p, float(t) - self._t, n_dp, n_do, add, kind, sp, so
-            )
-        else:
-            x, p = self.predict_state(t)
-            pos, q, c = kernels().pose_of(x, p, *self._params[:3])
+            out = np.empty(_source.POSE_OUT)
+            kernels().predict_pose_into(self._x, self._p, float(t) - self._t, *self._params, out)
+            return UncertainPose._trusted(out[:3], out[3:7], out[7:].reshape(6, 6))
+        x, p = self.predict_state(t)
+        pos, q, c = kernels().pose_of(x, p, *self._params[:3])
         return UncertainPose._trusted(pos, q, c)
