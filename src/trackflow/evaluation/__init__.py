@@ -28,6 +28,7 @@ from ._predictor import (
     default_predictor,
     estimate_noise,
 )
+from ._shrinkage import ShrunkPredictor, apply_shrinkage, fit_shrinkage, shrinkage_factors
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
@@ -38,6 +39,10 @@ __all__ = [
     "ALIGNMENTS",
     "CompareResult",
     "Stats",
+    "ShrunkPredictor",
+    "apply_shrinkage",
+    "fit_shrinkage",
+    "shrinkage_factors",
     "associate",
     "compare_trajectories",
     "umeyama",
