@@ -193,9 +193,9 @@ def evaluate_recording(
     The first ``tune_fraction`` of the duration is used by :func:`tune_model`; the prediction
     errors (:func:`evaluate_predictors`) are scored only from there on, so the figures are
     cross-validated. The tuned filter's predicted change is scaled per horizon
-    (:func:`~trackflow.evaluation.fit_shrinkage`, fitted on the tuning part) so that it is never
-    worse than holding the last sample there. ``tune_fraction = 0`` skips tuning, uses ``predictor`` (default
-    :func:`default_predictor`) and scores the whole recording.
+    (:func:`~trackflow.evaluation.fit_shrinkage`, fitted on the tuning part) so that it is
+    never worse than holding the last sample there. ``tune_fraction = 0`` skips tuning, uses
+    ``predictor`` (default :func:`default_predictor`) and scores the whole recording.
 
     Parameters
     ----------
