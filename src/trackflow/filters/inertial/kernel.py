@@ -421,7 +421,9 @@ def run_events(
     ----------
     kind : int8 (E,)
         0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it),
-        3 = IMU sample whose accelerometer is fused as gravity (IMU-only orientation).
+        3 = IMU sample whose accelerometer is fused as gravity (IMU-only orientation),
+        4 = query: predict ``horizons`` after the event's time from the current state (no
+        state change; output row ``idx``).
     t : float (E,)
         Event times [s].
     idx : int (E,)
@@ -483,6 +485,15 @@ def run_events(
                 r, nis, ok = update_gravity(x, r, P, r.T @ alp, g, grav_sigma, gate, n)
                 alp = (r @ r_old.T) @ alp
                 out_r[0, i] = r @ r_sb
+        elif k == 4:
+            if last < 0:
+                continue
+            j = idx[e]
+            for hh in range(horizons.shape[0]):
+                predict_ahead(
+                    x, r, trend, use_slope, coef, wbuf, coef_a, abuf,
+                    horizons[hh] + (te - t_state), hh, r_sb, t_sb, out_p[hh, j], out_r[hh, j],
+                )  # fmt: skip
         else:
             if last < 0:
                 continue
