@@ -26,7 +26,13 @@ from ..math import quat_conjugate, quat_exp, quat_log, quat_multiply
 from ._prediction import Prediction, Predictor, positive_horizons
 from ._trajectory import Trajectory
 
-__all__ = ["ShrunkPredictor", "apply_shrinkage", "fit_shrinkage", "shrinkage_factors"]
+__all__ = [
+    "ShrunkPredictor",
+    "apply_shrinkage",
+    "change_factors",
+    "fit_shrinkage",
+    "shrinkage_factors",
+]
 
 
 @dataclass(frozen=True)
@@ -121,44 +127,54 @@ def apply_shrinkage(position, quaternion, pp, pq, lam_p, lam_o) -> tuple:
     return out_p, out_q
 
 
-def shrinkage_factors(recording: Trajectory, prediction: Prediction, horizons,
-                      rows=None) -> tuple[tuple, tuple]:  # fmt: skip
-    """Least-squares ``lambda`` in ``[0, 1]`` per horizon for position and orientation.
+def change_factors(position, quaternion, pp, pq, tp, tq, masks) -> tuple[tuple, tuple]:
+    """Least-squares ``lambda`` in ``[0, 1]`` per horizon and part, for any reference poses.
 
     Parameters
     ----------
-    recording : Trajectory
-        The samples the predictions were made from; targets are ``recording.target(h)``.
-    prediction : Prediction
-        Predictions (H, N, ...) ``horizons`` after each sample; non-finite rows are skipped.
-    horizons : array_like (H,)
-        [s].
-    rows : array_like of bool (N,), optional
-        Samples to fit on (default all scored ones).
+    position, quaternion : array_like (N, 3), (N, 4)
+        The poses the predicted change is measured from (the samples, or a filter's current
+        estimate).
+    pp, pq : array_like (H, N, 3), (H, N, 4)
+        Predictions.
+    tp, tq : array_like (H, N, 3), (H, N, 4)
+        Their targets.
+    masks : array_like of bool (H, N)
+        Rows to fit on per horizon (rows with non-finite predictions are skipped anyway).
 
     Returns
     -------
     (lambda_p, lambda_o) : two tuples of H floats
         ``argmin_l sum |l d - y|^2`` clipped to ``[0, 1]``, with ``d`` the predicted and ``y``
-        the true change from the sample (metres; body-frame rotation vector, radians); 1 where
-        nothing was predicted to change.
+        the true change from the reference (metres; body-frame rotation vector, radians); 1
+        where nothing was predicted to change.
     """
-    r = recording
+    p = np.asarray(position, dtype=float)
+    q = np.asarray(quaternion, dtype=float)
     lp, lo = [], []
-    for i, h in enumerate(np.asarray(horizons, dtype=float).reshape(-1)):
-        pp, pq = prediction.position[i], prediction.quaternion[i]
-        m = r.scored(h) & np.all(np.isfinite(pp), axis=1) & np.all(np.isfinite(pq), axis=1)
-        if rows is not None:
-            m &= np.asarray(rows, dtype=bool)
-        tp, tq = r.target(h)
-        qi = quat_conjugate(r.quaternion[m])
-        d_pos, true_pos = pp[m] - r.position[m], tp[m] - r.position[m]
-        d_ori = quat_log(quat_multiply(qi, pq[m]))
-        true_ori = quat_log(quat_multiply(qi, tq[m]))
+    for i in range(len(masks)):
+        m = np.asarray(masks[i], dtype=bool) & np.all(np.isfinite(pp[i]), axis=1)
+        m &= np.all(np.isfinite(pq[i]), axis=1)
+        qi = quat_conjugate(q[m])
+        d_pos, true_pos = pp[i][m] - p[m], tp[i][m] - p[m]
+        d_ori = quat_log(quat_multiply(qi, pq[i][m]))
+        true_ori = quat_log(quat_multiply(qi, tq[i][m]))
         for d, y, out in ((d_pos, true_pos, lp), (d_ori, true_ori, lo)):
             den = float(np.sum(d * d))
             out.append(float(np.clip(np.sum(d * y) / den, 0.0, 1.0)) if den > 0 else 1.0)
     return tuple(lp), tuple(lo)
+
+
+def shrinkage_factors(recording: Trajectory, prediction: Prediction, horizons) -> tuple:
+    """:func:`change_factors` of predictions ``horizons`` [s] (H,) after every sample of
+    ``recording``, against ``recording.target(h)`` on its scored samples."""
+    r = recording
+    h = np.asarray(horizons, dtype=float).reshape(-1)
+    targets = [r.target(v) for v in h]
+    return change_factors(
+        r.position, r.quaternion, prediction.position, prediction.quaternion,
+        [tg[0] for tg in targets], [tg[1] for tg in targets], [r.scored(v) for v in h],
+    )  # fmt: skip
 
 
 def fit_shrinkage(recording: Trajectory, predictor: Predictor, horizons) -> ShrunkPredictor:
