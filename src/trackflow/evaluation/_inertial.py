@@ -32,7 +32,7 @@ from ..filters.inertial import (
     run_inertial,
     world_acceleration,
 )
-from ..math import quat_slerp
+from ..math import quat_conjugate, quat_multiply, quat_slerp
 from ._baselines import LinearPredictor, NoPredictor
 from ._evaluate import PredictionReport
 from ._metrics import error_stats, pose_errors
@@ -49,6 +49,7 @@ __all__ = [
     "ImuSamples",
     "InertialPredictor",
     "TrackerTrajectory",
+    "earth_frame_errors",
     "evaluate_with_imu",
     "thin_poses",
     "tune_inertial",
@@ -452,6 +453,45 @@ def _score_at_poses(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     return _stats(runs, masks, [thin.target(v) for v in h], h), imu_shrunk.shrinkage_dict()
 
 
+def predict_from_last_pose(predictor, recording: Trajectory, k, age, horizons, step: float):
+    """A pose-only predictor asked at times after its samples: from sample ``k[i]`` over
+    ``horizons + age[i]``.
+
+    The predictor runs once at the horizons ``h + j * step`` (``j = 0, 1, ..``, enough to
+    cover the largest age); each answer interpolates between the two bracketing horizons
+    (linear position, slerp), exact for constant-rate extrapolations.
+
+    Parameters
+    ----------
+    predictor : Predictor
+    recording : Trajectory
+        The samples the predictor sees.
+    k : ndarray of int (Q,)
+        Newest sample of each query.
+    age : ndarray (Q,)
+        Query time minus ``t[k]`` [s], >= 0.
+    horizons : ndarray (H,)
+        [s] after the query time.
+    step : float
+        Grid spacing [s].
+
+    Returns
+    -------
+    Prediction
+        (H, Q, ...) arrays.
+    """
+    h = np.asarray(horizons, dtype=float).reshape(-1)
+    n_grid = int(np.ceil(np.max(age, initial=0.0) / step)) + 2
+    grid = (h[:, None] + step * np.arange(n_grid)[None, :]).reshape(-1)
+    j = np.clip(np.floor(age / step).astype(int), 0, n_grid - 2)
+    s = np.clip(age / step - j, 0.0, 1.0)
+    g = predictor.predict(recording, grid)
+    gp = g.position.reshape(h.shape[0], n_grid, len(recording), 3)
+    gq = g.quaternion.reshape(h.shape[0], n_grid, len(recording), 4)
+    pp = gp[:, j, k] + s[None, :, None] * (gp[:, j + 1, k] - gp[:, j, k])
+    return Prediction(pp, quat_slerp(gq[:, j, k], gq[:, j + 1, k], s[None, :]), g.n_gated)
+
+
 def _score_anytime(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     """Origins at every full-rate sample time: each predictor answers from the data it has.
 
@@ -469,20 +509,10 @@ def _score_anytime(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     fresh = have & (age <= thin.gap_s) & (np.diff(thin.t, prepend=-np.inf)[k] <= thin.gap_s)
     masks = [scored_mask(tau, v, truth.gap_s) & fresh for v in h]
     targets = [truth.target(v) for v in h]
-    # pose-only: a grid of horizons h + j * step covering every age, interpolated per origin
-    step = truth.step
-    n_grid = int(np.ceil(np.max(age[fresh], initial=0.0) / step)) + 2
-    grid = (h[:, None] + step * np.arange(n_grid)[None, :]).reshape(-1)
-    j = np.clip(np.floor(age / step).astype(int), 0, n_grid - 2)
-    s = np.clip(age / step - j, 0.0, 1.0)
-    runs = {}
-    for name, pred in (("kalman", kalman), ("linear", LinearPredictor()), ("none", NoPredictor())):
-        g = pred.predict(thin, grid)
-        gp = g.position.reshape(len(h), n_grid, len(thin), 3)
-        gq = g.quaternion.reshape(len(h), n_grid, len(thin), 4)
-        pp = gp[:, j, k] + s[None, :, None] * (gp[:, j + 1, k] - gp[:, j, k])
-        pq = quat_slerp(gq[:, j, k], gq[:, j + 1, k], s[None, :])
-        runs[name] = Prediction(pp, pq)
+    step, age = truth.step, np.where(fresh, age, 0.0)  # unscored origins: no long grid
+    runs = {name: predict_from_last_pose(pred, thin, k, age, h, step)
+            for name, pred in (("kalman", kalman), ("linear", LinearPredictor()),
+                               ("none", NoPredictor()))}  # fmt: skip
     # IMU: predictions and the current estimate at every origin, shrunk towards the estimate
     raw = imu_pred.predict_at(thin, tau, np.concatenate([[0.0], h]))
     now_p, now_q = raw.position[0], raw.quaternion[0]
@@ -494,3 +524,48 @@ def _score_anytime(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     masks = [m & (tau > split) for m in masks]
     shrink = ShrunkPredictor(imu_pred, tuple(h.tolist()), *lam).shrinkage_dict()
     return _stats(runs, masks, targets, h), {**shrink, "towards": "current estimate"}
+
+
+def earth_frame_errors(q_est, q_ref, mask=None) -> dict:
+    """Orientation errors split like the BROAD benchmark (Laidig et al., 2021), in degrees.
+
+    The error rotation in the earth frame is ``q_e = q_est q_ref^*`` (both ``R_earth_sensor``,
+    z up). Its angle is the total error; the part about the vertical axis is the heading
+    error, ``2 atan(|q_e,z| / |q_e,w|)``; the rest is the inclination error,
+    ``2 acos(sqrt(q_e,w^2 + q_e,z^2))``. Estimators without a magnetometer (6D) cannot know
+    heading, so their figure of merit is the inclination error.
+
+    Parameters
+    ----------
+    q_est, q_ref : array_like (N, 4)
+        ``(x, y, z, w)``; rows where either is not finite are skipped.
+    mask : array_like of bool (N,), optional
+        Samples to score (BROAD's ``movement``).
+
+    Returns
+    -------
+    dict
+        ``total_rmse_deg``, ``heading_rmse_deg``, ``inclination_rmse_deg``, ``n``.
+    """
+    a = np.asarray(q_est, dtype=float)
+    b = np.asarray(q_ref, dtype=float)
+    ok = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(a), axis=1)
+    if mask is not None:
+        ok &= np.asarray(mask, dtype=bool).reshape(-1)
+    a = a[ok] / np.linalg.norm(a[ok], axis=1, keepdims=True)
+    b = b[ok] / np.linalg.norm(b[ok], axis=1, keepdims=True)
+    e = quat_multiply(a, quat_conjugate(b))
+    w, z = np.abs(e[:, 3]), e[:, 2]
+    total = 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
+    heading = 2.0 * np.arctan2(np.abs(z), w)
+    incl = 2.0 * np.arccos(np.clip(np.sqrt(w**2 + z**2), 0.0, 1.0))
+
+    def rms(v):
+        return float(np.degrees(np.sqrt(np.mean(v**2)))) if v.size else float("nan")
+
+    return {
+        "total_rmse_deg": rms(total),
+        "heading_rmse_deg": rms(heading),
+        "inclination_rmse_deg": rms(incl),
+        "n": int(ok.sum()),
+    }
