@@ -25,7 +25,7 @@ def _recording(seed=0, seconds=6.0, pose_every=10):
 
 
 C = np.diag([1e-6] * 3 + [1e-5] * 3)
-MODEL = InertialModel(mode="gyro", noise=ImuNoise(gyro=5e-3, accel=1.0), smoothing_s=0.02)
+MODEL = InertialModel(mode="gyro", noise=ImuNoise(gyro=5e-3, accel=1.0))
 H = (0.0, 0.05)
 
 
@@ -56,7 +56,8 @@ def test_queries_use_exactly_the_data_up_to_their_time():
     for h in H:
         np.testing.assert_allclose(res.predictions[h][0][: i + 1], ref.predictions[h][0][: i + 1])
         assert not np.allclose(res.predictions[h][0][i + 20], ref.predictions[h][0][i + 20])
-    # a query between IMU samples predicts from the last one, over the extra time
+    # a query between IMU samples predicts from the last one, over the extra time (the
+    # sample held, as the default prediction does)
     last = ti[np.searchsorted(ti, tq[i], side="right") - 1]
     at_last = run_inertial(ti, w, a, tp, p, q, C, MODEL, (0.05 + tq[i] - last,),
                            query_t=[last])  # fmt: skip

@@ -422,8 +422,9 @@ def run_events(
     kind : int8 (E,)
         0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it),
         3 = IMU sample whose accelerometer is fused as gravity (IMU-only orientation),
-        4 = query: predict ``horizons`` after the event's time from the current state (no
-        state change; output row ``idx``).
+        4 = query: predict ``horizons`` after the event's time from a copy of the state
+        brought to that time with the last IMU sample held (no state change; output row
+        ``idx``).
     t : float (E,)
         Event times [s].
     idx : int (E,)
@@ -489,10 +490,14 @@ def run_events(
             if last < 0:
                 continue
             j = idx[e]
+            # a copy of the state brought to the query time with the last IMU sample held (as
+            # before a pose update), then the usual prediction from there
+            xq = x.copy()
+            rq = propagate(xq, r, P.copy(), gyro[last], accel[last], te - t_state, g, noise, n)
             for hh in range(horizons.shape[0]):
                 predict_ahead(
-                    x, r, trend, use_slope, coef, wbuf, coef_a, abuf,
-                    horizons[hh] + (te - t_state), hh, r_sb, t_sb, out_p[hh, j], out_r[hh, j],
+                    xq, rq, trend, use_slope, coef, wbuf, coef_a, abuf, horizons[hh], hh,
+                    r_sb, t_sb, out_p[hh, j], out_r[hh, j],
                 )  # fmt: skip
         else:
             if last < 0:
