@@ -63,6 +63,14 @@ def test_pose_rate_without_imu_is_an_error(broad_slice, capsys):
     assert "--pose-rate needs --imu" in capsys.readouterr().err
 
 
+def test_an_imu_recording_of_another_session_is_an_error(broad_slice, shared_data, capsys):
+    other = shared_data / "euroc" / "V1_01_easy_imu0.csv"  # nanosecond stamps of 2014
+    if not other.is_file():
+        pytest.skip(f"{other} not present")
+    assert main(["evaluate", str(broad_slice), "--imu", str(other), "--quiet"]) == 1
+    assert "overlap" in capsys.readouterr().err
+
+
 def test_thin_poses_picks_one_sample_per_tick():
     t = np.arange(0, 1.0, 1 / 285.714)
     idx = thin_poses(t, 60.0)

@@ -399,14 +399,15 @@ def evaluate_with_imu(
         raise ValueError(f"tune_fraction {tune_fraction} leaves too few poses on one side")
     tuning_poses = thin.select(train)
 
+    # the IMU: clock, mounting and gravity from the tuning part (first: it fails fast on an
+    # IMU recording that does not belong to the poses)
+    offset, imu, base, sigma = _calibrate(truth.select(truth.t <= split), imu, mode, noise,
+                                          clock_offset_s, extrinsics)  # fmt: skip
     # pose only: the PoseTool's tuned filter on the thinned tracker, shrunk per horizon
     res = tune_model(tuning_poses, th, ar_orders=ar_orders, check_horizons=h,
                      progress=progress)  # fmt: skip
     kalman = fit_shrinkage(tuning_poses, res.predictor, h)
-
-    # the IMU: clock, mounting, gravity and noise from the tuning part
-    offset, imu, base, sigma = _calibrate(truth.select(truth.t <= split), imu, mode, noise,
-                                          clock_offset_s, extrinsics)  # fmt: skip
+    # the IMU filter's noise and prediction
     model = tune_inertial(tuning_poses, imu.until(split), base, sigma, th, h)
     imu_pred = InertialPredictor(model, imu, sigma)
 
