@@ -14,10 +14,10 @@ from trackflow.evaluation import (
     TrackerTrajectory,
     Trajectory,
     earth_frame_errors,
+    predict_from_last_pose,
     predict_linear,
     thin_poses,
 )
-from trackflow.evaluation._inertial import predict_from_last_pose
 from trackflow.math import quat_angle, quat_exp, quat_multiply
 
 

@@ -16,13 +16,10 @@ from ._inertial import (
     ORIGINS,
     ImuSamples,
     InertialPredictor,
-    TrackerTrajectory,
-    earth_frame_errors,
     evaluate_with_imu,
-    thin_poses,
     tune_inertial,
 )
-from ._metrics import ErrorStats, error_stats, pose_errors
+from ._metrics import ErrorStats, earth_frame_errors, error_stats, pose_errors
 from ._model_file import (
     FilterRun,
     filter_stream,
@@ -48,6 +45,7 @@ from ._shrinkage import (
     shrinkage_factors,
 )
 from ._targets import default_gap, interpolate_poses, scored_mask
+from ._thinned import TrackerTrajectory, predict_from_last_pose, thin_poses
 from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 from ._warmup import compile_kernels
@@ -62,6 +60,7 @@ __all__ = [
     "earth_frame_errors",
     "evaluate_with_imu",
     "thin_poses",
+    "predict_from_last_pose",
     "tune_inertial",
     "change_factors",
     "ALIGNMENTS",

@@ -32,14 +32,14 @@ from ..filters.inertial import (
     run_inertial,
     world_acceleration,
 )
-from ..math import quat_conjugate, quat_multiply, quat_slerp
 from ._baselines import LinearPredictor, NoPredictor
 from ._evaluate import PredictionReport
 from ._metrics import error_stats, pose_errors
 from ._prediction import Prediction, positive_horizons, stack_predictions
 from ._predictor import estimate_noise
 from ._shrinkage import ShrunkPredictor, apply_shrinkage, change_factors, fit_shrinkage
-from ._targets import default_gap, interpolate_poses, scored_mask
+from ._targets import scored_mask
+from ._thinned import TrackerTrajectory, predict_from_last_pose
 from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, tune_model
 
@@ -48,10 +48,7 @@ __all__ = [
     "ORIGINS",
     "ImuSamples",
     "InertialPredictor",
-    "TrackerTrajectory",
-    "earth_frame_errors",
     "evaluate_with_imu",
-    "thin_poses",
     "tune_inertial",
 ]
 
@@ -98,66 +95,6 @@ class ImuSamples(NamedTuple):
         """The samples at or before ``t_end`` [s]."""
         n = int(np.searchsorted(self.t, t_end, side="right"))
         return ImuSamples(self.t[:n], self.gyro[:n], self.accel[:n])
-
-
-def thin_poses(t, rate_hz: float | None) -> np.ndarray:
-    """Indices of the samples a tracker at ``rate_hz`` would deliver: the first sample at or
-    after each tick ``t[0] + k / rate_hz`` (all samples when ``rate_hz`` is ``None``)."""
-    t = np.asarray(t, dtype=float)
-    if rate_hz is None:
-        return np.arange(t.shape[0])
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"pose rate must be a positive number of Hz, got {rate_hz!r}")
-    ticks = t[0] + np.arange(0.0, t[-1] - t[0] + 1e-12, 1.0 / rate_hz)
-    return np.unique(np.searchsorted(t, ticks - 1e-9, side="left").clip(0, t.shape[0] - 1))
-
-
-@dataclass(frozen=True)
-class TrackerTrajectory(Trajectory):
-    """The poses a (slower) tracker delivers, scored against the full-rate recording.
-
-    A :class:`Trajectory` whose targets are ``truth`` interpolated ``h`` after each sample
-    (not the tracker's own samples), and whose scored samples also need ``truth`` to have no
-    gap at the target. Tuning, shrinkage fitting and scoring all see these targets.
-
-    Attributes
-    ----------
-    truth : Trajectory
-        The full-rate recording.
-    """
-
-    truth: Trajectory | None = None
-
-    @classmethod
-    def thinned(cls, truth: Trajectory, rate_hz: float | None) -> TrackerTrajectory:
-        """``truth`` thinned to ``rate_hz`` (:func:`thin_poses`); gap threshold the larger
-        of the thinned stream's default and the truth's."""
-        sel = thin_poses(truth.t, rate_hz)
-        if sel.shape[0] < 4:
-            raise ValueError(f"only {sel.shape[0]} poses at {rate_hz} Hz")
-        gap = max(default_gap(truth.t[sel]), truth.gap_s)
-        return cls(truth.t[sel], truth.position[sel], truth.quaternion[sel], gap, truth=truth)
-
-    def select(self, rows) -> TrackerTrajectory:
-        return TrackerTrajectory(self.t[rows], self.position[rows], self.quaternion[rows],
-                                 self.gap_s, truth=self.truth)  # fmt: skip
-
-    def scored(self, horizon: float) -> np.ndarray:
-        def make():
-            tt = self.truth.t
-            tq = self.t + horizon
-            j = np.clip(np.searchsorted(tt, tq, side="left"), 1, tt.shape[0] - 1)
-            ok = (tt[j] - tt[j - 1] <= self.truth.gap_s) & (tq <= tt[-1])
-            return scored_mask(self.t, horizon, self.gap_s) & ok
-
-        return self._cached(("scored", float(horizon)), make)
-
-    def target(self, horizon: float) -> tuple[np.ndarray, np.ndarray]:
-        tr = self.truth
-        return self._cached(
-            ("target", float(horizon)),
-            lambda: interpolate_poses(tr.t, tr.position, tr.quaternion, self.t + horizon),
-        )
 
 
 @dataclass(frozen=True)
@@ -454,45 +391,6 @@ def _score_at_poses(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     return _stats(runs, masks, [thin.target(v) for v in h], h), imu_shrunk.shrinkage_dict()
 
 
-def predict_from_last_pose(predictor, recording: Trajectory, k, age, horizons, step: float):
-    """A pose-only predictor asked at times after its samples: from sample ``k[i]`` over
-    ``horizons + age[i]``.
-
-    The predictor runs once at the horizons ``h + j * step`` (``j = 0, 1, ..``, enough to
-    cover the largest age); each answer interpolates between the two bracketing horizons
-    (linear position, slerp), exact for constant-rate extrapolations.
-
-    Parameters
-    ----------
-    predictor : Predictor
-    recording : Trajectory
-        The samples the predictor sees.
-    k : ndarray of int (Q,)
-        Newest sample of each query.
-    age : ndarray (Q,)
-        Query time minus ``t[k]`` [s], >= 0.
-    horizons : ndarray (H,)
-        [s] after the query time.
-    step : float
-        Grid spacing [s].
-
-    Returns
-    -------
-    Prediction
-        (H, Q, ...) arrays.
-    """
-    h = np.asarray(horizons, dtype=float).reshape(-1)
-    n_grid = int(np.ceil(np.max(age, initial=0.0) / step)) + 2
-    grid = (h[:, None] + step * np.arange(n_grid)[None, :]).reshape(-1)
-    j = np.clip(np.floor(age / step).astype(int), 0, n_grid - 2)
-    s = np.clip(age / step - j, 0.0, 1.0)
-    g = predictor.predict(recording, grid)
-    gp = g.position.reshape(h.shape[0], n_grid, len(recording), 3)
-    gq = g.quaternion.reshape(h.shape[0], n_grid, len(recording), 4)
-    pp = gp[:, j, k] + s[None, :, None] * (gp[:, j + 1, k] - gp[:, j, k])
-    return Prediction(pp, quat_slerp(gq[:, j, k], gq[:, j + 1, k], s[None, :]), g.n_gated)
-
-
 def _score_anytime(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     """Origins at every full-rate sample time: each predictor answers from the data it has.
 
@@ -525,48 +423,3 @@ def _score_anytime(thin: TrackerTrajectory, split, h, kalman, imu_pred):
     masks = [m & (tau > split) for m in masks]
     shrink = ShrunkPredictor(imu_pred, tuple(h.tolist()), *lam).shrinkage_dict()
     return _stats(runs, masks, targets, h), {**shrink, "towards": "current estimate"}
-
-
-def earth_frame_errors(q_est, q_ref, mask=None) -> dict:
-    """Orientation errors split like the BROAD benchmark (Laidig et al., 2021), in degrees.
-
-    The error rotation in the earth frame is ``q_e = q_est q_ref^*`` (both ``R_earth_sensor``,
-    z up). Its angle is the total error; the part about the vertical axis is the heading
-    error, ``2 atan(|q_e,z| / |q_e,w|)``; the rest is the inclination error,
-    ``2 acos(sqrt(q_e,w^2 + q_e,z^2))``. Estimators without a magnetometer (6D) cannot know
-    heading, so their figure of merit is the inclination error.
-
-    Parameters
-    ----------
-    q_est, q_ref : array_like (N, 4)
-        ``(x, y, z, w)``; rows where either is not finite are skipped.
-    mask : array_like of bool (N,), optional
-        Samples to score (BROAD's ``movement``).
-
-    Returns
-    -------
-    dict
-        ``total_rmse_deg``, ``heading_rmse_deg``, ``inclination_rmse_deg``, ``n``.
-    """
-    a = np.asarray(q_est, dtype=float)
-    b = np.asarray(q_ref, dtype=float)
-    ok = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(a), axis=1)
-    if mask is not None:
-        ok &= np.asarray(mask, dtype=bool).reshape(-1)
-    a = a[ok] / np.linalg.norm(a[ok], axis=1, keepdims=True)
-    b = b[ok] / np.linalg.norm(b[ok], axis=1, keepdims=True)
-    e = quat_multiply(a, quat_conjugate(b))
-    w, z = np.abs(e[:, 3]), e[:, 2]
-    total = 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
-    heading = 2.0 * np.arctan2(np.abs(z), w)
-    incl = 2.0 * np.arccos(np.clip(np.sqrt(w**2 + z**2), 0.0, 1.0))
-
-    def rms(v):
-        return float(np.degrees(np.sqrt(np.mean(v**2)))) if v.size else float("nan")
-
-    return {
-        "total_rmse_deg": rms(total),
-        "heading_rmse_deg": rms(heading),
-        "inclination_rmse_deg": rms(incl),
-        "n": int(ok.sum()),
-    }
