@@ -3,13 +3,22 @@
 A recording is checked once into a :class:`Trajectory` (times, positions, quaternions, gap
 threshold) that every step takes. ``evaluate_recording`` tunes on the first part of it and
 scores the tuned Kalman predictor, linear extrapolation and no prediction on the rest (thesis
-tables 9.2-9.5); each is a :class:`Predictor`.
-See ``docs/posetool.md``.
+tables 9.2-9.5); each is a :class:`Predictor`. ``evaluate_with_imu`` adds an IMU-aided
+predictor (``kalman_imu``) on a thinned pose stream. See ``docs/posetool.md`` and
+``docs/inertial.md``.
 """
 
 from ._baselines import LinearPredictor, NoPredictor, predict_linear, predict_none
 from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories, umeyama
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
+from ._inertial import (
+    IMU_PREDICTORS,
+    ORIGINS,
+    ImuSamples,
+    InertialPredictor,
+    evaluate_with_imu,
+    tune_inertial,
+)
 from ._metrics import ErrorStats, error_stats, pose_errors
 from ._model_file import (
     FilterRun,
@@ -28,16 +37,38 @@ from ._predictor import (
     default_predictor,
     estimate_noise,
 )
+from ._shrinkage import (
+    ShrunkPredictor,
+    apply_shrinkage,
+    change_factors,
+    fit_shrinkage,
+    shrinkage_factors,
+)
 from ._targets import default_gap, interpolate_poses, scored_mask
+from ._thinned import TrackerTrajectory, predict_from_last_pose, thin_poses
 from ._trajectory import Trajectory
 from ._tuning import LEARNED_ORDERS, TuneResult, evaluate_recording, tune_model
 from ._warmup import compile_kernels
 
 __all__ = [
     "compile_kernels",
+    "IMU_PREDICTORS",
+    "ORIGINS",
+    "ImuSamples",
+    "InertialPredictor",
+    "TrackerTrajectory",
+    "evaluate_with_imu",
+    "thin_poses",
+    "predict_from_last_pose",
+    "tune_inertial",
+    "change_factors",
     "ALIGNMENTS",
     "CompareResult",
     "Stats",
+    "ShrunkPredictor",
+    "apply_shrinkage",
+    "fit_shrinkage",
+    "shrinkage_factors",
     "associate",
     "compare_trajectories",
     "umeyama",

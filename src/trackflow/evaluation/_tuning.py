@@ -14,6 +14,7 @@ from ._learned_search import learned_evaluations, search_learned
 from ._prediction import positive_horizons
 from ._predictor import KalmanPredictor, PartwisePredictor, TwistARPredictor, default_predictor
 from ._search import Progress
+from ._shrinkage import fit_shrinkage
 from ._trajectory import Trajectory
 from ._tuning_cost import TuningCost
 
@@ -191,8 +192,10 @@ def evaluate_recording(
 
     The first ``tune_fraction`` of the duration is used by :func:`tune_model`; the prediction
     errors (:func:`evaluate_predictors`) are scored only from there on, so the figures are
-    cross-validated. ``tune_fraction = 0`` skips tuning, uses ``predictor`` (default
-    :func:`default_predictor`) and scores the whole recording.
+    cross-validated. The tuned filter's predicted change is scaled per horizon
+    (:func:`~trackflow.evaluation.fit_shrinkage`, fitted on the tuning part) so that it is
+    never worse than holding the last sample there. ``tune_fraction = 0`` skips tuning, uses
+    ``predictor`` (default :func:`default_predictor`) and scores the whole recording.
 
     Parameters
     ----------
@@ -212,7 +215,8 @@ def evaluate_recording(
     Returns
     -------
     PredictionReport
-        ``tuning`` holds the :class:`TuneResult` summary when tuning ran.
+        ``tuning`` holds the :class:`TuneResult` summary and the ``shrinkage`` factors when
+        tuning ran; ``predictor`` is the tuned filter (before shrinkage).
     """
     rec = recording
     t = rec.t
@@ -233,6 +237,10 @@ def evaluate_recording(
         rec.select(train), tune_horizons, start=predictor, ar_orders=ar_orders,
         check_horizons=horizons, progress=progress,
     )  # fmt: skip
-    report = evaluate_predictors(rec, res.predictor, horizons, split)
-    report.tuning = res.as_dict()
+    # scale the predicted change per horizon so that on the tuning data it is never worse than
+    # holding the last sample (fast hand motion turns back within the longer horizons)
+    shrunk = fit_shrinkage(rec.select(train), res.predictor, horizons)
+    report = evaluate_predictors(rec, shrunk, horizons, split)
+    report.predictor = res.predictor  # the tuned filter; its shrinkage is in the tuning dict
+    report.tuning = {**res.as_dict(), "shrinkage": shrunk.shrinkage_dict()}
     return report

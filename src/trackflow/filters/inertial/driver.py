@@ -259,7 +259,8 @@ class InertialResult:
     ----------
     predictions : dict[float, tuple[ndarray (K, 3), ndarray (K, 4)]]
         ``{h: (position, quaternion)}``: ``T_w_b`` predicted ``h`` seconds after each pose
-        sample from everything up to that sample (``nan`` before the filter started).
+        sample (or each query time, (Q, ...)) from everything up to it (``nan`` before the
+        filter started).
     nis : ndarray (K,)
         Normalised innovation squared of each pose update (``nan`` if gated or not fused).
     final : InertialState
@@ -282,6 +283,7 @@ def run_inertial(
     horizons=(0.0,),
     scored=None,
     velocity_sigma: float = 1.0,
+    query_t=None,
 ) -> InertialResult:
     """Run the inertial filter over an IMU recording and a pose recording of the same clock.
 
@@ -304,6 +306,10 @@ def run_inertial(
         Poses after which predictions are made (default all); others only update.
     velocity_sigma : float
         Initial velocity standard deviation [m/s].
+    query_t : array_like (Q,), optional
+        Query times [s]: instead of after poses, predict ``horizons`` after each query time
+        from the IMU samples and poses up to it (an application asking at any time); the
+        predictions are then (Q, ...) arrays (``nan`` before the filter started).
 
     Returns
     -------
@@ -342,10 +348,19 @@ def run_inertial(
         [np.zeros(n_imu, np.int8), np.where(sc[start + 1 :], 2, 1).astype(np.int8)]
     )
     idx = np.concatenate([np.arange(imu_from, ti.shape[0]), np.arange(start + 1, tp.shape[0])])
+    n_out = tp.shape[0]
+    if query_t is not None:  # queries after the IMU samples and poses of the same time
+        tq = np.ascontiguousarray(query_t, dtype=float).reshape(-1)
+        n_out = tq.shape[0]
+        kind[kind == 2] = 1
+        keep = tq >= tp[start]
+        t_ev = np.concatenate([t_ev, tq[keep]])
+        kind = np.concatenate([kind, np.full(np.count_nonzero(keep), 3, np.int8)])  # queries
+        idx = np.concatenate([idx, np.flatnonzero(keep)])
     order = np.argsort(t_ev, kind="stable")  # IMU first at equal times
     z_r = quat_to_matrix(q)
-    out_p = np.full((h.shape[0], tp.shape[0], 3), np.nan)
-    out_r = np.full((h.shape[0], tp.shape[0], 3, 3), np.nan)
+    out_p = np.full((h.shape[0], n_out, 3), np.nan)
+    out_r = np.full((h.shape[0], n_out, 3, 3), np.nan)
     out_nis = np.full(tp.shape[0], np.nan)
     t_ev = np.ascontiguousarray(np.maximum(t_ev[order], tp[start]))
     r, t_end = k.run_events(
@@ -357,7 +372,7 @@ def run_inertial(
     )  # fmt: skip
     preds = {}
     for i, hv in enumerate(h.tolist()):
-        qq = np.full((tp.shape[0], 4), np.nan)
+        qq = np.full((n_out, 4), np.nan)
         ok = np.isfinite(out_r[i, :, 0, 0])
         qq[ok] = quat_from_matrix(out_r[i, ok])
         preds[hv] = (out_p[i], qq)

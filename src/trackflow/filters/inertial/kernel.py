@@ -332,9 +332,16 @@ def update_trend(trend, x, r, gyro, accel, g, dt, smooth, n):
 
 
 def predict_ahead(
-    x, r, trend, use_slope, coef, wbuf, coef_a, abuf, h, hi, r_sb, t_sb, out_p, out_r
-):
-    """Pose ``T_w_b`` ``h`` seconds ahead from the input trend (no state change).
+    x, r, trend, use_slope, coef, wbuf, coef_a, abuf, h, hi, r_sb, t_sb, out_p, out_r,
+    dt_extra=0.0,
+):  # fmt: skip
+    """Pose ``T_w_b`` ``h + dt_extra`` seconds after the state's time, from the input trend
+    (no state change).
+
+    ``dt_extra`` >= 0 is the time from the state to the query the horizon ``h`` counts from
+    (0 right after a sample): the trend extrapolations run over ``h + dt_extra``; a learned
+    extrapolation, fitted for ``h`` itself, starts from the orientation turned on by the
+    trend's angular velocity over ``dt_extra``.
 
     Orientation: with learned coefficients (``coef`` (H, 3 L), ``L > 0``) it turns by
     ``Exp(phi_w) R`` with ``phi_w[i] = sum_j coef[hi, 3 j + i] wbuf[j, i]`` over the last ``L``
@@ -346,15 +353,20 @@ def predict_ahead(
     """
     s = 1.0 if use_slope else 0.0
     L = coef.shape[1]
+    hq = h + dt_extra
     if L > 0:  # world-frame rotation increment from the world-frame history
         phi = np.zeros(3)
         for j in range(L // 3):
             for i in range(3):
                 phi[i] += coef[hi, 3 * j + i] * wbuf[j, i]
-        rh = exp_so3(phi) @ r
+        if dt_extra > 0.0:
+            rh = exp_so3(phi) @ (r @ exp_so3(trend[0] * dt_extra))
+        else:
+            rh = exp_so3(phi) @ r
     else:
-        phi = trend[0] * h + s * 0.5 * trend[1] * h * h
+        phi = trend[0] * hq + s * 0.5 * trend[1] * hq * hq
         rh = r @ exp_so3(phi)
+    h = hq
     ph = x[IP : IP + 3] + x[IV : IV + 3] * h
     if coef_a.shape[1] > 0:
         for j in range(coef_a.shape[1]):
@@ -418,7 +430,9 @@ def run_events(
     Parameters
     ----------
     kind : int8 (E,)
-        0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it).
+        0 = IMU sample, 1 = pose measurement, 2 = pose measurement scored (predict after it),
+        3 = query: predict ``horizons`` after the event's time from the state at the last IMU
+        sample (:func:`predict_ahead` with ``dt_extra``; no state change; output row ``idx``).
     t : float (E,)
         Event times [s].
     idx : int (E,)
@@ -462,6 +476,15 @@ def run_events(
             t_state = te
             t_imu = te
             last = i
+        elif k == 3:
+            if last < 0:
+                continue
+            j = idx[e]
+            for hh in range(horizons.shape[0]):
+                predict_ahead(
+                    x, r, trend, use_slope, coef, wbuf, coef_a, abuf, horizons[hh], hh,
+                    r_sb, t_sb, out_p[hh, j], out_r[hh, j], te - t_state,
+                )  # fmt: skip
         else:
             if last < 0:
                 continue
