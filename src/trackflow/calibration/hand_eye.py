@@ -31,6 +31,12 @@ from ..math import (
 )
 from ._geometry import kabsch, matrix_quaternion, mean_rotation, rotation_axis_spread
 from ._lsq import robust_solve
+from ._pair_noise import (
+    fit_station_noise,
+    pair_noise_jacobians,
+    relative_pose_jacobians,
+    sandwich_covariance,
+)
 from ._sampling import Trajectory, common_epoch_ns, trajectory, velocities
 from .clock_offset import estimate_clock_offset
 
@@ -228,6 +234,33 @@ def pair_residuals(Ap, Aq, Bp, Bq, X, jacobians=False):
     EtBt = np.einsum("nji,nkj->nik", RE, RB)
     J[:, 3:, 3:] = Jinv @ (np.eye(3) - EtBt)
     return r, J
+
+
+def pair_station_jacobians(A_p, A_q, B_p, B_q, i, j, X):
+    """Jacobians of the pair residuals of ``A_ij X = X B_ij`` with respect to the errors of
+    the station poses (conventions: translation error in the source frame, rotation on the
+    right).
+
+    Parameters
+    ----------
+    A_p, A_q, B_p, B_q : ndarray, shapes (N, 3), (N, 4)
+        ``T_base_tool`` and ``T_world_body`` at the stations.
+    i, j : ndarray, shape (M,)
+        Station indices of the pairs.
+    X : tuple (p (3,), q (4,))
+
+    Returns
+    -------
+    G_i, G_j : tuple of two ndarrays, shape (M, 6, 6)
+        ``(J_r_Ai, J_r_Bi)`` and ``(J_r_Aj, J_r_Bj)``.
+    """
+    a_p, a_q = _relative(A_p, A_q, i, j)
+    b_p, b_q = _relative(B_p, B_q, i, j)
+    _, rR, qE = _difference(_compose(a_p, a_q, X[0], X[1]), _compose(X[0], X[1], b_p, b_q))
+    J_r_a, J_r_b = pair_noise_jacobians(a_q, rR, qE, X)
+    J_a_i, J_a_j = relative_pose_jacobians(A_q[i], a_p, a_q)
+    J_b_i, J_b_j = relative_pose_jacobians(B_q[i], b_p, b_q)
+    return (J_r_a @ J_a_i, J_r_b @ J_b_i), (J_r_a @ J_a_j, J_r_b @ J_b_j)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -490,8 +523,11 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
         bp, bq, ok = rel_b(xc)
         r, J = pair_residuals(a_p, a_q, bp, bq, X, True)
         cols = [J]
-        # clock columns by central differences of the interpolated motion
-        for c, h in enumerate((1e-3, 1e-5)[: clock.n]):
+        # Clock columns by central differences of the interpolated motion over +-2 sample
+        # intervals of b (the drift's step shifts the farthest station as much): the slope of
+        # the expected motion, not of one noisy interpolation segment, whose noise would
+        # inflate J^T J and make the offset's covariance overconfident.
+        for c, h in enumerate(clock_steps[: clock.n]):
             d = np.zeros(clock.n)
             d[c] = h
             rp = pair_residuals(a_p, a_q, *rel_b(xc + d)[:2], X)
@@ -499,18 +535,20 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
             cols.append(((rp - rm) / (2 * h))[:, :, None])
         return np.where(ok[:, None], r, np.nan), np.concatenate(cols, axis=2)
 
+    h_off = 2.0 * tb.period_s
+    clock_steps = (h_off, h_off / max(float(np.max(np.abs(stations - clock.t_ref))), 1.0))
     x0 = np.concatenate([X0[0], X0[1], clock.x0()])
     sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
-    # The pairs are not independent. Those sharing a station carry that station's noise, so
-    # they hold only as much information as the stations (factor: mean pairs per station);
-    # real trackers add errors correlated over seconds, which the integrated autocorrelation
-    # time of the time-ordered residuals measures (robust_solve, correlated=True). The
-    # covariance is inflated by the larger of the two.
     sol = robust_solve(fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)))
-    used = np.unique(np.concatenate([i[sol.inliers], j[sol.inliers]]))
-    share = 2.0 * sol.inliers.sum() / max(len(used), 1)
-    if share > sol.tau:
-        sol = replace(sol, cov=sol.cov * (share / sol.tau), tau=share)
+    # The pairs are not independent (a station serves up to 2 max_lag pairs): the covariance
+    # is the sandwich over the station errors they share (see _pair_noise).
+    k = sol.inliers
+    B = tb.sample(clock.b_times(stations, sol.x[7:]))
+    r, J = fun(sol.x)
+    G_i, G_j = pair_station_jacobians(A.p, A.q, B.p, B.q, i[k], j[k], (sol.x[:3], sol.x[3:7]))
+    noise = fit_station_noise(r[k], G_i, G_j, j[k] - i[k])
+    cov = sandwich_covariance(J[k], sol.sigma**-2, G_i, G_j, i[k], j[k], noise)
+    sol = replace(sol, cov=cov, tau=1.0)
     return _result("hand-eye", sol, 1, clock, stations[j], False)
 
 
