@@ -107,12 +107,13 @@ def test_pair_station_jacobians_match_finite_differences():
 RUNS = 10
 
 
-@pytest.fixture(scope="module")
-def robot_world_runs():
+@pytest.fixture(scope="module", params=["robot-world", "robot-world-joint"])
+def robot_world_runs(request):
     out = []
     for seed in range(RUNS):
         a, b = two_trackers(seed, duration=20.0)
-        out.append(solve_hand_eye(a, b))
+        out.append(solve_hand_eye(a, b, form=request.param))
+        assert out[-1].form == request.param
     return out
 
 
@@ -121,6 +122,7 @@ def _band(dof_per_run, n):
     return lo / n, hi / n
 
 
+@pytest.mark.slow
 def test_robot_world_is_consistent_and_unbiased(robot_world_runs):
     eX = np.array([_err(r.X, X_TRUE) for r in robot_world_runs])
     eZ = np.array([_err(r.Z, Z_TRUE) for r in robot_world_runs])
@@ -135,6 +137,7 @@ def test_robot_world_is_consistent_and_unbiased(robot_world_runs):
         assert np.all(np.abs(e.mean(axis=0)) <= 4 * se), (e.mean(axis=0), se)
 
 
+@pytest.mark.slow
 def test_offset_within_a_tenth_of_the_slower_period(robot_world_runs):
     err = np.array([r.offset_s - 0.25 for r in robot_world_runs])
     sig = np.array([r.offset_sigma_s for r in robot_world_runs])
@@ -146,6 +149,7 @@ def test_offset_within_a_tenth_of_the_slower_period(robot_world_runs):
 HE_RUNS = 20
 
 
+@pytest.mark.slow
 def test_hand_eye_form_is_consistent_and_unbiased():
     """Motion pairs share stations: the covariance must account for it, neither treating the
     pairs as independent (overconfident) nor inflating by a bound (conservative)."""
@@ -216,7 +220,7 @@ def test_no_overlap_is_a_clear_error():
         solve_hand_eye(a, later)
 
 
-@pytest.mark.parametrize("form", ["robot-world", "hand-eye"])
+@pytest.mark.parametrize("form", ["robot-world", "robot-world-joint", "hand-eye"])
 def test_clock_drift_is_estimated_jointly(form):
     a, b = two_trackers(2, duration=40.0, offset=0.2)
     t = b.t_ns.astype(np.int64)

@@ -52,7 +52,9 @@ def test_no_worse_than_the_best_opencv_method(runs):
     from _opencv_hand_eye import opencv_solutions, stations
 
     (robot, quest), (robot1, quest1) = runs
-    ours = solve_hand_eye(robot, quest, form="hand-eye")
+    # what the user gets by default (the CLI's choice for two base frames)
+    ours = solve_hand_eye(robot, quest)
+    assert ours.form == "robot-world"
     assert 0.2 < ours.offset_s < 0.32
     off1 = estimate_clock_offset(robot1, quest1).offset_s
     score = evaluate_with_world_fit(robot1, quest1, ours.X.pose, off1)["residual_pos_mm"]
