@@ -28,6 +28,11 @@ __all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
 MIN_ANGULAR_STD = np.radians(2.0)
 #: Linear-speed spread [m/s] below which a stream counts as not moving.
 MIN_LINEAR_STD = 0.005
+#: Half window [s] of the central differences that give the body rates of the refinement. The
+#: offset that pose fusion needs is the delay of the poses; a tracker whose delay depends on
+#: frequency (the Quest 2 reports predicted poses) shows a different delay in its fast
+#: transients, which short differences emphasise. See docs/calibration.md.
+RATE_HALF_WINDOW_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -172,6 +177,7 @@ def estimate_clock_offset(
     drift: bool = False,
     signal: str = "auto",
     refine: bool = True,
+    rate_half_window_s: float = RATE_HALF_WINDOW_S,
 ) -> ClockOffset:
     """Offset (and optionally drift) of ``b``'s clock relative to ``a``'s, with standard error.
 
@@ -188,6 +194,12 @@ def estimate_clock_offset(
     refine : bool
         Refine jointly with the body rotation (False: the coarse peak, with the standard
         deviation of a uniform error over one coarse step as its sigma).
+    rate_half_window_s : float
+        Half window [s] of the central differences for the refinement's body rates (at least
+        the slower stream's sample period): rates averaged over ``2 rate_half_window_s``
+        weigh the motion in the band where the poses carry it, so the offset matches the
+        pose-based one of :func:`~trackflow.calibration.solve_hand_eye` on trackers whose
+        delay depends on frequency.
 
     Raises
     ------
@@ -198,7 +210,7 @@ def estimate_clock_offset(
     ta, tb = trajectory(a, epoch, "a"), trajectory(b, epoch, "b")
     off0, peak, sig, lags, corr = coarse_offset(ta, tb, max_offset_s, signal)
     slow = max(ta.period_s, tb.period_s)
-    hw = slow
+    hw = max(slow, float(rate_half_window_s))
     # Refinement on a grid at the slower stream's rate, inside the overlap.
     lo, hi = max(ta.t[0], tb.t[0] + off0) + 3 * slow, min(ta.t[-1], tb.t[-1] + off0) - 3 * slow
     grid = np.arange(lo, hi, slow)
