@@ -226,6 +226,25 @@ def plot_bars(path, scores: dict, title):
     plt.close(fig)
 
 
+def plot_rate_window(path, scan: dict, poses: dict):
+    """Rate-based offset against the rates' half window, with the pose-based offsets."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 3.2))
+    for (name, row), c in zip(scan.items(), ("C0", "C1")):
+        hw = [float(k) * 1e3 for k in row]
+        ax.plot(hw, list(row.values()), "o-", color=c, label=f"{name}: angular rates")
+        ax.axhline(poses[name], color=c, ls="--", lw=1, label=f"{name}: poses (hand-eye)")
+    ax.set_xscale("log")
+    ax.set_xlabel("half window of the rates' central differences [ms]")
+    ax.set_ylabel("offset [ms]")
+    ax.set_title("Quest 2 / UR5e: clock offset from rates vs from poses")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration")
@@ -284,6 +303,9 @@ def main(argv=None) -> int:
     summary["quest_traj1_own_X_mm"] = (own.X.position * 1e3).tolist()
     summary["quest_traj1_own_X_sigma_mm"] = (np.sqrt(np.diag(own.X.covariance))[:3] * 1e3).tolist()
     summary["quest_traj1_own_offset_s"] = own.offset_s
+    plot_rate_window(out / "quest_rate_window.png", summary["quest_rate_offset_vs_half_window_ms"],
+                     {"calib": res["hand-eye"].offset_s * 1e3,
+                      "traj1": own.offset_s * 1e3})  # fmt: skip
     # --- figs 9.14-9.16 on traj1 -----------------------------------------------------------
     pred = tuned_predictor(robot, he.offset_s)  # tuned on the calibration run's robot
     t, errs = simultaneity(robot1, quest1, he.X, he.offset_s, transfer["hand-eye"]["Z"], pred)
