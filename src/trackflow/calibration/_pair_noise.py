@@ -182,6 +182,6 @@ def sandwich_covariance(J, w, G_i, G_j, i, j, noise: StationNoise) -> np.ndarray
         for k in range(n - 2, -1, -1):
             B[k] += noise.rho * B[k + 1]
         V += np.einsum("kic,kjc->ij", Wk, F + B - U)
-    Hi = np.linalg.inv(H)
+    Hi = np.linalg.pinv(H)
     cov = Hi @ (0.5 * (V + V.T)) @ Hi
     return 0.5 * (cov + cov.T)
