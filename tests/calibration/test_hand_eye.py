@@ -230,3 +230,29 @@ def test_clock_drift_is_estimated_jointly(form):
     r = solve_hand_eye(a, fast, form=form, estimate_drift=True)
     assert abs(r.drift + 2e-4) < 4 * r.drift_sigma
     assert abs(r.offset_s - 0.2) < 0.1 / 30.0
+
+
+@pytest.mark.slow
+def test_a_drifting_sensor_world_does_not_bias_the_default_robot_world_form():
+    """Inside-out trackers' world frames drift within a run: X from motion pairs stays
+    consistent, the joint absolute-pose fit takes up the drift."""
+    from trackflow.math import quat_rotate
+
+    err = {"robot-world": [], "robot-world-joint": []}
+    for seed in range(4):
+        a, b = two_trackers(seed, duration=20.0)
+        t = (b.t_ns - b.t_ns[0]) * 1e-9
+        s = np.sin(2 * np.pi * t / 40.0)[:, None]
+        # T_world'_world(t): a few millimetres and tenths of a degree over the run
+        qW = quat_exp(s * np.radians([0.2, 0.1, -0.15]))
+        drifting = b.with_(
+            position=s * np.array([0.004, -0.003, 0.002]) + quat_rotate(qW, b.position),
+            quaternion=quat_multiply(qW, b.quaternion),
+        )
+        for form in err:
+            r = solve_hand_eye(a, drifting, form=form)
+            e = _err(r.X, X_TRUE)
+            err[form].append(np.linalg.norm(e[:3]))
+            if form == "robot-world":
+                assert e @ np.linalg.solve(r.X.covariance, e) < stats.chi2.ppf(0.999, 6)
+    assert np.mean(err["robot-world"]) < 0.5 * np.mean(err["robot-world-joint"]), err
