@@ -39,12 +39,8 @@ from ..math import (
 )
 from ._geometry import kabsch, matrix_quaternion, mean_rotation, rotation_axis_spread
 from ._lsq import robust_solve
-from ._pair_noise import (
-    fit_station_noise,
-    pair_noise_jacobians,
-    relative_pose_jacobians,
-    sandwich_covariance,
-)
+from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
+from ._pair_noise import pair_noise_jacobians, relative_pose_jacobians
 from ._sampling import Trajectory, common_epoch_ns, trajectory, velocities
 from .clock_offset import estimate_clock_offset
 
@@ -563,8 +559,10 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
     B = tb.sample(clock.b_times(stations, sol.x[7:]))
     r, J = fun(sol.x)
     G_i, G_j = pair_station_jacobians(A.p, A.q, B.p, B.q, i[k], j[k], (sol.x[:3], sol.x[3:7]))
-    noise = fit_station_noise(r[k], G_i, G_j, j[k] - i[k])
-    cov = sandwich_covariance(J[k], sol.sigma**-2, G_i, G_j, i[k], j[k], noise)
+    index, position = np.stack([i[k], j[k]], axis=1), np.arange(len(stations), dtype=float)
+    streams = [Stream(np.stack([G_i[s], G_j[s]], axis=1), index, position) for s in (0, 1)]
+    noise = fit_noise(r[k], streams, _GROUPS, _GROUPS)
+    cov = sandwich_covariance(J[k], sol.sigma**-2, streams, noise)
     return replace(sol, cov=cov, tau=1.0), stations[j]
 
 
