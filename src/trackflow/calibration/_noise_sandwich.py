@@ -60,42 +60,62 @@ class NoiseModel:
         return np.diag(d)
 
 
-def _corr(st: Stream, rho: float) -> np.ndarray:
-    """(M, Q, Q) correlation between the contributing samples of each residual."""
-    x = st.position[st.index]
-    lag = np.abs(x[:, :, None] - x[:, None, :])
-    return np.where(lag == 0, 1.0, rho**lag if rho > 0 else 0.0)
-
-
-def _design(streams, rho, row_groups, comp_groups):
-    """Expected squared norms of each residual's row groups per unit variance:
-    (M * len(row_groups), streams * len(comp_groups))."""
-    cols = []
+def _inner_products(streams, comp_groups, row_groups, lag, k):
+    """Per stream and component group: the sample positions of residuals ``k`` and
+    ``k + lag`` and the inner products ``sum_(r in row group, c) G_kq[r, c] G_(k+lag)p[r, c]``
+    (m, Q, Q, row groups), which do not depend on ``rho``."""
+    out = []
     for st in streams:
-        c = _corr(st, rho)
+        x = st.position[st.index]
         for g in comp_groups:
-            Gg = st.G[..., list(g)]  # (M, Q, B, c)
-            e = np.einsum("mqrc,mpq,mprc->mr", Gg, c, Gg)  # (M, B)
-            cols.append(np.concatenate([e[:, list(rg)].sum(1) for rg in row_groups]))
+            Ga, Gb = st.G[k][..., list(g)], st.G[k + lag][..., list(g)]  # (m, Q, B, c)
+            ip = np.einsum("mqrc,mprc->mqpr", Ga, Gb)
+            ip = np.stack([ip[..., list(rg)].sum(-1) for rg in row_groups], axis=-1)
+            out.append((np.abs(x[k][:, :, None] - x[k + lag][:, None, :]), ip))
+    return out
+
+
+def _design(pre, rho, n_row_groups):
+    """Expected products ``r_k . r_(k + lag)`` per row group and unit variance, from
+    :func:`_inner_products`: (rows, streams * component groups)."""
+    cols = []
+    for dx, ip in pre:
+        c = (dx == 0).astype(float) if rho == 0 else np.exp(dx * np.log(rho))
+        e = np.einsum("mqp,mqpg->gm", c, ip)
+        cols.append(e.reshape(-1))
     return np.stack(cols, axis=1)
 
 
-def fit_noise(r, streams, row_groups, comp_groups) -> NoiseModel:
+def _products(r, row_groups, lag, k):
+    return np.concatenate(
+        [np.sum(r[k][:, list(g)] * r[k + lag][:, list(g)], 1) for g in row_groups]
+    )
+
+
+def fit_noise(r, streams, row_groups, comp_groups, lags=(0,), max_moments=2000) -> NoiseModel:
     """Fit the variances and ``rho`` to residuals ``r`` (M, B).
 
-    Non-negative least squares on the squared norms of each row group of every residual (each
-    group scaled by its mean) for every ``rho`` of :data:`RHO_GRID`; the best fit wins.
+    Non-negative least squares on the products ``r_k . r_(k + lag)`` of each row group for
+    every ``lag`` of ``lags`` (0: the squared norms; lags > 0 need the residuals in time order
+    and tell ``rho`` where the samples of one residual are too far apart to), each group
+    scaled by its mean square, for every ``rho`` of :data:`RHO_GRID`; the best fit wins.
+    The moments start at evenly spread residuals, at most ``max_moments`` per lag.
     """
-    m2 = np.concatenate([np.sum(r[:, list(g)] ** 2, 1) for g in row_groups])
-    m = len(r)
-    means = m2.reshape(len(row_groups), m).mean(axis=1)
-    scale = np.repeat(1.0 / np.maximum(means, 1e-30), m)
+    ms = np.array([np.mean(np.sum(r[:, list(g)] ** 2, 1)) for g in row_groups])
+    starts = {}
+    for lag in lags:
+        if lag < len(r):
+            n = len(r) - lag
+            starts[lag] = np.arange(0, n, max(1, n // max_moments))
+    y = np.concatenate([_products(r, row_groups, lag, k) for lag, k in starts.items()])
+    w = np.concatenate([np.repeat(1.0 / np.maximum(ms, 1e-30), len(k)) for k in starts.values()])
+    pre = [_inner_products(streams, comp_groups, row_groups, lag, k) for lag, k in starts.items()]
     best = None
     for rho in RHO_GRID:
-        D = _design(streams, rho, row_groups, comp_groups) * scale[:, None]
+        D = np.concatenate([_design(p, rho, len(row_groups)) for p in pre]) * w[:, None]
         norm = np.linalg.norm(D, axis=0)
         norm[norm == 0] = 1.0
-        theta, res = nnls(D / norm, m2 * scale)
+        theta, res = nnls(D / norm, y * w)
         if best is None or res < best[0]:
             best = (res, theta / norm, rho)
     scales = best[1].reshape(len(streams), len(comp_groups))

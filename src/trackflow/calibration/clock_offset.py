@@ -20,7 +20,15 @@ from ..io import PoseStream
 from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew
 from ._geometry import kabsch
 from ._lsq import robust_solve
-from ._sampling import Trajectory, body_rates, common_epoch_ns, speeds, trajectory
+from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
+from ._sampling import (
+    Trajectory,
+    body_rate_jacobians,
+    body_rates,
+    common_epoch_ns,
+    speeds,
+    trajectory,
+)
 
 __all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
 
@@ -169,6 +177,32 @@ def coarse_offset(
     return off, peak, signal, lags, corr
 
 
+def _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) -> np.ndarray:
+    """Sandwich covariance of the rate fit ``w_a(t) = R w_b(s)`` over the streams' samples."""
+    x = sol.x
+    d = x[5] if drift else 0.0
+    s = (grid - x[4] + d * t_ref) / (1.0 + d)
+    G_a, i_a = body_rate_jacobians(ta, grid, hw)
+    G_own, i_own = body_rate_jacobians(tb, tb.t, hw)  # b's rates at its samples, interpolated
+    m = np.clip(np.searchsorted(tb.t, s, side="right") - 1, 0, len(tb.t) - 2)
+    u = np.clip((s - tb.t[m]) / (tb.t[m + 1] - tb.t[m]), 0.0, 1.0)[:, None, None, None]
+    G_b = np.concatenate([(1 - u) * G_own[m], u * G_own[m + 1]], axis=1)
+    G_b = -np.einsum("ij,kqjc->kqic", quat_to_matrix(x[:4]), G_b)
+    i_b = np.concatenate([i_own[m], i_own[m + 1]], axis=1)
+    r, J = fun(x)
+    k = sol.inliers & np.all(np.isfinite(r), axis=1)
+    slow = max(ta.period_s, tb.period_s)
+    streams = [
+        Stream(G_a[k], i_a[k], ta.t / slow),
+        Stream(G_b[k], i_b[k], tb.t / slow),
+    ]
+    rows = ((0, 1, 2),)
+    # cross products up to a few windows apart tell whether the errors are correlated in time
+    lags = (0, 1, 2, 4, 8, 16, 32, 64, 128)
+    noise = fit_noise(r[k], streams, rows, rows, lags)
+    return sandwich_covariance(J[k], sol.sigma**-2, streams, noise)
+
+
 def estimate_clock_offset(
     a: PoseStream,
     b: PoseStream,
@@ -272,7 +306,9 @@ def estimate_clock_offset(
     sol = robust_solve(
         fun, x0, np.full(nb, np.radians(5.0)), update=update, groups=(tuple(range(nb)),)
     )
-    cov = sol.cov
+    # The rates are differences of poses over +-hw: neighbouring residuals share samples, so
+    # the covariance is the sandwich over the samples' rotation errors (_noise_sandwich).
+    cov = _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) if full else sol.cov
     return ClockOffset(
         offset_s=float(sol.x[4]),
         sigma_s=float(np.sqrt(cov[3, 3])),
