@@ -6,7 +6,8 @@
   (they do not estimate an offset; trackflow's is given to them).
 * Accuracy: calibrated on ``calib``, scored on ``traj1`` with X and the offset fixed and only
   the headset's world refitted (``evaluate_with_world_fit``): RMS position residual [mm] for
-  trackflow (both forms) and every OpenCV method at station spacings 0.5, 1 and 2 s.
+  trackflow (every form, and which one ``trackflow calibrate hand-eye`` picks by default) and
+  every OpenCV method at station spacings 0.5, 1 and 2 s.
 
 Usage: ``python bench/calibration.py [--json] [--repeat N]``. The machine is shared: timings
 are noisy, take the best of a few runs and read the ratios.
@@ -79,8 +80,11 @@ def main(argv=None) -> int:
     robot1, quest1 = _pair("traj1")
     r2, q2 = _first(robot, 125.0), _first(quest, 120.0)
     t_rw, c_rw, _ = _best(lambda: solve_hand_eye(r2, q2, form="robot-world"), args.repeat)
+    t_rj, c_rj, _ = _best(lambda: solve_hand_eye(r2, q2, form="robot-world-joint"), args.repeat)
     t_he, c_he, _ = _best(lambda: solve_hand_eye(r2, q2, form="hand-eye"), args.repeat)
-    full = {f: solve_hand_eye(robot, quest, form=f) for f in ("robot-world", "hand-eye")}
+    forms = ("robot-world", "robot-world-joint", "hand-eye")
+    full = {f: solve_hand_eye(robot, quest, form=f) for f in forms}
+    default = solve_hand_eye(robot, quest).form  # what `trackflow calibrate hand-eye` picks
     off = full["hand-eye"].offset_s
     off1 = estimate_clock_offset(robot1, quest1).offset_s
     A, B = stations(r2, q2, off, 0.5)
@@ -98,9 +102,11 @@ def main(argv=None) -> int:
     out = {
         "hand_eye_2min_72hz_s": t_he,
         "robot_world_2min_72hz_s": t_rw,
+        "robot_world_joint_2min_72hz_s": t_rj,
         "opencv_all_methods_2min_s": t_cv,
         "hand_eye_2min_72hz_cpu_s": c_he,
         "robot_world_2min_72hz_cpu_s": c_rw,
+        "robot_world_joint_2min_72hz_cpu_s": c_rj,
         "opencv_all_methods_2min_cpu_s": c_cv,
         "samples_2min": {"quest": len(q2), "robot": len(r2)},
         "offset_s": {f: r.offset_s for f, r in full.items()},
@@ -108,6 +114,8 @@ def main(argv=None) -> int:
         "traj1_residual_pos_mm": scores,
         "traj1_best_opencv_mm": best_cv,
         "traj1_trackflow_hand_eye_mm": scores["trackflow hand-eye"],
+        "default_form": default,
+        "traj1_trackflow_default_mm": scores[f"trackflow {default}"],
     }
     if args.json:
         print(json.dumps(out, indent=2))

@@ -28,6 +28,7 @@ from trackflow.calibration import (
     hand_eye_residuals,
     solve_hand_eye,
 )
+from trackflow.calibration.hand_eye import FORMS
 from trackflow.calibration.report import plot_residuals
 from trackflow.evaluation import (
     Trajectory,
@@ -225,6 +226,25 @@ def plot_bars(path, scores: dict, title):
     plt.close(fig)
 
 
+def plot_rate_window(path, scan: dict, poses: dict):
+    """Rate-based offset against the rates' half window, with the pose-based offsets."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 3.2))
+    for (name, row), c in zip(scan.items(), ("C0", "C1")):
+        hw = [float(k) * 1e3 for k in row]
+        ax.plot(hw, list(row.values()), "o-", color=c, label=f"{name}: angular rates")
+        ax.axhline(poses[name], color=c, ls="--", lw=1, label=f"{name}: poses (hand-eye)")
+    ax.set_xscale("log")
+    ax.set_xlabel("half window of the rates' central differences [ms]")
+    ax.set_ylabel("offset [ms]")
+    ax.set_title("Quest 2 / UR5e: clock offset from rates vs from poses")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration")
@@ -244,21 +264,30 @@ def main(argv=None) -> int:
     clock = estimate_clock_offset(robot, quest, drift=True)
     write_clock_report(out / "quest_clock", clock)
     clock1 = estimate_clock_offset(robot1, quest1)
-    res = {f: solve_hand_eye(robot, quest, form=f) for f in ("robot-world", "hand-eye")}
+    res = {f: solve_hand_eye(robot, quest, form=f) for f in FORMS}
+    summary["quest_default_form"] = solve_hand_eye(robot, quest).form
+    # the rate-based offset against the half window of the rates' central differences
+    summary["quest_rate_offset_vs_half_window_ms"] = {
+        name: {f"{hw:.3f}": estimate_clock_offset(r, q, rate_half_window_s=hw).offset_s * 1e3
+               for hw in (1 / 30, 0.05, 0.1, 0.2, 0.4)}
+        for name, r, q in (("calib", robot, quest), ("traj1", robot1, quest1))
+    }  # fmt: skip
     for f, r in res.items():
         write_hand_eye_report(out / f"quest_{f}", r)  # report.json + residuals.png
     summary["quest_clock_calib"] = {k: v for k, v in clock.as_dict().items()
                                     if k in ("offset_s", "offset_sigma_s", "drift",
                                              "drift_sigma", "peak_correlation")}  # fmt: skip
     summary["quest_clock_traj1"] = {"offset_s": clock1.offset_s, "offset_sigma_s": clock1.sigma_s}
-    summary["quest_calib"] = {f: r.to_json() | {"n_outliers": r.n_outliers, "n_used": r.n_used}
+    summary["quest_calib"] = {f: r.to_json() | {"n_outliers": r.n_outliers, "n_used": r.n_used,
+                                                "X_sd_mm": (np.sqrt(np.diag(r.X.covariance))[:3]
+                                                            * 1e3).tolist()}
                               for f, r in res.items()}  # fmt: skip
     for f in summary["quest_calib"]:
         for k in ("X", "Z"):
             if summary["quest_calib"][f][k] is not None:
                 summary["quest_calib"][f][k].pop("covariance")
     he = res["hand-eye"]
-    for f in ("robot-world", "hand-eye"):
+    for f in FORMS:
         rd = solve_hand_eye(robot, quest, form=f, estimate_drift=True)
         summary[f"quest_calib_{f}_with_drift"] = {
             "offset_s": rd.offset_s, "offset_sigma_s": rd.offset_sigma_s, "drift": rd.drift,
@@ -272,6 +301,11 @@ def main(argv=None) -> int:
                                        for f, d in transfer.items()}  # fmt: skip
     own = solve_hand_eye(robot1, quest1, form="hand-eye")
     summary["quest_traj1_own_X_mm"] = (own.X.position * 1e3).tolist()
+    summary["quest_traj1_own_X_sigma_mm"] = (np.sqrt(np.diag(own.X.covariance))[:3] * 1e3).tolist()
+    summary["quest_traj1_own_offset_s"] = own.offset_s
+    plot_rate_window(out / "quest_rate_window.png", summary["quest_rate_offset_vs_half_window_ms"],
+                     {"calib": res["hand-eye"].offset_s * 1e3,
+                      "traj1": own.offset_s * 1e3})  # fmt: skip
     # --- figs 9.14-9.16 on traj1 -----------------------------------------------------------
     pred = tuned_predictor(robot, he.offset_s)  # tuned on the calibration run's robot
     t, errs = simultaneity(robot1, quest1, he.X, he.offset_s, transfer["hand-eye"]["Z"], pred)
@@ -312,7 +346,7 @@ def main(argv=None) -> int:
     unity, _ = read_stream(D / "optitrack_unity_example" / "unity.csv")
     opti = opti.with_(source="optitrack", target="rigid_body")
     unity = unity_to_right_handed(unity, "quest_world", "quest_headset")
-    ou = {f: solve_hand_eye(opti, unity, form=f) for f in ("robot-world", "hand-eye")}
+    ou = {f: solve_hand_eye(opti, unity, form=f) for f in FORMS}
     for f, r in ou.items():
         plot_residuals(out / f"opti_unity_{f}_residuals.png", r.times_s, r.residuals,
                        r.inliers, f"OptiTrack vs Quest, {f}: {r.residual_pos_mm:.2f} mm, "

@@ -8,7 +8,7 @@ from _synth import X_TRUE, Z_TRUE, two_trackers
 from scipy import stats
 
 from trackflow.calibration import estimate_clock_offset, hand_eye_residuals, solve_hand_eye
-from trackflow.calibration.hand_eye import pair_residuals
+from trackflow.calibration.hand_eye import _relative, pair_residuals, pair_station_jacobians
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
 
 
@@ -74,15 +74,46 @@ def test_hand_eye_pair_jacobian_matches_finite_differences():
         np.testing.assert_allclose(J[:, :, k], f, atol=1e-6)
 
 
+def test_pair_station_jacobians_match_finite_differences():
+    rng = np.random.default_rng(5)
+    n = 6
+    Ap, Aq = _random_poses(rng, n)
+    Bp, Bq = _random_poses(rng, n)
+    X = (rng.normal(size=3), quat_exp(rng.normal(size=3)))
+    i, j = np.array([0, 0, 1, 2, 3]), np.array([1, 3, 4, 5, 5])
+    G_i, G_j = pair_station_jacobians(Ap, Aq, Bp, Bq, i, j, X)
+
+    def res(Ap, Aq, Bp, Bq):
+        return pair_residuals(*_relative(Ap, Aq, i, j), *_relative(Bp, Bq, i, j), X)
+
+    h = 1e-6
+    for stream, (p, q) in enumerate(((Ap, Aq), (Bp, Bq))):
+        for k in range(6):
+            for which, G in ((i, G_i[stream]), (j, G_j[stream])):
+                fd = np.zeros((len(i), 6))
+                for m, st in enumerate(which):
+                    out = []
+                    for sgn in (1, -1):
+                        d = np.zeros(6)
+                        d[k] = sgn * h
+                        pp, qq = p.copy(), q.copy()
+                        pp[st], qq[st] = _perturb((p[st], q[st]), d)
+                        args = (pp, qq, Bp, Bq) if stream == 0 else (Ap, Aq, pp, qq)
+                        out.append(res(*args)[m])
+                    fd[m] = (out[0] - out[1]) / (2 * h)
+                np.testing.assert_allclose(G[:, :, k], fd, atol=1e-6)
+
+
 RUNS = 10
 
 
-@pytest.fixture(scope="module")
-def robot_world_runs():
+@pytest.fixture(scope="module", params=["robot-world", "robot-world-joint"])
+def robot_world_runs(request):
     out = []
     for seed in range(RUNS):
         a, b = two_trackers(seed, duration=20.0)
-        out.append(solve_hand_eye(a, b))
+        out.append(solve_hand_eye(a, b, form=request.param))
+        assert out[-1].form == request.param
     return out
 
 
@@ -91,6 +122,7 @@ def _band(dof_per_run, n):
     return lo / n, hi / n
 
 
+@pytest.mark.slow
 def test_robot_world_is_consistent_and_unbiased(robot_world_runs):
     eX = np.array([_err(r.X, X_TRUE) for r in robot_world_runs])
     eZ = np.array([_err(r.Z, Z_TRUE) for r in robot_world_runs])
@@ -105,12 +137,36 @@ def test_robot_world_is_consistent_and_unbiased(robot_world_runs):
         assert np.all(np.abs(e.mean(axis=0)) <= 4 * se), (e.mean(axis=0), se)
 
 
+@pytest.mark.slow
 def test_offset_within_a_tenth_of_the_slower_period(robot_world_runs):
     err = np.array([r.offset_s - 0.25 for r in robot_world_runs])
     sig = np.array([r.offset_sigma_s for r in robot_world_runs])
     assert np.all(np.abs(err) < 0.1 / 30.0)
     lo, hi = _band(1, RUNS)
     assert lo <= np.mean((err / sig) ** 2) <= hi
+
+
+HE_RUNS = 20
+
+
+@pytest.mark.slow
+def test_hand_eye_form_is_consistent_and_unbiased():
+    """Motion pairs share stations: the covariance must account for it, neither treating the
+    pairs as independent (overconfident) nor inflating by a bound (conservative)."""
+    e, nees, z = [], [], []
+    for seed in range(HE_RUNS):
+        a, b = two_trackers(seed, duration=20.0)
+        r = solve_hand_eye(a, b, form="hand-eye")
+        e.append(_err(r.X, X_TRUE))
+        nees.append(e[-1] @ np.linalg.solve(r.X.covariance, e[-1]))
+        z.append((r.offset_s - 0.25) / r.offset_sigma_s)
+    lo, hi = _band(6, HE_RUNS)
+    assert lo <= np.mean(nees) <= hi, (np.mean(nees), lo, hi)
+    lo, hi = _band(1, HE_RUNS)
+    assert lo <= np.mean(np.square(z)) <= hi, (np.mean(np.square(z)), lo, hi)
+    e = np.array(e)
+    se = e.std(axis=0, ddof=1) / np.sqrt(HE_RUNS)
+    assert np.all(np.abs(e.mean(axis=0)) <= 4 * se), (e.mean(axis=0), se)
 
 
 def test_hand_eye_form_recovers_X():
@@ -164,7 +220,7 @@ def test_no_overlap_is_a_clear_error():
         solve_hand_eye(a, later)
 
 
-@pytest.mark.parametrize("form", ["robot-world", "hand-eye"])
+@pytest.mark.parametrize("form", ["robot-world", "robot-world-joint", "hand-eye"])
 def test_clock_drift_is_estimated_jointly(form):
     a, b = two_trackers(2, duration=40.0, offset=0.2)
     t = b.t_ns.astype(np.int64)
@@ -174,3 +230,29 @@ def test_clock_drift_is_estimated_jointly(form):
     r = solve_hand_eye(a, fast, form=form, estimate_drift=True)
     assert abs(r.drift + 2e-4) < 4 * r.drift_sigma
     assert abs(r.offset_s - 0.2) < 0.1 / 30.0
+
+
+@pytest.mark.slow
+def test_a_drifting_sensor_world_does_not_bias_the_default_robot_world_form():
+    """Inside-out trackers' world frames drift within a run: X from motion pairs stays
+    consistent, the joint absolute-pose fit takes up the drift."""
+    from trackflow.math import quat_rotate
+
+    err = {"robot-world": [], "robot-world-joint": []}
+    for seed in range(4):
+        a, b = two_trackers(seed, duration=20.0)
+        t = (b.t_ns - b.t_ns[0]) * 1e-9
+        s = np.sin(2 * np.pi * t / 40.0)[:, None]
+        # T_world'_world(t): a few millimetres and tenths of a degree over the run
+        qW = quat_exp(s * np.radians([0.2, 0.1, -0.15]))
+        drifting = b.with_(
+            position=s * np.array([0.004, -0.003, 0.002]) + quat_rotate(qW, b.position),
+            quaternion=quat_multiply(qW, b.quaternion),
+        )
+        for form in err:
+            r = solve_hand_eye(a, drifting, form=form)
+            e = _err(r.X, X_TRUE)
+            err[form].append(np.linalg.norm(e[:3]))
+            if form == "robot-world":
+                assert e @ np.linalg.solve(r.X.covariance, e) < stats.chi2.ppf(0.999, 6)
+    assert np.mean(err["robot-world"]) < 0.5 * np.mean(err["robot-world-joint"]), err

@@ -13,7 +13,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_conjugate, quat_exp, quat_log, quat_make_continuous, quat_multiply
+from ..math import (
+    quat_conjugate,
+    quat_exp,
+    quat_log,
+    quat_make_continuous,
+    quat_multiply,
+    quat_to_matrix,
+    so3_right_jacobian_inverse,
+)
 
 __all__ = ["Sampled", "Trajectory", "common_epoch_ns", "make_trajectory", "trajectory"]
 
@@ -123,6 +131,39 @@ def body_rates(traj: Trajectory, tq, half_window_s: float) -> tuple[np.ndarray, 
     b = interpolate(traj, tq + half_window_s)
     w = quat_log(quat_multiply(quat_conjugate(a.q), b.q)) / (2.0 * half_window_s)
     return w, a.valid & b.valid
+
+
+def body_rate_jacobians(traj: Trajectory, tq, half_window_s: float):
+    """Jacobians of :func:`body_rates` with respect to the samples' rotation errors.
+
+    With right rotation errors ``d_n`` of the samples (conventions), the interpolated
+    orientation's error is ``(1 - s) d_n + s d_n+1`` (to first order in the rotation between
+    two samples) and ``w = Log(R_-^T R_+) / 2h`` moves by ``J_r^-1(phi) (e_+ - M^T e_-) / 2h``
+    with ``M = R_-^T R_+ = Exp(phi)``.
+
+    Returns
+    -------
+    J_w_d : ndarray, shape (M, 4, 3, 3)
+        For the two samples around ``t - h`` and the two around ``t + h``.
+    index : ndarray, shape (M, 4)
+        Those samples' indices.
+    """
+    tq = np.asarray(tq, float)
+    h = float(half_window_s)
+    t = traj.t
+
+    def bracket(x):
+        i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, len(t) - 2)
+        return i, np.clip((x - t[i]) / (t[i + 1] - t[i]), 0.0, 1.0)[:, None, None]
+
+    a, b = interpolate(traj, tq - h), interpolate(traj, tq + h)
+    M = quat_multiply(quat_conjugate(a.q), b.q)
+    Jinv = so3_right_jacobian_inverse(quat_log(M)) / (2.0 * h)
+    JMt = Jinv @ np.swapaxes(quat_to_matrix(M), 1, 2)
+    im, sm = bracket(tq - h)
+    ip, sp = bracket(tq + h)
+    J = np.stack([-(1 - sm) * JMt, -sm * JMt, (1 - sp) * Jinv, sp * Jinv], axis=1)
+    return J, np.stack([im, im + 1, ip, ip + 1], axis=1)
 
 
 def velocities(traj: Trajectory, tq, half_window_s: float) -> tuple[np.ndarray, np.ndarray]:

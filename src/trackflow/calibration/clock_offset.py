@@ -20,7 +20,15 @@ from ..io import PoseStream
 from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew
 from ._geometry import kabsch
 from ._lsq import robust_solve
-from ._sampling import Trajectory, body_rates, common_epoch_ns, speeds, trajectory
+from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
+from ._sampling import (
+    Trajectory,
+    body_rate_jacobians,
+    body_rates,
+    common_epoch_ns,
+    speeds,
+    trajectory,
+)
 
 __all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
 
@@ -28,6 +36,11 @@ __all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
 MIN_ANGULAR_STD = np.radians(2.0)
 #: Linear-speed spread [m/s] below which a stream counts as not moving.
 MIN_LINEAR_STD = 0.005
+#: Half window [s] of the central differences that give the body rates of the refinement. The
+#: offset that pose fusion needs is the delay of the poses; a tracker whose delay depends on
+#: frequency (the Quest 2 reports predicted poses) shows a different delay in its fast
+#: transients, which short differences emphasise. See docs/calibration.md.
+RATE_HALF_WINDOW_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -164,6 +177,32 @@ def coarse_offset(
     return off, peak, signal, lags, corr
 
 
+def _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) -> np.ndarray:
+    """Sandwich covariance of the rate fit ``w_a(t) = R w_b(s)`` over the streams' samples."""
+    x = sol.x
+    d = x[5] if drift else 0.0
+    s = (grid - x[4] + d * t_ref) / (1.0 + d)
+    G_a, i_a = body_rate_jacobians(ta, grid, hw)
+    G_own, i_own = body_rate_jacobians(tb, tb.t, hw)  # b's rates at its samples, interpolated
+    m = np.clip(np.searchsorted(tb.t, s, side="right") - 1, 0, len(tb.t) - 2)
+    u = np.clip((s - tb.t[m]) / (tb.t[m + 1] - tb.t[m]), 0.0, 1.0)[:, None, None, None]
+    G_b = np.concatenate([(1 - u) * G_own[m], u * G_own[m + 1]], axis=1)
+    G_b = -np.einsum("ij,kqjc->kqic", quat_to_matrix(x[:4]), G_b)
+    i_b = np.concatenate([i_own[m], i_own[m + 1]], axis=1)
+    r, J = fun(x)
+    k = sol.inliers & np.all(np.isfinite(r), axis=1)
+    slow = max(ta.period_s, tb.period_s)
+    streams = [
+        Stream(G_a[k], i_a[k], ta.t / slow),
+        Stream(G_b[k], i_b[k], tb.t / slow),
+    ]
+    rows = ((0, 1, 2),)
+    # cross products up to a few windows apart tell whether the errors are correlated in time
+    lags = (0, 1, 2, 4, 8, 16, 32, 64, 128)
+    noise = fit_noise(r[k], streams, rows, rows, lags)
+    return sandwich_covariance(J[k], sol.sigma**-2, streams, noise)
+
+
 def estimate_clock_offset(
     a: PoseStream,
     b: PoseStream,
@@ -172,6 +211,7 @@ def estimate_clock_offset(
     drift: bool = False,
     signal: str = "auto",
     refine: bool = True,
+    rate_half_window_s: float = RATE_HALF_WINDOW_S,
 ) -> ClockOffset:
     """Offset (and optionally drift) of ``b``'s clock relative to ``a``'s, with standard error.
 
@@ -188,6 +228,12 @@ def estimate_clock_offset(
     refine : bool
         Refine jointly with the body rotation (False: the coarse peak, with the standard
         deviation of a uniform error over one coarse step as its sigma).
+    rate_half_window_s : float
+        Half window [s] of the central differences for the refinement's body rates (at least
+        the slower stream's sample period): rates averaged over ``2 rate_half_window_s``
+        weigh the motion in the band where the poses carry it, so the offset matches the
+        pose-based one of :func:`~trackflow.calibration.solve_hand_eye` on trackers whose
+        delay depends on frequency.
 
     Raises
     ------
@@ -198,7 +244,7 @@ def estimate_clock_offset(
     ta, tb = trajectory(a, epoch, "a"), trajectory(b, epoch, "b")
     off0, peak, sig, lags, corr = coarse_offset(ta, tb, max_offset_s, signal)
     slow = max(ta.period_s, tb.period_s)
-    hw = slow
+    hw = max(slow, float(rate_half_window_s))
     # Refinement on a grid at the slower stream's rate, inside the overlap.
     lo, hi = max(ta.t[0], tb.t[0] + off0) + 3 * slow, min(ta.t[-1], tb.t[-1] + off0) - 3 * slow
     grid = np.arange(lo, hi, slow)
@@ -260,7 +306,9 @@ def estimate_clock_offset(
     sol = robust_solve(
         fun, x0, np.full(nb, np.radians(5.0)), update=update, groups=(tuple(range(nb)),)
     )
-    cov = sol.cov
+    # The rates are differences of poses over +-hw: neighbouring residuals share samples, so
+    # the covariance is the sandwich over the samples' rotation errors (_noise_sandwich).
+    cov = _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) if full else sol.cov
     return ClockOffset(
         offset_s=float(sol.x[4]),
         sigma_s=float(np.sqrt(cov[3, 3])),

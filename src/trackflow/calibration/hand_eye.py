@@ -2,11 +2,19 @@
 
 ``A`` is a robot's (or any tracker's) pose ``T_base_tool``, ``B`` the other tracker's pose
 ``T_world_body`` of the rigidly attached body; ``X = T_tool_body`` and ``Z = T_base_world``, so
-``T_base_tool(t) X = Z T_world_body(t - offset)``. A closed-form start (the rotation from body
-angular rates or Park-Martin's axis fit, the translation by linear least squares, ``Z`` by
-averaging) is refined by robust Gauss-Newton on the manifold with analytic Jacobians, jointly
-with the clock offset when asked; outliers are rejected by a chi-square test and the covariance
-of ``(X, Z, offset)`` is the Gauss-Newton covariance inflated by the residual autocorrelation.
+``T_base_tool(t) X = Z T_world_body(t - offset)``. A closed-form start (Park-Martin's axis fit,
+the translation by linear least squares, ``Z`` by averaging) is refined by robust Gauss-Newton on
+the manifold with analytic Jacobians, jointly with the clock offset when asked; outliers are
+rejected by a chi-square test.
+
+Three estimators (``form``): ``hand-eye`` solves ``A_ij X = X B_ij`` on short motion pairs, with
+a covariance that accounts for the station errors the pairs share (:mod:`._pair_noise`);
+``robot-world`` (the default for streams with different base frames) takes X and the clock
+from those motion pairs, which a slowly drifting world frame does not bias, and then Z from the
+absolute poses, with the covariance it inherits from X; ``robot-world-joint`` solves
+``A X = Z B`` for X, Z and the clock jointly on absolute poses (most precise when the world
+frame is static, biased when it drifts), its covariance inflated by the residual
+autocorrelation.
 Offset convention as in :mod:`trackflow.calibration.clock_offset`: ``t_a = t_b + offset``.
 """
 
@@ -31,6 +39,8 @@ from ..math import (
 )
 from ._geometry import kabsch, matrix_quaternion, mean_rotation, rotation_axis_spread
 from ._lsq import robust_solve
+from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
+from ._pair_noise import pair_noise_jacobians, relative_pose_jacobians
 from ._sampling import Trajectory, common_epoch_ns, trajectory, velocities
 from .clock_offset import estimate_clock_offset
 
@@ -48,6 +58,11 @@ MIN_PAIR_ANGLE_DEG = 5.0
 MAX_PAIR_SPAN_S = 2.0
 #: Smallest ratio of the second to the first singular value of the pairs' rotation axes.
 MIN_AXIS_SPREAD = 0.05
+#: The estimators of :func:`solve_hand_eye` (see its ``form``).
+FORMS = ("robot-world", "robot-world-joint", "hand-eye")
+#: Prior residual scales (position [m], rotation [rad]) and their groups for the solver.
+_SIGMA0 = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
+_GROUPS = ((0, 1, 2), (3, 4, 5))
 
 
 @dataclass(frozen=True)
@@ -71,7 +86,7 @@ class HandEyeResult:
         Joint covariance over ``(X (6), Z (6) if present, offset (1) and drift (1) if
         estimated)``.
     form : str
-        ``"robot-world"`` or ``"hand-eye"``.
+        ``"robot-world"``, ``"robot-world-joint"`` or ``"hand-eye"``.
     residual_pos_mm, residual_ori_deg : float
         RMS position and rotation residual over the inliers.
     n_used, n_outliers : int
@@ -230,6 +245,33 @@ def pair_residuals(Ap, Aq, Bp, Bq, X, jacobians=False):
     return r, J
 
 
+def pair_station_jacobians(A_p, A_q, B_p, B_q, i, j, X):
+    """Jacobians of the pair residuals of ``A_ij X = X B_ij`` with respect to the errors of
+    the station poses (conventions: translation error in the source frame, rotation on the
+    right).
+
+    Parameters
+    ----------
+    A_p, A_q, B_p, B_q : ndarray, shapes (N, 3), (N, 4)
+        ``T_base_tool`` and ``T_world_body`` at the stations.
+    i, j : ndarray, shape (M,)
+        Station indices of the pairs.
+    X : tuple (p (3,), q (4,))
+
+    Returns
+    -------
+    G_i, G_j : tuple of two ndarrays, shape (M, 6, 6)
+        ``(J_r_Ai, J_r_Bi)`` and ``(J_r_Aj, J_r_Bj)``.
+    """
+    a_p, a_q = _relative(A_p, A_q, i, j)
+    b_p, b_q = _relative(B_p, B_q, i, j)
+    _, rR, qE = _difference(_compose(a_p, a_q, X[0], X[1]), _compose(X[0], X[1], b_p, b_q))
+    J_r_a, J_r_b = pair_noise_jacobians(a_q, rR, qE, X)
+    J_a_i, J_a_j = relative_pose_jacobians(A_q[i], a_p, a_q)
+    J_b_i, J_b_j = relative_pose_jacobians(B_q[i], b_p, b_q)
+    return (J_r_a @ J_a_i, J_r_b @ J_b_i), (J_r_a @ J_a_j, J_r_b @ J_b_j)
+
+
 # ---------------------------------------------------------------------------------------------
 # closed-form start
 
@@ -341,9 +383,13 @@ def solve_hand_eye(
         ``T_base_tool`` (stream a).
     sensor : PoseStream
         ``T_world_body`` of the body rigidly attached to the tool (stream b).
-    form : {"auto", "robot-world", "hand-eye"}
-        ``A X = Z B`` on absolute poses, or ``A X = X B`` on motion pairs; auto picks the
-        robot-world form when the streams have different source (base) frames.
+    form : {"auto", "robot-world", "robot-world-joint", "hand-eye"}
+        ``hand-eye``: ``A X = X B`` on motion pairs. ``robot-world``: X (and the clock) from
+        motion pairs, then Z from the absolute poses (slow drift of the sensor's world frame
+        within a run, as of inside-out headsets, does not bias X). ``robot-world-joint``:
+        ``A X = Z B`` jointly on absolute poses (more precise for a static world frame).
+        ``auto`` picks ``robot-world`` when the streams have different source (base) frames,
+        else ``hand-eye``.
     offset_s : float, optional
         Known clock offset (``t_a = t_b + offset``); found by
         :func:`~trackflow.calibration.estimate_clock_offset` when None.
@@ -366,8 +412,8 @@ def solve_hand_eye(
     """
     if form == "auto":
         form = "robot-world" if robot.source != sensor.source else "hand-eye"
-    if form not in ("robot-world", "hand-eye"):
-        raise ValueError(f"form must be 'auto', 'robot-world' or 'hand-eye', got {form!r}")
+    if form not in FORMS:
+        raise ValueError(f"form must be 'auto' or one of {', '.join(FORMS)}; got {form!r}")
     if estimate_drift and not estimate_offset:
         raise ValueError("estimate_drift needs estimate_offset")
     epoch = common_epoch_ns(robot, sensor)
@@ -386,13 +432,15 @@ def solve_hand_eye(
     B0 = tb.sample(grid[stations] - offset_s)
     As = (A.p[stations], A.q[stations])
     X0, _ = closed_form_X(*As, B0.p, B0.q, max_lag=int(round(10.0 / station_spacing_s)))
-    if form == "robot-world":
+    clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+    if form == "robot-world-joint":
         Z0 = closed_form_Z(*As, B0.p, B0.q, X0)
-        clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
         return _refine_robot_world(A, tb, grid, X0, Z0, clock)
     lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
-    clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
-    return _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
+    sol, times = _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
+    if form == "hand-eye":
+        return _result("hand-eye", sol, 1, clock, times, False)
+    return _world_after_pairs(A, tb, grid, sol, clock)
 
 
 @dataclass(frozen=True)
@@ -462,9 +510,8 @@ def _refine_robot_world(A, tb, grid, X0, Z0, clock: _Clock):
         return r, np.concatenate(J, axis=2)
 
     x0 = np.concatenate([X0[0], X0[1], Z0[0], Z0[1], clock.x0()])
-    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
-    sol = robust_solve(fun, x0, sigma, update=_manifold_step(2), groups=((0, 1, 2), (3, 4, 5)))
-    return _result("robot-world", sol, 2, clock, grid, True)
+    sol = robust_solve(fun, x0, _SIGMA0, update=_manifold_step(2), groups=_GROUPS)
+    return _result("robot-world-joint", sol, 2, clock, grid, True)
 
 
 def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, max_lag):
@@ -490,8 +537,11 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
         bp, bq, ok = rel_b(xc)
         r, J = pair_residuals(a_p, a_q, bp, bq, X, True)
         cols = [J]
-        # clock columns by central differences of the interpolated motion
-        for c, h in enumerate((1e-3, 1e-5)[: clock.n]):
+        # Clock columns by central differences of the interpolated motion over +-2 sample
+        # intervals of b (the drift's step shifts the farthest station as much): the slope of
+        # the expected motion, not of one noisy interpolation segment, whose noise would
+        # inflate J^T J and make the offset's covariance overconfident.
+        for c, h in enumerate(clock_steps[: clock.n]):
             d = np.zeros(clock.n)
             d[c] = h
             rp = pair_residuals(a_p, a_q, *rel_b(xc + d)[:2], X)
@@ -499,19 +549,70 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
             cols.append(((rp - rm) / (2 * h))[:, :, None])
         return np.where(ok[:, None], r, np.nan), np.concatenate(cols, axis=2)
 
+    h_off = 2.0 * tb.period_s
+    clock_steps = (h_off, h_off / max(float(np.max(np.abs(stations - clock.t_ref))), 1.0))
     x0 = np.concatenate([X0[0], X0[1], clock.x0()])
-    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
-    # The pairs are not independent. Those sharing a station carry that station's noise, so
-    # they hold only as much information as the stations (factor: mean pairs per station);
-    # real trackers add errors correlated over seconds, which the integrated autocorrelation
-    # time of the time-ordered residuals measures (robust_solve, correlated=True). The
-    # covariance is inflated by the larger of the two.
-    sol = robust_solve(fun, x0, sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5)))
-    used = np.unique(np.concatenate([i[sol.inliers], j[sol.inliers]]))
-    share = 2.0 * sol.inliers.sum() / max(len(used), 1)
-    if share > sol.tau:
-        sol = replace(sol, cov=sol.cov * (share / sol.tau), tau=share)
-    return _result("hand-eye", sol, 1, clock, stations[j], False)
+    sol = robust_solve(fun, x0, _SIGMA0, update=_manifold_step(1), groups=_GROUPS)
+    # The pairs are not independent (a station serves up to 2 max_lag pairs): the covariance
+    # is the sandwich over the station errors they share (see _pair_noise).
+    k = sol.inliers
+    B = tb.sample(clock.b_times(stations, sol.x[7:]))
+    r, J = fun(sol.x)
+    G_i, G_j = pair_station_jacobians(A.p, A.q, B.p, B.q, i[k], j[k], (sol.x[:3], sol.x[3:7]))
+    index, position = np.stack([i[k], j[k]], axis=1), np.arange(len(stations), dtype=float)
+    streams = [Stream(np.stack([G_i[s], G_j[s]], axis=1), index, position) for s in (0, 1)]
+    noise = fit_noise(r[k], streams, _GROUPS, _GROUPS)
+    cov = sandwich_covariance(J[k], sol.sigma**-2, streams, noise)
+    return replace(sol, cov=cov, tau=1.0), stations[j]
+
+
+def _fit_world(Ap, Aq, Bp, Bq, X):
+    """``Z = T_base_world`` with X fixed from poses at common instants (M, 3)/(M, 4): the
+    closed form, then robust Gauss-Newton on Z alone; the :class:`Solution`."""
+    Z0 = closed_form_Z(Ap, Aq, Bp, Bq, X)
+
+    def fun(x):
+        r, _, J_Z, _ = hand_eye_residuals(Ap, Aq, Bp, Bq, X, (x[:3], x[3:7]), jacobians=True)
+        return r, J_Z
+
+    return robust_solve(fun, np.concatenate(Z0), _SIGMA0, update=_manifold_step(1), groups=_GROUPS)
+
+
+def _world_after_pairs(A, tb, grid, pairs, clock: _Clock) -> HandEyeResult:
+    """The robot-world form: X and the clock from motion pairs (``pairs``), then Z from the
+    absolute poses at ``grid`` with them fixed.
+
+    Z's covariance adds what it inherits from X and the clock, ``K S K^T`` with
+    ``K = dZ/d(X, clock) = -(J_Z^T W J_Z)^-1 J_Z^T W J_(X, clock)``, to its own; the joint
+    covariance over ``(X, Z, clock)`` holds the cross terms ``K S``.
+    """
+    X, xc = (pairs.x[:3], pairs.x[3:7]), pairs.x[7:]
+    s = clock.b_times(grid, xc)
+    B = tb.sample(s)
+    ok = A.valid & B.valid
+    Ap, Aq, Bp, Bq = A.p[ok], A.q[ok], B.p[ok], B.q[ok]
+    sol = _fit_world(Ap, Aq, Bp, Bq, X)
+    Z = (sol.x[:3], sol.x[3:7])
+    v, w = velocities(tb, s[ok], 2.0 * tb.period_s)
+    _, J_X, J_Z, J_off = hand_eye_residuals(Ap, Aq, Bp, Bq, X, Z, v, w, jacobians=True)
+    cols = [J_X] + ([J_off[:, :, None]] if clock.estimate else [])
+    if clock.drift:
+        cols.append(J_off[:, :, None] * (grid[ok] - clock.t_ref)[:, None, None])
+    J_t = np.concatenate(cols, axis=2)[sol.inliers]
+    J_Zk = J_Z[sol.inliers]
+    W = sol.sigma**-2
+    H_Z = np.einsum("mbi,b,mbj->ij", J_Zk, W, J_Zk)
+    K = -np.linalg.solve(H_Z, np.einsum("mbi,b,mbj->ij", J_Zk, W, J_t))
+    S = pairs.cov
+    n = 12 + clock.n
+    th = np.r_[0:6, 12:n]
+    cov = np.zeros((n, n))
+    cov[np.ix_(th, th)] = S
+    cov[6:12, th] = K @ S
+    cov[th, 6:12] = (K @ S).T
+    cov[6:12, 6:12] = K @ S @ K.T + sol.cov
+    x = np.concatenate([pairs.x[:7], sol.x, xc])
+    return _result("robot-world", replace(sol, x=x, cov=cov), 2, clock, grid[ok], True)
 
 
 def evaluate_hand_eye(
@@ -575,16 +676,7 @@ def evaluate_with_world_fit(
     ok = A.valid & B.valid
     Ap, Aq, Bp, Bq = A.p[ok], A.q[ok], B.p[ok], B.q[ok]
     Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
-    Z0 = closed_form_Z(Ap, Aq, Bp, Bq, Xt)
-
-    def fun(x):
-        r, _, J_Z, _ = hand_eye_residuals(Ap, Aq, Bp, Bq, Xt, (x[:3], x[3:7]), jacobians=True)
-        return r, J_Z
-
-    sigma = np.array([1e-3] * 3 + [np.radians(0.5)] * 3)
-    sol = robust_solve(
-        fun, np.concatenate(Z0), sigma, update=_manifold_step(1), groups=((0, 1, 2), (3, 4, 5))
-    )
+    sol = _fit_world(Ap, Aq, Bp, Bq, Xt)
     r = sol.residuals
     dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
     da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))

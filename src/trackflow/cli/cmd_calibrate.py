@@ -117,10 +117,14 @@ def _register_hand_eye(sub):
         help="A X = X B / A X = Z B with covariance and the clock offset",
         description="ROBOT is T_base_tool, SENSOR is T_world_body of a body rigidly attached "
         "to the tool: X = T_tool_body, Z = T_base_world, t_robot = t_sensor + offset_s. The "
-        "robot-world form is used when the two streams have different base frames.",
+        "robot-world form is used when the two streams have different base frames: X and the "
+        "offset from short motion pairs (a drifting sensor world does not bias them), then Z "
+        "from the absolute poses; robot-world-joint fits all on absolute poses.",
     )
     _add_pair(p, "robot", "sensor")
-    p.add_argument("--form", choices=("auto", "robot-world", "hand-eye"), default="auto")
+    p.add_argument(
+        "--form", choices=("auto", "robot-world", "robot-world-joint", "hand-eye"), default="auto"
+    )
     p.add_argument("--offset", type=float, default=None, help="known clock offset, seconds")
     p.add_argument(
         "--fixed-offset", action="store_true", help="do not refine the offset (needs --offset)"
@@ -132,10 +136,8 @@ def _register_hand_eye(sub):
         help="evaluate a stored calibration (a --json output) on these recordings; "
         "nothing is re-estimated",
     )
-    p.add_argument("--min-pair-angle", type=float, default=5.0, help="degrees (hand-eye form)")
-    p.add_argument(
-        "--max-pair-span", type=float, default=2.0, help="seconds (hand-eye form motion pairs)"
-    )
+    p.add_argument("--min-pair-angle", type=float, default=5.0, help="degrees (motion pairs)")
+    p.add_argument("--max-pair-span", type=float, default=2.0, help="seconds (motion pairs)")
     p.set_defaults(func=run_hand_eye)
 
 
