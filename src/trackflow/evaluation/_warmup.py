@@ -3,7 +3,8 @@
 numba compiles a kernel the first time it runs with a new combination of argument types and
 caches the machine code on disk (``trackflow.math._backend``). :func:`compile_kernels` runs
 every library path the command line uses (tuning and scoring, filtering with covariances and
-predictions, the learned model, streaming filter queries for ``infer``, uncertain composition)
+predictions, the learned model, the whole-recording smoother of ``infer``, the live filter of
+``run``/``view``/``lookup``/``demo``, uncertain composition)
 on a small synthetic recording, so that a command's first run finds its kernels compiled.
 ``make`` calls it through ``trackflow compile`` right after installing.
 """
@@ -14,12 +15,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..filters import TwistARModel
+from ..filters import PoseKalmanFilter, TwistARModel
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, get_backend, quat_exp
 from ._model_file import filter_stream
 from ._ops import infer_streams
-from ._predictor import TwistARPredictor
+from ._predictor import TwistARPredictor, default_predictor
 from ._trajectory import Trajectory
 from ._tuning import evaluate_recording
 
@@ -66,10 +67,19 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
         filter_stream(stream, report.predictor, horizon, calibrate=True)
     steps.append("filter")
 
-    say("streaming filter queries (infer)")
+    say("whole-recording smoothing (infer)")
     inverse = PoseStream.from_poses("body", "world", t_ns, Pose(pos, quat).inverse())
     infer_streams(stream, inverse)
     steps.append("infer")
+
+    say("live filtering (run, view, lookup, demo)")
+    live = default_predictor(t, pos, quat)
+    kf = PoseKalmanFilter(live.model, history=1.0)
+    meas = live.measurements(pos[:50], quat[:50])
+    for k in range(50):
+        kf.update_pose(float(t[k]), meas[k])
+    kf.predict(float(t[49]) + 0.05), kf.predict(float(t[25]) + 1e-3)
+    steps.append("live")
 
     say("uncertain composition")
     c = np.diag([1e-6] * 3 + [1e-5] * 3)
