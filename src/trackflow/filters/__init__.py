@@ -27,7 +27,14 @@ All of them deliver ``trackflow.UncertainPose`` in the conventions of ``docs/con
 """
 
 from .contract import STATS_KEYS, FilterStatus, MeasurementFunction, PoseFilter
-from .derivative import FORMULATIONS, FilterResult, MotionModel, PoseKalmanFilter, run_filter
+from .derivative import (
+    FORMULATIONS,
+    FilterResult,
+    FilterSnapshot,
+    MotionModel,
+    PoseKalmanFilter,
+    run_filter,
+)
 from .factory import (
     constant_velocity_densities,
     filter_noise,
@@ -69,6 +76,7 @@ __all__ = [
     "STATS_KEYS",
     "CameraObservation",
     "FilterResult",
+    "FilterSnapshot",
     "FilterStatus",
     "GatePolicy",
     "MeasurementFunction",

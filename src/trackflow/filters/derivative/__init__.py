@@ -8,6 +8,13 @@ recordings). See ``docs/filters.md``.
 
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter
-from .streaming import PoseKalmanFilter
+from .streaming import FilterSnapshot, PoseKalmanFilter
 
-__all__ = ["FORMULATIONS", "FilterResult", "MotionModel", "PoseKalmanFilter", "run_filter"]
+__all__ = [
+    "FORMULATIONS",
+    "FilterResult",
+    "FilterSnapshot",
+    "MotionModel",
+    "PoseKalmanFilter",
+    "run_filter",
+]
