@@ -53,6 +53,7 @@ from .replica import RemoteFilter, StatePublisher
 __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
+_GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
 
 
 def _key(realm: str, *parts: str) -> str:
@@ -750,7 +751,7 @@ def calm_gc() -> None:
     allocates few objects that form cycles), so collections are rarer and stay short."""
     gc.collect()
     gc.freeze()
-    gc.set_threshold(20_000, 20, 50)
+    gc.set_threshold(*_GC_THRESHOLDS)
 
 
 def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=None) -> dict:

@@ -57,7 +57,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..filters import FilterSnapshot, MotionModel
-from ..math import Pose, UncertainPose
+from ..math import Pose, UncertainPose, kernels_for
+from . import kernels as _kernels
 
 __all__ = [
     "MAGIC",
@@ -81,6 +82,11 @@ _FLAG_COV = 0x01
 _FLAG_SEGMENT = 0x01
 _STATE_HEAD = struct.Struct("<2sBBQqqqbbBBHHI")
 _FORMULATIONS = ("error_state", "additive")
+_STATE_ERRORS = {
+    _kernels.STATE_NON_FINITE: "non-finite",
+    _kernels.STATE_NON_UNIT: "non-unit quaternion",
+    _kernels.STATE_NOT_PD: "invalid covariance",
+}
 _HEAD = struct.Struct("<2sBBQqqq7d")
 _COV = struct.Struct("<21d")
 _STAMPS = struct.Struct("<2sBBQqqq")
@@ -199,14 +205,9 @@ def _state_layout(n_dp: int, n_do: int, additive: int) -> tuple[int, int, int]:
 
 
 @lru_cache(maxsize=16)
-def _triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices of an n x n matrix's upper triangle, row by row, and for each entry of the
-    symmetric matrix its index in that triangle."""
-    iu = np.triu_indices(n)
-    sym = np.zeros((n, n), dtype=np.intp)
-    sym[iu] = np.arange(len(iu[0]))
-    sym.T[iu] = np.arange(len(iu[0]))
-    return np.ravel_multi_index(iu, (n, n)), sym
+def _triangle(n: int) -> np.ndarray:
+    """Flat indices of an n x n matrix's upper triangle, row by row."""
+    return np.ravel_multi_index(np.triu_indices(n), (n, n))
 
 
 def encode_state(
@@ -240,7 +241,7 @@ def encode_state(
         p.shape[0],
         0,
     )
-    return head + x.tobytes() + p.take(_triangle(p.shape[0])[0]).tobytes()
+    return head + x.tobytes() + p.take(_triangle(p.shape[0])).tobytes()
 
 
 def _check_version(b: bytes, want: int) -> None:
@@ -257,7 +258,7 @@ def _check_version(b: bytes, want: int) -> None:
 def decode_state(buf) -> StateSample:
     """Decode one filter-state message; raises :class:`WireError` (reasons of :func:`decode`,
     plus ``wrong kind`` for a pose message, ``unknown motion model`` and ``state size``)."""
-    b = bytes(buf)
+    b = buf if isinstance(buf, bytes) else bytes(buf)
     _check_version(b, STATE_VERSION)
     if len(b) < _STATE_HEAD.size:
         raise WireError("truncated", f"{len(b)} of {_STATE_HEAD.size} header bytes")
@@ -278,17 +279,11 @@ def decode_state(buf) -> StateSample:
             "truncated" if len(b) < want else "wrong length", f"{len(b)} of {want} bytes"
         )
     values = np.frombuffer(b, "<f8", offset=_STATE_HEAD.size)
-    if not np.isfinite(values).all():
-        raise WireError("non-finite")
-    x = values[:nx]
-    p = values[nx:][_triangle(nc)[1]]
-    with np.errstate(over="ignore", invalid="ignore"):  # finite but huge garbage: rejected
-        if qo >= 0 and not abs(float(x[qo : qo + 4] @ x[qo : qo + 4]) - 1.0) <= 1e-6:
-            raise WireError("non-unit quaternion")
-        try:  # a filter's covariance is positive definite
-            np.linalg.cholesky(p)
-        except np.linalg.LinAlgError:
-            raise WireError("invalid covariance", "not positive definite") from None
+    x = np.empty(nx)
+    p = np.empty((nc, nc))
+    code = kernels_for(_kernels).unpack_state(values, nx, nc, qo, x, p, np.empty((nc, nc)))
+    if code:
+        raise WireError(_STATE_ERRORS[code])
     return StateSample(seq, stamp, host, origin, n_dp, n_do, _FORMULATIONS[form], x, p, bool(flags))
 
 
