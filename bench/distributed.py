@@ -538,6 +538,8 @@ def _plot_demo(path: Path, ref: dict, results: dict, common: list, clock_sync: s
 def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = None) -> dict:
     from trackflow.distributed.wire import decode
 
+    work = work / f"demo_{clock_sync}"
+    work.mkdir(exist_ok=True)
     recs = make_demo_recordings(work, seconds)
     realm = f"demo{free_port()}"
     ports = {n: free_port() for n in ("tracker", "camera", "app")}
