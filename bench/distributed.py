@@ -320,6 +320,58 @@ def bench_latency(duration_s: float, work: Path) -> dict:
     }
 
 
+def bench_receive_path(n: int = 2000, repeats: int = 5) -> dict:
+    """CPU per message of a consumer, in process (no Zenoh), best of ``repeats``: the
+    previous design (decode a raw measurement, run the sensor's Kalman update) against the
+    placement (decode a filter state, adopt it in the replica) [us]."""
+    from trackflow.dataflow import KalmanFilter, Measurement, Network
+    from trackflow.distributed import RemoteFilter, RemoteSource, StatePublisher
+    from trackflow.distributed.wire import decode, decode_state, encode
+
+    motion = _sensor_setup().graph.edge("e00").motion
+    net = Network()
+    src = net.add(RemoteSource("s"))
+    kf = net.add(KalmanFilter("kf_s", motion))
+    states: list[bytes] = []
+
+    class _Keep:
+        put = staticmethod(states.append)
+
+    pub = net.add(StatePublisher("publish_s", kf, _Keep()))
+    net.connect(src, kf, mode="push")
+    net.connect(kf, pub, mode="push", port=0)
+    net.connect(src, pub, mode="push", port=1)
+    raw = []
+    for i in range(n):
+        t = 1_700_000_000_000_000_000 + i * 4_166_667
+        x = 0.1 * np.sin(2 * np.pi * 0.5 * i / RATE_HZ)
+        pose = UncertainPose(Pose([x, 0.0, 1.0], [0, 0, 0, 1]), np.eye(6) * 1e-6)
+        src.deliver(Measurement(t, pose, t))
+        raw.append(encode(pose, seq=i + 1, exposure_ns=t, host_ns=t, origin_ns=t))
+
+    def old_path():
+        f = KalmanFilter("kf_s", motion)
+        for b in raw:
+            w = decode(b)
+            f.push(Measurement(w.exposure_ns, w.pose, w.origin_ns))
+
+    def new_path():
+        f = RemoteFilter("kf_s", motion)
+        for b in states:
+            f.adopt(decode_state(b))
+
+    out = {}
+    for name, fn in (("raw_measurement_path_us", old_path), ("state_path_us", new_path)):
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.process_time()
+            fn()
+            best = min(best, (time.process_time() - t0) / n * 1e6)
+        out[name] = best
+    out["ratio"] = out["raw_measurement_path_us"] / out["state_path_us"]
+    return out
+
+
 # -- 3. re-planning after kill -9 --------------------------------------------------------------
 def _write_agent(path: Path, name: str, realm: str, zenoh: dict, start_ns: int = 0, **setup):
     doc = {"agent": {"name": name, "realm": realm, "zenoh": zenoh, "start_ns": int(start_ns)}}
@@ -652,7 +704,9 @@ def main() -> int:
                 print(json.dumps(bench_demo(work, args.demo_seconds, sync, plot), indent=2))
             return 0
         if args.only_latency:
-            print(json.dumps(bench_latency(args.latency_seconds, work), indent=2))
+            out = {"receive_path": bench_receive_path()}
+            out.update(bench_latency(args.latency_seconds, work))
+            print(json.dumps(out, indent=2))
             return 0
         plan = bench_plan()
         lat = bench_latency(args.latency_seconds, work)
@@ -672,6 +726,7 @@ def main() -> int:
                     {
                         **keys,
                         "plan_1000_frames_covariance_ms": plan["covariance"],
+                        "receive_path": bench_receive_path(),
                         "latency": lat,
                         "replan": rep,
                     },
