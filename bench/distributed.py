@@ -263,6 +263,7 @@ def bench_latency(duration_s: float, work: Path) -> dict:
 
     agent._deliver = timed
     gc_pauses: list[float] = []
+    gc_gens: list[int] = []
     gc_start = [0]
 
     def on_gc(phase, info):
@@ -270,6 +271,7 @@ def bench_latency(duration_s: float, work: Path) -> dict:
             gc_start[0] = time.perf_counter_ns()
         else:
             gc_pauses.append((time.perf_counter_ns() - gc_start[0]) * 1e-3)
+            gc_gens.append(info["generation"])
 
     with agent:
         calm_gc()
@@ -314,6 +316,10 @@ def bench_latency(duration_s: float, work: Path) -> dict:
         "receiver_cpu_us_per_message": cpu / max(n_cpu, 1) * 1e6,
         "receiver_gc_collections": len(gc_pauses),
         "receiver_gc_max_pause_us": max(gc_pauses, default=0.0),
+        "receiver_gc_pauses_us_by_generation": {
+            g: sorted(round(t) for t, k in zip(gc_pauses, gc_gens) if k == g)[-5:]
+            for g in sorted(set(gc_gens))
+        },
         "receiver_rejections": receiver["rejections"],
         "receiver_lost_messages": receiver["lost_messages"],
         "receiver_running": sum(q["state"] == "running" for q in receiver["queries"].values()),

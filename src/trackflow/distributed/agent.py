@@ -269,7 +269,8 @@ class Agent:
             self._publishers[edge.name] = StatePublisher(
                 f"publish_{edge.name}",
                 kf,
-                self.session.declare_publisher(_key(self.realm, "edge", edge.name)),
+                # express: each state leaves at once, not batched with later ones
+                self.session.declare_publisher(_key(self.realm, "edge", edge.name), express=True),
             )
         with self._lock:
             self._rebuild_base()

@@ -109,6 +109,11 @@ class RemoteFilter(KalmanFilter):
         super().__init__(name, motion, role="predictor", stamp_offset_ns=stamp_offset_ns)
         self.time_sigma_s = 0.0
 
+    def reset(self) -> None:
+        super().reset()
+        model = self.filter.model
+        self._model_key = (model.n_dp, model.n_do, self.filter.formulation)
+
     def push(self, m: Measurement, port: int = 0) -> None:
         raise ValueError(f"{self.name}: a remote filter adopts filter states, not measurements")
 
@@ -117,8 +122,7 @@ class RemoteFilter(KalmanFilter):
         the newest state); pushes a trigger at the state's time to push consumers."""
         self.stats.events_in += 1
         f = self.filter
-        model = f.model
-        if (s.n_dp, s.n_do, s.formulation) != (model.n_dp, model.n_do, f.formulation):
+        if (s.n_dp, s.n_do, s.formulation) != self._model_key:
             self.stats.reject("another motion model")
             return False
         t = s.stamp_ns - offset_ns

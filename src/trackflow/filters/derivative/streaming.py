@@ -217,7 +217,8 @@ class PoseKalmanFilter(FilterClock):
         queries smoothed between adopted states, are then the other copy's answers.
 
         A state at the newest time replaces the newest one (the other copy re-filtered it);
-        an older one is refused (``False``, counted in ``stats["rejected_old"]``).
+        an older one is refused (``False``, counted in ``stats["rejected_old"]``). The
+        snapshot's arrays are kept in the history as they are: do not change them afterwards.
 
         Raises
         ------
@@ -225,8 +226,8 @@ class PoseKalmanFilter(FilterClock):
             If the state's shapes are not this model's.
         """
         t = float(snap.t)
-        x = np.array(snap.x, dtype=float)
-        p = np.array(snap.p, dtype=float)
+        x = np.asarray(snap.x, dtype=float)  # kept in the history (read only), not copied
+        p = np.asarray(snap.p, dtype=float)
         if x.shape != self._x0.shape or p.shape != self._p0.shape or not math.isfinite(t):
             raise ValueError(
                 f"state of shape {x.shape} / {p.shape} at t={t} does not fit this filter "
