@@ -712,7 +712,8 @@ class Agent:
 
     # -- status ---------------------------------------------------------------------------------
     def status(self) -> dict:
-        """Plans, re-plan events, rejections and clock offsets, as plain JSON-able data."""
+        """Plans, re-plan events, rejections, the replicas of other agents' sensor filters
+        (states adopted, rejections) and clock offsets, as plain JSON-able data."""
         with self._lock:
             out = {
                 "agent": self.name,
@@ -724,6 +725,11 @@ class Agent:
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
                 "skipped_samples": self.skipped_samples,
+                "replicas": {
+                    n: {"states": f.stats.events_in, "rejections": dict(f.stats.rejections)}
+                    for n, f in sorted(self._filters.items())
+                    if isinstance(f, RemoteFilter)
+                },
                 "clocks": {
                     n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
                     for n, r in self._remotes.items()
