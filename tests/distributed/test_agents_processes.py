@@ -152,7 +152,7 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
         assert r.pose.covariance.shape == (6, 6) and np.all(np.isfinite(r.pose.position))
         # c runs no filter of its own: it adopts the states of s1's filter, which runs on a
         replica = status(session, realm, "c")["replicas"]["s1"]
-        assert replica["states"] > 20 and not replica["rejections"]
+        assert replica["states"] > 20 and "another motion model" not in replica["rejections"]
 
         # garbage, unknown versions and poses where filter states belong are counted,
         # nothing else happens

@@ -56,10 +56,12 @@ def test_replica_through_the_wire_answers_as_the_sensor_filter():
     src, kf, wire = _sensor_side()
     rep = RemoteFilter("kf_s", MOTION, stamp_offset_ns=OFFSET_NS)
     checked = 0
-    for i in range(480):
-        src.deliver(_measurement(i, rng, jump=200 <= i < 203))
+    for i in range(240):
+        src.deliver(_measurement(i, rng, jump=150 <= i < 153))
         while wire.sent:
             assert rep.adopt(decode_state(wire.sent.pop(0)))
+        if i % 8 and not 150 <= i < 158:
+            continue  # ask every eighth step and around the jump (Python kernels: test-min)
         t = _measurement(i, rng).t_ns - OFFSET_NS
         for tq in (t + 10_000_000, t, t - 2_000_000, t - 300_000_000):
             a, b = kf.pull(tq), rep.pull(tq)
@@ -70,9 +72,9 @@ def test_replica_through_the_wire_answers_as_the_sensor_filter():
                 assert np.array_equal(a.pose.position, b.pose.position)
                 assert np.array_equal(a.pose.quaternion, b.pose.quaternion)
                 assert np.array_equal(a.pose.covariance, b.pose.covariance)
-    assert checked > 1500
+    assert checked > 100
     assert kf.filter.stats["rejected_gate"] == 3  # the jump was gated and its states sent too
-    assert rep.stats.events_in == 480
+    assert rep.stats.events_in == 240
 
 
 def test_replica_rejects_other_models_and_old_states_and_maps_clocks():

@@ -19,15 +19,17 @@ def _measurements(n, rng, jump_at=None):
         yield t, UncertainPose(Pose(p, q), np.diag([1e-6] * 3 + [1e-5] * 3))
 
 
-@pytest.mark.parametrize("n_dp,n_do", [(1, 1), (2, 1), (0, 0)])
-@pytest.mark.parametrize("formulation", ["error_state", "additive"])
+@pytest.mark.parametrize(
+    "n_dp,n_do,formulation",
+    [(1, 1, "error_state"), (1, 1, "additive"), (2, 1, "error_state"), (0, 0, "error_state")],
+)
 def test_replica_answers_bit_identically(n_dp, n_do, formulation):
     rng = np.random.default_rng(3)
     model = MotionModel(n_dp, n_do)
-    src = PoseKalmanFilter(model, history=0.5, formulation=formulation)
-    rep = PoseKalmanFilter(model, history=0.5, formulation=formulation)
+    src = PoseKalmanFilter(model, history=0.3, formulation=formulation)
+    rep = PoseKalmanFilter(model, history=0.3, formulation=formulation)
     adopted, last = 0, None
-    for t, z in _measurements(300, rng, jump_at=200):
+    for i, (t, z) in enumerate(_measurements(150, rng, jump_at=110)):
         src.update_pose(t, z)
         snap = src.snapshot()
         if snap.x is last:
@@ -35,14 +37,16 @@ def test_replica_answers_bit_identically(n_dp, n_do, formulation):
         last = snap.x  # a new state, also after a gated measurement (a pure prediction)
         assert rep.adopt(snap)
         adopted += 1
-        for tq in (t + 0.013, t, t - 0.004, t - 0.1, t - 0.45):
-            if tq >= 0.5:  # the same states: the same answers to the last bit
+        if i % 3:
+            continue  # ask every third step (the kernels in Python are slow under test-min)
+        for tq in (t + 0.013, t, t - 0.004, t - 0.1, t - 0.28):
+            if tq >= 0.3:  # the same states: the same answers to the last bit
                 a, b = src.predict(tq), rep.predict(tq)
                 assert np.array_equal(a.position, b.position)
                 assert np.array_equal(a.quaternion, b.quaternion)
                 assert np.array_equal(a.covariance, b.covariance)
     assert src.stats["resets"] >= 1 and src.stats["rejected_gate"] >= 10  # gated, then reset
-    assert rep.stats["updates"] == adopted == 300
+    assert rep.stats["updates"] == adopted == 150
 
 
 def test_snapshot_and_adopt_contract():
