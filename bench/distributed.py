@@ -67,16 +67,21 @@ def spawn(args: list[str], log: Path) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, *args], stdout=out, stderr=subprocess.STDOUT, env=env)
 
 
-def spawn_agent(yaml_path: Path, *args: str, log_dir: Path) -> subprocess.Popen:
+def spawn_agent(yaml_path: Path, *args: str, log_dir: Path, wait: bool = True) -> subprocess.Popen:
     log = log_dir / f"{yaml_path.stem}.{time.monotonic_ns()}.log"
     p = spawn(["-m", "trackflow.cli.main", "agent", str(yaml_path), *args], log)
     p.log = log
-    deadline = time.monotonic() + 90
-    while '"ready"' not in log.read_text():
-        if p.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError(f"agent {yaml_path} failed:\n{log.read_text()}")
-        time.sleep(0.1)
+    if wait:
+        wait_ready(p)
     return p
+
+
+def wait_ready(p: subprocess.Popen, timeout_s: float = 90) -> None:
+    deadline = time.monotonic() + timeout_s
+    while '"ready"' not in p.log.read_text():
+        if p.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f"agent failed:\n{p.log.read_text()}")
+        time.sleep(0.1)
 
 
 def stop(p: subprocess.Popen) -> None:
@@ -625,7 +630,9 @@ def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = 
             ]
             for o in connect[n]:
                 args += ["--connect", ep(ports[o])]
-            procs.append(spawn_agent(files[n], *args, log_dir=work))
+            procs.append(spawn_agent(files[n], *args, log_dir=work, wait=False))
+        for p in procs:  # started together: the slowest start-up counts, not their sum
+            wait_ready(p)
         session = observer([ep(p) for p in ports.values()])
 
         def on_result(sample) -> None:
