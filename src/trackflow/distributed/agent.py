@@ -162,7 +162,7 @@ class Agent:
                 f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
             ) from None
         s, r = self.session, self.realm
-        warm_up(self._first_motion())
+        warm_up()  # compiled kernels are typed, not sized: one model warms them for all
         self._own_sensors()
         self._decl = [
             s.declare_queryable(_key(r, "fragment", self.name), self._on_fragment_query),
@@ -196,14 +196,6 @@ class Agent:
         for _, th in self._players:
             th.start()
         return self
-
-    def _first_motion(self):
-        """The motion model of the agent's first dynamic sensor, for warming the kernels up
-        (``None``: the default model; the kernels are the same for every model)."""
-        for e in self.setup.graph.edges:
-            if e.kind == "measured" and not e.motion.static:
-                return e.motion
-        return None
 
     def close(self) -> None:
         """Stop every thread and close the Zenoh session (tokens disappear for the others)."""
