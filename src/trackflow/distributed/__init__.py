@@ -16,7 +16,7 @@ from .agent import Agent, QueryState, RemoteSource, calm_gc, remote_get, run_age
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
 from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
-from .replica import RemoteFilter, StatePublisher
+from .replica import RemoteFilter, RemoteGet, StatePublisher
 from .wire import (
     Rejections,
     StateSample,
@@ -35,6 +35,7 @@ __all__ = [
     "QueryState",
     "Rejections",
     "RemoteFilter",
+    "RemoteGet",
     "RemoteSource",
     "StatePublisher",
     "StateSample",

@@ -45,10 +45,10 @@ from ..dataflow import (
 from ..graph import Edge, SpatialRelationshipGraph
 from ..math import UncertainPose
 from . import wire
-from .clock import ClockOffset
+from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
-from .replica import RemoteFilter, StatePublisher, warm_up
+from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
 
 __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
@@ -479,7 +479,7 @@ class Agent:
         finds their replicas current."""
         with self._lock:
             graph = self.union_graph()
-            changed, plans, used, new_events = False, {}, set(), []
+            changed, plans, used, pushed, new_events = False, {}, set(), set(), []
             for name, q in self.setup.queries.items():
                 st = self.queries[name]
                 try:
@@ -492,7 +492,10 @@ class Agent:
                         st.events.append(self._event(reason, t_event_ns, st))
                     continue
                 plans[name] = plan
-                used |= {s for p in plan.paths for s in p.sensors}
+                sensors = {s for p in plan.paths for s in p.sensors}
+                used |= sensors
+                if q.mode == "push":
+                    pushed |= sensors
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue
@@ -502,8 +505,11 @@ class Agent:
                 changed = True
             if not changed:
                 return
-            for edge in sorted(used - set(self._sources)):
-                self._subscribe(graph.edge(edge))
+            for edge in sorted(used - self._own):
+                if self.cfg.pull_via == "replica" or edge in pushed:
+                    self._subscribe(graph.edge(edge))
+                elif edge not in self._sources:
+                    self._ask_per_request(graph.edge(edge))
             net = self._rebuild_base()
             for name, plan in plans.items():
                 st = self.queries[name]
@@ -530,7 +536,9 @@ class Agent:
         }
 
     def _subscribe(self, edge: Edge) -> None:
-        if edge.name in self._sources:
+        """A replica of a remote sensor's filter, fed by a subscription to its states (also
+        replacing a per-request node once a push query needs the sensor)."""
+        if isinstance(self._filters.get(edge.name), RemoteFilter):
             return
         self._sources[edge.name] = RemoteSource(edge.name)
         self._filters[edge.name] = RemoteFilter(
@@ -540,6 +548,43 @@ class Agent:
             _key(self.realm, "edge", edge.name),
             lambda sample, name=edge.name: self._on_state(name, sample),
         )
+
+    def _ask_per_request(self, edge: Edge) -> None:
+        """``pull_via: get``: a node asking the sensor's agent ``get/<edge>?t=`` per request."""
+        self._sources[edge.name] = RemoteSource(edge.name)
+        self._filters[edge.name] = RemoteGet(
+            f"kf_{edge.name}",
+            edge.motion,
+            lambda t_ns, name=edge.name: self._fetch(name, t_ns),
+            stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9)),
+        )
+
+    def _fetch(self, edge: str, t_ns: int) -> Measurement | None:
+        """The remote sensor filter's answer at ``t_ns`` (this agent's clock) by a Zenoh query
+        (0.5 s timeout): mapped onto this clock, with the offset's uncertainty through the
+        relationship's velocity (a second query 1 ms earlier gives it)."""
+        import zenoh
+
+        rem = self._remotes.get(self._live.get(edge, ""))
+        if rem is None:
+            return None
+        offset, sigma = 0, 0.0
+        if self.cfg.clock_sync == "estimate":
+            if not rem.clock.known:
+                return None
+            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+        try:
+            w = remote_get(self.session, self.realm, f"get/{edge}", t_ns + offset, 0.5)
+            pose = w.pose
+            if sigma > 0:
+                b = remote_get(self.session, self.realm, f"get/{edge}", t_ns + offset - 10**6, 0.5)
+                xi = twist_between(
+                    b.pose.position, b.pose.quaternion, pose.position, pose.quaternion, 1e-3
+                )
+                pose = UncertainPose(pose.pose, pose.covariance + time_error_covariance(xi, sigma))
+        except (ValueError, zenoh.ZError):  # error reply, no reply, undecodable, session gone
+            return None
+        return Measurement(w.exposure_ns - offset, pose, w.origin_ns - offset)
 
     # -- data path ------------------------------------------------------------------------------
     def _on_state(self, edge: str, sample) -> None:

@@ -24,7 +24,7 @@ from ..math import UncertainPose
 from . import wire
 from .clock import time_error_covariance, twist_between
 
-__all__ = ["RemoteFilter", "StatePublisher", "warm_up"]
+__all__ = ["RemoteFilter", "RemoteGet", "StatePublisher", "warm_up"]
 
 _TWIST_STEP_NS = 1_000_000  # the velocity for the clock's time error: over the last 1 ms
 
@@ -155,6 +155,44 @@ class RemoteFilter(KalmanFilter):
 
     def describe(self) -> str:
         return super().describe().replace("kalman", "remote filter", 1)
+
+
+class RemoteGet(KalmanFilter):
+    """The filter node of another agent's sensor for pull queries that ask the sensor's agent
+    per request (agent option ``pull_via: get``): ``pull(t)`` is one Zenoh query to
+    ``get/<edge>?t=`` (a round trip; nothing is streamed).
+
+    Parameters
+    ----------
+    name : str
+    motion : MotionSpec
+    fetch : callable
+        ``fetch(t_ns) -> Measurement | None``: the sensor filter's answer at ``t_ns`` on this
+        agent's clock (the agent maps the clocks and adds the offset's uncertainty).
+    stamp_offset_ns : int
+        The edge's stamp offset (only so that plans recognise the node as the sensor's
+        filter).
+    """
+
+    kind = "remote get"
+
+    def __init__(self, name: str, motion: MotionSpec, fetch, *, stamp_offset_ns: int = 0):
+        super().__init__(name, motion, role="predictor", stamp_offset_ns=stamp_offset_ns)
+        self.fetch = fetch
+
+    def push(self, m: Measurement, port: int = 0) -> None:
+        raise ValueError(f"{self.name}: a remote get has no push input")
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        m = self.fetch(int(t_ns))
+        if m is None:
+            self.stats.reject("no answer from the sensor's agent")
+            return None
+        self.stats.events_out += 1
+        return m
+
+    def describe(self) -> str:
+        return super().describe().replace("kalman", "remote get", 1)
 
 
 def warm_up(motion: MotionSpec | None = None) -> None:
