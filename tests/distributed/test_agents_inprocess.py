@@ -113,3 +113,41 @@ def test_cli_reports_a_port_in_use(tmp_path, capsys):
         assert main(["agent", str(p), "--duration", "1"]) == 1
     err = capsys.readouterr().err
     assert "cannot open the Zenoh session" in err
+
+
+@pytest.mark.slow
+def test_pull_via_get_asks_the_sensor_agent_per_request():
+    """``pull_via: get``: no subscription, no replica; each pull is a Zenoh query to the
+    sensor agent's get(t), whose answer it returns unchanged (one clock: clock_sync none)."""
+    from trackflow.distributed import RemoteGet, remote_get
+
+    realm = f"pv{free_port()}"
+    pa, pc = free_port(), free_port()
+    app = AgentConfig(
+        "app",
+        parse_setup({"frames": ["W", "X"], "queries": [dict(name="q", source="W", target="X")]}),
+        realm=realm,
+        clock_sync="none",
+        pull_via="get",
+        zenoh={
+            "listen": {"endpoints": [endpoint(pc)]},
+            "connect": {"endpoints": [endpoint(pa)]},
+        },
+    )
+    sensor = AgentConfig(
+        "sensor",
+        parse_setup({"sensors": [_sensor("s", 5)]}),
+        realm=realm,
+        clock_sync="none",
+        zenoh={"listen": {"endpoints": [endpoint(pa)]}},
+    )
+    with Agent(sensor) as a, Agent(app) as c:
+        wait_for(lambda: c.queries["q"].paths == ["W->X[s]"], 30)
+        _feed(a, "s")
+        t = a.now_ns() - 15_000_000
+        m = wait_for(lambda: c.get("q", t), 10)
+        direct = remote_get(c.session, realm, "get/s", t)
+        assert np.array_equal(m.pose.position, direct.pose.position)
+        assert np.array_equal(m.pose.covariance, direct.pose.covariance)
+        assert isinstance(c._filters["s"], RemoteGet) and not c._subs  # nothing streamed
+        assert c.status()["replicas"] == {}

@@ -150,20 +150,24 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
         wait_for(lambda: len(results) >= 10, 20)
         r = results[-1]
         assert r.pose.covariance.shape == (6, 6) and np.all(np.isfinite(r.pose.position))
+        # c runs no filter of its own: it adopts the states of s1's filter, which runs on a
+        replica = status(session, realm, "c")["replicas"]["s1"]
+        assert replica["states"] > 20 and "another motion model" not in replica["rejections"]
 
-        # garbage and unknown versions on the key space are counted, nothing else happens
-        good = encode(
+        # garbage, unknown versions and poses where filter states belong are counted,
+        # nothing else happens
+        pose = encode(
             UncertainPose(Pose.identity(), np.eye(6) * 1e-6), seq=1, exposure_ns=0, host_ns=0
         )
         for _ in range(5):
             session.put(f"trackflow/{realm}/edge/s1", b"garbage")
-            session.put(f"trackflow/{realm}/edge/s1", good[:2] + struct.pack("<B", 9) + good[3:])
+            session.put(f"trackflow/{realm}/edge/s1", pose[:2] + struct.pack("<B", 9) + pose[3:])
+            session.put(f"trackflow/{realm}/edge/s1", pose)
 
         def counted():
             rej = (status(session, realm, "c") or {}).get("rejections", {})
-            return (
-                rej if rej.get("bad magic", 0) >= 5 and rej.get("unknown version", 0) >= 5 else None
-            )
+            kinds = ("bad magic", "unknown version", "wrong kind")
+            return rej if all(rej.get(k, 0) >= 5 for k in kinds) else None
 
         wait_for(counted, 20)
 
@@ -194,6 +198,13 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
         assert abs(sample.pose.position[2] - 1.0) < 0.05  # the recordings hold z = 1 m
         edge = remote_get(session, realm, "get/s2", time.time_ns() - 50_000_000)
         assert abs(edge.pose.position[2] - 1.0) < 0.05
+        # placement: d answers from its replica of s1's filter (running on a) what a's filter
+        # answers itself, up to the estimated clock offset between the two (~0.01 ms)
+        wait_for(_running_on(session, realm, "d", "qd", "s1"), 30)
+        t = time.time_ns() - 50_000_000
+        at_d = remote_get(session, realm, "query/qd", t)
+        at_a = remote_get(session, realm, "get/s1", t)
+        assert np.linalg.norm(at_d.pose.position - at_a.pose.position) < 1e-4
         with pytest.raises(ValueError, match="missing or not an integer"):
             for reply in session.get(f"trackflow/{realm}/query/qd?t=soon", timeout=3.0):
                 if reply.err is not None:

@@ -62,6 +62,7 @@ def test_example_agents_split_the_demo_setup():
         ("agent: {name: a, colour: red}\n", "unknown keys"),
         ("agent: {name: 'a b'}\n", "use letters, digits"),
         ("agent: {name: a, clock_sync: ntp}\n", "clock_sync"),
+        ("agent: {name: a, pull_via: rpc}\n", "pull_via must be"),
         ("agent: {name: a}\nsensors: [{name: s, source: A}]\n", "missing key 'target'"),
     ],
 )

@@ -1,7 +1,8 @@
 """Distributed ubiquitous tracking on Eclipse Zenoh (thesis chapter 2, DWARF-style agents).
 
 Agents advertise their fragment of the spatial relationship graph (liveliness token per edge,
-fragment queryable), publish measurements in a versioned binary encoding
+fragment queryable), run each sensor's filter next to the sensor and publish its states in a
+versioned binary encoding
 (:mod:`trackflow.distributed.wire`, ``docs/wire.md``), assemble the union graph, plan their
 queries with the single-process planner and re-plan when sensors come and go. Remote stamps
 are mapped with a measured clock offset whose uncertainty enters the covariance
@@ -11,26 +12,42 @@ Needs the ``eclipse-zenoh`` package (``pip install trackflow[distributed]``); im
 this package works without it, opening an agent does not.
 """
 
-from .agent import Agent, EdgePublisher, QueryState, RemoteSource, remote_get, run_agent
+from .agent import Agent, QueryState, RemoteSource, calm_gc, remote_get, run_agent
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
 from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
-from .wire import Rejections, WireError, WireSample, decode, encode
+from .replica import RemoteFilter, RemoteGet, StatePublisher
+from .wire import (
+    Rejections,
+    StateSample,
+    WireError,
+    WireSample,
+    decode,
+    decode_state,
+    encode,
+    encode_state,
+)
 
 __all__ = [
     "Agent",
     "AgentConfig",
     "ClockOffset",
-    "EdgePublisher",
     "QueryState",
     "Rejections",
+    "RemoteFilter",
+    "RemoteGet",
     "RemoteSource",
+    "StatePublisher",
+    "StateSample",
     "WireError",
     "WireSample",
+    "calm_gc",
     "decode",
+    "decode_state",
     "edge_from_dict",
     "edge_to_dict",
     "encode",
+    "encode_state",
     "fragment_json",
     "load_agent",
     "parse_fragment",

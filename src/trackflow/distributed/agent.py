@@ -5,7 +5,7 @@ Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
     trackflow/<realm>/alive/<agent>/<edge>   liveliness token per edge the agent provides
     trackflow/<realm>/fragment/<agent>       queryable: the agent's SRG fragment (JSON)
     trackflow/<realm>/clock/<agent>          queryable: the agent's clock reading (int64 ns)
-    trackflow/<realm>/edge/<edge>            pub/sub: measurements of a sensor (docs/wire.md)
+    trackflow/<realm>/edge/<edge>            pub/sub: a sensor filter's states (docs/wire.md, v2)
     trackflow/<realm>/get/<edge>?t=<ns>      queryable: the sensor filter's get(t) (wire)
     trackflow/<realm>/query/<query>?t=<ns>   queryable: a pull query's get(t) (wire)
     trackflow/<realm>/result/<query>         pub/sub: a push query's results (wire)
@@ -13,10 +13,12 @@ Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
 
 Every agent assembles the union graph of the live fragments (discovered through the tokens,
 fetched from the fragment queryables) and plans its own queries with
-:func:`trackflow.dataflow.plan_query`. Measured edges of other agents enter its dataflow as
-remote sources fed by subscriptions; each sensor's Kalman filter runs where the sensor is
-(answering ``get/<edge>``) and, for time alignment, at each consumer of a push query. When a
-token disappears the affected queries re-plan at once (or report "no path" with the reason).
+:func:`trackflow.dataflow.plan_query`. Each sensor's Kalman filter runs where the sensor is
+(answering ``get/<edge>``) and publishes its state after every measurement; a consumer's plan
+uses another agent's sensor through a replica of that filter fed with those states
+(:mod:`trackflow.distributed.replica`), and does the inversion, chaining, time alignment and
+fusion itself. When a token disappears the affected queries re-plan at once (or report "no
+path" with the reason).
 """
 
 from __future__ import annotations
@@ -29,8 +31,6 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field
-
-import numpy as np
 
 from ..dataflow import (
     Component,
@@ -48,10 +48,12 @@ from . import wire
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
+from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
 
-__all__ = ["Agent", "EdgePublisher", "QueryState", "RemoteSource", "remote_get", "run_agent"]
+__all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
+_GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
 
 
 def _key(realm: str, *parts: str) -> str:
@@ -59,7 +61,10 @@ def _key(realm: str, *parts: str) -> str:
 
 
 class RemoteSource(Component):
-    """A measured edge of another agent: pushes what its subscription receives."""
+    """The source node of a measured edge fed from outside the network: a live sensor of this
+    agent (:meth:`Agent.feed`), or another agent's sensor (whose states go straight to its
+    :class:`~trackflow.distributed.replica.RemoteFilter`; this node then only stands for the
+    sensor in the plan)."""
 
     push_out = True
     kind = "remote source"
@@ -67,32 +72,6 @@ class RemoteSource(Component):
     def deliver(self, m: Measurement) -> None:
         self.stats.events_in += 1
         self.emit(m)
-
-
-class EdgePublisher(Component):
-    """Publishes every pushed measurement of an own sensor on ``edge/<name>`` (wire format);
-    the host stamp is the network clock at the push (the sample's arrival)."""
-
-    push_in = 1
-    kind = "edge publisher"
-
-    def __init__(self, name: str, publisher):
-        super().__init__(name)
-        self.publisher = publisher
-        self.seq = 0
-
-    def push(self, m: Measurement, port: int = 0) -> None:
-        self.stats.events_in += 1
-        self.seq += 1
-        buf = wire.encode(
-            m.pose,
-            seq=self.seq,
-            exposure_ns=m.t_ns,
-            host_ns=self.clock.now_ns,
-            origin_ns=m.origin_ns,
-        )
-        self.publisher.put(buf)
-        self.stats.events_out += 1
 
 
 @dataclass
@@ -141,7 +120,7 @@ class Agent:
         self.late_events = 0
         self.missed_ticks = 0
         self.skipped_samples = 0
-        self._publishers: dict[str, EdgePublisher] = {}
+        self._publishers: dict[str, StatePublisher] = {}
         self._own: set[str] = set()
         self.queries = {n: QueryState(n) for n in self.setup.queries}
         self._lock = threading.RLock()
@@ -159,7 +138,6 @@ class Agent:
         self._sources: dict[str, Component] = {}
         self._filters: dict[str, KalmanFilter] = {}
         self._last_seq: dict[str, int] = {}
-        self._last_pose: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         self._subs: dict[str, object] = {}
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
@@ -184,6 +162,7 @@ class Agent:
                 f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
             ) from None
         s, r = self.session, self.realm
+        warm_up()  # compiled kernels are typed, not sized: one model warms them for all
         self._own_sensors()
         self._decl = [
             s.declare_queryable(_key(r, "fragment", self.name), self._on_fragment_query),
@@ -250,8 +229,8 @@ class Agent:
 
     # -- own sensors ----------------------------------------------------------------------------
     def _own_sensors(self) -> None:
-        """A source, its Kalman filter (answering get/<edge>) and a publisher per own sensor;
-        recordings are played in real time from ``start_ns``."""
+        """A source, its Kalman filter (answering get/<edge>) and the publisher of its states
+        per own sensor; recordings are played in real time from ``start_ns``."""
         from ..io import read_stream
 
         for edge in self.setup.graph.edges:
@@ -277,11 +256,13 @@ class Agent:
                 src = RemoteSource(edge.name)
                 src.kind = "live source"
             self._sources[edge.name] = src
-            self._filters[edge.name] = self._make_filter(edge)
+            kf = self._filters[edge.name] = self._make_filter(edge)
             self._own.add(edge.name)
-            self._publishers[edge.name] = EdgePublisher(
+            self._publishers[edge.name] = StatePublisher(
                 f"publish_{edge.name}",
-                self.session.declare_publisher(_key(self.realm, "edge", edge.name)),
+                kf,
+                # express: each state leaves at once, not batched with later ones
+                self.session.declare_publisher(_key(self.realm, "edge", edge.name), express=True),
             )
         with self._lock:
             self._rebuild_base()
@@ -297,7 +278,8 @@ class Agent:
 
     def _rebuild_base(self) -> Network:
         """A fresh network holding every source with its filter (kept across re-plans, so
-        their state survives) and the publishers of own sensors."""
+        their state survives): own sensors' filters push into their state publishers, other
+        agents' sensors are replicas fed by the subscriptions."""
         net = Network()
         for name, src in self._sources.items():
             src.consumers = []
@@ -305,12 +287,15 @@ class Agent:
             kf.consumers = []
             net.add(src)
             net.add(kf)
+            if isinstance(kf, RemoteFilter):
+                continue
             net.connect(src, kf, mode="push")
             pub = self._publishers.get(name)
-            if pub is not None:
+            if pub is not None:  # states leave before local inference (see StatePublisher)
                 pub.consumers = []
                 net.add(pub)
-                net.connect(src, pub, mode="push")
+                net.connect(kf, pub, mode="push", port=0)
+                net.connect(src, pub, mode="push", port=1)
         self.net = net
         return net
 
@@ -489,12 +474,12 @@ class Agent:
 
     def _replan(self, reason: str, t_event_ns: int) -> None:
         """Plan every query on the current union graph; rebuild the dataflow if a plan
-        changed. Remote sensors are subscribed when a plan first uses them (only the rates
-        the queries need cross the network) and stay subscribed, so a later switch back
-        finds their filters warm."""
+        changed. Remote sensors are subscribed when a plan first uses them (a sensor no
+        query uses never crosses the network) and stay subscribed, so a later switch back
+        finds their replicas current."""
         with self._lock:
             graph = self.union_graph()
-            changed, plans, used, new_events = False, {}, set(), []
+            changed, plans, used, pushed, new_events = False, {}, set(), set(), []
             for name, q in self.setup.queries.items():
                 st = self.queries[name]
                 try:
@@ -507,7 +492,10 @@ class Agent:
                         st.events.append(self._event(reason, t_event_ns, st))
                     continue
                 plans[name] = plan
-                used |= {s for p in plan.paths for s in p.sensors}
+                sensors = {s for p in plan.paths for s in p.sensors}
+                used |= sensors
+                if q.mode == "push":
+                    pushed |= sensors
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue
@@ -517,8 +505,11 @@ class Agent:
                 changed = True
             if not changed:
                 return
-            for edge in sorted(used - set(self._sources)):
-                self._subscribe(graph.edge(edge))
+            for edge in sorted(used - self._own):
+                if self.cfg.pull_via == "replica" or edge in pushed:
+                    self._subscribe(graph.edge(edge))
+                elif edge not in self._sources:
+                    self._ask_per_request(graph.edge(edge))
             net = self._rebuild_base()
             for name, plan in plans.items():
                 st = self.queries[name]
@@ -545,19 +536,63 @@ class Agent:
         }
 
     def _subscribe(self, edge: Edge) -> None:
-        if edge.name in self._sources:
+        """A replica of a remote sensor's filter, fed by a subscription to its states (also
+        replacing a per-request node once a push query needs the sensor)."""
+        if isinstance(self._filters.get(edge.name), RemoteFilter):
             return
         self._sources[edge.name] = RemoteSource(edge.name)
-        self._filters[edge.name] = self._make_filter(edge)
+        self._filters[edge.name] = RemoteFilter(
+            f"kf_{edge.name}", edge.motion, stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9))
+        )
         self._subs[edge.name] = self.session.declare_subscriber(
             _key(self.realm, "edge", edge.name),
-            lambda sample, name=edge.name: self._on_measurement(name, sample),
+            lambda sample, name=edge.name: self._on_state(name, sample),
         )
 
-    # -- data path ------------------------------------------------------------------------------
-    def _on_measurement(self, edge: str, sample) -> None:
+    def _ask_per_request(self, edge: Edge) -> None:
+        """``pull_via: get``: a node asking the sensor's agent ``get/<edge>?t=`` per request."""
+        self._sources[edge.name] = RemoteSource(edge.name)
+        self._filters[edge.name] = RemoteGet(
+            f"kf_{edge.name}",
+            edge.motion,
+            lambda t_ns, name=edge.name: self._fetch(name, t_ns),
+            stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9)),
+        )
+
+    def _fetch(self, edge: str, t_ns: int) -> Measurement | None:
+        """The remote sensor filter's answer at ``t_ns`` (this agent's clock) by a Zenoh query
+        (0.5 s timeout): mapped onto this clock, with the offset's uncertainty through the
+        relationship's velocity (a second query 1 ms earlier gives it)."""
+        import zenoh
+
+        rem = self._remotes.get(self._live.get(edge, ""))
+        if rem is None:
+            return None
+        offset, sigma = 0, 0.0
+        if self.cfg.clock_sync == "estimate":
+            if not rem.clock.known:
+                return None
+            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
         try:
-            s = wire.decode(sample.payload.to_bytes())
+            w = remote_get(self.session, self.realm, f"get/{edge}", t_ns + offset, 0.5)
+            pose = w.pose
+            if sigma > 0:
+                b = remote_get(self.session, self.realm, f"get/{edge}", t_ns + offset - 10**6, 0.5)
+                xi = twist_between(
+                    b.pose.position, b.pose.quaternion, pose.position, pose.quaternion, 1e-3
+                )
+                pose = UncertainPose(pose.pose, pose.covariance + time_error_covariance(xi, sigma))
+        except (ValueError, zenoh.ZError):  # error reply, no reply, undecodable, session gone
+            return None
+        return Measurement(w.exposure_ns - offset, pose, w.origin_ns - offset)
+
+    # -- data path ------------------------------------------------------------------------------
+    def _on_state(self, edge: str, sample) -> None:
+        """A state of another agent's sensor filter: decoded, its stamps mapped onto this
+        agent's clock, then adopted by the replica at once or (jitter buffer) at its host
+        stamp plus ``reorder_ms``."""
+        try:
+            s = wire.decode_state(sample.payload.to_bytes())
         except wire.WireError as exc:
             self.rejections.add(exc.reason)
             return
@@ -576,32 +611,24 @@ class Agent:
         if last is not None and s.seq > last + 1:
             self.lost_messages += s.seq - last - 1
         self._last_seq[edge] = s.seq
-        t = s.exposure_ns - offset
-        pose = s.pose
-        prev = self._last_pose.get(edge)
-        self._last_pose[edge] = (t, pose.position, pose.quaternion)
-        if sigma > 0 and prev is not None:
-            xi = twist_between(
-                prev[1], prev[2], pose.position, pose.quaternion, (t - prev[0]) * 1e-9
-            )
-            pose = UncertainPose(pose.pose, pose.covariance + time_error_covariance(xi, sigma))
-        m = Measurement(t, pose, s.origin_ns - offset)
-        arrival = s.host_ns - offset
         if self._reorder_ns <= 0:
             with self._lock:
                 self.net.clock.now_ns = self.now_ns()
-                self._deliver(edge, m)
+                self._deliver(edge, s, offset, sigma)
             return
+        arrival = s.host_ns - offset
         with self._heap_cv:
             if self.now_ns() > arrival + self._reorder_ns:
                 self.late_events += 1  # later than the jitter buffer: delivered out of order
-            heapq.heappush(self._heap, (arrival, _SENSOR, next(self._seq), (edge, m)))
+            heapq.heappush(
+                self._heap, (arrival, _SENSOR, next(self._seq), (edge, s, offset, sigma))
+            )
             self._heap_cv.notify()
 
-    def _deliver(self, edge: str, m: Measurement) -> None:
-        src = self._sources.get(edge)
-        if isinstance(src, RemoteSource):
-            src.deliver(m)
+    def _deliver(self, edge: str, s: wire.StateSample, offset_ns: int, sigma_s: float) -> None:
+        kf = self._filters.get(edge)
+        if isinstance(kf, RemoteFilter):
+            kf.adopt(s, offset_ns, sigma_s)
 
     def _pump(self) -> None:
         """Ticks push-query samplers on this agent's clock and releases reordered
@@ -722,7 +749,8 @@ class Agent:
 
     # -- status ---------------------------------------------------------------------------------
     def status(self) -> dict:
-        """Plans, re-plan events, rejections and clock offsets, as plain JSON-able data."""
+        """Plans, re-plan events, rejections, the replicas of other agents' sensor filters
+        (states adopted, rejections) and clock offsets, as plain JSON-able data."""
         with self._lock:
             out = {
                 "agent": self.name,
@@ -734,6 +762,11 @@ class Agent:
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
                 "skipped_samples": self.skipped_samples,
+                "replicas": {
+                    n: {"states": f.stats.events_in, "rejections": dict(f.stats.rejections)}
+                    for n, f in sorted(self._filters.items())
+                    if isinstance(f, RemoteFilter)
+                },
                 "clocks": {
                     n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
                     for n, r in self._remotes.items()
@@ -764,6 +797,16 @@ def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0)
     raise ValueError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))
 
 
+def calm_gc() -> None:
+    """Quieter garbage collection for a process that is an agent: everything allocated so
+    far (modules, setup, plans) lives as long as the process, so it is frozen out of the
+    collector's scans, and the youngest generation is collected less often (the data path
+    allocates few objects that form cycles), so collections are rarer and stay short."""
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(*_GC_THRESHOLDS)
+
+
 def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=None) -> dict:
     """Run an agent until ``duration_s`` passes, or (without a duration) until its recordings
     have played, or forever if it has none; SIGTERM and Ctrl-C stop it cleanly. Returns the
@@ -773,9 +816,7 @@ def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=Non
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     agent = Agent(config).start()
-    # this process is the agent: everything allocated so far (modules, setup, plans) lives as
-    # long as it does, so keep it out of the collector's scans that stall the data path
-    gc.freeze()
+    calm_gc()
     try:
         if on_ready is not None:
             on_ready(agent)

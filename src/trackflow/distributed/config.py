@@ -15,6 +15,8 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
       reorder_ms: 0             # jitter buffer of push queries (0: deliver on arrival)
       clock_sync: estimate      # estimate: map remote stamps by a measured offset; none
       clock_offset_ms: 0        # shifts this agent's clock (emulates another host's clock)
+      pull_via: replica         # pull queries read remote sensors from replicas of their
+                                # filters (replica) or ask get/<edge> per request (get)
 
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
 ``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts
@@ -44,6 +46,7 @@ _AGENT_KEYS = {
     "reorder_ms",
     "clock_sync",
     "clock_offset_ms",
+    "pull_via",
 }
 DEFAULT_ZENOH = {
     "mode": "peer",
@@ -69,6 +72,7 @@ class AgentConfig:
     reorder_ms: float = 0.0
     clock_sync: str = "estimate"
     clock_offset_ms: float = 0.0
+    pull_via: str = "replica"
 
     def __post_init__(self):
         for what, value in (("name", self.name), ("realm", self.realm)):
@@ -79,6 +83,8 @@ class AgentConfig:
                 raise ValueError(f"edge name {e.name!r}: use letters, digits, '_' and '-'")
         if self.clock_sync not in ("estimate", "none"):
             raise ValueError(f"clock_sync must be 'estimate' or 'none', got {self.clock_sync!r}")
+        if self.pull_via not in ("replica", "get"):
+            raise ValueError(f"pull_via must be 'replica' or 'get', got {self.pull_via!r}")
         if not self.reorder_ms >= 0:
             raise ValueError(f"reorder_ms must be >= 0, got {self.reorder_ms}")
 
@@ -149,6 +155,7 @@ def load_agent(path: str | Path) -> AgentConfig:
             reorder_ms=float(a.get("reorder_ms", 0.0)),
             clock_sync=str(a.get("clock_sync", "estimate")),
             clock_offset_ms=float(a.get("clock_offset_ms", 0.0)),
+            pull_via=str(a.get("pull_via", "replica")),
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: agent: {exc}") from exc

@@ -17,34 +17,76 @@ One message is one uncertain pose ``T_a_b`` of an edge, little-endian, fixed lay
                  over (dt [m, frame a], dtheta [rad, right]): t_true = t + dt,
                  R_true = R Exp(dtheta)
 
-A message with covariance is 260 bytes, without 92. No pickle, no self-describing framing:
-the key expression names the edge. Every decoding problem raises :class:`WireError` with a
-short ``reason`` that receivers count (:class:`Rejections`).
+A message with covariance is 260 bytes, without 92.
+
+Version 2 is the other message kind: a sensor filter's state after a measurement (what a
+consumer's copy of the filter adopts, :class:`trackflow.filters.FilterSnapshot`)::
+
+    offset size  field
+    0      2     magic b"TF"
+    2      1     version (2)
+    3      1     flags: bit 0 = segment start (the filter (re)started here), others 0
+    4      8     sequence number, uint64
+    12     8     state stamp, int64 ns: the measurement's time corrected by the sensor's
+                 stamp offset (sender's clock)
+    20     8     host stamp, int64 ns: sender's clock when the message was sent
+    28     8     origin stamp, int64 ns
+    36     1     n_dp, int8: position derivatives of the motion model (-1..8)
+    37     1     n_do, int8: orientation derivatives (-1..8)
+    38     1     formulation, uint8: 0 error_state, 1 additive
+    39     1     reserved, 0
+    40     2     nx, uint16: state size (must match n_dp, n_do)
+    42     2     nc, uint16: covariance size (nx - 1 for error_state with orientation, else nx)
+    44     4     reserved, 0
+    48     8 nx  state x: position and nx its derivatives (3 each, frame a), then the unit
+                 quaternion (x, y, z, w) and its derivatives (3 each, body frame b)
+    ..     8 k   covariance upper triangle row by row, k = nc (nc + 1) / 2
+
+With n_dp = n_do = 1 (constant velocity) a state is 48 + 104 + 624 = 776 bytes. No pickle, no
+self-describing framing: the key expression names the edge. Every decoding problem raises
+:class:`WireError` with a short ``reason`` that receivers count (:class:`Rejections`).
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
-from ..math import Pose, UncertainPose
+from ..filters import FilterSnapshot, MotionModel
+from ..math import Pose, UncertainPose, kernels_for
+from . import kernels as _kernels
 
 __all__ = [
     "MAGIC",
+    "STATE_VERSION",
     "VERSION",
     "Rejections",
+    "StateSample",
     "WireError",
     "WireSample",
     "decode",
+    "decode_state",
     "encode",
+    "encode_state",
 ]
 
 MAGIC = b"TF"
 VERSION = 1
+STATE_VERSION = 2
+_KNOWN = (VERSION, STATE_VERSION)
 _FLAG_COV = 0x01
+_FLAG_SEGMENT = 0x01
+_STATE_HEAD = struct.Struct("<2sBBQqqqbbBBHHI")
+_FORMULATIONS = ("error_state", "additive")
+_STATE_ERRORS = {
+    _kernels.STATE_NON_FINITE: "non-finite",
+    _kernels.STATE_NON_UNIT: "non-unit quaternion",
+    _kernels.STATE_NOT_PD: "invalid covariance",
+}
 _HEAD = struct.Struct("<2sBBQqqq7d")
 _COV = struct.Struct("<21d")
 _STAMPS = struct.Struct("<2sBBQqqq")
@@ -117,17 +159,141 @@ def encode(
     return head + _COV.pack(*pose.covariance[_IU])
 
 
-def decode(buf) -> WireSample:
-    """Decode one message; raises :class:`WireError` (reason: ``bad magic``, ``unknown
-    version``, ``unknown flags``, ``truncated``, ``wrong length``, ``non-finite``, ``non-unit
-    quaternion``, ``invalid covariance``)."""
-    b = bytes(buf)
+class StateSample(NamedTuple):
+    """A decoded filter state (version 2).
+
+    Parameters
+    ----------
+    seq : int
+    stamp_ns, host_ns, origin_ns : int
+        State time, send time and origin sensor stamp [ns], on the sender's clock.
+    n_dp, n_do : int
+        The motion model's derivative orders.
+    formulation : str
+        ``"error_state"`` or ``"additive"``.
+    x : ndarray (nx,)
+    p : ndarray (nc, nc)
+    segment_start : bool
+    """
+
+    seq: int
+    stamp_ns: int
+    host_ns: int
+    origin_ns: int
+    n_dp: int
+    n_do: int
+    formulation: str
+    x: np.ndarray
+    p: np.ndarray
+    segment_start: bool
+
+    def snapshot(self, offset_ns: int = 0) -> FilterSnapshot:
+        """The state for :meth:`trackflow.filters.PoseKalmanFilter.adopt`, its time mapped by
+        ``stamp - offset_ns`` onto the receiver's clock [s]."""
+        return FilterSnapshot(
+            (self.stamp_ns - offset_ns) * 1e-9, self.x, self.p, self.segment_start
+        )
+
+
+@lru_cache(maxsize=128)
+def _state_layout(n_dp: int, n_do: int, additive: int) -> tuple[int, int, int]:
+    """(nx, nc, quaternion offset or -1) of a motion model (layout of MotionModel)."""
+    m = MotionModel(n_dp, n_do)
+    nx = m.state_size
+    nc = nx if additive else m.error_size
+    return nx, nc, (3 * (n_dp + 1) if n_dp >= 0 else 0) if n_do >= 0 else -1
+
+
+@lru_cache(maxsize=16)
+def _triangle(n: int) -> np.ndarray:
+    """Flat indices of an n x n matrix's upper triangle, row by row."""
+    return np.ravel_multi_index(np.triu_indices(n), (n, n))
+
+
+def encode_state(
+    snap: FilterSnapshot,
+    *,
+    seq: int,
+    stamp_ns: int,
+    host_ns: int,
+    origin_ns: int,
+    n_dp: int,
+    n_do: int,
+    formulation: str = "error_state",
+) -> bytes:
+    """One filter-state message (version 2; module docstring). ``stamp_ns`` is the state's
+    time in integer ns (``snap.t`` in seconds is not sent: the receiver derives it)."""
+    x = np.ascontiguousarray(snap.x, dtype="<f8")
+    p = np.asarray(snap.p, dtype="<f8")
+    head = _STATE_HEAD.pack(
+        MAGIC,
+        STATE_VERSION,
+        _FLAG_SEGMENT if snap.segment_start else 0,
+        int(seq) & 0xFFFFFFFFFFFFFFFF,
+        int(stamp_ns),
+        int(host_ns),
+        int(origin_ns),
+        int(n_dp),
+        int(n_do),
+        _FORMULATIONS.index(formulation),
+        0,
+        x.size,
+        p.shape[0],
+        0,
+    )
+    return head + x.tobytes() + p.take(_triangle(p.shape[0])).tobytes()
+
+
+def _check_version(b: bytes, want: int) -> None:
     if len(b) < 4:
         raise WireError("truncated", f"{len(b)} bytes")
     if b[:2] != MAGIC:
         raise WireError("bad magic", repr(b[:2]))
-    if b[2] != VERSION:
+    if b[2] != want:
+        if b[2] in _KNOWN:
+            raise WireError("wrong kind", f"version {b[2]} where {want} is expected")
         raise WireError("unknown version", str(b[2]))
+
+
+def decode_state(buf) -> StateSample:
+    """Decode one filter-state message; raises :class:`WireError` (reasons of :func:`decode`,
+    plus ``wrong kind`` for a pose message, ``unknown motion model`` and ``state size``)."""
+    b = buf if isinstance(buf, bytes) else bytes(buf)
+    _check_version(b, STATE_VERSION)
+    if len(b) < _STATE_HEAD.size:
+        raise WireError("truncated", f"{len(b)} of {_STATE_HEAD.size} header bytes")
+    _, _, flags, seq, stamp, host, origin, n_dp, n_do, form, res1, nx, nc, res2 = (
+        _STATE_HEAD.unpack_from(b)
+    )
+    if flags & ~_FLAG_SEGMENT or res1 or res2:
+        raise WireError("unknown flags", f"0x{flags:02x}, reserved {res1}, {res2}")
+    if not (-1 <= n_dp <= 8 and -1 <= n_do <= 8) or n_dp + n_do == -2 or form > 1:
+        raise WireError("unknown motion model", f"n_dp={n_dp}, n_do={n_do}, formulation={form}")
+    want_nx, want_nc, qo = _state_layout(n_dp, n_do, form)
+    if (nx, nc) != (want_nx, want_nc):
+        raise WireError("state size", f"{nx}/{nc} instead of {want_nx}/{want_nc}")
+    k = nc * (nc + 1) // 2
+    want = _STATE_HEAD.size + 8 * (nx + k)
+    if len(b) != want:
+        raise WireError(
+            "truncated" if len(b) < want else "wrong length", f"{len(b)} of {want} bytes"
+        )
+    values = np.frombuffer(b, "<f8", offset=_STATE_HEAD.size)
+    x = np.empty(nx)
+    p = np.empty((nc, nc))
+    with np.errstate(over="ignore", invalid="ignore"):  # huge garbage: rejected, not warned
+        code = kernels_for(_kernels).unpack_state(values, nx, nc, qo, x, p, np.empty((nc, nc)))
+    if code:
+        raise WireError(_STATE_ERRORS[code])
+    return StateSample(seq, stamp, host, origin, n_dp, n_do, _FORMULATIONS[form], x, p, bool(flags))
+
+
+def decode(buf) -> WireSample:
+    """Decode one pose message; raises :class:`WireError` (reason: ``bad magic``, ``unknown
+    version``, ``wrong kind`` (a filter state), ``unknown flags``, ``truncated``, ``wrong
+    length``, ``non-finite``, ``non-unit quaternion``, ``invalid covariance``)."""
+    b = bytes(buf)
+    _check_version(b, VERSION)
     flags = b[3]
     if flags & ~_FLAG_COV:
         raise WireError("unknown flags", f"0x{flags:02x}")

@@ -30,6 +30,7 @@ from .contract import STATS_KEYS, FilterStatus, MeasurementFunction, PoseFilter
 from .derivative import (
     FORMULATIONS,
     FilterResult,
+    FilterSnapshot,
     MotionModel,
     PoseKalmanFilter,
     run_filter,
@@ -79,6 +80,7 @@ __all__ = [
     "STATS_KEYS",
     "CameraObservation",
     "FilterResult",
+    "FilterSnapshot",
     "FilterStatus",
     "GatePolicy",
     "MeasurementFunction",

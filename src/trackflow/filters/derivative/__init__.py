@@ -8,11 +8,12 @@ interpolate, fuse, estimate static poses) and ``offline`` (:func:`run_filter` an
 
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter, smooth_filter
-from .streaming import PoseKalmanFilter
+from .streaming import FilterSnapshot, PoseKalmanFilter
 
 __all__ = [
     "FORMULATIONS",
     "FilterResult",
+    "FilterSnapshot",
     "MotionModel",
     "PoseKalmanFilter",
     "run_filter",

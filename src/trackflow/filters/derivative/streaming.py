@@ -5,6 +5,7 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from ..gating import GatePolicy, chi2_gate
 from . import kernels as _source
 from .model import MotionModel, _additive
 
-__all__ = ["PoseKalmanFilter", "chi2_gate"]
+__all__ = ["FilterSnapshot", "PoseKalmanFilter", "chi2_gate"]
 
 
 def kernels():
@@ -38,6 +39,29 @@ def _own(a) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == np.float64:
         return a.copy()
     return np.array(a, dtype=float)
+
+
+class FilterSnapshot(NamedTuple):
+    """A filter's state right after a measurement: all another copy of the same filter (same
+    motion model, formulation and history) needs to answer ``predict`` as this one does.
+
+    Parameters
+    ----------
+    t : float
+        Time of the state [s] (the measurement's time).
+    x : ndarray (n,)
+        Nominal state (pose, then its derivatives; layout of :class:`MotionModel`).
+    p : ndarray (m, m)
+        Its covariance (over the error state of the formulation).
+    segment_start : bool
+        The filter (re)started at this state (first measurement, reset, divergence):
+        past queries do not smooth across it.
+    """
+
+    t: float
+    x: np.ndarray
+    p: np.ndarray
+    segment_start: bool
 
 
 class _Entry:
@@ -184,6 +208,53 @@ class PoseKalmanFilter(FilterClock):
             "rejected_invalid": c[FilterStatus.INVALID],
             "rejected_uninitialized": self._counts["rejected_uninitialized"],
         }
+
+    # -- replication -------------------------------------------------------------------------
+    def snapshot(self) -> FilterSnapshot:
+        """The newest state (after the newest logged measurement), for :meth:`adopt` by a copy
+        of this filter elsewhere (read-only arrays; the filter never changes them)."""
+        if not self._log:
+            raise ValueError("the filter has no measurement yet; nothing to snapshot")
+        e = self._log[-1]
+        return FilterSnapshot(e.t, e.x, e.p, e.status in _SEGMENT_START)
+
+    def adopt(self, snap: FilterSnapshot) -> bool:
+        """Take a state computed by another copy of this filter as the newest state, as if this
+        filter had integrated the measurement behind it: predictions ahead of it, and past
+        queries smoothed between adopted states, are then the other copy's answers.
+
+        A state at the newest time replaces the newest one (the other copy re-filtered it);
+        an older one is refused (``False``, counted in ``stats["rejected_old"]``). The
+        snapshot's arrays are kept in the history as they are: do not change them afterwards.
+
+        Raises
+        ------
+        ValueError
+            If the state's shapes are not this model's.
+        """
+        t = float(snap.t)
+        x = np.asarray(snap.x, dtype=float)  # kept in the history (read only), not copied
+        p = np.asarray(snap.p, dtype=float)
+        if x.shape != self._x0.shape or p.shape != self._p0.shape or not math.isfinite(t):
+            raise ValueError(
+                f"state of shape {x.shape} / {p.shape} at t={t} does not fit this filter "
+                f"({self._x0.shape} / {self._p0.shape})"
+            )
+        if self._t is not None and t < self._t:
+            self._counts["rejected_old"] += 1
+            return False
+        e = _Entry(t, -1, -1, self._x0[:0], self._x0[:0], self._p0[:0, :0])
+        e.status = FilterStatus.INITIALIZED if snap.segment_start else FilterStatus.ACCEPTED
+        e.x, e.p = x, p
+        self._smooth_cache = {}
+        if self._log and t == self._t:
+            self._log[-1] = e
+        else:
+            self._log.append(e)
+            self._times.append(t)
+        self._x, self._p, self._t = x.copy(), p.copy(), t
+        self._prune()
+        return True
 
     # -- measurements ------------------------------------------------------------------------
     def update_pose(self, t: float, measurement: UncertainPose) -> bool:
