@@ -84,8 +84,10 @@ def test_live_view_taps_states_and_no_path(tmp_path):
         assert net["view:q:now:tap"].count == own.events_in - own.rejected > 70
         # ... and the prediction sampler ticks only while an offset is set
         assert net["view:q:ahead:tap"].count == 0
-        live.render_frame()  # decimated drawing reads the taps without running the network
-        assert live.frames_sent >= 1
+        # the view process draws from the board while the network stands still
+        assert live.wait_frames(1, timeout_s=60), "the view process drew no frame"
+        pose = live.board.read_pose(tap.slot)  # the filter's posterior, decimated to 10 Hz
+        assert pose is not None and 1_390_000_000 <= pose.t_ns <= 1_490_000_000
         # two seconds of data end; the clock runs on (the query's sampler) -> stale
         states = {s.name: s.state for s in live.edge_statuses(now_ns=int(2.6e9))}
         assert states["art"] == "stale"
@@ -191,27 +193,19 @@ def test_a_setup_runs_live_on_the_wall_clock(tmp_path):
     assert run.error is None
 
 
-def test_the_view_measures_how_late_the_dataflow_runs():
+def test_the_view_runs_in_its_own_lower_priority_process():
+    import os
+
     net = Network()
     t = np.arange(0, 0.1, 0.01)
     stamps = np.round(t * 1e9).astype(np.int64)
     quats = np.tile([0, 0, 0, 1.0], (len(t), 1))
     net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
-    live = attach_view(net, port=0, rate_hz=10)
+    live = attach_view(net, port=0, rate_hz=10, nice=5)
     try:
-        live.paused = True  # the test drives the clock
-        c = net.clock
-        # a network dispatching now (wall times within the last 100 ms)
-        w = time.perf_counter_ns()
-        c.now_ns, c.dispatch_wall_ns = 1_000_000_000, w
-        assert live.dataflow_lag_s() == 0.0
-        c.now_ns, c.dispatch_wall_ns = 1_020_000_000, w + 70_000_000  # 50 ms behind
-        assert live.dataflow_lag_s() == pytest.approx(0.05)
-        c.now_ns, c.dispatch_wall_ns = 1_090_000_000, w + 90_000_000  # caught up
-        assert live.dataflow_lag_s() == pytest.approx(0.0)
-        c.now_ns, c.dispatch_wall_ns = 500_000_000, w + 95_000_000  # a new run starts
-        assert live.dataflow_lag_s() == 0.0
-        c.now_ns, c.dispatch_wall_ns = 900_000_000, w - 2_000_000_000  # idle for 2 s
-        assert live.dataflow_lag_s() == 0.0
+        assert live.pid != os.getpid()
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, live.pid) == min(mine + 5, 19)
     finally:
         live.close()
+    assert live.process.returncode is not None  # closed means ended
