@@ -34,7 +34,7 @@ POSE_WORDS = 43
 
 _HEADER = 16
 # header words
-H_MAGIC, H_SLOTS, H_RING, H_FRAMES, H_READY, H_NOW, H_WALL = range(7)
+H_MAGIC, H_SLOTS, H_RING, H_FRAMES, H_CLIENTS, H_NOW, H_WALL = range(7)
 # slot words
 S_SEQ, S_COUNT, S_ARRIVAL, S_POSE_T, S_POSES = range(5)
 _POSE = 8  # first word of the pose record
@@ -135,6 +135,15 @@ class Board:
     @frames_sent.setter
     def frames_sent(self, n: int) -> None:
         self.q[H_FRAMES] = int(n)
+
+    @property
+    def clients(self) -> int:
+        """Browsers connected to the view's page (written by the view process)."""
+        return int(self.q[H_CLIENTS])
+
+    @clients.setter
+    def clients(self, n: int) -> None:
+        self.q[H_CLIENTS] = int(n)
 
     # -- slots: writer side ---------------------------------------------------------------------
     def clear(self, slot: int) -> None:

@@ -32,6 +32,7 @@ from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Se
 from .board import Board
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
 from .graph_panel import EdgeStatus
+from .live_process import PRIORITIES
 from .monitor import Tap
 from .scene import Style
 
@@ -91,7 +92,7 @@ class LiveView:
         rate_hz: float,
         style: Style | None,
         sensor_info: SensorInfo | None = None,
-        nice: int = 10,
+        priority: str = "idle",
         timeout_s: float = 120.0,
     ):
         if not 1.0 <= rate_hz <= 120.0:
@@ -107,7 +108,7 @@ class LiveView:
         self.offset_s = 0.0
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
-        opts = {"host": host, "port": int(port), "rate_hz": self.rate_hz, "nice": int(nice),
+        opts = {"host": host, "port": int(port), "rate_hz": self.rate_hz, "priority": priority,
                 "style": style or Style(axes_length=0.08, magnify=1.0)}  # fmt: skip
         self.process, self._conn, self._sock = _start_process(timeout_s)
         try:
@@ -187,6 +188,11 @@ class LiveView:
     def frames_sent(self) -> int:
         """View frames the view process pushed to its page."""
         return self.board.frames_sent
+
+    @property
+    def clients(self) -> int:
+        """Browsers connected to the page (as the view process last saw)."""
+        return self.board.clients
 
     @property
     def paused(self) -> bool:
@@ -349,7 +355,7 @@ def attach_view(
     style: Style | None = None,
     errors: dict[str, str] | None = None,
     sensor_info: SensorInfo | None = None,
-    nice: int = 10,
+    priority: str = "idle",
 ) -> LiveView:
     """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
 
@@ -370,11 +376,15 @@ def attach_view(
         View frames per second (the decimation: taps write a pose at most this often).
     sensor_info : callable, optional
         A live runtime's sensor report (:data:`SensorInfo`), polled a few times a second.
-    nice : int
-        Added to the view process's niceness: a busy machine serves the dataflow first.
+    priority : {"idle", "low", "normal"}
+        CPU priority of the view process: ``idle`` (default) draws only with CPU time the
+        dataflow (and everything else) leaves over (Linux ``SCHED_IDLE``), ``low`` is
+        niceness +10.
     """
     if not 1.0 <= rate_hz <= 120.0:
         raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
+    if priority not in PRIORITIES:
+        raise ValueError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
     wiring = _Wiring(network, rate_hz)
     sources = _sources(network)
     edges: list[EdgeLayout] = []
@@ -435,5 +445,5 @@ def attach_view(
     layout = ViewLayout(frames, root, edges, queries, board.n_slots)
     return LiveView(
         network, layout, board, watched, samplers, host=host, port=port, rate_hz=rate_hz,
-        style=style, sensor_info=sensor_info, nice=nice,
+        style=style, sensor_info=sensor_info, priority=priority,
     )  # fmt: skip

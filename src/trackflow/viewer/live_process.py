@@ -181,7 +181,9 @@ class LiveScene:
             if not self.paused:
                 with self._lock:
                     self.render_frame()
-            rate = self.rate_hz if self.clients() else min(self.rate_hz, IDLE_RATE_HZ)
+            clients = self.clients()
+            self.board.clients = clients
+            rate = self.rate_hz if clients else min(self.rate_hz, IDLE_RATE_HZ)
             nxt = max(nxt + 1.0 / rate, start)
 
     def render_frame(self) -> None:
@@ -326,12 +328,35 @@ def _to_world(T_w_a: Pose, pose: BoardPose):
     return pos, quat, c
 
 
+#: View process priorities: ``idle`` runs only on CPU time no other process wants (Linux
+#: ``SCHED_IDLE``; elsewhere the lowest niceness), ``low`` is niceness +10, ``normal`` as is.
+PRIORITIES = ("idle", "low", "normal")
+
+
+def lower_priority(priority: str) -> str:
+    """Lower this process's CPU priority (before it starts threads, which inherit it);
+    returns what was applied (``SCHED_IDLE``, ``nice +N`` or ``normal``)."""
+    if priority not in PRIORITIES:
+        raise ValueError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
+    if priority == "normal":
+        return "normal"
+    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+            return "SCHED_IDLE"
+        except OSError:
+            pass  # not permitted here: fall back to the lowest niceness
+    step = 19 if priority == "idle" else 10
+    os.nice(step)
+    return f"nice +{step}"
+
+
 def main(conn) -> None:
     """The view process: receive ``(layout, board name, options)``, serve and draw until
     ``("stop",)`` arrives or the connection closes.
 
-    ``options``: ``host``, ``port``, ``rate_hz``, ``style`` (:class:`Style`), ``nice``
-    (added to this process's scheduling niceness, so the dataflow keeps its CPU)."""
+    ``options``: ``host``, ``port``, ``rate_hz``, ``style`` (:class:`Style`), ``priority``
+    (:func:`lower_priority`)."""
     send_lock = threading.Lock()
 
     def send(msg) -> None:
@@ -343,8 +368,7 @@ def main(conn) -> None:
 
     try:
         layout, board_name, options = conn.recv()
-        if options.get("nice"):
-            os.nice(int(options["nice"]))
+        lower_priority(options.get("priority", "idle"))
         board = Board.attach(board_name)
         scene = LiveScene(
             layout, board, options["host"], options["port"], options["rate_hz"],
