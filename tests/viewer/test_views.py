@@ -82,8 +82,9 @@ def test_live_view_taps_states_and_no_path(tmp_path):
         # a push query is drawn from its own answers (50 Hz), with no extra pulls ...
         own = net["q:sampler"].stats
         assert net["view:q:now:tap"].count == own.events_in - own.rejected > 70
-        # ... and the prediction sampler ticks only while an offset is set
-        assert net["view:q:ahead:tap"].count == 0
+        # ... and the prediction ghost is pulled only while an offset is set
+        ahead = live.layout.queries[0].ahead_slot
+        assert live.board.read_pose(ahead) is None
         # the view process draws from the board while the network stands still
         assert live.wait_frames(1, timeout_s=60), "the view process drew no frame"
         pose = live.board.read_pose(tap.slot)  # the filter's posterior, decimated to 10 Hz
@@ -91,6 +92,13 @@ def test_live_view_taps_states_and_no_path(tmp_path):
         # two seconds of data end; the clock runs on (the query's sampler) -> stale
         states = {s.name: s.state for s in live.edge_statuses(now_ns=int(2.6e9))}
         assert states["art"] == "stale"
+        # with an offset, the query's tap pulls the answer that far ahead (view-rate decimated)
+        live.set_offset(0.05)
+        net.run(until_ns=int(1.0e9))
+        got = live.board.read_pose(ahead)
+        now = live.board.read_pose(live.layout.queries[0].now_slot)
+        assert got is not None and got.t_ns == now.t_ns + 50_000_000
+        assert 0.9e9 <= now.t_ns <= 1.0e9
     finally:
         live.close()
 

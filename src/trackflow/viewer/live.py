@@ -2,9 +2,10 @@
 
 :func:`attach_view` wires :class:`~trackflow.viewer.monitor.Tap` components behind every
 sensor (behind its filter when it has one) and behind each query's answers (a push query's
-own sampler; a pull query gets a view sampler at the view rate), plus one prediction sampler
-per query that ticks only while a prediction offset is set. The taps write into a shared
-memory :class:`~trackflow.viewer.board.Board`; a separate view process
+own sampler; a pull query gets a view sampler at the view rate); while a prediction offset
+is set, a query's tap also pulls the query's output that far ahead (the prediction ghost), at
+most at the view rate. The taps write into a shared memory
+:class:`~trackflow.viewer.board.Board`; a separate view process
 (:mod:`trackflow.viewer.live_process`, started here at a lower scheduling priority) serves the
 page and draws from the board at the view rate. The dataflow thread never waits for the view
 and never shares an interpreter lock with it: per event it does a few scalar stores, and at
@@ -85,7 +86,7 @@ class LiveView:
         layout: ViewLayout,
         board: Board,
         taps: dict[str, list],
-        samplers: list[tuple[_ViewSampler, int]],
+        query_taps: list[Tap],
         *,
         host: str,
         port: int,
@@ -99,7 +100,7 @@ class LiveView:
             raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
         self.network, self.layout, self.board = network, layout, board
         self._sources = taps  # edge name -> components whose rejections the panel shows
-        self._samplers = samplers  # (prediction sampler, the query's own offset [ns])
+        self._query_taps = query_taps  # they pull the prediction ghost
         self.sensor_info = sensor_info
         self.rate_hz = float(rate_hz)
         self.monitor = EdgeMonitor(layout, board)
@@ -228,9 +229,8 @@ class LiveView:
 
     def _move_samplers(self, offset_s: float) -> None:
         off = int(round(max(0.0, float(offset_s)) * 1e9))
-        for sampler, base in self._samplers:
-            sampler.offset_ns = base + off  # one int store each
-            sampler.enabled = off > 0
+        for tap in self._query_taps:
+            tap.ahead_ns = off  # one int store each
         self.offset_s = off * 1e-9
 
     def edge_statuses(self, now_ns: int | None = None) -> list[EdgeStatus]:
@@ -302,17 +302,6 @@ def _query_ends(network: Network, plan: Plan, prefix: str):
     return _component(network, plan, prefix, src), sampler
 
 
-class _ViewSampler(Sampler):
-    """A sampler the view can switch off: a disabled tick costs one attribute test."""
-
-    kind = "view sampler"
-    enabled = True
-
-    def tick(self, t_ns: int) -> None:
-        if self.enabled:
-            super().tick(t_ns)
-
-
 def _sources(network: Network) -> dict:
     """Components that push and are fed by nothing (recording players, simulated and live
     sensors), by name."""
@@ -332,16 +321,20 @@ class _Wiring:
         self.period_ns = int(round(1e9 / rate_hz))
         self.taps: list[tuple[str, object, object]] = []  # (name, behind, kalman)
 
-    def tap(self, comp, name: str, kalman=None) -> int:
-        self.taps.append((name, comp, kalman))
+    def tap(self, comp, name: str | None, kalman=None, ahead=None) -> int:
+        """A board slot, with a tap named ``name`` behind ``comp`` (None: a slot only)."""
+        self.taps.append((name, comp, kalman, ahead))
         return len(self.taps) - 1
 
-    def build(self) -> Board:
+    def build(self) -> tuple[Board, dict[str, Tap]]:
         board = Board.create(len(self.taps))
-        for slot, (name, comp, kalman) in enumerate(self.taps):
-            tap = self.network.add(Tap(name, board, slot, self.period_ns, kalman))
-            self.network.connect(comp, tap, mode="push")
-        return board
+        taps = {}
+        for slot, (name, comp, kalman, ahead) in enumerate(self.taps):
+            if name is not None:
+                tap = Tap(name, board, slot, self.period_ns, kalman, ahead)
+                taps[name] = self.network.add(tap)
+                self.network.connect(comp, tap, mode="push")
+        return board, taps
 
 
 def attach_view(
@@ -419,31 +412,27 @@ def attach_view(
             watched[name] = [src]
             edges.append(EdgeLayout(name, "world", name, False, slot, rate_hz=rate))
     queries: list[QueryLayout] = []
-    samplers: list[tuple[_ViewSampler, int]] = []
     for qname, (plan, prefix) in (plans or {}).items():
         q = plan.query
         path_edges = tuple(s.edge.name for p in plan.paths for s in p.steps)
         out, own = _query_ends(network, plan, prefix)
         base = int(round(q.time_offset_s * 1e9))
         if own is None:  # a pull query: the view samples it at the view rate
-            own = network.add(_ViewSampler(f"view:{qname}:now", rate_hz, base))
+            own = network.add(Sampler(f"view:{qname}:now", rate_hz, base))
             network.connect(out, own, mode="pull")
-        # (a push query is drawn from its own answers: no extra work in the dataflow)
-        now_slot = wiring.tap(own, f"view:{qname}:now:tap")
-        # the prediction ghost: ticks only while a prediction offset is set
-        ahead = network.add(_ViewSampler(f"view:{qname}:ahead", rate_hz, base))
-        ahead.enabled = False
-        network.connect(out, ahead, mode="pull")
-        samplers.append((ahead, base))
-        ahead_slot = wiring.tap(ahead, f"view:{qname}:ahead:tap")
+        # (a push query is drawn from its own answers: no extra work in the dataflow); the
+        # prediction ghost is pulled by the same tap, only while an offset is set
+        ahead_slot = wiring.tap(None, None)
+        now_slot = wiring.tap(own, f"view:{qname}:now:tap", ahead=(out, ahead_slot))
         queries.append(QueryLayout(qname, q.source, q.target, path_edges, now_slot, ahead_slot))
     for qname, msg in (errors or {}).items():
         q = setup.queries[qname] if setup is not None else None
         if q is not None:
             queries.append(QueryLayout(qname, q.source, q.target, error=msg))
-    board = wiring.build()
+    board, taps = wiring.build()
     layout = ViewLayout(frames, root, edges, queries, board.n_slots)
+    query_taps = [taps[f"view:{q.name}:now:tap"] for q in queries if q.now_slot is not None]
     return LiveView(
-        network, layout, board, watched, samplers, host=host, port=port, rate_hz=rate_hz,
+        network, layout, board, watched, query_taps, host=host, port=port, rate_hz=rate_hz,
         style=style, sensor_info=sensor_info, priority=priority,
     )  # fmt: skip

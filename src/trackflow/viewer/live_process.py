@@ -14,6 +14,7 @@ dataflow and the view share only memory and a pipe. Messages on the pipe:
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import sys
@@ -369,6 +370,8 @@ def main(conn) -> None:
     try:
         layout, board_name, options = conn.recv()
         lower_priority(options.get("priority", "idle"))
+        # a browser that opens a speculative connection and drops it is not an error here
+        logging.getLogger("websockets.server").setLevel(logging.CRITICAL)
         board = Board.attach(board_name)
         scene = LiveScene(
             layout, board, options["host"], options["port"], options["rate_hz"],

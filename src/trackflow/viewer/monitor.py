@@ -32,20 +32,29 @@ class Tap(Component):
     kalman : KalmanFilter component, optional
         The filter this tap sits behind: its ``filter.nis`` goes into the ring with every
         event, and the pose written is the filter's posterior at the event's time.
+    ahead : (component, int), optional
+        A query's pull-able output and the slot of its prediction: while :attr:`ahead_ns` is
+        set, each pose written is followed by the output pulled at the event's time plus
+        :attr:`ahead_ns`, written to that slot (the prediction ghost; no extra sampler, so it
+        works under any scheduler that drives the query).
 
     Attributes
     ----------
     latest : Measurement or None
         The newest event (a reference; kept for tests and Python users).
+    ahead_ns : int
+        Prediction offset [ns]; 0: no prediction is pulled.
     """
 
     push_in = 1
     kind = "view tap"
 
-    def __init__(self, name: str, board: Board, slot: int, period_ns: int, kalman=None):
+    def __init__(self, name: str, board: Board, slot: int, period_ns: int, kalman=None, ahead=None):
         super().__init__(name)
         self.board, self.slot, self.period_ns = board, int(slot), int(period_ns)
         self.kalman = kalman
+        self.ahead = ahead
+        self.ahead_ns = 0
         self.reset()
 
     def reset(self) -> None:
@@ -87,3 +96,9 @@ class Tap(Component):
                 except ValueError:
                     pass  # the measurement itself, then
             self.board.write_pose(self.slot, t, pose.position, pose.quaternion, pose.covariance)
+            if self.ahead_ns and self.ahead is not None:
+                src, slot = self.ahead
+                a = src.pull(t + self.ahead_ns)
+                if a is not None:
+                    p = a.pose
+                    self.board.write_pose(slot, a.t_ns, p.position, p.quaternion, p.covariance)
