@@ -110,7 +110,7 @@ class LiveView:
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
         opts = {"host": host, "port": int(port), "rate_hz": self.rate_hz, "priority": priority,
-                "style": style or Style(axes_length=0.08, magnify=1.0)}  # fmt: skip
+                "style": style}  # fmt: skip
         self.process, self._conn, self._sock = _start_process(timeout_s)
         try:
             self._conn.send((layout, board.name, opts))
@@ -367,6 +367,9 @@ def attach_view(
         Queries of the setup that have no path (drawn as "no path" in the panel).
     rate_hz : float
         View frames per second (the decimation: taps write a pose at most this often).
+    style : Style, optional
+        How poses are drawn; default: axes a tenth of the scene's extent (known once the
+        frames are placed), ellipsoids true to scale.
     sensor_info : callable, optional
         A live runtime's sensor report (:data:`SensorInfo`), polled a few times a second.
     priority : {"idle", "low", "normal"}

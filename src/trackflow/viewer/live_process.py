@@ -48,11 +48,12 @@ class LiveScene:
     """
 
     def __init__(
-        self, layout: ViewLayout, board: Board, host: str, port: int, rate_hz: float, style: Style,
+        self, layout: ViewLayout, board: Board, host: str, port: int, rate_hz: float,
+        style: Style | None,
         send=None,
     ):  # fmt: skip
         self.layout, self.board, self.rate_hz = layout, board, float(rate_hz)
-        self.style = style
+        self.style = style or Style(axes_length=0.08, magnify=1.0)
         self.send = send or (lambda msg: None)
         self.view = ViewServer(host, port, title="trackflow live")
         self.view.look_at((0.3, 0.0, 0.2), 1.2)
@@ -67,6 +68,8 @@ class LiveScene:
         self.selected_edge = next((e.name for e in layout.edges if not e.static), None)
         self._lock = threading.RLock()
         self._framed = False
+        self._first_placed: float | None = None
+        self.auto_scale = style is None
         self._panel_html = ""
         self._panel_wall = self._plot_wall = self._label_wall = 0.0
         self._trails: dict[str, list] = {}
@@ -90,8 +93,7 @@ class LiveScene:
             e for e in lay.edges if not e.static and e.slot is not None
         ]
         self.bodies += [q for q in lay.queries if q.now_slot is not None]
-        colours = [PALETTE[k % len(PALETTE)] for k in range(len(self.bodies))]
-        self.batch = BatchDrawing(scene, "/bodies", colours, st) if self.bodies else None
+        self.batch: BatchDrawing | None = None  # made once the scene's extent is known
         self.labels = [
             scene.add_label(f"/bodies/label_{k}", b.name, visible=False)
             for k, b in enumerate(self.bodies)
@@ -184,8 +186,10 @@ class LiveScene:
                     self.render_frame()
             clients = self.clients()
             self.board.clients = clients
-            rate = self.rate_hz if clients else min(self.rate_hz, IDLE_RATE_HZ)
-            nxt = max(nxt + 1.0 / rate, start)
+            period = 1.0 / (self.rate_hz if clients else min(self.rate_hz, IDLE_RATE_HZ))
+            nxt += period
+            if nxt < start:  # fell behind (a slow frame, a busy machine): no catching up
+                nxt = start + period
 
     def render_frame(self) -> None:
         """Draw one view frame from the board."""
@@ -193,13 +197,8 @@ class LiveScene:
         now_ns, _ = self.board.clock()
         poses = {b.name: self._read(b) for b in self.bodies}
         places = self._place_frames(poses)
-        lay = self.layout
-        if not self._framed and len(places) == len(lay.frames):
-            # aim the initial camera of later clients at the frames once all are placed
-            pts = np.array([p.position for p in places.values()])
-            lo, hi = pts.min(axis=0), pts.max(axis=0)
-            self.view.look_at(0.5 * (lo + hi), max(float(np.max(hi - lo)), 0.3))
-            self._framed = True
+        if not self._framed:
+            self._frame_scene(places, now_wall)
         bodies, trails = self._collect(places, poses)
         with self.view.server.atomic():
             for f, node in self.frame_nodes.items():
@@ -224,10 +223,32 @@ class LiveScene:
         self.frames_sent += 1
         self.board.frames_sent = self.frames_sent
         self.view.set_status(
-            f"**live** - network t = {now_ns * 1e-9:.2f} s - {self.style.sigma:g} sigma"
+            f"**live** - network t = {_clock_text(now_ns)} - {self.style.sigma:g} sigma"
             + (f", ellipsoids x{self.style.magnify:g}" if self.style.magnify != 1 else "")
             + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if self.offset_s > 0 else "")
         )
+
+    def _frame_scene(self, places: dict[str, Pose], now_wall: float) -> None:
+        """Once every frame is placed (or 2 s after the first body was, with what is placed):
+        aim the initial camera of later clients at the frames and, with ``auto_scale``, size
+        the glyphs to the scene (axes a tenth of its extent), then create the body nodes."""
+        if len(places) < len(self.layout.frames):
+            if len(places) < 2:
+                return
+            if self._first_placed is None:
+                self._first_placed = now_wall
+            if now_wall - self._first_placed < 2.0:
+                return
+        pts = np.array([p.position for p in places.values()])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        extent = max(float(np.max(hi - lo)), 0.3)
+        self.view.look_at(0.5 * (lo + hi), extent)
+        if self.auto_scale:
+            self.style.axes_length = float(np.clip(0.1 * extent, 0.02, 0.5))
+        colours = [PALETTE[k % len(PALETTE)] for k in range(len(self.bodies))]
+        if self.bodies:
+            self.batch = BatchDrawing(self.view.scene, "/bodies", colours, self.style)
+        self._framed = True
 
     def _read(self, b: EdgeLayout | QueryLayout) -> BoardPose | None:
         return self.board.read_pose(b.slot if isinstance(b, EdgeLayout) else b.now_slot)
@@ -314,6 +335,15 @@ class LiveScene:
 
     def close(self) -> None:
         self.view.close()
+
+
+def _clock_text(now_ns: int) -> str:
+    """The network clock for the status line: seconds from the start of a replayed or
+    simulated run, the UTC time of day on a live run's host clock (Unix time)."""
+    if now_ns > 10**18:  # after 2001 on the Unix clock: a live run
+        t = time.gmtime(now_ns // 1_000_000_000)
+        return f"{time.strftime('%H:%M:%S', t)}.{now_ns // 1_000_000 % 1000:03d} UTC"
+    return f"{now_ns * 1e-9:.2f} s"
 
 
 def _to_world(T_w_a: Pose, pose: BoardPose):
