@@ -23,13 +23,13 @@ import time
 
 import numpy as np
 
-from ..math import Pose, quat_multiply
-from .batch import BatchDrawing, BodyFrame
+from ..math import quat_conjugate, quat_multiply, quat_rotate, quat_to_matrix
+from .batch import HIDDEN, BatchDrawing, BodyFrame
 from .board import Board, BoardPose
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
 from .glyphs import to_wxyz
 from .graph_panel import render_panel
-from .scene import PALETTE, Style, frame_node
+from .scene import PALETTE, Style
 from .server import SECONDS_AXIS, ViewServer
 
 __all__ = ["LiveScene", "main"]
@@ -73,6 +73,11 @@ class LiveScene:
         self._panel_html = ""
         self._panel_wall = self._plot_wall = self._label_wall = 0.0
         self._trails: dict[str, list] = {}
+        self._statics = [
+            (e.source, e.target, e.value.quaternion, e.value.position)
+            for e in layout.edges
+            if e.static and e.value is not None
+        ]
         self._sigmas: dict[str, list] = {}
         self._build_scene()
         self._build_controls()
@@ -84,11 +89,15 @@ class LiveScene:
     # -- construction ----------------------------------------------------------------------------
     def _build_scene(self) -> None:
         scene, st, lay = self.view.scene, self.style, self.layout
-        self.frame_nodes = {
-            f: frame_node(scene, f"/{f}", st.axes_length * 1.2, f) for f in lay.frames
-        }
-        for f, node in self.frame_nodes.items():
-            node.visible = f == lay.root
+        n = len(lay.frames)
+        self.frame_axes = scene.add_batched_axes(
+            "/frames", np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), np.zeros((n, 3)),
+            np.where(np.array(lay.frames) == lay.root, 1.0, HIDDEN),
+            axes_length=st.axes_length * 1.2, axes_radius=st.axes_length * 0.05,
+        )  # fmt: skip
+        self.frame_labels = [
+            scene.add_label(f"/frame_labels/{f}", f, visible=f == lay.root) for f in lay.frames
+        ]
         self.bodies: list[EdgeLayout | QueryLayout] = [
             e for e in lay.edges if not e.static and e.slot is not None
         ]
@@ -200,20 +209,25 @@ class LiveScene:
         if not self._framed:
             self._frame_scene(places, now_wall)
         bodies, trails = self._collect(places, poses)
+        frames = self.layout.frames
+        shown = np.array([f in places for f in frames])
+        fq = np.array([places[f][0] if f in places else (0.0, 0.0, 0.0, 1.0) for f in frames])
+        fp = np.array([places[f][1] if f in places else (0.0, 0.0, 0.0) for f in frames])
         with self.view.server.atomic():
-            for f, node in self.frame_nodes.items():
-                pose = places.get(f)
-                node.visible = pose is not None
-                if pose is not None:
-                    node.position, node.wxyz = pose.position, to_wxyz(pose.quaternion)
+            self.frame_axes.batched_positions, self.frame_axes.batched_wxyzs = fp, to_wxyz(fq)
+            self.frame_axes.batched_scales = np.where(shown, 1.0, HIDDEN)
             if self.batch is not None:
                 self.batch.update(bodies, trails)
             if now_wall - self._label_wall > 0.5:  # labels follow at 2 Hz
                 self._label_wall = now_wall
+                lift = np.array([0.0, 0.0, self.style.axes_length * 0.6])
                 for label, b in zip(self.labels, bodies):
                     label.visible = b is not None
                     if b is not None:
-                        label.position = b.position + [0.0, 0.0, self.style.axes_length * 0.6]
+                        label.position = b.position + lift
+                for label, on, p in zip(self.frame_labels, shown, fp):
+                    label.visible = bool(on)
+                    label.position = p - lift
         if now_wall - self._panel_wall > 0.2:
             self._panel_wall = now_wall
             self._update_panel(now_ns)
@@ -228,7 +242,7 @@ class LiveScene:
             + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if self.offset_s > 0 else "")
         )
 
-    def _frame_scene(self, places: dict[str, Pose], now_wall: float) -> None:
+    def _frame_scene(self, places: dict[str, tuple], now_wall: float) -> None:
         """Once every frame is placed (or 2 s after the first body was, with what is placed):
         aim the initial camera of later clients at the frames and, with ``auto_scale``, size
         the glyphs to the scene (axes a tenth of its extent), then create the body nodes."""
@@ -239,7 +253,7 @@ class LiveScene:
                 self._first_placed = now_wall
             if now_wall - self._first_placed < 2.0:
                 return
-        pts = np.array([p.position for p in places.values()])
+        pts = np.array([p for _, p in places.values()])
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         extent = max(float(np.max(hi - lo)), 0.3)
         self.view.look_at(0.5 * (lo + hi), extent)
@@ -253,54 +267,63 @@ class LiveScene:
     def _read(self, b: EdgeLayout | QueryLayout) -> BoardPose | None:
         return self.board.read_pose(b.slot if isinstance(b, EdgeLayout) else b.now_slot)
 
-    def _place_frames(self, poses: dict[str, BoardPose | None]) -> dict[str, Pose]:
-        """World placement ``T_root_frame`` of every frame reachable from the root through
-        static values and the newest sensor poses."""
-        known: dict[str, Pose] = {self.layout.root: Pose.identity()}
-        values = []
+    def _place_frames(self, poses: dict[str, BoardPose | None]) -> dict[str, tuple]:
+        """World placement ``T_root_frame`` as ``(quaternion (4,), position (3,))`` of every
+        frame reachable from the root through static values and the newest sensor poses."""
+        known = {self.layout.root: (np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))}
+        values = list(self._statics)
         for e in self.layout.edges:
-            if e.static and e.value is not None:
-                values.append((e.source, e.target, e.value.pose))
-            elif not e.static and poses.get(e.name) is not None:
-                p = poses[e.name]
-                values.append((e.source, e.target, Pose(p.position, p.quaternion)))
+            p = None if e.static else poses.get(e.name)
+            if p is not None:
+                values.append((e.source, e.target, p.quaternion, p.position))
         changed = True
         while changed:
             changed = False
-            for a, b, T_a_b in values:
+            for a, b, q_ab, t_ab in values:
                 if a in known and b not in known:
-                    known[b] = known[a] @ T_a_b
+                    q_a, t_a = known[a]
+                    known[b] = (quat_multiply(q_a, q_ab), quat_rotate(q_a, t_ab) + t_a)
                     changed = True
                 elif b in known and a not in known:
-                    known[a] = known[b] @ T_a_b.inverse()
+                    q_b, t_b = known[b]
+                    q_a = quat_multiply(q_b, quat_conjugate(q_ab))
+                    known[a] = (q_a, t_b - quat_rotate(q_a, t_ab))
                     changed = True
         return known
 
-    def _collect(self, places: dict[str, Pose], poses: dict[str, BoardPose | None]):
+    def _collect(self, places: dict[str, tuple], poses: dict[str, BoardPose | None]):
         """Every body's pose (and prediction) in the world frame, with its trail."""
-        bodies: list[BodyFrame | None] = []
-        trails: list[np.ndarray | None] = []
         keep = max(2, int(self.style.trail_s * self.rate_hz))
-        for b in self.bodies:
-            frame = places.get(b.source)
-            pose = poses[b.name]
-            ahead = None
+        todo = []  # (body index, frame placement, pose, prediction or None)
+        for k, b in enumerate(self.bodies):
+            pose, ahead = poses[b.name], None
             if isinstance(b, EdgeLayout):
                 if not self.show_sensors:
                     pose = None
             elif b.ahead_slot is not None and self.offset_s > 0:
                 ahead = self.board.read_pose(b.ahead_slot)
-            if pose is None or frame is None:
-                bodies.append(None)
-                trails.append(None)
-                continue
-            world = _to_world(frame, pose)
-            pred = None if ahead is None else _to_world(frame, ahead)
-            bodies.append(BodyFrame(*world, predicted=pred))
-            trail = self._trails.setdefault(b.name, [])
-            trail.append(world[0])
+            if pose is not None and b.source in places:
+                todo.append((k, places[b.source], pose, ahead))
+        bodies: list[BodyFrame | None] = [None] * len(self.bodies)
+        trails: list[np.ndarray | None] = [None] * len(self.bodies)
+        if not todo:
+            return bodies, trails
+        fq = np.array([t[1][0] for t in todo])
+        fp = np.array([t[1][1] for t in todo])
+        world = _to_world(fq, fp, [t[2] for t in todo])
+        has = [i for i, t in enumerate(todo) if t[3] is not None]
+        pred = _to_world(fq[has], fp[has], [todo[i][3] for i in has]) if has else None
+        row = {i: j for j, i in enumerate(has)}
+        for i, (k, *_rest) in enumerate(todo):
+            ghost = None
+            if pred is not None and i in row:
+                j = row[i]
+                ghost = (pred[0][j], pred[1][j], pred[2][j])
+            bodies[k] = BodyFrame(world[0][i], world[1][i], world[2][i], predicted=ghost)
+            trail = self._trails.setdefault(self.bodies[k].name, [])
+            trail.append(world[0][i])
             del trail[:-keep]
-            trails.append(np.array(trail))
+            trails[k] = np.array(trail)
         return bodies, trails
 
     def _update_panel(self, now_ns: int) -> None:
@@ -346,16 +369,17 @@ def _clock_text(now_ns: int) -> str:
     return f"{now_ns * 1e-9:.2f} s"
 
 
-def _to_world(T_w_a: Pose, pose: BoardPose):
-    """``T_w_a @ pose`` with ``T_w_a`` exact: position, quaternion and covariance in the world
-    frame (the translation error rotates with ``R_w_a``; the body-frame rotation error does
-    not change)."""
-    r = T_w_a.rotation_matrix
-    pos = r @ pose.position + T_w_a.position
-    quat = quat_multiply(T_w_a.quaternion, pose.quaternion)
-    c = np.array(pose.covariance, float)
-    c[:3, :] = r @ c[:3, :]
-    c[:, :3] = c[:, :3] @ r.T
+def _to_world(q_w_a: np.ndarray, t_w_a: np.ndarray, poses: list[BoardPose]):
+    """``T_w_a @ pose`` for n bodies with their frames' placements exact (quaternions
+    (n, 4), positions (n, 3)): world positions (n, 3), quaternions (n, 4) and covariances
+    (n, 6, 6) (the translation error rotates with ``R_w_a``; the body-frame rotation error
+    does not change)."""
+    r = quat_to_matrix(q_w_a)
+    pos = np.einsum("nij,nj->ni", r, np.array([p.position for p in poses])) + t_w_a
+    quat = quat_multiply(q_w_a, np.array([p.quaternion for p in poses]))
+    c = np.array([p.covariance for p in poses])
+    c[:, :3, :] = r @ c[:, :3, :]
+    c[:, :, :3] = c[:, :, :3] @ np.swapaxes(r, -1, -2)
     return pos, quat, c
 
 
