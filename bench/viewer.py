@@ -12,13 +12,14 @@ time from when an event was due (its arrival on the network clock mapped to the 
 origin = the least-late event) to its delivery, which also counts queueing behind other work;
 it is only meaningful when the machine keeps up with the 6000 events/s.
 
-"with" runs attach :func:`trackflow.viewer.attach_view` (up to 30 view frames per second, at
-most 15 % of the wall time) and have a real headless Chromium (SwiftShader) connected to the
-page for the whole run, so viser serialises and sends every frame. The browser runs at nice 19:
-it stands in for a browser on the user's own machine and GPU, and on a two-core box its
-software rendering would otherwise take CPU from the dataflow at the same priority. Runs
-alternate without/with; the best (lowest p99) of each is reported, because the machine is
-shared.
+"with" runs attach :func:`trackflow.viewer.attach_view` (its taps write into shared memory; a
+separate view process draws up to 30 frames per second at ``SCHED_IDLE``) and have a plain
+headless Chromium (SwiftShader WebGL, no DevTools client: a user's browser) connected to the
+page for the whole run, so viser serialises and sends every frame. The browser runs at idle
+priority too (``chrt --idle``; else nice 19): it stands in for a browser on the user's own
+machine and GPU. Runs alternate without/with; the best (lowest p99) of each is reported,
+because the machine is shared. The text output adds the dataflow process's CPU time per
+event with and without the view (the work the taps add), which load does not inflate.
 
     python bench/viewer.py [--json] [--runs 3] [--seconds 8]
 """
@@ -115,13 +116,18 @@ def _close_page(page: subprocess.Popen) -> None:
 
 
 def run_once(
-    seconds: float, with_view: bool, exe=None, rate_hz: float = RATE_HZ, tmp: str = ""
+    seconds: float,
+    with_view: bool,
+    exe=None,
+    rate_hz: float = RATE_HZ,
+    tmp: str = "",
+    priority: str = "idle",
 ) -> tuple[float, float, float]:
     """p99 processing latency [us], p99 lateness [us], view frames sent per second."""
     setup, net, plans, sinks, stamps = build(seconds, rate_hz)
     view = page = None
     if with_view:
-        view = attach_view(net, setup, plans, port=0, rate_hz=30.0)
+        view = attach_view(net, setup, plans, port=0, rate_hz=30.0, priority=priority)
     try:
         if view is not None and exe is not None:
             page = _open_page(exe, view.url, tempfile.mkdtemp(dir=tmp))
@@ -145,20 +151,39 @@ def run_once(
     return float(np.percentile(lat, 99)) * 1e-3, lateness_p99_us(stamps), fps
 
 
+def cpu_per_result_us(seconds: float, with_view: bool, rate_hz: float = RATE_HZ) -> float:
+    """CPU time of this (the dataflow's) process per delivered result [us] on the virtual
+    clock (as fast as possible): the work the taps add per event, which load does not
+    inflate as it does wall-clock figures. The view process is another process."""
+    setup, net, plans, sinks, stamps = build(seconds, rate_hz)
+    view = attach_view(net, setup, plans, port=0, rate_hz=30.0) if with_view else None
+    try:
+        cpu0 = time.process_time()
+        net.run()
+        cpu = time.process_time() - cpu0
+    finally:
+        if view is not None:
+            view.close()
+    return cpu / max(len(stamps), 1) * 1e6
+
+
 def _measure(args, exe):
     run_once(1.0, False, rate_hz=args.rate_hz)  # warm-up: compiled kernels loaded
     without, with_, fps, late_without, late_with = [], [], [], [], []
+    cpu: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(args.runs):
             p99, late, _ = run_once(args.seconds, False, None, args.rate_hz, tmp)
             without.append(p99)
             late_without.append(late)
             page_exe = None if args.no_browser else exe
-            p99, late, f = run_once(args.seconds, True, page_exe, args.rate_hz, tmp)
+            p99, late, f = run_once(args.seconds, True, page_exe, args.rate_hz, tmp, args.priority)
             with_.append(p99)
             late_with.append(late)
             fps.append(f)
-    return without, with_, fps, late_without, late_with
+            for w in (False, True):
+                cpu[w].append(cpu_per_result_us(2.0, w, args.rate_hz))
+    return without, with_, fps, late_without, late_with, cpu
 
 
 def main(argv=None) -> int:
@@ -167,11 +192,12 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--rate-hz", type=float, default=RATE_HZ, help="sensor rate [Hz]")
+    ap.add_argument("--priority", default="idle", help="the view process's: idle, low, normal")
     ap.add_argument("--no-browser", action="store_true", help="attach the view, connect no page")
     args = ap.parse_args(argv)
     exe = None if args.no_browser else find_chromium()
     with contextlib.redirect_stdout(sys.stderr):  # stdout carries the result only
-        without, with_, fps, late_without, late_with = _measure(args, exe)
+        without, with_, fps, late_without, late_with, cpu = _measure(args, exe)
     result = {
         "dataflow_p99_us_without": round(min(without), 1),
         "dataflow_p99_us_with": round(min(with_), 1),
@@ -188,6 +214,8 @@ def main(argv=None) -> int:
         print(f"  p99 latency with a view:    {result['dataflow_p99_us_with']:.0f} us "
               f"(runs: {', '.join(f'{v:.0f}' for v in with_)})")  # fmt: skip
         print(f"  p99 lateness without / with: {min(late_without):.0f} / {min(late_with):.0f} us")
+        print(f"  dataflow CPU per result (virtual clock) without / with: {min(cpu[False]):.1f} / "
+              f"{min(cpu[True]):.1f} us")  # fmt: skip
         ratio = min(with_) / min(without)
         print(f"  ratio {ratio:.3f}; view frames sent {result['frames_sent_per_s']:.1f}/s")
     return 0
