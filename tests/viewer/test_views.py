@@ -219,3 +219,48 @@ def test_the_view_runs_in_its_own_lower_priority_process():
     finally:
         live.close()
     assert live.process.returncode is not None  # closed means ended
+
+
+def test_the_view_process_places_frames_and_bodies_like_pose_algebra():
+    from trackflow.math import Pose, UncertainPose
+    from trackflow.viewer.board import Board
+    from trackflow.viewer.edges import EdgeLayout, QueryLayout, ViewLayout
+    from trackflow.viewer.live_process import LiveScene
+
+    rng = np.random.default_rng(7)
+
+    def pose():
+        return Pose(rng.normal(size=3), quat_exp(rng.normal(size=3)))
+
+    T_A_T, T_T_C, T_M_C = pose(), pose(), pose()  # a sensor, a static, a sensor seen backwards
+    static = UncertainPose(T_T_C, np.eye(6) * 1e-6)
+    edges = [
+        EdgeLayout("art", "A", "T", False, 0),
+        EdgeLayout("mount", "T", "C", True, value=static),
+        EdgeLayout("cam", "M", "C", False, 1),
+    ]
+    layout = ViewLayout(["A", "T", "C", "M"], "A", edges, [QueryLayout("q", "A", "M")], 2)
+    board = Board.create(2)
+    cov = np.diag([1e-4, 4e-4, 9e-4, 1e-3, 2e-3, 3e-3])
+    for slot, T in ((0, T_A_T), (1, T_M_C)):
+        board.write_pose(slot, 1, T.position, T.quaternion, cov)
+    scene = LiveScene(layout, board, "127.0.0.1", 0, 10.0, None)
+    try:
+        poses = {b.name: scene._read(b) for b in scene.bodies}
+        places = scene._place_frames(poses)
+        T_A_M = T_A_T @ T_T_C @ T_M_C.inverse()
+        for frame, want in (("T", T_A_T), ("C", T_A_T @ T_T_C), ("M", T_A_M)):
+            q, p = places[frame]
+            np.testing.assert_allclose(p, want.position, atol=1e-12)
+            got = Pose(p, q)
+            assert abs(abs(np.dot(got.quaternion, want.quaternion)) - 1) < 1e-12
+        bodies, _ = scene._collect(places, poses)
+        cam = bodies[[b.name for b in scene.bodies].index("cam")]
+        world = T_A_M @ T_M_C  # the camera's pose drawn at its source frame M
+        np.testing.assert_allclose(cam.position, world.position, atol=1e-12)
+        r = T_A_M.rotation_matrix  # translation error rotates into the world; rotation stays
+        np.testing.assert_allclose(cam.covariance[:3, :3], r @ cov[:3, :3] @ r.T, atol=1e-15)
+        np.testing.assert_allclose(cam.covariance[3:, 3:], cov[3:, 3:], atol=1e-15)
+    finally:
+        scene.close()
+        board.close()

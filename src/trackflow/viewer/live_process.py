@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..math import quat_conjugate, quat_multiply, quat_rotate, quat_to_matrix
+from ..math import quat_conjugate, quat_multiply, quat_to_matrix
 from .batch import HIDDEN, BatchDrawing, BodyFrame
 from .board import Board, BoardPose
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
@@ -276,18 +276,21 @@ class LiveScene:
             p = None if e.static else poses.get(e.name)
             if p is not None:
                 values.append((e.source, e.target, p.quaternion, p.position))
+        rot = {self.layout.root: np.eye(3)}  # R_root_frame of the placed frames
         changed = True
         while changed:
             changed = False
             for a, b, q_ab, t_ab in values:
                 if a in known and b not in known:
                     q_a, t_a = known[a]
-                    known[b] = (quat_multiply(q_a, q_ab), quat_rotate(q_a, t_ab) + t_a)
+                    known[b] = (quat_multiply(q_a, q_ab), rot[a] @ t_ab + t_a)
+                    rot[b] = quat_to_matrix(known[b][0])
                     changed = True
                 elif b in known and a not in known:
                     q_b, t_b = known[b]
                     q_a = quat_multiply(q_b, quat_conjugate(q_ab))
-                    known[a] = (q_a, t_b - quat_rotate(q_a, t_ab))
+                    rot[a] = quat_to_matrix(q_a)
+                    known[a] = (q_a, t_b - rot[a] @ t_ab)
                     changed = True
         return known
 
