@@ -218,7 +218,7 @@ class LiveScene:
             self.frame_axes.batched_scales = np.where(shown, 1.0, HIDDEN)
             if self.batch is not None:
                 self.batch.update(bodies, trails)
-            if now_wall - self._label_wall > 0.5:  # labels follow at 2 Hz
+            if now_wall - self._label_wall > 0.09:  # labels follow at 10 Hz at most
                 self._label_wall = now_wall
                 lift = np.array([0.0, 0.0, self.style.axes_length * 0.6])
                 for label, b in zip(self.labels, bodies):
