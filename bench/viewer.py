@@ -121,7 +121,7 @@ def run_once(
     exe=None,
     rate_hz: float = RATE_HZ,
     tmp: str = "",
-    priority: str = "idle",
+    priority: str = "low",
 ) -> tuple[float, float, float]:
     """p99 processing latency [us], p99 lateness [us], view frames sent per second."""
     setup, net, plans, sinks, stamps = build(seconds, rate_hz)
@@ -192,7 +192,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--rate-hz", type=float, default=RATE_HZ, help="sensor rate [Hz]")
-    ap.add_argument("--priority", default="idle", help="the view process's: idle, low, normal")
+    ap.add_argument("--priority", default="low", help="the view process's: idle, low, normal")
     ap.add_argument("--no-browser", action="store_true", help="attach the view, connect no page")
     args = ap.parse_args(argv)
     exe = None if args.no_browser else find_chromium()

@@ -211,14 +211,24 @@ def test_the_view_runs_in_its_own_lower_priority_process():
     net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
     with pytest.raises(ValueError, match="priority"):
         attach_view(net, port=0, priority="high")
-    live = attach_view(net, port=0, rate_hz=10)  # priority "idle"
+    live = attach_view(net, port=0, rate_hz=10)  # priority "low": niceness +10
     try:
         assert live.pid != os.getpid()
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, live.pid) == min(mine + 10, 19)
+    finally:
+        live.close()
+    assert live.process.returncode is not None  # closed means ended
+    with pytest.raises(ValueError, match="duplicate"):  # one view per network
+        attach_view(net, port=0)
+    net = Network()
+    net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
+    live = attach_view(net, port=0, rate_hz=10, priority="idle")
+    try:
         assert os.sched_getscheduler(live.pid) == os.SCHED_IDLE
         assert os.sched_getscheduler(0) != os.SCHED_IDLE  # the dataflow keeps its class
     finally:
         live.close()
-    assert live.process.returncode is not None  # closed means ended
 
 
 def test_the_view_process_places_frames_and_bodies_like_pose_algebra():

@@ -93,7 +93,7 @@ class LiveView:
         rate_hz: float,
         style: Style | None,
         sensor_info: SensorInfo | None = None,
-        priority: str = "idle",
+        priority: str = "low",
         timeout_s: float = 120.0,
     ):
         if not 1.0 <= rate_hz <= 120.0:
@@ -329,11 +329,15 @@ class _Wiring:
     def build(self) -> tuple[Board, dict[str, Tap]]:
         board = Board.create(len(self.taps))
         taps = {}
-        for slot, (name, comp, kalman, ahead) in enumerate(self.taps):
-            if name is not None:
-                tap = Tap(name, board, slot, self.period_ns, kalman, ahead)
-                taps[name] = self.network.add(tap)
-                self.network.connect(comp, tap, mode="push")
+        try:
+            for slot, (name, comp, kalman, ahead) in enumerate(self.taps):
+                if name is not None:
+                    tap = Tap(name, board, slot, self.period_ns, kalman, ahead)
+                    taps[name] = self.network.add(tap)
+                    self.network.connect(comp, tap, mode="push")
+        except ValueError:  # a network that has a view already: names taken
+            board.close()
+            raise
         return board, taps
 
 
@@ -348,7 +352,7 @@ def attach_view(
     style: Style | None = None,
     errors: dict[str, str] | None = None,
     sensor_info: SensorInfo | None = None,
-    priority: str = "idle",
+    priority: str = "low",
 ) -> LiveView:
     """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
 
@@ -372,10 +376,11 @@ def attach_view(
         frames are placed), ellipsoids true to scale.
     sensor_info : callable, optional
         A live runtime's sensor report (:data:`SensorInfo`), polled a few times a second.
-    priority : {"idle", "low", "normal"}
-        CPU priority of the view process: ``idle`` (default) draws only with CPU time the
-        dataflow (and everything else) leaves over (Linux ``SCHED_IDLE``), ``low`` is
-        niceness +10.
+    priority : {"low", "idle", "normal"}
+        CPU priority of the view process: ``low`` (default) is niceness +10 - the dataflow
+        thread, which sleeps between events, preempts it on every wake-up, while the view still
+        gets its frames on a machine busy with other work; ``idle`` draws only with CPU time
+        nothing else wants (Linux ``SCHED_IDLE``: fewer frames on a busy machine).
     """
     if not 1.0 <= rate_hz <= 120.0:
         raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")

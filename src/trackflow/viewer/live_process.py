@@ -386,8 +386,8 @@ def _to_world(q_w_a: np.ndarray, t_w_a: np.ndarray, poses: list[BoardPose]):
     return pos, quat, c
 
 
-#: View process priorities: ``idle`` runs only on CPU time no other process wants (Linux
-#: ``SCHED_IDLE``; elsewhere the lowest niceness), ``low`` is niceness +10, ``normal`` as is.
+#: View process priorities: ``low`` is niceness +10, ``idle`` runs only on CPU time no other
+#: process wants (Linux ``SCHED_IDLE``; elsewhere the lowest niceness), ``normal`` as is.
 PRIORITIES = ("idle", "low", "normal")
 
 
@@ -426,7 +426,7 @@ def main(conn) -> None:
 
     try:
         layout, board_name, options = conn.recv()
-        lower_priority(options.get("priority", "idle"))
+        lower_priority(options.get("priority", "low"))
         # a browser that opens a speculative connection and drops it is not an error here
         logging.getLogger("websockets.server").setLevel(logging.CRITICAL)
         board = Board.attach(board_name)
