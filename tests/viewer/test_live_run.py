@@ -128,19 +128,20 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             page = browser.open(url, "100250.0 ms")
             page.close()  # a new page gets the initial camera aimed at the placed frames
             page = browser.open(url, "100250.0 ms")
-            shots = []
+            shots = []  # two consecutive screenshots 1 s apart that both show the body
             end = time.monotonic() + 60
             while len(shots) < 2:
+                assert time.monotonic() < end, "the body is not drawn (or never twice in view)"
                 img = browser.capture(page, tmp_path / f"live_{len(shots)}.png")
                 m = _magenta(img[:, : int(W * 0.6)])
                 if m.sum() > 20:
                     ys, xs = np.nonzero(m)
                     shots.append((img, np.array([xs.mean(), ys.mean()])))
-                    page.wait_for_timeout(2000)
-                else:  # software WebGL on a busy machine: the scene may lag the page
-                    assert not shots and time.monotonic() < end, "the body is not drawn"
+                    page.wait_for_timeout(1000)
+                else:  # not drawn yet (software WebGL lags), or it moved out of the view
+                    shots.clear()
             moved = float(np.linalg.norm(shots[1][1] - shots[0][1]))
-            assert moved > 5.0, f"the body moved only {moved:.1f} px in 2 s"
+            assert moved > 5.0, f"the body moved only {moved:.1f} px in 1 s"
             sender.terminate()  # the tracker stops sending
             sender.wait(timeout=30)
             page.wait_for_timeout(1500)  # stale after 250 ms; the panel redraws at 5 Hz
