@@ -13,7 +13,7 @@ origin = the least-late event) to its delivery, which also counts queueing behin
 it is only meaningful when the machine keeps up with the 6000 events/s.
 
 "with" runs attach :func:`trackflow.viewer.attach_view` (its taps write into shared memory; a
-separate view process draws up to 60 frames per second at niceness +10) and have a plain
+separate view process draws 30 frames per second at niceness +10) and have a plain
 headless Chromium (SwiftShader WebGL, no DevTools client: a user's browser) connected to the
 page for the whole run, so viser serialises and sends every frame. The browser runs at idle
 priority too (``chrt --idle``; else nice 19): it stands in for a browser on the user's own
@@ -44,7 +44,7 @@ from trackflow.viewer.simulate import setup_sources
 
 N_BODIES, QUERY_HZ = 20, 60.0
 RATE_HZ = 240.0  # the issue's figure; --rate-hz changes it for a lighter comparison
-VIEW_HZ = 60.0  # the view's target frame rate: the top of the issue's 30-60 Hz; --view-hz
+VIEW_HZ = 30.0  # the view's frame rate (attach_view's default; the issue: 30-60 Hz); --view-hz
 
 
 def make_setup(rate_hz: float = RATE_HZ):

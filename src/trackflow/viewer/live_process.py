@@ -197,7 +197,7 @@ class LiveScene:
             self.board.clients = clients
             period = 1.0 / (self.rate_hz if clients else min(self.rate_hz, IDLE_RATE_HZ))
             nxt += period
-            if nxt < start:  # fell behind (a slow frame, a busy machine): no catching up
+            if nxt < start - 0.25:  # far behind (a busy machine): start afresh, no burst
                 nxt = start + period
 
     def render_frame(self) -> None:
