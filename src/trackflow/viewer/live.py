@@ -45,6 +45,7 @@ __all__ = ["LiveView", "SensorInfo", "attach_view"]
 SensorInfo = Callable[[], dict[str, dict]]
 
 _FEED_PERIOD_S = 0.1
+_STATS_EVERY = 5  # feeder periods between rejection reports
 
 
 def _start_process(timeout_s: float):
@@ -157,23 +158,22 @@ class LiveView:
         return rej, offsets
 
     def _feed(self) -> None:
-        """Every 100 ms: the network clock to the board, the rejections to the view (when they
-        changed), the page's prediction slider to the samplers."""
-        clock, last = self.network.clock, None
+        """Every 100 ms the network clock to the board; every 500 ms the rejections to the
+        view (when they changed); the page's prediction slider to the taps when it moves."""
+        clock, last, n = self.network.clock, None, 0
         while not self._stop.is_set():
             self.board.set_clock(clock.now_ns, clock.dispatch_wall_ns)
-            stats = self.rejections()
-            if stats != last:
-                last = stats
-                self._send(("stats", *stats))
+            if n % _STATS_EVERY == 0:
+                stats = self.rejections()
+                if stats != last:
+                    last = stats
+                    self._send(("stats", *stats))
+            n += 1
             try:
-                while self._conn.poll(_FEED_PERIOD_S):
+                if self._conn.poll(_FEED_PERIOD_S):
                     msg = self._conn.recv()
                     if msg[0] == "offset":
                         self._move_samplers(float(msg[1]))
-                    if self._stop.is_set():
-                        break
-                    self.board.set_clock(clock.now_ns, clock.dispatch_wall_ns)
             except (EOFError, OSError):
                 break  # the view process ended
 
