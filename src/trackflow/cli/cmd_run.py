@@ -24,6 +24,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--replay", type=Path, default=None, help="replay a recorded run offline")
     p.add_argument("--vrpn-port", type=int, default=None, help="serve answers as Tracker0 on it")
     p.add_argument("--vrpn-host", default="127.0.0.1", help="VRPN server interface")
+    p.add_argument("--view", action="store_true", help="show the run in the browser (viser)")
+    p.add_argument("--view-host", default="127.0.0.1", help="view bind address (loopback)")
+    p.add_argument("--view-port", type=int, default=8080, help="view port (0: any free one)")
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
@@ -48,6 +51,19 @@ def run(args) -> int:
     if any(spec.protocol == "optical" for spec in setup.inputs.values()):
         from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 4 wires it)
 
+    views: list = []
+    on_network = None
+    if args.view:
+
+        def on_network(net, plan, inputs) -> None:
+            from ..viewer import attach_view
+
+            views.append(
+                attach_view(net, setup, {plan.query.name: (plan, "")}, host=args.view_host,
+                            port=args.view_port, sensor_info=_sensor_info(inputs))
+            )  # fmt: skip
+            print(f"view: {views[0].url}", file=sys.stderr, flush=True)
+
     server = None
     if args.vrpn_port is not None:
         from ..trackers.vrpn_server import VrpnTrackerServer
@@ -61,8 +77,11 @@ def run(args) -> int:
             record=args.record,
             vrpn_out=server,
             on_status=None if args.quiet else _status,
+            on_network=on_network,
         )
     finally:
+        for view in views:
+            view.close()
         if server is not None:
             server.close()
     out = {
@@ -75,6 +94,26 @@ def run(args) -> int:
     }
     print(json.dumps(out) if args.json else _lines(out))
     return 0
+
+
+def _sensor_info(inputs):
+    """What the view's graph panel shows of each live sensor beyond the network: the
+    tracker's counted rejections and its measured clock offset (``viewer.SensorInfo``)."""
+    import time
+
+    bodies = [b for inp in inputs for b in inp.bodies]
+
+    def info() -> dict[str, dict]:
+        now, out = time.time_ns(), {}
+        for b in bodies:
+            try:
+                s = b.status.summary(now, b.spec.stale_s)
+            except RuntimeError:  # a counter changed while being read: next time
+                continue
+            out[b.name] = {"rejections": s["rejections"], "offset_ms": s["clock_offset_ms"]}
+        return out
+
+    return info
 
 
 def _status(lines: list[str]) -> None:

@@ -33,6 +33,8 @@ from ..dataflow import (
     Component,
     KalmanFilter,
     Measurement,
+    Network,
+    Plan,
     RecordingPlayer,
     Sampler,
     Setup,
@@ -295,6 +297,7 @@ def run_live(
     status_period_s: float = 1.0,
     stop: threading.Event | None = None,
     history_s: float = 1.0,
+    on_network: Callable[[Network, Plan, list[LiveInput]], object] | None = None,
 ) -> RunResult:
     """Run the setup's query live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
 
@@ -309,6 +312,11 @@ def run_live(
     on_status : callable, optional
         Called once with ``["listening: ..."]`` when the inputs are open, then every
         ``status_period_s`` with one status line per sensor.
+    on_network : callable, optional
+        Called once with the built network (reset, filters warmed up), the query's plan and
+        the live inputs (their :attr:`LiveInput.bodies` carry each sensor's status) before the
+        trackers are listened to: the place to add push consumers, such as a browser view
+        (``trackflow run --view``). Each sensor's source is the component named like its edge.
     """
     q = _push_query(setup, query)
     plan = setup.plan(q)
@@ -332,6 +340,8 @@ def run_live(
     net.reset()
     warm_up(net)
     inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
+    if on_network is not None:
+        on_network(net, plan, inputs)
     writers = _writers(setup, edges, record)
     sched = _Scheduler(net, sampler, sources, inputs, writers)
     bodies = [b for i in inputs for b in i.bodies]

@@ -3,52 +3,50 @@
 * :func:`attach_view` - a live view of any running :class:`trackflow.dataflow.Network`: frames
   as axes, every sensor's filtered pose and every query's answer with its position error
   ellipsoid and orientation error (axis ellipsoids), trails, the prediction ghost, the SRG
-  panel with edge states and time plots. Decimated in its own thread.
+  panel with edge states and time plots. Drawn by a separate view process from a shared
+  memory board the network's taps write.
 * :class:`RecordingView` - a recording on a timeline; :class:`PoseToolPage` - the PoseTool's
   filter tuning in the browser.
 * :func:`snapshot` / :class:`Browser` - headless Chromium renders for reports and tests.
 
-``trackflow view`` is the command line (``docs/viewer.md``). Needs the ``viewer`` extra
-(``pip install 'trackflow[viewer]'``: viser, playwright) and a system Chromium for snapshots.
+``trackflow view`` and ``trackflow run --view`` are the command line (``docs/viewer.md``).
+Needs the ``viewer`` extra (``pip install 'trackflow[viewer]'``: viser, playwright) and a
+system Chromium for snapshots. Names are imported on first use, so the view process loads only
+what it draws with.
 """
 
-from .app import SetupRun, ViewOptions, is_setup, serve, start_setup
-from .browser import Browser, find_chromium, snapshot
-from .glyphs import Ellipsoid, orientation_glyphs, position_glyph, stable_axes
-from .graph_panel import COLOURS, EdgeStatus, classify, render_panel
-from .live import LiveView, attach_view
-from .monitor import Tap
-from .recording import RecordingTrack, RecordingView, auto_magnify
-from .scene import PoseDrawing, Style
-from .server import ViewServer
-from .simulate import edge_motion, setup_sources
+import importlib
 
-__all__ = [
-    "COLOURS",
-    "Browser",
-    "EdgeStatus",
-    "Ellipsoid",
-    "LiveView",
-    "PoseDrawing",
-    "RecordingTrack",
-    "RecordingView",
-    "SetupRun",
-    "Style",
-    "Tap",
-    "ViewOptions",
-    "ViewServer",
-    "attach_view",
-    "auto_magnify",
-    "classify",
-    "edge_motion",
-    "find_chromium",
-    "is_setup",
-    "orientation_glyphs",
-    "position_glyph",
-    "render_panel",
-    "serve",
-    "setup_sources",
-    "snapshot",
-    "stable_axes",
-    "start_setup",
-]
+#: public name -> the module holding it
+_WHERE = {
+    "SetupRun": "app", "ViewOptions": "app", "is_setup": "app", "serve": "app",
+    "start_setup": "app",
+    "Board": "board",
+    "Browser": "browser", "find_chromium": "browser", "snapshot": "browser",
+    "EdgeMonitor": "edges", "ViewLayout": "edges",
+    "Ellipsoid": "glyphs", "orientation_glyphs": "glyphs", "position_glyph": "glyphs",
+    "stable_axes": "glyphs",
+    "COLOURS": "graph_panel", "EdgeStatus": "graph_panel", "classify": "graph_panel",
+    "render_panel": "graph_panel",
+    "LiveView": "live", "SensorInfo": "live", "attach_view": "live",
+    "Tap": "monitor",
+    "RecordingTrack": "recording", "RecordingView": "recording", "auto_magnify": "recording",
+    "PoseDrawing": "scene", "Style": "scene",
+    "ViewServer": "server",
+    "edge_motion": "simulate", "setup_sources": "simulate",
+}  # fmt: skip
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'trackflow.viewer' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

@@ -9,7 +9,6 @@ construction (a hidden body is drawn with zero size), so the arrays never change
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,10 +17,11 @@ from ..math import ellipsoid, quat_from_matrix, quat_to_matrix, skew
 from .glyphs import stable_axes, to_wxyz
 from .scene import Style
 
-__all__ = ["BatchDrawing", "BodyFrame", "icosphere"]
+__all__ = ["HIDDEN", "BatchDrawing", "BodyFrame", "icosphere"]
 
 _AXIS_RGB = np.array([(220, 40, 40), (40, 180, 40), (40, 80, 230)], dtype=np.uint8)
-_HIDDEN = 1e-9
+#: Scale of a hidden instance (instanced nodes keep their length).
+HIDDEN = 1e-9
 
 
 def icosphere(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -98,10 +98,10 @@ class BatchDrawing:
         n = self.n = len(self.colors)
         verts, faces = icosphere(2)
         zeros3, ident = np.zeros((n, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
-        tiny = np.full((n, 3), _HIDDEN)
+        tiny = np.full((n, 3), HIDDEN)
         L = style.axes_length
         self.axes = scene.add_batched_axes(
-            f"{path}/axes", ident, zeros3, np.full(n, _HIDDEN),
+            f"{path}/axes", ident, zeros3, np.full(n, HIDDEN),
             axes_length=L, axes_radius=L * 0.05,
         )  # fmt: skip
         self.markers = scene.add_batched_meshes_simple(
@@ -114,11 +114,11 @@ class BatchDrawing:
         )  # fmt: skip
         self.ori_err = scene.add_batched_meshes_simple(
             f"{path}/orientation_error", verts, faces, np.tile(ident, (3, 1)),
-            np.zeros((3 * n, 3)), batched_scales=np.full((3 * n, 3), _HIDDEN),
+            np.zeros((3 * n, 3)), batched_scales=np.full((3 * n, 3), HIDDEN),
             batched_colors=np.tile(_AXIS_RGB, (n, 1)), opacity=style.opacity, lod="off",
         )  # fmt: skip
         self.ghost_axes = scene.add_batched_axes(
-            f"{path}/predicted_axes", ident, zeros3, np.full(n, _HIDDEN),
+            f"{path}/predicted_axes", ident, zeros3, np.full(n, HIDDEN),
             axes_length=L * 0.8, axes_radius=L * 0.025,
         )  # fmt: skip
         self.ghost_err = scene.add_batched_meshes_simple(
@@ -126,6 +126,7 @@ class BatchDrawing:
             batched_colors=self.colors, opacity=0.25, wireframe=True, lod="off",
         )  # fmt: skip
         self.trails = None
+        self._fades: dict[tuple[int, int], np.ndarray] = {}
         self._prev_pos: np.ndarray | None = None
         self._prev_tip: np.ndarray | None = None
 
@@ -142,15 +143,14 @@ class BatchDrawing:
         wxyz = to_wxyz(quat)
         L = st.axes_length
         self.axes.batched_positions, self.axes.batched_wxyzs = pos, wxyz
-        self.axes.batched_scales = np.where(shown, 1.0, _HIDDEN)
+        self.axes.batched_scales = np.where(shown, 1.0, HIDDEN)
         self.markers.batched_positions, self.markers.batched_wxyzs = pos, wxyz
-        self.markers.batched_scales = np.where(shown[:, None], L * 0.25, _HIDDEN) * np.ones(3)
+        self.markers.batched_scales = np.where(shown[:, None], L * 0.25, HIDDEN) * np.ones(3)
         radii, axes = _ellipsoids(cov[:, :3, :3], st.sigma, self._prev_pos)
         self._prev_pos = axes
         self.pos_err.batched_positions = pos
         self.pos_err.batched_wxyzs = to_wxyz(quat_from_matrix(axes))
         self.pos_err.batched_scales = self._scales(radii, shown)
-        time.sleep(0)  # hand the interpreter to the dataflow thread if it waits (see live.py)
         if st.show_orientation:
             r = quat_to_matrix(quat)  # (n, 3, 3)
             c_rot = cov[:, 3:, 3:]
@@ -168,15 +168,13 @@ class BatchDrawing:
             self.ori_err.batched_wxyzs = to_wxyz(quat_from_matrix(ta))
             self.ori_err.batched_scales = self._scales(tr, np.repeat(shown, 3))
         else:
-            self.ori_err.batched_scales = np.full((3 * n, 3), _HIDDEN)
-        time.sleep(0)
+            self.ori_err.batched_scales = np.full((3 * n, 3), HIDDEN)
         self._update_ghosts(bodies)
-        time.sleep(0)
         self._update_trails(trails)
 
     def _scales(self, radii: np.ndarray, shown: np.ndarray) -> np.ndarray:
         s = np.maximum(radii * self.style.magnify, 1e-5)
-        return np.where(shown[:, None], s, _HIDDEN)
+        return np.where(shown[:, None], s, HIDDEN)
 
     def _update_ghosts(self, bodies) -> None:
         n = self.n
@@ -190,11 +188,21 @@ class BatchDrawing:
                 pos[i], quat[i], cov[i] = p, q, np.asarray(c)[:3, :3]
         self.ghost_axes.batched_positions = pos
         self.ghost_axes.batched_wxyzs = to_wxyz(quat)
-        self.ghost_axes.batched_scales = np.where(has, 1.0, _HIDDEN)
+        self.ghost_axes.batched_scales = np.where(has, 1.0, HIDDEN)
         radii, axes = _ellipsoids(cov, self.style.sigma, None)
         self.ghost_err.batched_positions = pos
         self.ghost_err.batched_wxyzs = to_wxyz(quat_from_matrix(axes))
         self.ghost_err.batched_scales = self._scales(radii, has)
+
+    def _fade(self, i: int, n: int) -> np.ndarray:
+        """Segment colours (n - 1, 2, 3) of body ``i``'s trail of ``n`` points: from the
+        background (white) at the oldest end to the body colour (cached per length)."""
+        key = (i, n)
+        if key not in self._fades:
+            a = np.linspace(0.0, 1.0, n)
+            rgb = 255.0 + a[:, None] * (self.colors[i].astype(float) - 255.0)
+            self._fades[key] = np.stack([rgb[:-1], rgb[1:]], axis=1).astype(np.uint8)
+        return self._fades[key]
 
     def _update_trails(self, trails) -> None:
         segs, cols = [], []
@@ -202,14 +210,12 @@ class BatchDrawing:
             if pts is None or len(pts) < 2:
                 continue
             pts = np.asarray(pts, float)
-            a = np.linspace(0.0, 1.0, len(pts))
-            rgb = 255.0 + a[:, None] * (self.colors[i].astype(float) - 255.0)
             segs.append(np.stack([pts[:-1], pts[1:]], axis=1))
-            cols.append(np.stack([rgb[:-1], rgb[1:]], axis=1))
+            cols.append(self._fade(i, len(pts)))
         if not segs:
             return
         seg = np.concatenate(segs).astype(np.float32)
-        col = np.concatenate(cols).astype(np.uint8)
+        col = np.concatenate(cols)
         if self.trails is None:
             self.trails = self.scene.add_line_segments(
                 f"{self.path}/trails", seg, col, thickness=self.style.axes_length * 0.05

@@ -1,0 +1,173 @@
+"""``trackflow run SETUP --view`` end to end, in real processes on 127.0.0.1: a simulated
+A.R.T. DTrack tracker (``trackflow simulate dtrack``) replays the EuRoC ground truth, ``trackflow
+run --view`` drives the setup's dataflow from it and serves the view, and headless Chromium
+shows the page. Asserted on pixels: the sensor's body is drawn and moves; when the sender is
+stopped,
+its edge in the graph panel turns from green (live) to red (stale). The panel shows the
+tracker's measured clock offset. Every wait is bounded."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
+pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+
+from trackflow.viewer import COLOURS, Browser, find_chromium
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+W, H = 900, 600
+SETUP = """\
+frames: [room, tool]
+sensors:
+  - name: tool
+    source: room
+    target: tool
+    rate_hz: 100
+    sigma_pos_mm: 0.3
+    sigma_ori_deg: 0.1
+    motion: {{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}}
+    input: {{dtrack: {{port: {port}, body: 1}}}}
+queries:
+  - {{name: tool_q, source: room, target: tool, mode: push, rate_hz: 30}}
+"""
+
+
+@pytest.fixture
+def euroc(shared_data) -> Path:
+    path = shared_data / "euroc" / "V1_01_easy_groundtruth_200hz.txt"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    return path
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _trackflow(*args) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    return subprocess.Popen(
+        [sys.executable, "-m", "trackflow.cli.main", *map(str, args)],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+
+
+def _lines(stream) -> queue.Queue:
+    q: queue.Queue = queue.Queue()
+
+    def read() -> None:
+        for line in stream:
+            q.put(line)
+
+    threading.Thread(target=read, daemon=True).start()
+    return q
+
+
+def _wait_line(q: queue.Queue, prefix: str, timeout_s: float) -> str:
+    end = time.monotonic() + timeout_s
+    seen = []
+    while time.monotonic() < end:
+        try:
+            line = q.get(timeout=max(end - time.monotonic(), 0.01))
+        except queue.Empty:
+            break
+        seen.append(line)
+        if line.startswith(prefix):
+            return line.strip()
+    raise AssertionError(f"no {prefix!r} line within {timeout_s} s: {seen[-5:]}")
+
+
+def _magenta(img: np.ndarray) -> np.ndarray:
+    """The first body's colour (magenta), shaded."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (r > g + 70) & (b > g + 70) & (np.abs(r - b) < 70)
+
+
+def _colour(img: np.ndarray, hex_rgb: str, tol: int = 40) -> int:
+    rgb = [int(hex_rgb[i : i + 2], 16) for i in (1, 3, 5)]
+    return int(np.all(np.abs(img.astype(int) - rgb) <= tol, axis=-1).sum())
+
+
+def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tmp_path):
+    try:
+        find_chromium()
+    except FileNotFoundError as exc:
+        pytest.skip(str(exc))
+    port = _free_udp_port()
+    setup = tmp_path / "setup.yaml"
+    setup.write_text(SETUP.format(port=port))
+    run = _trackflow("run", setup, "--view", "--view-port", 0, "--duration", 120, "--json")
+    sender = None
+    try:
+        err = _lines(run.stderr)
+        url = _wait_line(err, "view: ", 120).split(" ", 1)[1]
+        _wait_line(err, "listening", 60)
+        sender = _trackflow(
+            "simulate", "dtrack", euroc, "--port", port, "--start", 10, "--duration", 100,
+            "--latency-ms", 5, "--clock-offset-s", -100.25,
+        )  # fmt: skip
+        with Browser(W, H, timeout_s=90) as browser:
+            # poses flow once the panel shows the tracker's clock offset, as measured
+            page = browser.open(url, "100250.0 ms")
+            page.close()  # a new page gets the initial camera aimed at the placed frames
+            page = browser.open(url, "100250.0 ms")
+            shots = []  # two consecutive screenshots 1 s apart that both show the body
+            end = time.monotonic() + 60
+            while len(shots) < 2:
+                assert time.monotonic() < end, "the body is not drawn (or never twice in view)"
+                img = browser.capture(page, tmp_path / f"live_{len(shots)}.png")
+                m = _magenta(img[:, : int(W * 0.6)])
+                if m.sum() > 20:
+                    ys, xs = np.nonzero(m)
+                    shots.append((img, np.array([xs.mean(), ys.mean()])))
+                    page.wait_for_timeout(1000)
+                else:  # not drawn yet (software WebGL lags), or it moved out of the view
+                    shots.clear()
+            moved = float(np.linalg.norm(shots[1][1] - shots[0][1]))
+            assert moved > 5.0, f"the body moved only {moved:.1f} px in 1 s"
+            sender.terminate()  # the tracker stops sending
+            sender.wait(timeout=30)
+            page.wait_for_timeout(1500)  # stale after 250 ms; the panel redraws at 5 Hz
+            stale = browser.capture(page)
+        panel = slice(int(W * 0.55), W)
+        live = shots[0][0]
+        green0, red0 = (
+            _colour(live[:, panel], COLOURS["live"]),
+            _colour(live[:, panel], COLOURS["stale"]),
+        )
+        green1, red1 = (
+            _colour(stale[:, panel], COLOURS["live"]),
+            _colour(stale[:, panel], COLOURS["stale"]),
+        )
+        assert red1 > 150 and red0 < 0.2 * red1, (red0, red1)  # the edge turned red ...
+        assert green1 < green0 - 100, (green0, green1)  # ... from green
+    finally:
+        if sender is not None and sender.poll() is None:
+            sender.kill()
+        run.send_signal(signal.SIGINT)
+        try:
+            out, _ = run.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            run.kill()
+            out, _ = run.communicate()
+    summary = json.loads(out)
+    tool = summary["sensors"]["tool"]
+    assert tool["measurements"] > 100 and tool["stale"]
+    assert summary["interrupted"]
