@@ -853,9 +853,7 @@ def step_scratch_size(n_dp, n_do, additive, m):
 
 def step_scratch(n_dp, n_do, additive):
     """Flat scratch ``(floats, ints)`` of :func:`step_into`, for any measurement."""
-    return np.empty(step_scratch_size(n_dp, n_do, additive, MAX_ROWS)), np.empty(
-        MAX_ROWS, np.int64
-    )
+    return np.empty(step_scratch_size(n_dp, n_do, additive, MAX_ROWS)), np.empty(MAX_ROWS, np.int64)
 
 
 def log_size(n_dp, n_do, additive, rows):

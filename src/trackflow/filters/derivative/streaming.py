@@ -496,8 +496,10 @@ class PoseKalmanFilter(FilterClock):
         n_dp, n_do, add, kind, sp, so = self._params
         absolute = e.lp == 0 or e.lo == 0
         logged = False
-        if e.fn is None and self._t is not None and not (
-            absolute and gating.reset_due(True, self._gated_run, self._policy.reset_after)
+        if (
+            e.fn is None
+            and self._t is not None
+            and not (absolute and gating.reset_due(True, self._gated_run, self._policy.reset_after))
         ):
             zp, zo, r = z if z is not None else (e.zp, e.zo, e.r)
             gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
