@@ -88,8 +88,6 @@ KERNELS = (
     "predict_pose",
     "smooth",
     "step",
-    "step_scratch_size",
-    "step_scratch",
     "step_into",
     "log_size",
     "measurement_cov",
@@ -829,117 +827,48 @@ def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, 
     """Streaming predict + update in place; returns ``(status, nis)``.
 
     On GATED ``x, p`` hold the prediction to the measurement time; on DIVERGED they are
-    undefined (the caller resets the filter). :func:`step_into` with fresh scratch, no log.
+    undefined (the caller resets the filter). :func:`step_into` without a record.
     """
-    ws, wsi = step_scratch(n_dp, n_do, additive)
     return step_into(
         x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax,
-        np.empty(0), ws, wsi,
+        np.empty(0),
     )  # fmt: skip
 
 
-#: Most innovation rows of one measurement (position and additive quaternion: 3 + 4).
-MAX_ROWS = 7
-
-
-def step_scratch_size(n_dp, n_do, additive, m):
-    """Floats of :func:`step_into`'s scratch for a measurement of ``m`` rows."""
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    nlev = max(npl, nol, 1)
-    pred = nlev + 1 + 3 + 4 + nx + 4 * nc * nc + nlev * nlev
-    upd = 3 * m * nc + 2 * m * m + 2 * m + nc * m + 2 * nc + nc * nc + 8
-    return pred + m + m * nc + upd
-
-
-def step_scratch(n_dp, n_do, additive):
-    """Flat scratch ``(floats, ints)`` of :func:`step_into`, for any measurement."""
-    return np.empty(step_scratch_size(n_dp, n_do, additive, MAX_ROWS)), np.empty(MAX_ROWS, np.int64)
-
-
 def log_size(n_dp, n_do, additive, rows):
-    """Length of a log record of :func:`step_into` for a ``rows x rows`` measurement noise:
-    the state ``x`` (nx), ``P`` (nc x nc, row by row), ``zp`` (3), ``zo`` (4) and ``r``."""
+    """Length of a record of :func:`step_into` for a ``rows x rows`` measurement noise: the
+    state ``x`` (nx), ``P`` (nc x nc, row by row), ``zp`` (3), ``zo`` (4) and ``r``."""
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     return nx + nc * nc + 7 + rows * rows
 
 
 def step_into(
-    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax,
-    log, ws, wsi,
-):  # fmt: skip
-    """:func:`step` on caller-owned scratch (``ws``, ``wsi`` from :func:`step_scratch`),
-    recording the measurement and the resulting state into ``log`` (:func:`log_size`;
-    length 0 = no record). The same operations in the same order as :func:`step`.
+    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log
+):
+    """:func:`step`, also writing the measurement and the resulting state into the record
+    ``log`` (:func:`log_size`; length 0 = no record): ``x``, ``P`` row by row, ``zp``,
+    ``zo``, ``r`` row by row. ``zp``, ``zo`` and ``r`` may be views of ``log`` itself (a
+    record applied again): they are read before the state is written.
 
-    ``log`` holds ``x``, ``P`` (row by row), ``zp``, ``zo`` and ``r`` (row by row); ``zp``,
-    ``zo`` and ``r`` may be views of ``log`` itself (a record applied again).
+    One compiled call per update instead of a call and five copies made from Python.
     """
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    nlev = max(npl, nol, 1)
-    rows = r.shape[0]
     if log.shape[0] > 0:
         o = nx + nc * nc
         for k in range(3):
             log[o + k] = zp[k]
         for k in range(4):
             log[o + 3 + k] = zo[k]
-        o += 7
+        rows = r.shape[0]
         for i in range(rows):
             for j in range(rows):
-                log[o + i * rows + j] = r[i, j]
-    o = 0
-    cf = ws[o : o + nlev + 1]
-    o += nlev + 1
-    b = ws[o : o + 3]
-    d = ws[o + 3 : o + 7]
-    o += 7
-    xn = ws[o : o + nx]
-    o += nx
-    a = ws[o : o + nc * nc].reshape((nc, nc))
-    qm = ws[o + nc * nc : o + 2 * nc * nc].reshape((nc, nc))
-    tmp = ws[o + 2 * nc * nc : o + 3 * nc * nc].reshape((nc, nc))
-    out = ws[o + 3 * nc * nc : o + 4 * nc * nc].reshape((nc, nc))
-    o += 4 * nc * nc
-    lv = ws[o : o + nlev * nlev].reshape((nlev, nlev))
-    o += nlev * nlev
-    predict_into(
-        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, (cf, b, d, xn, a, qm, lv, tmp, out)
+                log[o + 7 + i * rows + j] = r[i, j]
+    ws = predict_scratch(n_dp, n_do, additive)
+    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws)
+    y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
+    status, nis = update(
+        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive, wmax
     )
-    m = residual_size(additive, lp, lo)
-    y = ws[o : o + m]
-    o += m
-    h = ws[o : o + m * nc].reshape((m, nc))
-    o += m * nc
-    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
-    rr = measurement_cov(r, x, n_dp, lp, lo, additive)
-    idx = wsi[:m]
-    if selection_rows(h, idx):
-        hp = ws[o : o + m * nc].reshape((m, nc))
-        o += m * nc
-        s = ws[o : o + m * m].reshape((m, m))
-        o += m * m
-        lw = ws[o : o + m * m].reshape((m, m))
-        o += m * m
-        sy = ws[o : o + m].reshape((m, 1))
-        o += m
-        kt = ws[o : o + m * nc].reshape((m, nc))
-        o += m * nc
-        kr = ws[o : o + nc * m].reshape((nc, m))
-        o += nc * m
-        delta = ws[o : o + nc]
-        o += nc
-        g = ws[o : o + m]
-        o += m
-        acc = ws[o : o + nc]
-        o += nc
-        mp = ws[o : o + nc * nc].reshape((nc, nc))
-        o += nc * nc
-        d4 = ws[o : o + 4]
-        q4 = ws[o + 4 : o + 8]
-        uws = (hp, s, lw, sy, kt, kr, delta, g, acc, mp, d4, q4)
-        status, nis = update_into(x, p, y, rr, idx, gate, n_dp, n_do, additive, wmax, uws)
-    else:
-        status, nis = update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
     if log.shape[0] > 0:
         for i in range(nx):
             log[i] = x[i]

@@ -184,8 +184,8 @@ class PoseKalmanFilter(FilterClock):
         n_dp, n_do, add = self._params[:3]
         self._nx, self._nc = self._x0.shape[0], self._p0.shape[0]
         self._log_sizes = {m: _source.log_size(n_dp, n_do, add, m) for m in (0, 3, 6)}
-        self._ws, self._wsi = _source.step_scratch(n_dp, n_do, add)
         self._last_r = (None, None)  # (caller's read-only noise, its writable copy)
+        self._pose_model = n_dp >= 0 and n_do >= 0
         self.reset()
 
     # -- state -----------------------------------------------------------------------------
@@ -316,13 +316,11 @@ class PoseKalmanFilter(FilterClock):
         """
         if not isinstance(measurement, UncertainPose) or measurement.shape != ():
             raise ValueError("update_pose needs a single UncertainPose")
-        n_dp, n_do = self._params[0], self._params[1]
-        zp = measurement.position
-        zo = measurement.quaternion
-        c = measurement.covariance
-        if n_dp >= 0 and n_do >= 0:
+        pose = measurement.pose
+        zp, zo, c = pose.position, pose.quaternion, measurement.covariance
+        if self._pose_model:
             return self._measure(t, 0, 0, zp, zo, c)
-        if n_dp >= 0:
+        if self._params[0] >= 0:
             return self._measure(t, 0, -1, zp, zo, c[:3, :3].copy())
         return self._measure(t, -1, 0, zp, zo, c[3:, 3:].copy())
 
@@ -505,7 +503,7 @@ class PoseKalmanFilter(FilterClock):
             gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
             status, nis = kernels().step_into(
                 self._x, self._p, e.t - self._t, n_dp, n_do, add, kind, sp, so,
-                e.lp, e.lo, zp, zo, r, gate, self._wmax, e.buf, self._ws, self._wsi,
+                e.lp, e.lo, zp, zo, r, gate, self._wmax, e.buf,
             )  # fmt: skip
             e.status, e.nis = int(status), float(nis)
             logged = True
@@ -532,11 +530,9 @@ class PoseKalmanFilter(FilterClock):
         e.gated_run = self._gated_run
 
     def _prune(self) -> None:
-        horizon = self._t - self._history
-        n = 0
-        while n < len(self._log) - 1 and self._log[n + 1].t < horizon:
-            n += 1
-        if n:
+        # entries 0 .. n-1 go when entry n (the new base's successor) is before the horizon
+        n = bisect.bisect_left(self._times, self._t - self._history, 1) - 1
+        if n > 0:
             for e in self._log[:n]:
                 self._pruned[e.status] += 1
             self._base = self._log[n - 1]
