@@ -9,8 +9,8 @@ import pytest
 
 from trackflow import Pose, UncertainPose
 from trackflow.filters import MotionModel, PoseKalmanFilter, gating
-from trackflow.filters.derivative import streaming
 from trackflow.filters.derivative import kernels as source
+from trackflow.filters.derivative import streaming
 from trackflow.io import read_stream
 from trackflow.math import use_backend
 
@@ -33,7 +33,7 @@ def _reference(f: PoseKalmanFilter, t, p, q, form: str):
     n_dp, n_do, add, kind, sp, so = f._params
     reset_after = f._policy.reset_after
     x = p_ = None
-    run, out = 0, []
+    run, out, t_prev = 0, [], 0.0
     for i in range(len(t)):
         lp, lo = (0, -1) if i % 13 == 0 else (0, 0)
         pose = Pose(p[i], q[i])  # as the filter gets it (a normalised quaternion)
@@ -54,7 +54,8 @@ def _reference(f: PoseKalmanFilter, t, p, q, form: str):
             status, _ = k.update(x, p_, y, h, rr, gate, n_dp, n_do, add, f._wmax)
             run = gating.next_gated_run(int(status), run)
         t_prev = t[i]
-        pos, quat, cov = k.predict_pose(x, p_, (t[i] + 0.003) - t[i], n_dp, n_do, add, kind, sp, so)
+        dt = (t[i] + 0.003) - t[i]  # as the filter computes it
+        pos, quat, cov = k.predict_pose(x, p_, dt, n_dp, n_do, add, kind, sp, so)
         out.append((int(status) != gating.GATED, pos, quat, cov))
     return out
 
