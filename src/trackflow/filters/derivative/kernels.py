@@ -90,6 +90,9 @@ KERNELS = (
     "step",
     "step_into",
     "log_size",
+    "constants",
+    "step_packed",
+    "predict_pose_packed",
     "measurement_cov",
     "row_is_finite",
     "run",
@@ -876,6 +879,39 @@ def step_into(
             for j in range(nc):
                 log[nx + i * nc + j] = p[i, j]
     return status, nis
+
+
+def constants(n_dp, n_do, additive, kind, sig_p, sig_o, wmax):
+    """A filter's constant parameters packed in one float array, made once: ``n_dp``,
+    ``n_do``, ``additive``, ``kind``, ``wmax``, the lengths of ``sig_p`` and ``sig_o``, then
+    their values. One array argument instead of seven makes a call from Python cheaper."""
+    c = np.empty(7 + sig_p.shape[0] + sig_o.shape[0])
+    c[0], c[1], c[2], c[3], c[4] = n_dp, n_do, additive, kind, wmax
+    c[5], c[6] = sig_p.shape[0], sig_o.shape[0]
+    for i in range(sig_p.shape[0]):
+        c[7 + i] = sig_p[i]
+    for i in range(sig_o.shape[0]):
+        c[7 + sig_p.shape[0] + i] = sig_o[i]
+    return c
+
+
+def step_packed(x, p, dt, c, lp, lo, zp, zo, r, gate, log):
+    """:func:`step_into` with the parameters of :func:`constants`."""
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    return step_into(
+        x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, lp, lo, zp, zo, r, gate,
+        c[4], log,
+    )  # fmt: skip
+
+
+def predict_pose_packed(x, p, dt, c, out):
+    """:func:`predict_pose_into` with the parameters of :func:`constants`."""
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    predict_pose_into(x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, out)
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):

@@ -186,6 +186,7 @@ class PoseKalmanFilter(FilterClock):
         self._log_sizes = {m: _source.log_size(n_dp, n_do, add, m) for m in (0, 3, 6)}
         self._last_r = (None, None)  # (caller's read-only noise, its writable copy)
         self._pose_model = n_dp >= 0 and n_do >= 0
+        self._const = _source.constants(*self._params, self._wmax)
         self.reset()
 
     # -- state -----------------------------------------------------------------------------
@@ -491,7 +492,6 @@ class PoseKalmanFilter(FilterClock):
         """Integrate entry ``e`` and record the state after it in ``e``. ``z`` = ``(zp, zo,
         r)`` on its first application (the kernel copies them into the record), ``None``
         when applied again (out-of-order re-filtering: the record holds them)."""
-        n_dp, n_do, add, kind, sp, so = self._params
         absolute = e.lp == 0 or e.lo == 0
         logged = False
         if (
@@ -501,10 +501,9 @@ class PoseKalmanFilter(FilterClock):
         ):
             zp, zo, r = z if z is not None else (e.zp, e.zo, e.r)
             gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
-            status, nis = kernels().step_into(
-                self._x, self._p, e.t - self._t, n_dp, n_do, add, kind, sp, so,
-                e.lp, e.lo, zp, zo, r, gate, self._wmax, e.buf,
-            )  # fmt: skip
+            status, nis = kernels().step_packed(
+                self._x, self._p, e.t - self._t, self._const, e.lp, e.lo, zp, zo, r, gate, e.buf
+            )
             e.status, e.nis = int(status), float(nis)
             logged = True
             if e.status == gating.DIVERGED:
@@ -612,7 +611,7 @@ class PoseKalmanFilter(FilterClock):
         """
         if self._t is not None and t >= self._t:  # fast path: only the pose rows
             out = np.empty(_source.POSE_OUT)
-            kernels().predict_pose_into(self._x, self._p, float(t) - self._t, *self._params, out)
+            kernels().predict_pose_packed(self._x, self._p, float(t) - self._t, self._const, out)
             return UncertainPose._trusted(out[:3], out[3:7], out[7:].reshape(6, 6))
         x, p = self.predict_state(t)
         pos, q, c = kernels().pose_of(x, p, *self._params[:3])
