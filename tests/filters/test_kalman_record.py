@@ -129,3 +129,20 @@ def test_record_layout_and_no_record():
     assert np.array_equal(log[o : o + 3], zp + 0.001)
     assert np.array_equal(log[o + 3 : o + 7], zo)
     assert np.array_equal(log[o + 7 :].reshape(6, 6), C_POSE)
+
+
+def test_snapshot_arrays_survive_out_of_order_refiltering(shared_data):
+    """Re-filtering replaces a log record instead of rewriting it, so a state handed out by
+    ``snapshot`` keeps its values (``adopt`` replicas hold them)."""
+    t, p, q = _stream(shared_data, 60)
+    f = PoseKalmanFilter(MotionModel(1, 1, noise=NOISE))
+    for i in range(0, 60, 2):
+        f.update_pose(t[i], UncertainPose(Pose(p[i], q[i]), C_POSE))
+    snap = f.snapshot()
+    x, cov = snap.x.copy(), snap.p.copy()
+    f.update_pose(t[51], UncertainPose(Pose(p[51], q[51]), C_POSE))  # older than the snapshot
+    assert f.stats["out_of_order"] == 1
+    assert np.array_equal(snap.x, x) and np.array_equal(snap.p, cov)
+    assert not np.array_equal(f.snapshot().x, x)  # the newest state did change
+    g = PoseKalmanFilter(MotionModel(1, 1, noise=NOISE))
+    assert g.adopt(snap) and np.array_equal(g.snapshot().x, x)

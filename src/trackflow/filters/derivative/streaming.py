@@ -271,7 +271,7 @@ class PoseKalmanFilter(FilterClock):
 
         A state at the newest time replaces the newest one (the other copy re-filtered it);
         an older one is refused (``False``, counted in ``stats["rejected_old"]``). The
-        snapshot's arrays are kept in the history as they are: do not change them afterwards.
+        snapshot's arrays are copied into the history's record.
 
         Raises
         ------
@@ -279,7 +279,7 @@ class PoseKalmanFilter(FilterClock):
             If the state's shapes are not this model's.
         """
         t = float(snap.t)
-        x = np.asarray(snap.x, dtype=float)  # kept in the history (read only), not copied
+        x = np.asarray(snap.x, dtype=float)  # copied into the entry's record
         p = np.asarray(snap.p, dtype=float)
         if x.shape != self._x0.shape or p.shape != self._p0.shape or not math.isfinite(t):
             raise ValueError(
@@ -289,9 +289,9 @@ class PoseKalmanFilter(FilterClock):
         if self._t is not None and t < self._t:
             self._counts["rejected_old"] += 1
             return False
-        e = _Entry(t, -1, -1, self._x0[:0], self._x0[:0], self._p0[:0, :0])
+        e = _Entry(t, -1, -1, np.zeros(self._log_sizes[0]), self._nx, self._nc, 0)
         e.status = FilterStatus.INITIALIZED if snap.segment_start else FilterStatus.ACCEPTED
-        e.x, e.p = x, p
+        e.store_state(x, p)
         self._smooth_cache = {}
         if self._log and t == self._t:
             self._log[-1] = e
@@ -491,7 +491,10 @@ class PoseKalmanFilter(FilterClock):
     def _apply(self, e: _Entry, z=None) -> None:
         """Integrate entry ``e`` and record the state after it in ``e``. ``z`` = ``(zp, zo,
         r)`` on its first application (the kernel copies them into the record), ``None``
-        when applied again (out-of-order re-filtering: the record holds them)."""
+        when applied again (out-of-order re-filtering: the record holds them; it is
+        replaced, not rewritten, so states handed out by :meth:`snapshot` never change)."""
+        if z is None:
+            e.buf = e.buf.copy()
         absolute = e.lp == 0 or e.lo == 0
         logged = False
         if (
