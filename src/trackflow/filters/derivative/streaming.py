@@ -74,7 +74,9 @@ class _Entry:
     """One logged measurement and the filter state right after it, in one flat record
     ``buf`` (:func:`kernels.log_size`): ``x``, ``P`` row by row, ``zp``, ``zo``, ``r``."""
 
-    __slots__ = ("t", "lp", "lo", "fn", "status", "nis", "gated_run", "buf", "nx", "nc", "m")
+    __slots__ = (
+        "t", "lp", "lo", "fn", "status", "nis", "gated_run", "buf", "nx", "nc", "m", "_state"
+    )  # fmt: skip
 
     def __init__(self, t, lp, lo, buf, nx, nc, m, fn=None):
         self.t, self.lp, self.lo, self.buf, self.nx, self.nc, self.m = t, lp, lo, buf, nx, nc, m
@@ -82,15 +84,28 @@ class _Entry:
         self.status = -1
         self.nis = math.nan
         self.gated_run = 0
+        self._state = None  # views (x, P) of the record, made on first use
+
+    def _views(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._state is None:
+            o, n = self.nx, self.nc
+            self._state = (self.buf[:o], self.buf[o : o + n * n].reshape(n, n))
+        return self._state
 
     @property
     def x(self) -> np.ndarray:
-        return self.buf[: self.nx]
+        """The state after the measurement (the same view object on every access)."""
+        return self._views()[0]
 
     @property
     def p(self) -> np.ndarray:
-        o = self.nx
-        return self.buf[o : o + self.nc * self.nc].reshape(self.nc, self.nc)
+        return self._views()[1]
+
+    def replace_record(self) -> None:
+        """Give the entry a fresh copy of its record before it is written again, so arrays
+        handed out earlier keep their values."""
+        self.buf = self.buf.copy()
+        self._state = None
 
     @property
     def zp(self) -> np.ndarray:
@@ -494,7 +509,7 @@ class PoseKalmanFilter(FilterClock):
         when applied again (out-of-order re-filtering: the record holds them; it is
         replaced, not rewritten, so states handed out by :meth:`snapshot` never change)."""
         if z is None:
-            e.buf = e.buf.copy()
+            e.replace_record()
         absolute = e.lp == 0 or e.lo == 0
         logged = False
         if (
