@@ -139,6 +139,7 @@ class KalmanFilter(Component):
     def reset(self) -> None:
         super().reset()
         self.filter = self.filter_factory(self.motion, self.history_s)
+        self._history_ns = int(self.history_s * 1e9)
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
@@ -169,10 +170,13 @@ class KalmanFilter(Component):
         if not ok:
             self.stats.reject("filter rejected update")
             return
-        self.first_t = t if self.first_t is None else min(self.first_t, t)
-        self.last_t = t if self.last_t is None else max(self.last_t, t)
-        self.last_origin = max(self.last_origin, m.origin_ns)
-        self.emit(Measurement(t, m.pose, m.origin_ns))
+        if self.first_t is None or t < self.first_t:
+            self.first_t = t
+        if self.last_t is None or t > self.last_t:
+            self.last_t = t
+        if m.origin_ns > self.last_origin:
+            self.last_origin = m.origin_ns
+        self.emit(m if t == m.t_ns else Measurement(t, m.pose, m.origin_ns))
 
     def pull(self, t_ns: int) -> Measurement | None:
         if self.last_t is None:
@@ -185,7 +189,7 @@ class KalmanFilter(Component):
             # an interpolator asked for a time before the sensor's first sample (start-up)
             self.stats.reject("before first measurement")
             return None
-        if not self.motion.static and self.last_t - t_ns > int(self.history_s * 1e9):
+        if not self.motion.static and self.last_t - t_ns > self._history_ns:
             self.stats.reject("before history")
             return None
         try:

@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..dataflow import NETWORK_PROTOCOLS, InputSpec
+from ..math import check_covariance
 from . import dtrack, natnet, vrpn
 from ._packet import PacketError
 from .axes import BoundaryConversion
@@ -93,6 +94,15 @@ class Sample(NamedTuple):
     covariance: np.ndarray
 
 
+class CheckedSample(Sample):
+    """A :class:`Sample` as :meth:`LiveInput._sample` makes it from the body's nominal
+    covariance: float64 arrays of the right shapes, a finite position, a quaternion of unit
+    norm to rounding and a covariance checked once when the body was made, so
+    :class:`~trackflow.trackers.runtime.LiveSource` takes it without checking again."""
+
+    __slots__ = ()
+
+
 Sink = Callable[["LiveInput", bytes, int], None]
 
 
@@ -113,6 +123,10 @@ class Body:
         #: every sample without a covariance of its own shares it
         self.nominal_converted = 0.5 * (c + c.T)
         self.nominal_converted.flags.writeable = False
+        try:  # a valid nominal covariance makes samples without their own CheckedSamples
+            self.nominal_valid = check_covariance(self.nominal_converted) is self.nominal_converted
+        except ValueError:
+            self.nominal_valid = False
         #: nominal position sigma [m] (NatNet's mean marker error is compared with it)
         self.nominal_sigma = math.sqrt(float(np.trace(self.nominal[:3, :3])) / 3.0)
 
@@ -224,15 +238,20 @@ class LiveInput:
             q = np.array((qx / n, qy / n, qz / n, qw / n))
         else:
             p, q = b.conv.pose((x, y, z), (qx / n, qy / n, qz / n, qw / n))
+        px, py, pz = p.tolist()
+        if not math.isfinite(px + py + pz):  # the unit scale made it overflow
+            raise PacketError("non-finite pose", b.name)
         if cov is None:
             c = b.nominal_converted
+            kind = CheckedSample if b.nominal_valid else Sample
         else:
+            kind = Sample
             c = b.conv.covariance(cov)
             c = 0.5 * (c + c.T)
             if not np.isfinite(c).all():
                 raise PacketError("invalid covariance", b.name)
         b.status.measured(arrival_ns, t_ns)
-        return Sample(int(t_ns), int(arrival_ns), p, q, c)
+        return kind(int(t_ns), int(arrival_ns), p, q, c)
 
     def _frame(self, number: int) -> bool:
         ok = True

@@ -41,7 +41,7 @@ from ..dataflow import (
 )
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
-from .inputs import LiveInput, Sample, host_ns, make_inputs
+from .inputs import CheckedSample, LiveInput, Sample, host_ns, make_inputs
 
 __all__ = [
     "LiveSource",
@@ -78,7 +78,10 @@ class LiveSource(Component):
         if self._last_t is not None and s.t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
             return None
-        pose = self._plain_pose(s)
+        if type(s) is CheckedSample:
+            pose = UncertainPose._trusted(s.position, s.quaternion, s.covariance)
+        else:
+            pose = self._plain_pose(s)
         if pose is None:  # not plainly valid: the full checks (they may normalise)
             try:
                 pose = UncertainPose(Pose(s.position, s.quaternion), s.covariance)
@@ -220,7 +223,7 @@ class _Scheduler:
                 key = id(inp)
                 self.events.put(
                     [
-                        (self.names[(key, bi)], Sample(s.t_ns, a + k, *s[2:]))
+                        (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
                         for k, (bi, s) in enumerate(pairs)
                     ]
                 )

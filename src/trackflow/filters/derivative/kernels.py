@@ -88,6 +88,11 @@ KERNELS = (
     "predict_pose",
     "smooth",
     "step",
+    "step_into",
+    "log_size",
+    "constants",
+    "step_packed",
+    "predict_pose_packed",
     "measurement_cov",
     "row_is_finite",
     "run",
@@ -825,14 +830,88 @@ def step(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, 
     """Streaming predict + update in place; returns ``(status, nis)``.
 
     On GATED ``x, p`` hold the prediction to the measurement time; on DIVERGED they are
-    undefined (the caller resets the filter).
+    undefined (the caller resets the filter). :func:`step_into` without a record.
     """
+    return step_into(
+        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax,
+        np.empty(0),
+    )  # fmt: skip
+
+
+def log_size(n_dp, n_do, additive, rows):
+    """Length of a record of :func:`step_into` for a ``rows x rows`` measurement noise: the
+    state ``x`` (nx), ``P`` (nc x nc, row by row), ``zp`` (3), ``zo`` (4) and ``r``."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    return nx + nc * nc + 7 + rows * rows
+
+
+def step_into(
+    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log
+):
+    """:func:`step`, also writing the measurement and the resulting state into the record
+    ``log`` (:func:`log_size`; length 0 = no record): ``x``, ``P`` row by row, ``zp``,
+    ``zo``, ``r`` row by row. ``zp``, ``zo`` and ``r`` may be views of ``log`` itself (a
+    record applied again): they are read before the state is written.
+
+    One compiled call per update instead of a call and five copies made from Python.
+    """
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    if log.shape[0] > 0:
+        o = nx + nc * nc
+        for k in range(3):
+            log[o + k] = zp[k]
+        for k in range(4):
+            log[o + 3 + k] = zo[k]
+        rows = r.shape[0]
+        for i in range(rows):
+            for j in range(rows):
+                log[o + 7 + i * rows + j] = r[i, j]
     ws = predict_scratch(n_dp, n_do, additive)
     predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws)
     y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
-    return update(
+    status, nis = update(
         x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive, wmax
     )
+    if log.shape[0] > 0:
+        for i in range(nx):
+            log[i] = x[i]
+        for i in range(nc):
+            for j in range(nc):
+                log[nx + i * nc + j] = p[i, j]
+    return status, nis
+
+
+def constants(n_dp, n_do, additive, kind, sig_p, sig_o, wmax):
+    """A filter's constant parameters packed in one float array, made once: ``n_dp``,
+    ``n_do``, ``additive``, ``kind``, ``wmax``, the lengths of ``sig_p`` and ``sig_o``, then
+    their values. One array argument instead of seven makes a call from Python cheaper."""
+    c = np.empty(7 + sig_p.shape[0] + sig_o.shape[0])
+    c[0], c[1], c[2], c[3], c[4] = n_dp, n_do, additive, kind, wmax
+    c[5], c[6] = sig_p.shape[0], sig_o.shape[0]
+    for i in range(sig_p.shape[0]):
+        c[7 + i] = sig_p[i]
+    for i in range(sig_o.shape[0]):
+        c[7 + sig_p.shape[0] + i] = sig_o[i]
+    return c
+
+
+def step_packed(x, p, dt, c, lp, lo, zp, zo, r, gate, log):
+    """:func:`step_into` with the parameters of :func:`constants`."""
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    return step_into(
+        x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, lp, lo, zp, zo, r, gate,
+        c[4], log,
+    )  # fmt: skip
+
+
+def predict_pose_packed(x, p, dt, c, out):
+    """:func:`predict_pose_into` with the parameters of :func:`constants`."""
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    predict_pose_into(x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, out)
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):

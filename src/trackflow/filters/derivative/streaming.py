@@ -34,10 +34,16 @@ _PRIOR_SIGMA_RATE = 10.0  # rad/s, rad/s^2, ...
 _SEGMENT_START = (FilterStatus.INITIALIZED, FilterStatus.RESET, FilterStatus.DIVERGED)
 
 
-def _own(a) -> np.ndarray:
-    """A float array copy of ``a`` (the log keeps measurements for re-filtering)."""
-    if type(a) is np.ndarray and a.dtype == np.float64:
-        return a.copy()
+_F64 = np.dtype(np.float64)
+
+
+def _kernel_array(a) -> np.ndarray:
+    """``a`` itself when a kernel can take it as is (a writable C-contiguous float64
+    ndarray), else a float64 copy. The filter never writes to it; the log copies it."""
+    if type(a) is np.ndarray and a.dtype is _F64:
+        f = a.flags
+        if f.c_contiguous and f.writeable:
+            return a
     return np.array(a, dtype=float)
 
 
@@ -65,17 +71,66 @@ class FilterSnapshot(NamedTuple):
 
 
 class _Entry:
-    """One logged measurement and the filter state right after it."""
+    """One logged measurement and the filter state right after it, in one flat record
+    ``buf`` (:func:`kernels.log_size`): ``x``, ``P`` row by row, ``zp``, ``zo``, ``r``."""
 
-    __slots__ = ("t", "lp", "lo", "zp", "zo", "r", "fn", "status", "nis", "x", "p", "gated_run")
+    __slots__ = (
+        "t", "lp", "lo", "fn", "status", "nis", "gated_run", "buf", "nx", "nc", "m", "_state"
+    )  # fmt: skip
 
-    def __init__(self, t, lp, lo, zp, zo, r, fn=None):
-        self.t, self.lp, self.lo, self.zp, self.zo, self.r = t, lp, lo, zp, zo, r
+    def __init__(self, t, lp, lo, buf, nx, nc, m, fn=None):
+        self.t, self.lp, self.lo, self.buf, self.nx, self.nc, self.m = t, lp, lo, buf, nx, nc, m
         self.fn = fn  # a MeasurementFunction (lp = lo = -1), or None for a built-in measurement
         self.status = -1
         self.nis = math.nan
-        self.x = self.p = None
         self.gated_run = 0
+        self._state = None  # views (x, P) of the record, made on first use
+
+    def _views(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._state is None:
+            o, n = self.nx, self.nc
+            self._state = (self.buf[:o], self.buf[o : o + n * n].reshape(n, n))
+        return self._state
+
+    @property
+    def x(self) -> np.ndarray:
+        """The state after the measurement (the same view object on every access)."""
+        return self._views()[0]
+
+    @property
+    def p(self) -> np.ndarray:
+        return self._views()[1]
+
+    def replace_record(self) -> None:
+        """Give the entry a fresh copy of its record before it is written again, so arrays
+        handed out earlier keep their values."""
+        self.buf = self.buf.copy()
+        self._state = None
+
+    @property
+    def zp(self) -> np.ndarray:
+        o = self.nx + self.nc * self.nc
+        return self.buf[o : o + 3]
+
+    @property
+    def zo(self) -> np.ndarray:
+        o = self.nx + self.nc * self.nc + 3
+        return self.buf[o : o + 4]
+
+    @property
+    def r(self) -> np.ndarray:
+        o = self.nx + self.nc * self.nc + 7
+        return self.buf[o : o + self.m * self.m].reshape(self.m, self.m)
+
+    def store_measurement(self, zp, zo, r) -> None:
+        o = self.nx + self.nc * self.nc
+        self.buf[o : o + 3] = zp
+        self.buf[o + 3 : o + 7] = zo
+        self.buf[o + 7 :] = np.reshape(r, -1)
+
+    def store_state(self, x, p) -> None:
+        self.buf[: self.nx] = x
+        self.buf[self.nx : self.nx + self.nc * self.nc] = p.reshape(-1)
 
 
 class PoseKalmanFilter(FilterClock):
@@ -141,6 +196,12 @@ class PoseKalmanFilter(FilterClock):
         self._gates = {m: self._policy.threshold(m) for m in (3, 6)}
         self._wmax = float(max_angular_velocity)
         self._x0, self._p0 = self._prior()
+        n_dp, n_do, add = self._params[:3]
+        self._nx, self._nc = self._x0.shape[0], self._p0.shape[0]
+        self._log_sizes = {m: _source.log_size(n_dp, n_do, add, m) for m in (0, 3, 6)}
+        self._last_r = (None, None)  # (caller's read-only noise, its writable copy)
+        self._pose_model = n_dp >= 0 and n_do >= 0
+        self._const = _source.constants(*self._params, self._wmax)
         self.reset()
 
     # -- state -----------------------------------------------------------------------------
@@ -225,7 +286,7 @@ class PoseKalmanFilter(FilterClock):
 
         A state at the newest time replaces the newest one (the other copy re-filtered it);
         an older one is refused (``False``, counted in ``stats["rejected_old"]``). The
-        snapshot's arrays are kept in the history as they are: do not change them afterwards.
+        snapshot's arrays are copied into the history's record.
 
         Raises
         ------
@@ -233,7 +294,7 @@ class PoseKalmanFilter(FilterClock):
             If the state's shapes are not this model's.
         """
         t = float(snap.t)
-        x = np.asarray(snap.x, dtype=float)  # kept in the history (read only), not copied
+        x = np.asarray(snap.x, dtype=float)  # copied into the entry's record
         p = np.asarray(snap.p, dtype=float)
         if x.shape != self._x0.shape or p.shape != self._p0.shape or not math.isfinite(t):
             raise ValueError(
@@ -243,9 +304,9 @@ class PoseKalmanFilter(FilterClock):
         if self._t is not None and t < self._t:
             self._counts["rejected_old"] += 1
             return False
-        e = _Entry(t, -1, -1, self._x0[:0], self._x0[:0], self._p0[:0, :0])
+        e = _Entry(t, -1, -1, np.zeros(self._log_sizes[0]), self._nx, self._nc, 0)
         e.status = FilterStatus.INITIALIZED if snap.segment_start else FilterStatus.ACCEPTED
-        e.x, e.p = x, p
+        e.store_state(x, p)
         self._smooth_cache = {}
         if self._log and t == self._t:
             self._log[-1] = e
@@ -271,13 +332,11 @@ class PoseKalmanFilter(FilterClock):
         """
         if not isinstance(measurement, UncertainPose) or measurement.shape != ():
             raise ValueError("update_pose needs a single UncertainPose")
-        n_dp, n_do = self._params[0], self._params[1]
-        zp = measurement.position
-        zo = measurement.quaternion
-        c = measurement.covariance
-        if n_dp >= 0 and n_do >= 0:
+        pose = measurement.pose
+        zp, zo, c = pose.position, pose.quaternion, measurement.covariance
+        if self._pose_model:
             return self._measure(t, 0, 0, zp, zo, c)
-        if n_dp >= 0:
+        if self._params[0] >= 0:
             return self._measure(t, 0, -1, zp, zo, c[:3, :3].copy())
         return self._measure(t, -1, 0, zp, zo, c[3:, 3:].copy())
 
@@ -359,10 +418,21 @@ class PoseKalmanFilter(FilterClock):
         t = float(t)
         if not math.isfinite(t):
             raise ValueError(f"measurement time must be finite, got {t}")
-        e = _Entry(t, lp, lo, _own(zp), _own(zo), _own(r), fn)
-        self._smooth_cache = {}
+        if self._smooth_cache:
+            self._smooth_cache = {}
+        if type(r) is np.ndarray and not r.flags.writeable and r.base is None:
+            last = self._last_r  # a read-only noise (a sensor's nominal one): copied once
+            if last[0] is not r:
+                last = self._last_r = (r, np.array(r, dtype=float))
+            r = last[1]
+        z = (_kernel_array(zp), _kernel_array(zo), _kernel_array(r))
+        m = z[2].shape[0]
+        size = self._log_sizes.get(m)
+        if size is None:
+            size = _source.log_size(*self._params[:3], m)
+        e = _Entry(t, lp, lo, np.empty(size), self._nx, self._nc, m, fn)
         if self._t is None or t >= self._t:
-            self._apply(e)
+            self._apply(e, z)
             self._log.append(e)
             self._times.append(t)
             self._prune()
@@ -377,7 +447,8 @@ class PoseKalmanFilter(FilterClock):
         self._restore(i)
         self._log.insert(i, e)
         self._times.insert(i, t)
-        for entry in self._log[i:]:
+        self._apply(e, z)
+        for entry in self._log[i + 1 :]:
             self._apply(entry)
         self._counts["out_of_order"] += 1
         return e.status != FilterStatus.GATED
@@ -432,38 +503,53 @@ class PoseKalmanFilter(FilterClock):
         self._x, self._p = x, p
         self._gated_run = gating.next_gated_run(e.status, self._gated_run)
 
-    def _apply(self, e: _Entry) -> None:
-        n_dp, n_do, add, kind, sp, so = self._params
+    def _apply(self, e: _Entry, z=None) -> None:
+        """Integrate entry ``e`` and record the state after it in ``e``. ``z`` = ``(zp, zo,
+        r)`` on its first application (the kernel copies them into the record), ``None``
+        when applied again (out-of-order re-filtering: the record holds them; it is
+        replaced, not rewritten, so states handed out by :meth:`snapshot` never change)."""
+        if z is None:
+            e.replace_record()
         absolute = e.lp == 0 or e.lo == 0
-        if e.fn is not None and self._t is not None:
-            self._apply_function(e)
-        elif self._t is None:
-            self._reinit(e, "")
-            e.status, e.nis = FilterStatus.INITIALIZED, math.nan
-            self._gated_run = 0
-        elif absolute and gating.reset_due(True, self._gated_run, self._policy.reset_after):
-            self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
-            e.status, e.nis = FilterStatus.RESET, math.nan
-            self._gated_run = 0
-        else:
+        logged = False
+        if (
+            e.fn is None
+            and self._t is not None
+            and not (absolute and gating.reset_due(True, self._gated_run, self._policy.reset_after))
+        ):
+            zp, zo, r = z if z is not None else (e.zp, e.zo, e.r)
             gate = self._gates[3 if (e.lp < 0 or e.lo < 0) else 6]
-            status, nis = kernels().step(
-                self._x, self._p, e.t - self._t, n_dp, n_do, add, kind, sp, so,
-                e.lp, e.lo, e.zp, e.zo, e.r, gate, self._wmax,
-            )  # fmt: skip
+            status, nis = kernels().step_packed(
+                self._x, self._p, e.t - self._t, self._const, e.lp, e.lo, zp, zo, r, gate, e.buf
+            )
             e.status, e.nis = int(status), float(nis)
+            logged = True
             if e.status == gating.DIVERGED:
                 self._reinit(e, "singular innovation covariance or non-finite state")
+                logged = False
             self._gated_run = gating.next_gated_run(e.status, self._gated_run)
+        else:
+            if z is not None:
+                e.store_measurement(*z)
+            if e.fn is not None and self._t is not None:
+                self._apply_function(e)
+            elif self._t is None:
+                self._reinit(e, "")
+                e.status, e.nis = FilterStatus.INITIALIZED, math.nan
+                self._gated_run = 0
+            else:
+                self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
+                e.status, e.nis = FilterStatus.RESET, math.nan
+                self._gated_run = 0
         self._t = e.t
-        e.x, e.p, e.gated_run = self._x.copy(), self._p.copy(), self._gated_run
+        if not logged:
+            e.store_state(self._x, self._p)
+        e.gated_run = self._gated_run
 
     def _prune(self) -> None:
-        horizon = self._t - self._history
-        n = 0
-        while n < len(self._log) - 1 and self._log[n + 1].t < horizon:
-            n += 1
-        if n:
+        # entries 0 .. n-1 go when entry n (the new base's successor) is before the horizon
+        n = bisect.bisect_left(self._times, self._t - self._history, 1) - 1
+        if n > 0:
             for e in self._log[:n]:
                 self._pruned[e.status] += 1
             self._base = self._log[n - 1]
@@ -543,7 +629,7 @@ class PoseKalmanFilter(FilterClock):
         """
         if self._t is not None and t >= self._t:  # fast path: only the pose rows
             out = np.empty(_source.POSE_OUT)
-            kernels().predict_pose_into(self._x, self._p, float(t) - self._t, *self._params, out)
+            kernels().predict_pose_packed(self._x, self._p, float(t) - self._t, self._const, out)
             return UncertainPose._trusted(out[:3], out[3:7], out[7:].reshape(6, 6))
         x, p = self.predict_state(t)
         pos, q, c = kernels().pose_of(x, p, *self._params[:3])
