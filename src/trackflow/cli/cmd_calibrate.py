@@ -53,6 +53,23 @@ def _print(d: dict, as_json: bool) -> None:
         print(f"{k:<20} {v}")
 
 
+def _emit(args, result: dict, note: str, write_report, statics=(), sensors=()) -> int:
+    """The tail of every ``calibrate`` subcommand: the setup fragment (``--fragment``: static
+    edges and sensor updates), the report directory (``--report``: ``write_report(dir)``), then
+    the result as text or ``--json``."""
+    from ..calibration.fragment import write_fragment
+
+    if args.fragment:
+        write_fragment(
+            args.fragment, statics=statics, sensors=sensors, note=note, overwrite=args.force
+        )
+    if args.report:
+        with _report_dir(args) as d:
+            write_report(d)
+    _print(result, args.json)
+    return 0
+
+
 def _residual_report(directory, data, residuals, inliers, title, times=None) -> None:
     """``report.json`` and ``residuals.png`` for residuals (M, 3) or (M, 6) [m, rad]."""
     import numpy as np
@@ -87,25 +104,18 @@ def _register_clock(sub):
 
 def run_clock(args) -> int:
     from ..calibration import estimate_clock_offset
-    from ..calibration.fragment import sensor_update, write_fragment
+    from ..calibration.fragment import sensor_update
     from ..calibration.report import write_clock_report
 
     a, b = load(args, "a"), load(args, "b", suffix="2")
     r = estimate_clock_offset(
         a, b, max_offset_s=args.max_offset, drift=args.drift, signal=args.signal
     )
-    if args.fragment:
-        write_fragment(
-            args.fragment,
-            overwrite=args.force,
-            sensors=[sensor_update(args.sensor_name, r.offset_s)],
-            note=f"clock offset of {args.b} to {args.a}",
-        )
-    if args.report:
-        with _report_dir(args) as d:
-            write_clock_report(d, r)
-    _print(r.as_dict(), args.json)
-    return 0
+    return _emit(
+        args, r.as_dict(), f"clock offset of {args.b} to {args.a}",
+        lambda d: write_clock_report(d, r),
+        sensors=[sensor_update(args.sensor_name, r.offset_s)],
+    )  # fmt: skip
 
 
 # -- hand-eye -------------------------------------------------------------------------------
@@ -158,7 +168,7 @@ def load_calibration(path: Path) -> dict:
 
 def run_hand_eye(args) -> int:
     from ..calibration import evaluate_hand_eye, solve_hand_eye
-    from ..calibration.fragment import sensor_update, static_edge, write_fragment
+    from ..calibration.fragment import sensor_update, static_edge
     from ..calibration.report import write_hand_eye_report
 
     robot, sensor = load(args, "robot"), load(args, "sensor", suffix="2")
@@ -184,22 +194,14 @@ def run_hand_eye(args) -> int:
         min_pair_angle_deg=args.min_pair_angle,
         max_pair_span_s=args.max_pair_span,
     )
-    if args.fragment:
-        statics = [static_edge("hand_eye_X", robot.target, sensor.target, r.X)]
-        if r.Z is not None:
-            statics.append(static_edge("hand_eye_Z", robot.source, sensor.source, r.Z))
-        write_fragment(
-            args.fragment,
-            overwrite=args.force,
-            statics=statics,
-            sensors=[sensor_update(args.sensor_name, r.offset_s)],
-            note=f"hand-eye calibration from {args.robot} and {args.sensor}",
-        )
-    if args.report:
-        with _report_dir(args) as d:
-            write_hand_eye_report(d, r)
-    _print(r.to_json(), args.json)
-    return 0
+    statics = [static_edge("hand_eye_X", robot.target, sensor.target, r.X)]
+    if r.Z is not None:
+        statics.append(static_edge("hand_eye_Z", robot.source, sensor.source, r.Z))
+    return _emit(
+        args, r.to_json(), f"hand-eye calibration from {args.robot} and {args.sensor}",
+        lambda d: write_hand_eye_report(d, r), statics=statics,
+        sensors=[sensor_update(args.sensor_name, r.offset_s)],
+    )  # fmt: skip
 
 
 # -- align ----------------------------------------------------------------------------------
@@ -221,27 +223,20 @@ def _register_align(sub):
 
 def run_align(args) -> int:
     from ..calibration import align_trajectories
-    from ..calibration.fragment import sensor_update, static_edge, write_fragment
+    from ..calibration.fragment import sensor_update, static_edge
 
     a, b = load(args, "a"), load(args, "b", suffix="2")
     r = align_trajectories(
         a, b, with_scale=args.scale, offset_s=args.offset,
         estimate_offset=not args.fixed_offset, max_offset_s=args.max_offset,
     )  # fmt: skip
-    if args.fragment:
-        write_fragment(
-            args.fragment,
-            overwrite=args.force,
-            statics=[static_edge("alignment", a.source, b.source, r.T)],
-            sensors=[sensor_update(args.sensor_name, r.offset_s)],
-            note=f"alignment of {args.b} to {args.a}",
-        )
-    if args.report:
-        with _report_dir(args) as d:
-            _residual_report(d, r.as_dict(), r.residuals, r.inliers,
-                         f"alignment: {r.residual_rmse_mm:.2f} mm RMSE", r.times_s)  # fmt: skip
-    _print(r.as_dict(), args.json)
-    return 0
+    title = f"alignment: {r.residual_rmse_mm:.2f} mm RMSE"
+    return _emit(
+        args, r.as_dict(), f"alignment of {args.b} to {args.a}",
+        lambda d: _residual_report(d, r.as_dict(), r.residuals, r.inliers, title, r.times_s),
+        statics=[static_edge("alignment", a.source, b.source, r.T)],
+        sensors=[sensor_update(args.sensor_name, r.offset_s)],
+    )  # fmt: skip
 
 
 # -- noise ----------------------------------------------------------------------------------
@@ -267,25 +262,19 @@ def _register_noise(sub):
 
 def run_noise(args) -> int:
     from ..calibration import sensor_noise
-    from ..calibration.fragment import sensor_update, write_fragment
+    from ..calibration.fragment import sensor_update
 
     r = sensor_noise(
         load(args), args.method,
         max_speed=args.max_speed * 1e-3, max_rate_deg=args.max_rate,
         min_segment_s=args.min_segment,
     )  # fmt: skip
-    if args.fragment:
-        write_fragment(
-            args.fragment,
-            overwrite=args.force,
-            sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
-            note=f"{args.method} noise of {args.file}",
-        )
-    if args.report:
-        with _report_dir(args) as d:
-            _residual_report(d, r.as_dict(), r.errors, None, f"{args.method} noise samples")
-    _print(r.as_dict(), args.json)
-    return 0
+    title = f"{args.method} noise samples"
+    return _emit(
+        args, r.as_dict(), f"{args.method} noise of {args.file}",
+        lambda d: _residual_report(d, r.as_dict(), r.errors, None, title),
+        sensors=[sensor_update(args.sensor_name, covariance=r.covariance)],
+    )  # fmt: skip
 
 
 # -- pivot ----------------------------------------------------------------------------------
@@ -306,27 +295,20 @@ def run_pivot(args) -> int:
     import numpy as np
 
     from ..calibration import pivot_calibration
-    from ..calibration.fragment import static_edge, write_fragment
+    from ..calibration.fragment import static_edge
     from ..math import Pose, UncertainPose
 
     stream = load(args)
     r = pivot_calibration(stream)
-    if args.fragment:
-        cov = np.zeros((6, 6))
-        cov[:3, :3] = r.covariance[:3, :3]
-        tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
-        write_fragment(
-            args.fragment,
-            overwrite=args.force,
-            statics=[static_edge("tip", stream.target, args.tip_frame, tip)],
-            note=f"pivot calibration of {args.file}",
-        )
-    if args.report:
-        with _report_dir(args) as d:
-            _residual_report(d, r.as_dict(), r.residuals, r.inliers,
-                         f"pivot: {r.residual_rms_mm:.2f} mm RMS")  # fmt: skip
-    _print(r.as_dict(), args.json)
-    return 0
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = r.covariance[:3, :3]
+    tip = UncertainPose(Pose(r.tip, [0.0, 0.0, 0.0, 1.0]), cov)
+    title = f"pivot: {r.residual_rms_mm:.2f} mm RMS"
+    return _emit(
+        args, r.as_dict(), f"pivot calibration of {args.file}",
+        lambda d: _residual_report(d, r.as_dict(), r.residuals, r.inliers, title),
+        statics=[static_edge("tip", stream.target, args.tip_frame, tip)],
+    )  # fmt: skip
 
 
 @contextlib.contextmanager
