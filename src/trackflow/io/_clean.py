@@ -109,6 +109,7 @@ def finish_stream(
     quat_tolerance: Callable[[np.ndarray], np.ndarray] | None = None,
     tail_unterminated: bool = False,
     check_covariance_psd: bool = True,
+    owned: bool = False,
 ) -> PoseStream:
     """Validate parsed rows, clean them if asked, and build the stream (see module docstring).
 
@@ -129,10 +130,13 @@ def finish_stream(
         truncated tail (a writer cut off mid-line) instead of raising.
     check_covariance_psd : bool
         Check symmetry and positive semi-definiteness (readers of trusted binary data skip it).
+    owned : bool
+        The arrays are the reader's own (nobody else holds them): quaternions are rescaled in
+        place instead of in a copy (large files: one copy less of the biggest field).
     """
     rows = _Rows(report, where, len(t_ns), clean, tail_unterminated)
     _reject_non_finite(rows, position, quaternion, covariance, confidence)
-    quaternion = _unit_quaternions(rows, quaternion, quat_tolerance)
+    quaternion = _unit_quaternions(rows, quaternion, quat_tolerance, owned)
     if covariance is not None and check_covariance_psd and rows.n:
         covariance = _valid_covariances(rows, covariance)
     kidx = _increasing_times(rows, t_ns)
@@ -225,7 +229,7 @@ def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence
         rows.reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")
 
 
-def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np.ndarray:
+def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance, owned) -> np.ndarray:
     """Checks 2 and 3: zero quaternions, and lengths off 1 beyond the printed precision
     (repaired with ``clean``). Returns the quaternions with every row visibly off unit length
     rescaled (exact values survive write/read round trips)."""
@@ -263,8 +267,9 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np
             report.normalized.extend(int(w) for w in rows.where[bad & keep])
     rescale = np.abs(norm - 1.0) > 1e-12
     if np.any(rescale):
-        quaternion = quaternion.copy()
-        quaternion[rescale] /= np.where(norm[rescale] > 1e-12, norm[rescale], 1.0)[:, None]
+        quaternion = quaternion if owned else quaternion.copy()
+        # rows divided by 1.0 stay exactly as they are: no gathering copy of the rescaled rows
+        quaternion /= np.where(rescale & (norm > 1e-12), norm, 1.0)[:, None]
     return quaternion
 
 

@@ -2,29 +2,36 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
 
+from ..math import UNIT_TOLERANCE
 from ._clean import TRUNCATED
 from ._report import ReadReport
 
 __all__ = [
+    "BLOCK_BYTES",
     "TEXT_UNIT_TOLERANCE",
     "Table",
     "FRAMES_PREFIX",
     "TIME_EXPONENTS",
+    "first_data_line",
     "format_ns",
     "parse_frames_comment",
     "parse_time_ns",
     "read_lines",
     "parse_rows",
-    "quat_tolerance_from_tokens",
 ]
 
+#: Bytes of text parsed at once: enough for numpy's reader to run at full speed, little enough
+#: that one block's line strings and temporaries stay a few tens of MB beside the arrays.
+BLOCK_BYTES = 1 << 22
+#: ASCII whitespace of ``str.split()``/``str.strip()`` besides space, tab and newline.
+_OTHER_SPACE = "\x0b\x0c\r\x1c\x1d\x1e\x1f"
 #: Smallest accepted ``| |q| - 1 |`` for quaternions printed as decimal text.
 TEXT_UNIT_TOLERANCE = 1e-4
 #: Comment that trackflow writers put into text files to keep the frame names.
@@ -86,6 +93,21 @@ def read_lines(path: Path) -> tuple[list[str], bool, int]:
     return lines, unterminated, tail_bytes
 
 
+def first_data_line(path: Path) -> str | None:
+    """The first line that is neither blank nor a ``#`` comment (stripped), or ``None``.
+
+    Reads only as far as that line; binary data (a NUL byte anywhere) raises ``ValueError``
+    as :func:`parse_rows` does.
+    """
+    _scan(path)
+    for _, lines, _ in _blocks(path, 1 << 16):
+        for raw in lines:
+            line = raw.strip()
+            if line and line[0] != "#":
+                return line
+    return None
+
+
 def parse_frames_comment(line: str) -> dict[str, str]:
     """``{"source": .., "target": ..}`` from a ``# trackflow: source=a target=b`` comment."""
     out = {}
@@ -102,10 +124,39 @@ class Table:
 
     where: np.ndarray  # (N,) 1-based line numbers
     t_ns: np.ndarray  # (N,) int64
-    values: np.ndarray  # (N, K) float
-    tokens: Sequence[list[str]]  # tokens of each kept row, on demand (precision-aware checks)
+    columns: tuple[np.ndarray, ...]  # the K value columns in groups: (N, K_1), (N, K_2), ...
     tail_unterminated: bool  # the last row is an unterminated last line
     meta: dict[str, str] = field(default_factory=dict)  # from a "# trackflow:" comment
+    # printed precision of the quaternion columns, for the rows that may need it (sorted rows)
+    quat_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    quat_places: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def values(self) -> np.ndarray:
+        """All value columns, (N, K) (a copy when they were read in several groups)."""
+        if len(self.columns) == 1:
+            return self.columns[0]
+        return np.concatenate(self.columns, axis=1)
+
+    def quat_tolerance(self, rows: np.ndarray) -> np.ndarray:
+        """Allowed ``| |q| - 1 |`` of rows ``rows`` given the printed digits of their quaternion.
+
+        Rounding each component to half a unit of its last digit changes the norm by at most
+        one such unit, and real files are often normalised before an offline fusion or
+        smoothing step (EuRoC ground truth is off by up to 2e-5, TUM RGB-D by 8e-5). The
+        tolerance is ``max(TEXT_UNIT_TOLERANCE = 1e-4, min(2 units of the coarsest printed
+        digit, 1e-3))``: a wrong component order, corrupted digits or a cut-off number are off
+        by far more. The digits were looked at while parsing, for every row off unit length by
+        more than ``UNIT_TOLERANCE / 2``; any other row is within every tolerance, so it gets
+        the floor ``TEXT_UNIT_TOLERANCE``.
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        place = np.zeros(len(rows))
+        if len(self.quat_rows):
+            k = np.minimum(np.searchsorted(self.quat_rows, rows), len(self.quat_rows) - 1)
+            hit = self.quat_rows[k] == rows
+            place[hit] = self.quat_places[k[hit]]
+        return np.maximum(TEXT_UNIT_TOLERANCE, np.minimum(2.0 * place, 1e-3))
 
 
 def parse_rows(
@@ -120,6 +171,9 @@ def parse_rows(
     clean: bool,
     header: Callable[[list[str]], bool] | None = None,
     time_offset_ns: int = 0,
+    quat_cols: Sequence[int] = (),
+    split_at: Sequence[int] = (),
+    block_bytes: int = BLOCK_BYTES,
 ) -> tuple[Table, list[str] | None]:
     """Parse a delimited text file into timestamps and float columns.
 
@@ -129,119 +183,312 @@ def parse_rows(
     columns or unparsable numbers raise ``ValueError`` with ``file:line`` (or are dropped with
     ``clean``), except an unterminated last line, which is dropped as a truncated tail.
     ``report.rows_read`` is set. ``time_offset_ns`` is subtracted from every timestamp (exact
-    integers, before conversion to int64).
+    integers, before conversion to int64). ``quat_cols`` are the file columns of a quaternion
+    whose printed digits set its unit-length tolerance (:meth:`Table.quat_tolerance`).
+    ``split_at`` splits the value columns into groups, each read into its own C-contiguous
+    array (``Table.columns``), so that a reader's position and quaternion need no copies.
+
+    The file is read in blocks of about ``block_bytes`` and each block parsed with numpy into
+    arrays sized by a first pass that counts the lines: memory is the final arrays plus one
+    block, never the file's lines (see ``docs/formats.md``).
     """
-    lines, unterminated, tail_bytes = read_lines(path)
-    meta: dict[str, str] = {}
-    head: list[str] | None = None
-    last_index = len(lines) - 1
+    n_lines, unterminated, tail_bytes = _scan(path)
+    build = _Builder(
+        path, report, n_lines, unterminated, tail_bytes, delimiter, ncols, time_col,
+        time_exponent, list(value_cols), clean, header, time_offset_ns, list(quat_cols),
+        list(split_at),
+    )  # fmt: skip
+    for first_line, lines, plain in _blocks(path, block_bytes):
+        build.add(first_line, lines, plain)
+    return build.finish(), build.head
 
-    def split(line: str) -> list[str]:
-        if delimiter is None:
-            return line.split()
-        return [x.strip() for x in line.split(delimiter)]
 
-    data_idx: list[int] = []  # 0-based line index of each data row
-    data: list[str] = []
-    first = True
-    for i, raw in enumerate(lines):
-        line = raw.strip()
-        if not line:
-            continue
-        if line[0] == "#":
-            if line.startswith(FRAMES_PREFIX):
-                meta.update(parse_frames_comment(line))
-            continue
-        if first:
+def _scan(path: Path, chunk_bytes: int = 1 << 24) -> tuple[int, bool, int]:
+    """Lines of a text file, whether the last one is unterminated, and that line's byte
+    length, in one pass over the bytes; a NUL byte (binary or zero-filled data) raises
+    ``ValueError`` naming file and line."""
+    n_lines = 0
+    last = b""
+    size = 0
+    with open(path, "rb") as f:
+        first = True
+        while chunk := f.read(chunk_bytes):
+            if first and chunk.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte order mark
+                chunk = chunk[3:]
             first = False
-            if header is not None and header(split(line)):
-                head = split(line)
-                continue
-        data_idx.append(i)
-        data.append(line)
-    report.rows_read = len(data)
-    tail_in_data = bool(unterminated and data_idx and data_idx[-1] == last_index)
-    args = (delimiter, ncols, time_col, time_exponent, list(value_cols), time_offset_ns)
-    fast = None if tail_in_data else _parse_fast(data, *args)
-    if fast is not None:
-        t_ns, values = fast
-        extra = len(split(data[0])) - ncols if data else 0
-        if extra > 0:
-            report.notes.append(f"ignored extra column(s) beyond the first {ncols}")
-        table = Table(
-            where=np.array(data_idx, dtype=np.int64) + 1,
-            t_ns=t_ns,
-            values=values,
-            tokens=_RowTokens(data, split),
-            tail_unterminated=False,
-            meta=meta,
-        )
-        return table, head
+            nul = chunk.find(b"\0")
+            if nul >= 0:
+                line = n_lines + chunk[:nul].count(b"\n") + 1
+                raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
+            n_lines += chunk.count(b"\n")
+            nl = chunk.rfind(b"\n")
+            last = chunk[nl + 1 :] if nl >= 0 else last + chunk
+            size += len(chunk)
+    unterminated = bool(last)
+    return n_lines + unterminated, unterminated, len(last) if unterminated else 0
 
-    # slow path, row by row: exact diagnostics for malformed rows
-    where: list[int] = []
-    times: list[int] = []
-    vals: list[list[float]] = []
-    kept: list[str] = []
-    extra = 0
-    for i, line in zip(data_idx, data):
-        toks = split(line)
-        lineno = i + 1
-        problem = None
-        reason = None
-        if len(toks) < ncols:
-            problem = f"short row: {len(toks)} columns, expected {ncols}"
-            reason = "short row"
-        else:
+
+def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[int, list[str], bool]]:
+    """``(index of the first line, lines)`` of a text file, a block of whole lines at a time
+    (UTF-8, a leading byte order mark skipped); invalid UTF-8 raises ``ValueError`` naming file
+    and line. A block ends at a newline, so no UTF-8 sequence is ever split."""
+    line0 = 0
+    carry = b""
+    with open(path, "rb") as f:
+        head = f.read(3)
+        if head != b"\xef\xbb\xbf":
+            carry = head
+        while True:
+            chunk = f.read(max(block_bytes, 1))
+            raw = carry + chunk
+            cut = raw.rfind(b"\n") + 1 if chunk else len(raw)
+            if cut == 0:  # no complete line yet (or nothing left): read on
+                if not chunk:
+                    return
+                carry = raw
+                continue
+            block, carry = raw[:cut], raw[cut:]
             try:
-                t = parse_time_ns(toks[time_col], time_exponent) - time_offset_ns
-                if not -(2**63) <= t < 2**63:
-                    raise ValueError(f"timestamp {toks[time_col]!r} out of the int64 ns range")
-                v = [float(toks[j]) for j in value_cols]
-            except ValueError as exc:
-                problem = f"unparsable value ({exc})"
-                reason = "unparsable value"
-        if problem is not None:
-            if unterminated and i == last_index:
-                report.drop(TRUNCATED, lineno)
-                report.truncated_bytes = tail_bytes
-                report.notes.append(f"last line ({path}:{lineno}) is incomplete: {problem}")
+                text = block.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                line = line0 + block[: exc.start].count(b"\n") + 1
+                raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
+            del block, raw
+            plain = _plain_ascii(text) and not any(
+                s in text for s in ("#", "\n\n", " \n", "\n ", "\t\n", "\n\t")
+            )
+            end = text[:-1] if text.endswith("\n") else text
+            plain = plain and text[:1] not in (" ", "\t", "\n") and end[-1:] not in (" ", "\t")
+            lines = text.split("\n")
+            del text
+            if lines and lines[-1] == "":
+                lines.pop()  # a block ends in a newline (or is the unterminated tail)
+            if lines:
+                yield line0, lines, plain
+            line0 += len(lines)
+            if not chunk:
+                return
+
+
+class _Builder:
+    """Rows of a text file parsed block by block into preallocated arrays (see ``parse_rows``)."""
+
+    def __init__(
+        self, path, report, n_lines, unterminated, tail_bytes, delimiter, ncols, time_col,
+        time_exponent, value_cols, clean, header, time_offset_ns, quat_cols, split_at,
+    ):  # fmt: skip
+        self.path, self.report, self.clean = path, report, clean
+        self.last_index = n_lines - 1
+        self.unterminated, self.tail_bytes = unterminated, tail_bytes
+        self.delimiter, self.ncols, self.header = delimiter, ncols, header
+        self.args = (delimiter, ncols, time_col, time_exponent, value_cols, time_offset_ns)
+        self.quat_cols = quat_cols
+        self.quat_idx = [value_cols.index(c) for c in quat_cols]
+        self.bounds = list(zip([0, *split_at], [*split_at, len(value_cols)]))
+        # at most one row per line: untouched pages of these buffers are never resident
+        self.where = np.empty(n_lines, dtype=np.int64)
+        self.t_ns = np.empty(n_lines, dtype=np.int64)
+        self.columns = [np.empty((n_lines, b - a)) for a, b in self.bounds]
+        self.n = 0
+        self.rows_read = 0
+        self.extra = 0
+        self.meta: dict[str, str] = {}
+        self.head: list[str] | None = None
+        self.first = True
+        self.quat_rows: list[np.ndarray] = []
+        self.quat_places: list[np.ndarray] = []
+
+    def split(self, line: str) -> list[str]:
+        if self.delimiter is None:
+            return line.split()
+        return [x.strip() for x in line.split(self.delimiter)]
+
+    def add(self, first_line: int, lines: list[str], plain: bool) -> None:
+        """Parse one block of lines; ``first_line`` is the 0-based index of ``lines[0]``;
+        ``plain``: no blank, comment or padded line (every line is a data row as it stands)."""
+        if plain and not self.first:
+            idx = np.arange(first_line, first_line + len(lines))
+            data = lines
+        else:
+            idx, data = self._data_rows(first_line, lines)
+        del lines
+        self.rows_read += len(data)
+        if self.unterminated and len(idx) and idx[-1] == self.last_index:
+            # an unterminated last line may be cut off: only the row-by-row parser drops it
+            self._rows(idx[:-1], data[:-1])
+            self._slow(idx[-1:], data[-1:])
+        else:
+            self._rows(idx, data)
+
+    def _data_rows(self, first_line: int, lines: list[str]) -> tuple[np.ndarray, list[str]]:
+        """Line indices and stripped text of the data rows among ``lines`` (comments, blank
+        lines and a header set aside)."""
+        idx: list[int] = []  # 0-based line index of each data row
+        data: list[str] = []
+        for k, raw in enumerate(lines):
+            line = raw.strip()
+            if not line:
                 continue
-            if not clean:
-                raise ValueError(f"{path}:{lineno}: {problem}")
-            report.drop(reason, lineno)
-            continue
-        extra = max(extra, len(toks) - ncols)
-        where.append(lineno)
-        times.append(t)
-        vals.append(v)
-        kept.append(line)
-    if extra:
-        report.notes.append(f"ignored extra column(s) beyond the first {ncols}")
-    tail = bool(unterminated and where and where[-1] == last_index + 1)
-    table = Table(
-        where=np.array(where, dtype=np.int64),
-        t_ns=np.array(times, dtype=np.int64),
-        values=np.array(vals, dtype=float).reshape(len(vals), len(value_cols)),
-        tokens=_RowTokens(kept, split),
-        tail_unterminated=tail,
-        meta=meta,
-    )
-    return table, head
+            if line[0] == "#":
+                if line.startswith(FRAMES_PREFIX):
+                    self.meta.update(parse_frames_comment(line))
+                continue
+            if self.first:
+                self.first = False
+                if self.header is not None and self.header(self.split(line)):
+                    self.head = self.split(line)
+                    continue
+            idx.append(first_line + k)
+            data.append(line)
+        return np.array(idx, dtype=np.int64), data
+
+    def _rows(self, idx: np.ndarray, data: list[str]) -> None:
+        """Rows parsed by numpy when all are well formed, else row by row."""
+        fast = _parse_fast(data, *self.args)
+        if fast is None:
+            self._slow(idx, data)
+            return
+        self.extra = max(self.extra, _extra_columns(data, self.delimiter, self.ncols))
+        self._append(idx, fast[0], fast[1], data)
+
+    def _slow(self, idx: np.ndarray, data: list[str]) -> None:
+        """Row by row: exact diagnostics for malformed rows."""
+        ncols, path, report = self.ncols, self.path, self.report
+        _, _, time_col, time_exponent, value_cols, time_offset_ns = self.args
+        where: list[int] = []
+        times: list[int] = []
+        vals: list[list[float]] = []
+        kept: list[str] = []
+        for i, line in zip(idx.tolist(), data):
+            toks = self.split(line)
+            lineno = i + 1
+            problem = None
+            reason = None
+            if len(toks) < ncols:
+                problem = f"short row: {len(toks)} columns, expected {ncols}"
+                reason = "short row"
+            else:
+                try:
+                    t = parse_time_ns(toks[time_col], time_exponent) - time_offset_ns
+                    if not -(2**63) <= t < 2**63:
+                        raise ValueError(f"timestamp {toks[time_col]!r} out of the int64 ns range")
+                    v = [float(toks[j]) for j in value_cols]
+                except ValueError as exc:
+                    problem = f"unparsable value ({exc})"
+                    reason = "unparsable value"
+            if problem is not None:
+                if self.unterminated and i == self.last_index:
+                    report.drop(TRUNCATED, lineno)
+                    report.truncated_bytes = self.tail_bytes
+                    report.notes.append(f"last line ({path}:{lineno}) is incomplete: {problem}")
+                    continue
+                if not self.clean:
+                    raise ValueError(f"{path}:{lineno}: {problem}")
+                report.drop(reason, lineno)
+                continue
+            self.extra = max(self.extra, len(toks) - ncols)
+            where.append(i)
+            times.append(t)
+            vals.append(v)
+            kept.append(line)
+        values = np.array(vals, dtype=float).reshape(len(vals), len(value_cols))
+        self._append(np.array(where, dtype=np.int64), np.array(times, dtype=np.int64), values, kept)
+
+    def _append(self, idx: np.ndarray, t_ns: np.ndarray, values: np.ndarray, data) -> None:
+        """Store parsed rows, and the printed precision of quaternions off unit length."""
+        n, m = self.n, len(idx)
+        if not m:
+            return
+        self.where[n : n + m] = idx + 1
+        self.t_ns[n : n + m] = t_ns
+        for col, (a, b) in zip(self.columns, self.bounds):
+            col[n : n + m] = values[:, a:b]
+        self.n += m
+        if self.quat_idx:
+            q = values[:, self.quat_idx]
+            with np.errstate(invalid="ignore"):
+                off = np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - 1.0)
+            # a superset of the rows finish_stream asks about (off > UNIT_TOLERANCE)
+            rows = np.flatnonzero(off > 0.5 * UNIT_TOLERANCE)
+            if rows.size:
+                self.quat_rows.append(rows + n)
+                self.quat_places.append(self._places([data[r] for r in rows.tolist()]))
+
+    def _places(self, lines: list[str]) -> np.ndarray:
+        """Coarsest printed digit (``_place``) of the quaternion columns of each line (M,)."""
+        try:
+            toks = np.loadtxt(
+                lines, delimiter=self.delimiter, usecols=self.quat_cols, ndmin=2,
+                comments=None, dtype="S",
+            )  # fmt: skip
+            places = _places_vectorised(np.strings.strip(toks))
+        except (ValueError, IndexError):
+            places = None
+        if places is None:  # non-ASCII or exponent notation: token by token
+            cols = self.quat_cols
+            places = np.array([max(_place(self.split(x)[c]) for c in cols) for x in lines])
+        return places
+
+    def finish(self) -> Table:
+        n = self.n
+        self.report.rows_read = self.rows_read
+        if self.extra > 0:
+            self.report.notes.append(f"ignored extra column(s) beyond the first {self.ncols}")
+
+        def trim(a: np.ndarray) -> np.ndarray:
+            return a[:n] if 2 * n >= len(a) else a[:n].copy()  # a file of mostly comments
+
+        where = trim(self.where)
+        tail = bool(self.unterminated and n and where[-1] == self.last_index + 1)
+        return Table(
+            where=where,
+            t_ns=trim(self.t_ns),
+            columns=tuple(trim(c) for c in self.columns),
+            tail_unterminated=tail,
+            meta=self.meta,
+            quat_rows=_concat(self.quat_rows, np.int64),
+            quat_places=_concat(self.quat_places, float),
+        )
 
 
-class _RowTokens:
-    """Tokens of row ``r`` on demand (only rows that need a closer look are split again)."""
+def _places_vectorised(toks: np.ndarray) -> np.ndarray | None:
+    """``max(_place(t) for t in row)`` for each row of plain decimal byte strings (M, C);
+    ``None`` when a token has an exponent (the general ``_place`` reads those)."""
+    if np.any(np.strings.find(toks, b"e") >= 0) or np.any(np.strings.find(toks, b"E") >= 0):
+        return None
+    dot = np.strings.find(toks, b".")
+    exp = np.where(dot >= 0, dot + 1 - np.strings.str_len(toks), 0)
+    coarsest = exp.max(axis=1)  # powers of ten as Python computes them (exact same doubles)
+    powers = {int(e): 10.0 ** int(e) for e in np.unique(coarsest)}
+    return np.array([powers[e] for e in coarsest.tolist()], dtype=float)
 
-    def __init__(self, lines: list[str], split: Callable[[str], list[str]]):
-        self._lines = lines
-        self._split = split
 
-    def __len__(self) -> int:
-        return len(self._lines)
+def _concat(parts: list[np.ndarray], dtype) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
 
-    def __getitem__(self, r: int) -> list[str]:
-        return self._split(self._lines[r])
+
+def _extra_columns(data: list[str], delimiter: str | None, ncols: int) -> int:
+    """Most columns beyond ``ncols`` in rows that all have at least ``ncols``.
+
+    Counting separators in the joined rows answers the common case (no extra column) without
+    splitting every row: ``ncols - 1`` separators per row means exactly ``ncols`` columns.
+    """
+    if not data:
+        return 0
+    joined = "\n".join(data)
+    if delimiter is not None:
+        if joined.count(delimiter) == len(data) * (ncols - 1):
+            return 0
+        return max(line.count(delimiter) for line in data) + 1 - ncols
+    if _plain_ascii(joined) and joined.count(" ") + joined.count("\t") == len(data) * (ncols - 1):
+        return 0
+    return max(map(len, map(str.split, data))) - ncols
+
+
+def _plain_ascii(text: str) -> bool:
+    """ASCII without the whitespace ``str.split()`` and ``str.strip()`` see besides space,
+    tab and newline (vertical tab, form feed, carriage return, separators 0x1c-0x1f)."""
+    return text.isascii() and not any(c in text for c in _OTHER_SPACE)
 
 
 def _time_fast(token: str, exponent: int) -> int:
@@ -255,15 +502,12 @@ def _time_fast(token: str, exponent: int) -> int:
 
 
 def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.ndarray | None:
-    """Exact ns from plain decimal strings (``-?digits[.digits]``, at most ``exponent``
+    """Exact ns from plain decimal byte strings (``-?digits[.digits]``, at most ``exponent``
     decimals) with numpy string functions; ``None`` when any token needs the general parser."""
     scale = 10**exponent
     if offset_ns % scale:
         return None
-    try:  # one byte per character: a quarter of the memory of unicode arrays
-        toks = np.strings.strip(np.asarray(toks).astype("S"))
-    except UnicodeEncodeError:
-        return None
+    toks = np.strings.strip(toks)  # bytes: only ASCII counts as digits, Latin-1 falls back
     neg = np.strings.startswith(toks, b"-")
     if np.any(np.strings.startswith(toks, b"--")):
         return None
@@ -286,12 +530,11 @@ def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.nda
 
 
 def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, time_offset_ns):
-    """Whole-file parse with numpy's C reader when every row is well formed, else ``None``."""
+    """Parse of a block of rows with numpy's C reader when every row is well formed, else
+    ``None``."""
     if not data or max(value_cols) != ncols - 1:
         return None
     try:
-        # the list of lines itself: joining it into one string (and a StringIO of it) would
-        # hold several copies of the file in memory at once
         values = np.loadtxt(
             data,
             delimiter=delimiter,
@@ -308,11 +551,14 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
             usecols=[time_col],
             ndmin=1,
             comments=None,
-            dtype=str,
+            dtype="S",  # numpy stores non-ASCII text here as Latin-1 (or raises ValueError)
         )
         t_ns = _times_vectorised(toks, time_exponent, time_offset_ns)
         if t_ns is None:
-            t = [_time_fast(str(x).strip(), time_exponent) - time_offset_ns for x in toks]
+            t = [
+                _time_fast(x.decode("latin-1").strip(), time_exponent) - time_offset_ns
+                for x in toks.tolist()
+            ]
             t_ns = np.array(t, dtype=np.int64)
     except (ValueError, IndexError, OverflowError):
         return None  # the row-by-row parser names the offending line
@@ -333,22 +579,3 @@ def _place(token: str) -> float:
     except ValueError:
         e = 0
     return 10.0 ** (e - decimals)
-
-
-def quat_tolerance_from_tokens(
-    tokens: list[list[str]], cols: Sequence[int]
-) -> Callable[[np.ndarray], np.ndarray]:
-    """Allowed ``| |q| - 1 |`` per row given the printed digits of its quaternion columns.
-
-    Rounding each component to half a unit of its last digit changes the norm by at most one
-    such unit, and real files are often normalised before an offline fusion or smoothing step
-    (EuRoC ground truth is off by up to 2e-5, TUM RGB-D by 8e-5). The tolerance is
-    ``max(TEXT_UNIT_TOLERANCE = 1e-4, min(2 units of the coarsest printed digit, 1e-3))``: a
-    wrong component order, corrupted digits or a cut-off number are off by far more.
-    """
-
-    def tol(rows: np.ndarray) -> np.ndarray:
-        place = np.array([max([_place(tokens[r][c]) for c in cols]) for r in rows])
-        return np.maximum(TEXT_UNIT_TOLERANCE, np.minimum(2.0 * place, 1e-3))
-
-    return tol
