@@ -215,7 +215,8 @@ def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence
         finite &= np.isfinite(confidence)
     rows.reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
     with np.errstate(invalid="ignore"):
-        far = finite & ~(np.abs(position) <= MAX_POSITION_M).all(axis=1)
+        near = (position <= MAX_POSITION_M) & (position >= -MAX_POSITION_M)  # no |p| copy
+        far = finite & ~near.all(axis=1)
     rows.reject(
         "implausible position",
         far,
@@ -265,11 +266,13 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance, owned
             if rows.tail_unterminated and bad[n - 1]:
                 rows.drop_tail()
             report.normalized.extend(int(w) for w in rows.where[bad & keep])
-    rescale = np.abs(norm - 1.0) > 1e-12
+    rescale = off > 1e-12
+    del off
     if np.any(rescale):
         quaternion = quaternion if owned else quaternion.copy()
         # rows divided by 1.0 stay exactly as they are: no gathering copy of the rescaled rows
-        quaternion /= np.where(rescale & (norm > 1e-12), norm, 1.0)[:, None]
+        norm[~(rescale & (norm > 1e-12))] = 1.0
+        quaternion /= norm[:, None]
     return quaternion
 
 

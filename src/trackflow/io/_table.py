@@ -29,7 +29,7 @@ __all__ = [
 
 #: Bytes of text parsed at once: enough for numpy's reader to run at full speed, little enough
 #: that one block's line strings and temporaries stay a few tens of MB beside the arrays.
-BLOCK_BYTES = 1 << 22
+BLOCK_BYTES = 1 << 20
 #: ASCII whitespace of ``str.split()``/``str.strip()`` besides space, tab and newline.
 _OTHER_SPACE = "\x0b\x0c\r\x1c\x1d\x1e\x1f"
 #: Smallest accepted ``| |q| - 1 |`` for quaternions printed as decimal text.
@@ -173,7 +173,7 @@ def parse_rows(
     time_offset_ns: int = 0,
     quat_cols: Sequence[int] = (),
     split_at: Sequence[int] = (),
-    block_bytes: int = BLOCK_BYTES,
+    block_bytes: int | None = None,
 ) -> tuple[Table, list[str] | None]:
     """Parse a delimited text file into timestamps and float columns.
 
@@ -188,7 +188,8 @@ def parse_rows(
     ``split_at`` splits the value columns into groups, each read into its own C-contiguous
     array (``Table.columns``), so that a reader's position and quaternion need no copies.
 
-    The file is read in blocks of about ``block_bytes`` and each block parsed with numpy into
+    The file is read in blocks of about ``block_bytes`` (default ``BLOCK_BYTES``) of whole
+    lines and each block parsed with numpy into
     arrays sized by a first pass that counts the lines: memory is the final arrays plus one
     block, never the file's lines (see ``docs/formats.md``).
     """
@@ -198,12 +199,12 @@ def parse_rows(
         time_exponent, list(value_cols), clean, header, time_offset_ns, list(quat_cols),
         list(split_at),
     )  # fmt: skip
-    for first_line, lines, plain in _blocks(path, block_bytes):
+    for first_line, lines, plain in _blocks(path, block_bytes or BLOCK_BYTES):
         build.add(first_line, lines, plain)
     return build.finish(), build.head
 
 
-def _scan(path: Path, chunk_bytes: int = 1 << 24) -> tuple[int, bool, int]:
+def _scan(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int]:
     """Lines of a text file, whether the last one is unterminated, and that line's byte
     length, in one pass over the bytes; a NUL byte (binary or zero-filled data) raises
     ``ValueError`` naming file and line."""
