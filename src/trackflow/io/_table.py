@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
@@ -255,11 +256,7 @@ def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[int, list[str], bool
                 line = line0 + block[: exc.start].count(b"\n") + 1
                 raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
             del block, raw
-            plain = _plain_ascii(text) and not any(
-                s in text for s in ("#", "\n\n", " \n", "\n ", "\t\n", "\n\t")
-            )
-            end = text[:-1] if text.endswith("\n") else text
-            plain = plain and text[:1] not in (" ", "\t", "\n") and end[-1:] not in (" ", "\t")
+            plain = _plain_ascii(text) and "#" not in text
             lines = text.split("\n")
             del text
             if lines and lines[-1] == "":
@@ -306,12 +303,20 @@ class _Builder:
 
     def add(self, first_line: int, lines: list[str], plain: bool) -> None:
         """Parse one block of lines; ``first_line`` is the 0-based index of ``lines[0]``;
-        ``plain``: no blank, comment or padded line (every line is a data row as it stands)."""
-        if plain and not self.first:
-            idx = np.arange(first_line, first_line + len(lines))
-            data = lines
-        else:
-            idx, data = self._data_rows(first_line, lines)
+        ``plain``: ASCII without comments, carriage returns or other unusual whitespace.
+
+        A plain block is first tried as it stands, every line a data row (no loop over its
+        lines); numpy rejects it if a line is blank, and then it is looked at line by line.
+        """
+        last = first_line + len(lines) - 1
+        if plain and not self.first and not (self.unterminated and last == self.last_index):
+            fast = _parse_fast(lines, *self.args)
+            if fast is not None:
+                self.rows_read += len(lines)
+                self.extra = max(self.extra, _extra_columns(lines, self.delimiter, self.ncols))
+                self._append(np.arange(first_line, last + 1), fast[0], fast[1], lines)
+                return
+        idx, data = self._data_rows(first_line, lines)
         del lines
         self.rows_read += len(data)
         if self.unterminated and len(idx) and idx[-1] == self.last_index:
@@ -536,14 +541,16 @@ def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, tim
     if not data or max(value_cols) != ncols - 1:
         return None
     try:
-        values = np.loadtxt(
-            data,
-            delimiter=delimiter,
-            usecols=value_cols,
-            ndmin=2,
-            comments=None,
-            dtype=float,
-        )
+        with warnings.catch_warnings():  # "input contained no data": blank lines
+            warnings.simplefilter("ignore", UserWarning)
+            values = np.loadtxt(
+                data,
+                delimiter=delimiter,
+                usecols=value_cols,
+                ndmin=2,
+                comments=None,
+                dtype=float,
+            )
         if values.shape != (len(data), len(value_cols)):
             return None
         toks = np.loadtxt(
