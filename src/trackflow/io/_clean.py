@@ -238,13 +238,16 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance, owned
     with np.errstate(invalid="ignore"):
         norm = np.sqrt(np.einsum("ij,ij->i", quaternion, quaternion))
     rows.reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
-    off = np.abs(norm - 1.0)
+    off = norm - 1.0
+    np.abs(off, out=off)  # in place: one array of N, not two
     cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
     if cand.size:
-        tol = np.full(n, UNIT_TOLERANCE)
-        if quat_tolerance is not None:
-            tol[cand] = quat_tolerance(cand)
-        over = off[cand] > tol[cand]
+        # tolerances of the candidates only (cand is sorted: row i is at searchsorted(cand, i))
+        if quat_tolerance is None:
+            tol = np.full(cand.size, UNIT_TOLERANCE)
+        else:
+            tol = np.asarray(quat_tolerance(cand), dtype=float)
+        over = off[cand] > tol
         if np.any(~over):
             report.notes.append(
                 f"{int(np.sum(~over))} quaternion(s) off unit length by up to "
@@ -259,7 +262,8 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance, owned
                 bad,
                 lambda i: (
                     f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
-                    f"{norm[i]:.9g}, not unit (allowed deviation {tol[i]:.2g})"
+                    f"{norm[i]:.9g}, not unit (allowed deviation "
+                    f"{tol[np.searchsorted(cand, i)]:.2g})"
                 ),
             )
         elif np.any(bad):
