@@ -21,6 +21,7 @@ from unittest import mock
 import _reference_reader
 import numpy as np
 import pytest
+from _io_helpers import write_big_tum
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -188,7 +189,7 @@ def test_awkward_line_at_every_block_position(tmp_path, bad, clean):
         lines = sorted(lines[:at], key=_t) + lines[at:] if at else lines
         for terminated in (True, False):
             path = _write(tmp_path, lines, terminated=terminated)
-            for block in (1, 37, 150, 1 << 20):
+            for block in (1, 37, 150):
                 _assert_same(partial(read_stream, path, format="tum", clean=clean), block)
 
 
@@ -322,27 +323,6 @@ def _peak_above_imports(path: Path) -> int:
     return (kb["peak"] - kb["rss0"]) * 1024
 
 
-def _big_tum(path: Path, n: int) -> None:
-    """``n`` valid TUM rows like a real file's: Unix times with 6 decimals, slow motion."""
-    rng = np.random.default_rng(5)
-    t_us = 1305031102175304 + np.cumsum(rng.integers(9000, 11000, n))
-    p = np.cumsum(rng.normal(0, 1e-3, (n, 3)), axis=0)
-    q = np.cumsum(rng.normal(0, 1e-2, (n, 4)), axis=0) + [0, 0, 0, 30.0]
-    q /= np.linalg.norm(q, axis=1)[:, None]
-    sec, frac = np.divmod(t_us, 1_000_000)
-    with open(path, "w") as f:
-        for k in range(0, n, 50_000):
-            s = slice(k, k + 50_000)
-            cols = [
-                np.char.add(
-                    np.char.add(sec[s].astype(str), "."), np.char.zfill(frac[s].astype(str), 6)
-                )
-            ]
-            cols += [np.char.mod("%.4f", p[s, i]) for i in range(3)]
-            cols += [np.char.mod("%.6f", q[s, i]) for i in range(4)]
-            f.write("\n".join(" ".join(r) for r in zip(*cols)) + "\n")
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(sys.platform != "linux", reason="ru_maxrss units and page accounting")
 def test_peak_memory_stays_near_the_arrays(tmp_path):
@@ -350,7 +330,7 @@ def test_peak_memory_stays_near_the_arrays(tmp_path):
     twice the file's size above the memory of the imported modules (the former reader: 5.3
     times; the arrays alone are about 0.95 times)."""
     path = tmp_path / "big.txt"
-    _big_tum(path, 400_000)
+    write_big_tum(path, 400_000)
     size = path.stat().st_size
     assert size > 25e6
     used = _peak_above_imports(path)

@@ -29,15 +29,19 @@ def stream_info(stream: PoseStream) -> dict:
     t_ns, t0 = stream.t_ns, stream.t_ns[0]
     p = np.asarray(stream.position)
     q = np.asarray(stream.quaternion)
-    # one array of N - 1 at a time beside the intervals (long recordings: 1.7M samples)
-    dt = _per_interval(n, lambda i, j: np.diff((t_ns[i : j + 1] - t0).astype(float) * 1e-9))
+
+    # one or two arrays of N - 1 at a time (long recordings: 1.7M samples)
+    def intervals(i: int, j: int) -> np.ndarray:  # [s], from times relative to the first
+        return np.diff((t_ns[i : j + 1] - t0).astype(float) * 1e-9)
+
+    dt = _per_interval(n, intervals)
     med = float(np.median(dt))
     gap = 3.0 * med  # default_gap of the times
     out.update(
         duration_s=float(np.float64(t_ns[-1] - t0) * 1e-9),
         rate_hz=1.0 / med,
         interval_median_ms=med * 1e3,
-        jitter_ms=float(np.std(dt[dt <= gap]) * 1e3),
+        jitter_ms=None,  # below
         gaps=int(np.count_nonzero(dt > gap)),
         largest_gap_s=float(dt.max()),
         quaternion_sign_flips=int(
@@ -47,6 +51,11 @@ def stream_info(stream: PoseStream) -> dict:
             )
         ),
     )
+    regular = dt[dt <= gap]
+    del dt  # recomputed below: std's temporaries and the intervals are never held at once
+    out["jitter_ms"] = float(np.std(regular) * 1e3)
+    del regular
+    dt = _per_interval(n, intervals)
     v = _per_interval(n, lambda i, j: np.linalg.norm(p[i + 1 : j + 1] - p[i:j], axis=1))
     v /= dt
     out["speed_m_s"] = {k: float(f(v)) for k, f in _STATS.items()}
