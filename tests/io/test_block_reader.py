@@ -335,3 +335,20 @@ def test_peak_memory_stays_near_the_arrays(tmp_path):
     assert size > 25e6
     used = _peak_above_imports(path)
     assert used < 2.0 * size, f"{used / 1e6:.0f} MB for a {size / 1e6:.0f} MB file"
+
+
+def test_row_bound_holds_and_growth_is_exact(tmp_path):
+    """The preallocation bound from the file size is never exceeded by a real file (densest
+    rows possible), and if it were, the arrays grow without changing a bit."""
+    dense = ["1 0 0 0 0 0 0 1", "2 0 0 0 0 0 0 1", "3 0 0 0 0 0 0 1"]
+    path = _write(tmp_path, dense, terminated=False)
+    size = path.stat().st_size
+    assert table_mod._max_rows(3, size, None, 8, 8) == 3
+    csv = _write(tmp_path, ["1,,,,,,,,0,0,0,0,0,0,1,0"], terminated=False)  # quest-like, empty
+    assert table_mod._max_rows(1, csv.stat().st_size, ",", 16, 8) == 1
+    lines = GOOD[:30] + ["# c", "2.15 0 0"] + [g.replace("1.", "5.", 1) for g in GOOD[:5]]
+    path = _write(tmp_path, lines)
+    with mock.patch.object(table_mod, "_max_rows", lambda *a: 1):
+        for block in (40, 1 << 20):
+            out = _assert_same(partial(read_stream, path, format="tum", clean=True), block)
+            assert out[0] == "ok" and len(out[1]["t_ns"]) == 35

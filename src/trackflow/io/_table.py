@@ -194,9 +194,10 @@ def parse_rows(
     arrays sized by a first pass that counts the lines: memory is the final arrays plus one
     block, never the file's lines (see ``docs/formats.md``).
     """
-    n_lines, unterminated, tail_bytes = _scan(path)
+    n_lines, unterminated, tail_bytes, size = _scan(path)
+    rows = _max_rows(n_lines, size, delimiter, ncols, len({time_col, *value_cols}))
     build = _Builder(
-        path, report, n_lines, unterminated, tail_bytes, delimiter, ncols, time_col,
+        path, report, n_lines, rows, unterminated, tail_bytes, delimiter, ncols, time_col,
         time_exponent, list(value_cols), clean, header, time_offset_ns, list(quat_cols),
         list(split_at),
     )  # fmt: skip
@@ -205,12 +206,18 @@ def parse_rows(
     return build.finish(), build.head
 
 
-def _scan(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int]:
-    """Lines of a text file, whether the last one is unterminated, and that line's byte
-    length, in one pass over the bytes; a NUL byte (binary or zero-filled data) raises
-    ``ValueError`` naming file and line."""
+def _max_rows(n_lines: int, size: int, delimiter: str | None, ncols: int, used: int) -> int:
+    """Most rows a text of ``n_lines`` lines and ``size`` bytes can hold: a row has at most one
+    line and at least its ``used`` columns (a character each) and ``ncols - 1`` separators."""
+    return min(n_lines, size // (used + (ncols - 1) * len(delimiter or " ")) + 1)
+
+
+def _scan(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int, int]:
+    """Lines of a text file, whether the last one is unterminated, that line's byte length,
+    and the bytes of text (without a byte order mark), in one pass over the bytes; a NUL byte
+    (binary or zero-filled data) raises ``ValueError`` naming file and line."""
     n_lines = 0
-    last = b""
+    last = 0  # bytes after the last newline
     size = 0
     with open(path, "rb") as f:
         first = True
@@ -224,10 +231,10 @@ def _scan(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int]:
                 raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
             n_lines += chunk.count(b"\n")
             nl = chunk.rfind(b"\n")
-            last = chunk[nl + 1 :] if nl >= 0 else last + chunk
+            last = len(chunk) - nl - 1 if nl >= 0 else last + len(chunk)
             size += len(chunk)
-    unterminated = bool(last)
-    return n_lines + unterminated, unterminated, len(last) if unterminated else 0
+    unterminated = last > 0
+    return n_lines + unterminated, unterminated, last, size
 
 
 def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[int, list[str], bool]]:
@@ -272,8 +279,8 @@ class _Builder:
     """Rows of a text file parsed block by block into preallocated arrays (see ``parse_rows``)."""
 
     def __init__(
-        self, path, report, n_lines, unterminated, tail_bytes, delimiter, ncols, time_col,
-        time_exponent, value_cols, clean, header, time_offset_ns, quat_cols, split_at,
+        self, path, report, n_lines, rows, unterminated, tail_bytes, delimiter, ncols,
+        time_col, time_exponent, value_cols, clean, header, time_offset_ns, quat_cols, split_at,
     ):  # fmt: skip
         self.path, self.report, self.clean = path, report, clean
         self.last_index = n_lines - 1
@@ -283,10 +290,10 @@ class _Builder:
         self.quat_cols = quat_cols
         self.quat_idx = [value_cols.index(c) for c in quat_cols]
         self.bounds = list(zip([0, *split_at], [*split_at, len(value_cols)]))
-        # at most one row per line: untouched pages of these buffers are never resident
-        self.where = np.empty(n_lines, dtype=np.int64)
-        self.t_ns = np.empty(n_lines, dtype=np.int64)
-        self.columns = [np.empty((n_lines, b - a)) for a, b in self.bounds]
+        # room for every row the file can hold: untouched pages are never resident
+        self.where = np.empty(rows, dtype=np.int64)
+        self.t_ns = np.empty(rows, dtype=np.int64)
+        self.columns = [np.empty((rows, b - a)) for a, b in self.bounds]
         self.n = 0
         self.rows_read = 0
         self.extra = 0
@@ -405,6 +412,13 @@ class _Builder:
         n, m = self.n, len(idx)
         if not m:
             return
+        if n + m > len(self.where):  # more rows than the size bound allowed: grow
+            grow = max(n + m, 2 * len(self.where)) - n
+            self.where = np.concatenate([self.where[:n], np.empty(grow, np.int64)])
+            self.t_ns = np.concatenate([self.t_ns[:n], np.empty(grow, np.int64)])
+            self.columns = [
+                np.concatenate([c[:n], np.empty((grow, c.shape[1]))]) for c in self.columns
+            ]
         self.where[n : n + m] = idx + 1
         self.t_ns[n : n + m] = t_ns
         for col, (a, b) in zip(self.columns, self.bounds):
