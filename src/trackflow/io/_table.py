@@ -6,6 +6,7 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,8 @@ __all__ = [
 #: Bytes of text parsed at once: enough for numpy's reader to run at full speed, little enough
 #: that one block's line strings and temporaries stay a few tens of MB beside the arrays.
 BLOCK_BYTES = 1 << 20
+#: Bytes kept of a time token in the one-pass parse (longer ones are read again in full).
+_TIME_WIDTH = 48
 #: ASCII whitespace of ``str.split()``/``str.strip()`` besides space, tab and newline.
 _OTHER_SPACE = "\x0b\x0c\r\x1c\x1d\x1e\x1f"
 #: Smallest accepted ``| |q| - 1 |`` for quaternions printed as decimal text.
@@ -551,30 +554,28 @@ def _times_vectorised(toks: np.ndarray, exponent: int, offset_ns: int) -> np.nda
 
 def _parse_fast(data, delimiter, ncols, time_col, time_exponent, value_cols, time_offset_ns):
     """Parse of a block of rows with numpy's C reader when every row is well formed, else
-    ``None``."""
+    ``None``: the time column as text and the value columns as floats, in one pass when the
+    time column is not also a value column."""
     if not data or max(value_cols) != ncols - 1:
         return None
+    load = partial(np.loadtxt, data, delimiter=delimiter, comments=None)
     try:
         with warnings.catch_warnings():  # "input contained no data": blank lines
             warnings.simplefilter("ignore", UserWarning)
-            values = np.loadtxt(
-                data,
-                delimiter=delimiter,
-                usecols=value_cols,
-                ndmin=2,
-                comments=None,
-                dtype=float,
-            )
+            if time_col in value_cols:
+                values = load(usecols=value_cols, ndmin=2, dtype=float)
+                toks = None
+            else:
+                # numpy stores non-ASCII text in "S" fields as Latin-1 (or raises ValueError)
+                dtype = np.dtype([("t", f"S{_TIME_WIDTH}"), ("v", float, (len(value_cols),))])
+                rows = load(usecols=[time_col, *value_cols], ndmin=1, dtype=dtype)
+                if rows.shape != (len(data),):
+                    return None
+                values, toks = rows["v"], rows["t"]
         if values.shape != (len(data), len(value_cols)):
             return None
-        toks = np.loadtxt(
-            data,
-            delimiter=delimiter,
-            usecols=[time_col],
-            ndmin=1,
-            comments=None,
-            dtype="S",  # numpy stores non-ASCII text here as Latin-1 (or raises ValueError)
-        )
+        if toks is None or np.any(np.strings.str_len(toks) >= _TIME_WIDTH):  # maybe cut off
+            toks = load(usecols=[time_col], ndmin=1, dtype="S")
         t_ns = _times_vectorised(toks, time_exponent, time_offset_ns)
         if t_ns is None:
             t = [
