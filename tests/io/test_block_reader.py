@@ -345,13 +345,13 @@ def _peak_above_imports(path: Path) -> int:
 @pytest.mark.slow
 @pytest.mark.skipif(sys.platform != "linux", reason="ru_maxrss units and page accounting")
 def test_peak_memory_stays_near_the_arrays(tmp_path):
-    """Reading and summarising a 30 MB TUM file (like ``trackflow info``) peaks at less than
-    twice the file's size above the memory of the imported modules (the former reader: 5.3
-    times; the arrays alone are about 0.95 times)."""
+    """Reading and summarising a 39 MB TUM file (like ``trackflow info``) peaks at less than
+    twice the file's size above the memory of the imported modules (measured 1.56 times; the
+    former reader 5.63 times; the stream's arrays alone are 0.98 times)."""
     path = tmp_path / "big.txt"
-    write_big_tum(path, 400_000)
+    write_big_tum(path, 500_000)
     size = path.stat().st_size
-    assert size > 25e6
+    assert size > 35e6
     used = _peak_above_imports(path)
     assert used < 2.0 * size, f"{used / 1e6:.0f} MB for a {size / 1e6:.0f} MB file"
 
