@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from functools import partial
@@ -14,6 +14,7 @@ import numpy as np
 from ..math import UNIT_TOLERANCE
 from ._clean import TRUNCATED
 from ._report import ReadReport
+from ._textfile import plain_ascii, scan_text, text_blocks
 
 __all__ = [
     "BLOCK_BYTES",
@@ -21,11 +22,9 @@ __all__ = [
     "Table",
     "FRAMES_PREFIX",
     "TIME_EXPONENTS",
-    "first_data_line",
     "format_ns",
     "parse_frames_comment",
     "parse_time_ns",
-    "read_lines",
     "parse_rows",
 ]
 
@@ -34,8 +33,6 @@ __all__ = [
 BLOCK_BYTES = 1 << 20
 #: Bytes kept of a time token in the one-pass parse (longer ones are read again in full).
 _TIME_WIDTH = 48
-#: ASCII whitespace of ``str.split()``/``str.strip()`` besides space, tab and newline.
-_OTHER_SPACE = "\x0b\x0c\r\x1c\x1d\x1e\x1f"
 #: Smallest accepted ``| |q| - 1 |`` for quaternions printed as decimal text.
 TEXT_UNIT_TOLERANCE = 1e-4
 #: Comment that trackflow writers put into text files to keep the frame names.
@@ -67,49 +64,6 @@ def format_ns(t_ns: int, exponent: int = 9) -> str:
     sign = "-" if t < 0 else ""
     whole, frac = divmod(abs(t), 10**exponent)
     return f"{sign}{whole}.{frac:0{exponent}d}"
-
-
-def read_lines(path: Path) -> tuple[list[str], bool, int]:
-    """Lines of a text file, whether the last one is unterminated, and its byte length.
-
-    A leading UTF-8 byte order mark is skipped; NUL bytes (binary or zero-filled data) and
-    invalid UTF-8 raise ``ValueError`` naming file and line.
-    """
-    raw = Path(path).read_bytes()
-    nul = raw.find(b"\0")
-    if nul >= 0:
-        line = raw[:nul].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
-    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte order mark (Windows editors)
-        raw = raw[3:]
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
-    unterminated = bool(raw) and not raw.endswith(b"\n")
-    del raw  # large files: never hold the bytes, the text and its lines at once
-    lines = text.split("\n")
-    del text
-    if not unterminated and lines and lines[-1] == "":
-        lines.pop()
-    tail_bytes = len(lines[-1].encode()) if unterminated and lines else 0
-    return lines, unterminated, tail_bytes
-
-
-def first_data_line(path: Path) -> str | None:
-    """The first line that is neither blank nor a ``#`` comment (stripped), or ``None``.
-
-    Reads only as far as that line; binary data (a NUL byte anywhere) raises ``ValueError``
-    as :func:`parse_rows` does.
-    """
-    _scan(path)
-    for _, lines, _ in _blocks(path, 1 << 16):
-        for raw in lines:
-            line = raw.strip()
-            if line and line[0] != "#":
-                return line
-    return None
 
 
 def parse_frames_comment(line: str) -> dict[str, str]:
@@ -193,18 +147,17 @@ def parse_rows(
     array (``Table.columns``), so that a reader's position and quaternion need no copies.
 
     The file is read in blocks of about ``block_bytes`` (default ``BLOCK_BYTES``) of whole
-    lines and each block parsed with numpy into
-    arrays sized by a first pass that counts the lines: memory is the final arrays plus one
-    block, never the file's lines (see ``docs/formats.md``).
+    lines, each parsed with numpy into arrays sized after a first pass that counts the lines:
+    memory is the final arrays plus one block, never the file's lines (``docs/formats.md``).
     """
-    n_lines, unterminated, tail_bytes, size = _scan(path)
+    n_lines, unterminated, tail_bytes, size = scan_text(path)
     rows = _max_rows(n_lines, size, delimiter, ncols, len({time_col, *value_cols}))
     build = _Builder(
         path, report, n_lines, rows, unterminated, tail_bytes, delimiter, ncols, time_col,
         time_exponent, list(value_cols), clean, header, time_offset_ns, list(quat_cols),
         list(split_at),
     )  # fmt: skip
-    for first_line, lines, plain in _blocks(path, block_bytes or BLOCK_BYTES):
+    for first_line, lines, plain in text_blocks(path, block_bytes or BLOCK_BYTES):
         build.add(first_line, lines, plain)
     return build.finish(), build.head
 
@@ -213,69 +166,6 @@ def _max_rows(n_lines: int, size: int, delimiter: str | None, ncols: int, used: 
     """Most rows a text of ``n_lines`` lines and ``size`` bytes can hold: a row has at most one
     line and at least its ``used`` columns (a character each) and ``ncols - 1`` separators."""
     return min(n_lines, size // (used + (ncols - 1) * len(delimiter or " ")) + 1)
-
-
-def _scan(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int, int]:
-    """Lines of a text file, whether the last one is unterminated, that line's byte length,
-    and the bytes of text (without a byte order mark), in one pass over the bytes; a NUL byte
-    (binary or zero-filled data) raises ``ValueError`` naming file and line."""
-    n_lines = 0
-    last = 0  # bytes after the last newline
-    size = 0
-    with open(path, "rb") as f:
-        first = True
-        while chunk := f.read(chunk_bytes):
-            if first and chunk.startswith(b"\xef\xbb\xbf"):  # UTF-8 byte order mark
-                chunk = chunk[3:]
-            first = False
-            nul = chunk.find(b"\0")
-            if nul >= 0:
-                line = n_lines + chunk[:nul].count(b"\n") + 1
-                raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
-            n_lines += chunk.count(b"\n")
-            nl = chunk.rfind(b"\n")
-            last = len(chunk) - nl - 1 if nl >= 0 else last + len(chunk)
-            size += len(chunk)
-    unterminated = last > 0
-    return n_lines + unterminated, unterminated, last, size
-
-
-def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[int, list[str], bool]]:
-    """``(index of the first line, lines)`` of a text file, a block of whole lines at a time
-    (UTF-8, a leading byte order mark skipped); invalid UTF-8 raises ``ValueError`` naming file
-    and line. A block ends at a newline, so no UTF-8 sequence is ever split."""
-    line0 = 0
-    carry = b""
-    with open(path, "rb") as f:
-        head = f.read(3)
-        if head != b"\xef\xbb\xbf":
-            carry = head
-        while True:
-            chunk = f.read(max(block_bytes, 1))
-            raw = carry + chunk
-            cut = raw.rfind(b"\n") + 1 if chunk else len(raw)
-            if cut == 0:  # no complete line yet (or nothing left): read on
-                if not chunk:
-                    return
-                carry = raw
-                continue
-            block, carry = raw[:cut], raw[cut:]
-            try:
-                text = block.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                line = line0 + block[: exc.start].count(b"\n") + 1
-                raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
-            del block, raw
-            plain = _plain_ascii(text) and "#" not in text
-            lines = text.split("\n")
-            del text
-            if lines and lines[-1] == "":
-                lines.pop()  # a block ends in a newline (or is the unterminated tail)
-            if lines:
-                yield line0, lines, plain
-            line0 += len(lines)
-            if not chunk:
-                return
 
 
 class _Builder:
@@ -503,15 +393,9 @@ def _extra_columns(data: list[str], delimiter: str | None, ncols: int) -> int:
         if joined.count(delimiter) == len(data) * (ncols - 1):
             return 0
         return max(line.count(delimiter) for line in data) + 1 - ncols
-    if _plain_ascii(joined) and joined.count(" ") + joined.count("\t") == len(data) * (ncols - 1):
+    if plain_ascii(joined) and joined.count(" ") + joined.count("\t") == len(data) * (ncols - 1):
         return 0
     return max(map(len, map(str.split, data))) - ncols
-
-
-def _plain_ascii(text: str) -> bool:
-    """ASCII without the whitespace ``str.split()`` and ``str.strip()`` see besides space,
-    tab and newline (vertical tab, form feed, carriage return, separators 0x1c-0x1f)."""
-    return text.isascii() and not any(c in text for c in _OTHER_SPACE)
 
 
 def _time_fast(token: str, exponent: int) -> int:

@@ -19,10 +19,10 @@ from ._stream import PoseStream
 from ._table import (
     FRAMES_PREFIX,
     TIME_EXPONENTS,
-    first_data_line,
     format_ns,
     parse_rows,
 )
+from ._textfile import first_data_line
 
 __all__ = [
     "read_csv",
