@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from trackflow.io import PoseStream
@@ -37,3 +39,25 @@ def random_stream(
     conf = rng.random(n) if extras else None
     flags = rng.integers(0, 16, size=n).astype(np.uint32) if extras else None
     return PoseStream(source, target, t, p, q, cov, conf, flags)
+
+
+def write_big_tum(path: Path, n: int, seed: int = 5) -> None:
+    """``n`` valid TUM rows like a real file's (75 bytes each): Unix times with 6 decimals,
+    positions with 4 and unit quaternions with 6, a slow random walk."""
+    rng = np.random.default_rng(seed)
+    t_us = 1305031102175304 + np.cumsum(rng.integers(9000, 11000, n))
+    p = np.cumsum(rng.normal(0, 1e-3, (n, 3)), axis=0)
+    q = np.cumsum(rng.normal(0, 1e-2, (n, 4)), axis=0) + [0, 0, 0, 30.0]
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    sec, frac = np.divmod(t_us, 1_000_000)
+    with open(path, "w") as f:
+        for k in range(0, n, 50_000):
+            s = slice(k, k + 50_000)
+            cols = [
+                np.char.add(
+                    np.char.add(sec[s].astype(str), "."), np.char.zfill(frac[s].astype(str), 6)
+                )
+            ]
+            cols += [np.char.mod("%.4f", p[s, i]) for i in range(3)]
+            cols += [np.char.mod("%.6f", q[s, i]) for i in range(4)]
+            f.write("\n".join(" ".join(r) for r in zip(*cols)) + "\n")

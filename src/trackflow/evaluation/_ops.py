@@ -26,38 +26,72 @@ def stream_info(stream: PoseStream) -> dict:
     out["has_covariance"] = stream.covariance is not None
     if n < 2:
         return out
-    t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
-    dt = np.diff(t)
-    gap = default_gap(t) if n > 2 else float(dt[0]) * 3
-    med = float(np.median(dt))
-    regular = dt[dt <= gap]
-    v = np.linalg.norm(np.diff(stream.position, axis=0), axis=1) / dt
+    t_ns, t0 = stream.t_ns, stream.t_ns[0]
+    p = np.asarray(stream.position)
     q = np.asarray(stream.quaternion)
-    w = np.empty(n - 1)
-    flips = 0
-    for i in range(0, n - 1, _BLOCK):  # blocks: temporaries stay small for long recordings
-        a = q[i : min(i + _BLOCK, n - 1)]
-        b = q[i + 1 : i + 1 + len(a)]
-        rel = quat_log(quat_multiply(quat_conjugate(a), b))
-        w[i : i + len(a)] = np.degrees(np.linalg.norm(rel, axis=1))
-        flips += int(np.count_nonzero(np.einsum("ij,ij->i", a, b) < 0))
-    w = w / dt
+
+    # one or two arrays of N - 1 at a time (long recordings: 1.7M samples)
+    def intervals(i: int, j: int) -> np.ndarray:  # [s], from times relative to the first
+        return np.diff((t_ns[i : j + 1] - t0).astype(float) * 1e-9)
+
+    dt = _per_interval(n, intervals)
+    med = float(np.median(dt))
+    gap = 3.0 * med  # default_gap of the times
     out.update(
-        duration_s=float(t[-1]),
+        duration_s=float(np.float64(t_ns[-1] - t0) * 1e-9),
         rate_hz=1.0 / med,
         interval_median_ms=med * 1e3,
-        jitter_ms=float(np.std(regular) * 1e3),
+        jitter_ms=None,  # below
         gaps=int(np.count_nonzero(dt > gap)),
         largest_gap_s=float(dt.max()),
-        quaternion_sign_flips=flips,
-        speed_m_s={k: float(f(v)) for k, f in _STATS.items()},
-        angular_speed_deg_s={k: float(f(w)) for k, f in _STATS.items()},
+        quaternion_sign_flips=int(
+            sum(
+                np.count_nonzero(np.einsum("ij,ij->i", q[i:j], q[i + 1 : j + 1]) < 0)
+                for i, j in _blocks(n)
+            )
+        ),
     )
+    regular = dt[dt <= gap]
+    del dt  # recomputed below: std's temporaries and the intervals are never held at once
+    out["jitter_ms"] = float(np.std(regular) * 1e3)
+    del regular
+    dt = _per_interval(n, intervals)
+    v = _per_interval(n, lambda i, j: np.linalg.norm(p[i + 1 : j + 1] - p[i:j], axis=1))
+    v /= dt
+    out["speed_m_s"] = {k: float(f(v)) for k, f in _STATS.items()}
+    del v
+
+    def angle(i: int, j: int) -> np.ndarray:
+        rel = quat_log(quat_multiply(quat_conjugate(q[i:j]), q[i + 1 : j + 1]))
+        return np.degrees(np.linalg.norm(rel, axis=1))
+
+    w = _per_interval(n, angle)
+    w /= dt
+    out["angular_speed_deg_s"] = {k: float(f(w)) for k, f in _STATS.items()}
+    return out
+
+
+def _blocks(n: int):
+    """``(i, j)`` ranges covering the ``n - 1`` intervals of ``n`` samples in blocks."""
+    return ((i, min(i + _BLOCK, n - 1)) for i in range(0, n - 1, _BLOCK))
+
+
+def _per_interval(n: int, f: Callable[[int, int], np.ndarray]) -> np.ndarray:
+    """``f(i, j)`` (the values of intervals ``i..j-1``) for all ``n - 1`` intervals, (N - 1,),
+    computed in blocks so that temporaries stay small for long recordings."""
+    out = np.empty(n - 1)
+    for i, j in _blocks(n):
+        out[i:j] = f(i, j)
     return out
 
 
 _BLOCK = 1 << 16
-_STATS = {"median": np.median, "p95": lambda x: np.percentile(x, 95), "max": np.max}
+# statistics of scratch arrays: median and percentile may partition them in place (no copies)
+_STATS = {
+    "median": lambda x: np.median(x, overwrite_input=True),
+    "p95": lambda x: np.percentile(x, 95, overwrite_input=True),
+    "max": np.max,
+}
 
 
 def shift_stream(stream: PoseStream, offset_s: float) -> PoseStream:

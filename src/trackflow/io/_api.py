@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -173,8 +174,11 @@ def _read_stdin(format, clean, options) -> tuple[PoseStream, ReadReport]:
         raise ValueError("<stdin>: ROS bags cannot be read from standard input")
     with tempfile.TemporaryDirectory(prefix="trackflow-") as d:
         tmp = Path(d) / "stdin"
-        data = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else sys.stdin.read()
-        tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
+        with open(tmp, "wb") as f:  # copied in pieces: never the whole input in memory
+            if hasattr(sys.stdin, "buffer"):
+                shutil.copyfileobj(sys.stdin.buffer, f)
+            else:
+                f.write(sys.stdin.read().encode())
         try:
             stream, report = read_stream(tmp, format=format, clean=clean, **options)
         except ValueError as exc:

@@ -109,6 +109,7 @@ def finish_stream(
     quat_tolerance: Callable[[np.ndarray], np.ndarray] | None = None,
     tail_unterminated: bool = False,
     check_covariance_psd: bool = True,
+    owned: bool = False,
 ) -> PoseStream:
     """Validate parsed rows, clean them if asked, and build the stream (see module docstring).
 
@@ -129,10 +130,13 @@ def finish_stream(
         truncated tail (a writer cut off mid-line) instead of raising.
     check_covariance_psd : bool
         Check symmetry and positive semi-definiteness (readers of trusted binary data skip it).
+    owned : bool
+        The arrays are the reader's own (nobody else holds them): quaternions are rescaled in
+        place instead of in a copy (large files: one copy less of the biggest field).
     """
     rows = _Rows(report, where, len(t_ns), clean, tail_unterminated)
     _reject_non_finite(rows, position, quaternion, covariance, confidence)
-    quaternion = _unit_quaternions(rows, quaternion, quat_tolerance)
+    quaternion = _unit_quaternions(rows, quaternion, quat_tolerance, owned)
     if covariance is not None and check_covariance_psd and rows.n:
         covariance = _valid_covariances(rows, covariance)
     kidx = _increasing_times(rows, t_ns)
@@ -211,7 +215,8 @@ def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence
         finite &= np.isfinite(confidence)
     rows.reject("NaN or inf value", ~finite, lambda i: "NaN or inf value")
     with np.errstate(invalid="ignore"):
-        far = finite & ~(np.abs(position) <= MAX_POSITION_M).all(axis=1)
+        near = (position <= MAX_POSITION_M) & (position >= -MAX_POSITION_M)  # no |p| copy
+        far = finite & ~near.all(axis=1)
     rows.reject(
         "implausible position",
         far,
@@ -225,7 +230,7 @@ def _reject_non_finite(rows: _Rows, position, quaternion, covariance, confidence
         rows.reject("confidence outside [0, 1]", ~conf_ok, lambda i: f"confidence {confidence[i]}")
 
 
-def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np.ndarray:
+def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance, owned) -> np.ndarray:
     """Checks 2 and 3: zero quaternions, and lengths off 1 beyond the printed precision
     (repaired with ``clean``). Returns the quaternions with every row visibly off unit length
     rescaled (exact values survive write/read round trips)."""
@@ -233,13 +238,16 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np
     with np.errstate(invalid="ignore"):
         norm = np.sqrt(np.einsum("ij,ij->i", quaternion, quaternion))
     rows.reject("zero quaternion", ~(norm > 1e-12), lambda i: "quaternion is zero")
-    off = np.abs(norm - 1.0)
+    off = norm - 1.0
+    np.abs(off, out=off)  # in place: one array of N, not two
     cand = np.flatnonzero(keep & (off > UNIT_TOLERANCE))
     if cand.size:
-        tol = np.full(n, UNIT_TOLERANCE)
-        if quat_tolerance is not None:
-            tol[cand] = quat_tolerance(cand)
-        over = off[cand] > tol[cand]
+        # tolerances of the candidates only (cand is sorted: row i is at searchsorted(cand, i))
+        if quat_tolerance is None:
+            tol = np.full(cand.size, UNIT_TOLERANCE)
+        else:
+            tol = np.asarray(quat_tolerance(cand), dtype=float)
+        over = off[cand] > tol
         if np.any(~over):
             report.notes.append(
                 f"{int(np.sum(~over))} quaternion(s) off unit length by up to "
@@ -254,17 +262,21 @@ def _unit_quaternions(rows: _Rows, quaternion: np.ndarray, quat_tolerance) -> np
                 bad,
                 lambda i: (
                     f"quaternion {tuple(float(v) for v in quaternion[i])} has norm "
-                    f"{norm[i]:.9g}, not unit (allowed deviation {tol[i]:.2g})"
+                    f"{norm[i]:.9g}, not unit (allowed deviation "
+                    f"{tol[np.searchsorted(cand, i)]:.2g})"
                 ),
             )
         elif np.any(bad):
             if rows.tail_unterminated and bad[n - 1]:
                 rows.drop_tail()
             report.normalized.extend(int(w) for w in rows.where[bad & keep])
-    rescale = np.abs(norm - 1.0) > 1e-12
+    rescale = off > 1e-12
+    del off
     if np.any(rescale):
-        quaternion = quaternion.copy()
-        quaternion[rescale] /= np.where(norm[rescale] > 1e-12, norm[rescale], 1.0)[:, None]
+        quaternion = quaternion if owned else quaternion.copy()
+        # rows divided by 1.0 stay exactly as they are: no gathering copy of the rescaled rows
+        norm[~(rescale & (norm > 1e-12))] = 1.0
+        quaternion /= norm[:, None]
     return quaternion
 
 

@@ -35,7 +35,7 @@ from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import PoseStream
-from ._table import parse_rows, quat_tolerance_from_tokens
+from ._table import parse_rows
 
 __all__ = [
     "BROAD_RATE_HZ",
@@ -71,21 +71,26 @@ def read_quest(
         value_cols=range(9, 16),
         clean=clean,
         time_offset_ns=DOTNET_UNIX_EPOCH_TICKS * 100,
+        quat_cols=range(12, 16),
+        split_at=(3,),
     )
     report.notes.append(
         "Unity left-handed y-up frames mirrored in z: t=(x,y,-z), q=(-qx,-qy,qz,qw)"
     )
-    v = table.values
+    position, quaternion = table.columns
+    position *= _MIRROR_P  # sign changes: exact, in place
+    quaternion *= _MIRROR_Q
     stream = finish_stream(
         report,
         where=table.where,
         t_ns=table.t_ns,
-        position=v[:, 0:3] * _MIRROR_P,
-        quaternion=v[:, 3:7] * _MIRROR_Q,
+        position=position,
+        quaternion=quaternion,
+        owned=True,
         source=source or table.meta.get("source") or "quest_world",
         target=target or table.meta.get("target") or "quest_headset",
         clean=clean,
-        quat_tolerance=quat_tolerance_from_tokens(table.tokens, range(12, 16)),
+        quat_tolerance=table.quat_tolerance,
         tail_unterminated=table.tail_unterminated,
     )
     return stream, report

@@ -19,7 +19,8 @@ from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
 from ._stream import PoseStream
-from ._table import TIME_EXPONENTS, parse_rows, parse_time_ns, read_lines
+from ._table import TIME_EXPONENTS, parse_rows, parse_time_ns
+from ._textfile import read_lines
 
 __all__ = ["KITTI_RATE_HZ", "read_kitti", "write_kitti"]
 

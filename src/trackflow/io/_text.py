@@ -21,8 +21,8 @@ from ._table import (
     TIME_EXPONENTS,
     format_ns,
     parse_rows,
-    quat_tolerance_from_tokens,
 )
+from ._textfile import first_data_line
 
 __all__ = [
     "read_csv",
@@ -95,19 +95,22 @@ def read_tum(
         time_exponent=9,
         value_cols=range(1, 8),
         clean=clean,
+        quat_cols=range(4, 8),
+        split_at=(3,),
     )
     src, tgt = _frames(table.meta, source, target)
-    v = table.values
+    position, quaternion = table.columns
     stream = finish_stream(
         report,
         where=table.where,
         t_ns=table.t_ns,
-        position=v[:, 0:3],
-        quaternion=v[:, 3:7],
+        position=position,
+        quaternion=quaternion,
+        owned=True,
         source=src,
         target=tgt,
         clean=clean,
-        quat_tolerance=quat_tolerance_from_tokens(table.tokens, range(4, 8)),
+        quat_tolerance=table.quat_tolerance,
         tail_unterminated=table.tail_unterminated,
     )
     return stream, report
@@ -152,21 +155,24 @@ def read_euroc(
         ncols=8,
         time_col=0,
         time_exponent=0,
-        value_cols=range(1, 8),
+        value_cols=(1, 2, 3, 5, 6, 7, 4),  # quaternion reordered to (x, y, z, w)
         clean=clean,
+        quat_cols=range(4, 8),
+        split_at=(3,),
     )
     src, tgt = _frames(table.meta, source, target)
-    v = table.values
+    position, quaternion = table.columns
     stream = finish_stream(
         report,
         where=table.where,
         t_ns=table.t_ns,
-        position=v[:, 0:3],
-        quaternion=v[:, [4, 5, 6, 3]],
+        position=position,
+        quaternion=quaternion,
+        owned=True,
         source=src,
         target=tgt,
         clean=clean,
-        quat_tolerance=quat_tolerance_from_tokens(table.tokens, range(4, 8)),
+        quat_tolerance=table.quat_tolerance,
         tail_unterminated=table.tail_unterminated,
     )
     return stream, report
@@ -254,18 +260,12 @@ def read_csv(
     if time_unit not in TIME_EXPONENTS:
         raise ValueError(f"time_unit must be one of {sorted(TIME_EXPONENTS)}, got {time_unit!r}")
     report = ReadReport(str(path), "csv")
-    # first pass: find the header, then map columns
-    from ._table import read_lines
-
-    lines, _, _ = read_lines(path)
+    # first look: find the header, then map columns
     header = None
-    for raw in lines:
-        s = raw.strip()
-        if not s or s.startswith("#"):
-            continue
-        toks = [x.strip() for x in s.split(delimiter)]
+    first = first_data_line(path)
+    if first is not None:
+        toks = [x.strip() for x in first.split(delimiter)]
         header = toks if _is_header(toks) else None
-        break
     if columns is None:
         if header is None:
             mapping = {f: k for k, f in enumerate(_POSE_FIELDS)}
@@ -297,6 +297,7 @@ def read_csv(
     fields += [f for f in ("confidence", "flags") if f in mapping]
     fields += _COV_NAMES if n_cov else []
     cols = [mapping[f] for f in fields]
+    qcols = [mapping[c] for c in ("qx", "qy", "qz", "qw")]
     table, _ = parse_rows(
         path,
         report,
@@ -307,9 +308,12 @@ def read_csv(
         value_cols=cols,
         clean=clean,
         header=_is_header,
+        quat_cols=qcols,
+        split_at=(3, 7) if len(cols) > 7 else (3,),
     )
-    v = table.values
-    pos = {f: k for k, f in enumerate(fields)}
+    position, quaternion, *rest = table.columns
+    v = rest[0] if rest else np.zeros((len(position), 0))  # columns after the pose
+    pos = {f: k - 7 for k, f in enumerate(fields)}
     cov = None
     if n_cov:
         cov = np.zeros((len(v), 6, 6))
@@ -323,20 +327,20 @@ def read_csv(
             raise ValueError(f"{path}:{table.where[k]}: flags {f[k]} is not a uint32")
         flags = f.astype(np.uint32)
     src, tgt = _frames(table.meta, source, target)
-    qcols = [mapping[c] for c in ("qx", "qy", "qz", "qw")]
     stream = finish_stream(
         report,
         where=table.where,
         t_ns=table.t_ns,
-        position=v[:, 0:3],
-        quaternion=v[:, 3:7],
+        position=position,
+        quaternion=quaternion,
+        owned=True,
         covariance=cov,
         confidence=v[:, pos["confidence"]] if "confidence" in pos else None,
         flags=flags,
         source=src,
         target=tgt,
         clean=clean,
-        quat_tolerance=quat_tolerance_from_tokens(table.tokens, qcols),
+        quat_tolerance=table.quat_tolerance,
         tail_unterminated=table.tail_unterminated,
     )
     return stream, report
