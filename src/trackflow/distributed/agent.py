@@ -6,6 +6,9 @@ Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
     trackflow/<realm>/fragment/<agent>       queryable: the agent's SRG fragment (JSON)
     trackflow/<realm>/clock/<agent>          queryable: the agent's clock reading (int64 ns)
     trackflow/<realm>/edge/<edge>            pub/sub: a sensor filter's states (docs/wire.md, v2)
+    trackflow/<realm>/demand/<edge>/<consumer>/<period_ns>/<phase_ns>
+                                             liveliness token: a consumer's tick grid (thin)
+    trackflow/<realm>/thin/<edge>/<consumer> pub/sub: the states that grid needs (thinning.py)
     trackflow/<realm>/get/<edge>?t=<ns>      queryable: the sensor filter's get(t) (wire)
     trackflow/<realm>/query/<query>?t=<ns>   queryable: a pull query's get(t) (wire)
     trackflow/<realm>/result/<query>         pub/sub: a push query's results (wire)
@@ -49,11 +52,14 @@ from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
+from .thinning import Grid, Thinner, demand_key, parse_demand, thin_key
 
 __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
 _GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
+_MAX_THIN_STREAMS = 64  # per own edge: consumers with thinned streams (more: rejected)
+_REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
 
 
 def _key(realm: str, *parts: str) -> str:
@@ -88,6 +94,27 @@ class QueryState:
     events: list[dict] = field(default_factory=list)
     published: int = 0
     last: Measurement | None = None
+    inputs: frozenset = frozenset()  # remote sensors of the plan (thin: ticks wait for them)
+
+
+@dataclass
+class _ThinStream:
+    """(Sensor side) one consumer's thinned stream of one own sensor."""
+
+    thinner: Thinner
+    publisher: object
+    tokens: set = field(default_factory=set)
+
+
+@dataclass
+class _ThinInput:
+    """(Consumer side) a remote sensor received thinned: its demand tokens and coverage."""
+
+    periods: frozenset
+    offset_ns: int
+    tokens: list
+    subscriber: object
+    covered_ns: int | None = None
 
 
 @dataclass
@@ -139,6 +166,11 @@ class Agent:
         self._filters: dict[str, KalmanFilter] = {}
         self._last_seq: dict[str, int] = {}
         self._subs: dict[str, object] = {}
+        self._thin_out: dict[str, dict[str, _ThinStream]] = {}  # own edge -> consumer -> stream
+        self._thin_in: dict[str, _ThinInput] = {}  # remote edge -> its thinned subscription
+        self._covered: dict[str, int] = {}  # thin mode: raw remote edge -> covered up to [ns]
+        self._thin_cv = threading.Condition(self._lock)
+        self._grace_ns = int(round(config.thin_grace_ms * 1e6))
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
         self.net = Network()
@@ -185,7 +217,10 @@ class Agent:
             for n, q in self.setup.queries.items()
             if q.mode == "push"
         }
-        for target in (self._worker, self._pump, self._clock_loop):
+        targets = [self._worker, self._pump, self._clock_loop]
+        if self._own:
+            targets.append(self._thin_loop)
+        for target in targets:
             th = threading.Thread(target=target, name=f"{self.name}-{target.__name__}", daemon=True)
             th.start()
             self._threads.append(th)
@@ -193,6 +228,10 @@ class Agent:
         self._discovery = s.liveliness().declare_subscriber(
             _key(r, "alive", "**"), self._on_liveliness, history=True
         )
+        if self._own:  # consumers' tick grids for thinned streams of the own sensors
+            self._demands = s.liveliness().declare_subscriber(
+                _key(r, "demand", "**"), self._on_demand, history=True
+            )
         for _, th in self._players:
             th.start()
         return self
@@ -202,6 +241,7 @@ class Agent:
         self._stop.set()
         with self._heap_cv:
             self._heap_cv.notify_all()
+            self._thin_cv.notify_all()
         self._work.put(("stop",))
         for _, th in self._players:
             if th.is_alive():
@@ -258,12 +298,13 @@ class Agent:
             self._sources[edge.name] = src
             kf = self._filters[edge.name] = self._make_filter(edge)
             self._own.add(edge.name)
-            self._publishers[edge.name] = StatePublisher(
+            pub = self._publishers[edge.name] = StatePublisher(
                 f"publish_{edge.name}",
                 kf,
                 # express: each state leaves at once, not batched with later ones
                 self.session.declare_publisher(_key(self.realm, "edge", edge.name), express=True),
             )
+            pub.tap = lambda h_ns, buf, name=edge.name: self._offer_thin(name, h_ns, buf)
         with self._lock:
             self._rebuild_base()
 
@@ -338,6 +379,101 @@ class Agent:
             with self._lock:
                 self.net.clock.now_ns = arrival
                 player.deliver(idx)
+
+    # -- thinned streams of own sensors (sensor side) ------------------------------------------
+    def _on_demand(self, sample) -> None:
+        """A consumer's tick grid for one of this agent's sensors appeared (PUT) or went away
+        (DELETE: withdrawn, or the consumer died). Garbage is a counted rejection."""
+        import zenoh
+
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.DELETE:
+            with self._lock:
+                self._withdraw(key)
+            return
+        try:
+            edge, consumer, grid = parse_demand(key, self.realm)
+        except ValueError as exc:
+            self.rejections.add(str(exc))
+            return
+        if edge not in self._own:
+            if edge in self._statics or edge in {e.name for e in self.setup.graph.edges}:
+                self.rejections.add("demand for a static edge")
+            elif edge not in self._live:  # (also while this agent has not met the owner yet)
+                self.rejections.add("demand for unknown edge")
+            return  # another agent's sensor: its agent serves it
+        with self._lock:
+            streams = self._thin_out.setdefault(edge, {})
+            st = streams.get(consumer)
+            if st is None:
+                if len(streams) >= _MAX_THIN_STREAMS:
+                    self.rejections.add("too many thinned streams")
+                    return
+                pub = self.session.declare_publisher(
+                    thin_key(self.realm, edge, consumer), express=True
+                )
+                st = streams[consumer] = _ThinStream(Thinner({grid: 0}, self.now_ns()), pub)
+            if key in st.tokens:
+                return
+            st.tokens.add(key)
+            grids = dict(st.thinner.grids)
+            grids[grid] = grids.get(grid, 0) + 1
+            st.thinner.set_grids(grids)
+            self._thin_cv.notify()
+
+    def _withdraw(self, key: str) -> None:
+        """Forget a demand token; a stream without tokens ends (its consumer costs nothing)."""
+        for streams in self._thin_out.values():
+            for consumer, st in list(streams.items()):
+                if key not in st.tokens:
+                    continue
+                st.tokens.discard(key)
+                grid = parse_demand(key, self.realm)[2]
+                grids = dict(st.thinner.grids)
+                grids[grid] -= 1
+                if grids[grid] <= 0:
+                    del grids[grid]
+                if grids:
+                    st.thinner.set_grids(grids)
+                else:
+                    del streams[consumer]
+                    st.publisher.undeclare()
+                return
+
+    def _offer_thin(self, edge: str, h_ns: int, buf: bytes) -> None:
+        """(Under the agent's lock, from the state publisher.) A new state of an own sensor's
+        filter, for every thinned stream of that sensor."""
+        streams = self._thin_out.get(edge)
+        if not streams:
+            return
+        for st in streams.values():
+            self._send_thin(st, st.thinner.offer(h_ns, buf))
+        self._thin_cv.notify()
+
+    @staticmethod
+    def _send_thin(st: _ThinStream, messages: list) -> None:
+        for tick, payload in messages:
+            st.publisher.put(
+                b"" if payload is None else payload,
+                attachment=tick.to_bytes(8, "little", signed=True),
+            )
+
+    def _thin_loop(self) -> None:
+        """Completes the ticks of the thinned streams ``thin_grace_ms`` after they pass:
+        sends each stream's pending state (or a heartbeat)."""
+        with self._thin_cv:
+            while not self._stop.is_set():
+                streams = [st for ss in self._thin_out.values() for st in ss.values()]
+                if not streams:
+                    self._thin_cv.wait(0.05)
+                    continue
+                now = self.now_ns()
+                soonest = min(st.thinner.deadline(self._grace_ns) for st in streams)
+                if soonest > now:
+                    self._thin_cv.wait(min((soonest - now) * 1e-9, 0.05))
+                    continue
+                for st in streams:
+                    self._send_thin(st, st.thinner.due(now, self._grace_ns))
 
     # -- discovery ------------------------------------------------------------------------------
     def _on_liveliness(self, sample) -> None:
@@ -447,6 +583,14 @@ class Agent:
                     self._ping(rem, 1)
                 except zenoh.ZError:  # the remote may be gone; next round
                     continue
+            with self._lock:  # thinned inputs follow the clock offset's estimate
+                for edge, inp in self._thin_in.items():
+                    offset = self._offset_ns(edge)
+                    if abs(offset - inp.offset_ns) > _REDECLARE_NS:
+                        try:
+                            self._declare_demands(edge, inp, offset)
+                        except zenoh.ZError:
+                            continue
 
     # -- planning -------------------------------------------------------------------------------
     def union_graph(self) -> SpatialRelationshipGraph:
@@ -496,6 +640,7 @@ class Agent:
                 used |= sensors
                 if q.mode == "push":
                     pushed |= sensors
+                    st.inputs = frozenset(sensors - self._own)
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue
@@ -505,8 +650,11 @@ class Agent:
                 changed = True
             if not changed:
                 return
+            thin = self._thin_periods(plans) if self.cfg.thin else {}
             for edge in sorted(used - self._own):
-                if self.cfg.pull_via == "replica" or edge in pushed:
+                if edge in thin:
+                    self._subscribe_thin(graph.edge(edge), thin[edge])
+                elif self.cfg.pull_via == "replica" or edge in pushed:
                     self._subscribe(graph.edge(edge))
                 elif edge not in self._sources:
                     self._ask_per_request(graph.edge(edge))
@@ -535,19 +683,87 @@ class Agent:
             "replan_ms": (time.perf_counter_ns() - t_event_ns) * 1e-6,
         }
 
+    def _replica(self, edge: Edge) -> None:
+        if not isinstance(self._filters.get(edge.name), RemoteFilter):
+            self._sources[edge.name] = RemoteSource(edge.name)
+            self._filters[edge.name] = RemoteFilter(
+                f"kf_{edge.name}",
+                edge.motion,
+                stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9)),
+            )
+
     def _subscribe(self, edge: Edge) -> None:
         """A replica of a remote sensor's filter, fed by a subscription to its states (also
-        replacing a per-request node once a push query needs the sensor)."""
-        if isinstance(self._filters.get(edge.name), RemoteFilter):
+        replacing a per-request node once a push query needs the sensor, or a thinned
+        subscription once a query needs every state)."""
+        if edge.name in self._subs:
             return
-        self._sources[edge.name] = RemoteSource(edge.name)
-        self._filters[edge.name] = RemoteFilter(
-            f"kf_{edge.name}", edge.motion, stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9))
-        )
+        self._replica(edge)
+        inp = self._thin_in.pop(edge.name, None)
+        if inp is not None:
+            for token in inp.tokens:
+                token.undeclare()
+            inp.subscriber.undeclare()
         self._subs[edge.name] = self.session.declare_subscriber(
             _key(self.realm, "edge", edge.name),
             lambda sample, name=edge.name: self._on_state(name, sample),
         )
+
+    def _thin_periods(self, plans: dict) -> dict[str, frozenset]:
+        """(``thin: true``) The remote sensors that may be received thinned, with the tick
+        periods [ns] of the push queries using them: not those a pull query reads from a
+        replica, nor those of a push query answering in the past (``time_offset_ms < 0``
+        interpolates between states, so it needs them all)."""
+        periods: dict[str, set] = {}
+        raw: set[str] = set()
+        for plan in plans.values():
+            q = plan.query
+            sensors = {s for p in plan.paths for s in p.sensors} - self._own
+            if q.mode == "push" and q.time_offset_s >= 0:
+                for e in sensors:
+                    periods.setdefault(e, set()).add(int(round(1e9 / q.rate_hz)))
+            elif q.mode == "push" or self.cfg.pull_via == "replica":
+                raw |= sensors
+        return {e: frozenset(p) for e, p in periods.items() if e not in raw}
+
+    def _offset_ns(self, edge: str) -> int:
+        """The clock offset (remote minus this agent) of a live remote sensor's agent [ns]."""
+        rem = self._remotes.get(self._live.get(edge, ""))
+        if rem is None or self.cfg.clock_sync != "estimate" or not rem.clock.known:
+            return 0
+        return rem.clock.offset_ns
+
+    def _subscribe_thin(self, edge: Edge, periods: frozenset) -> None:
+        """A replica fed by a thinned stream: one demand token per tick period (the grid
+        mapped onto the sensor agent's clock) and a subscription to the stream."""
+        if edge.name in self._subs:
+            return  # every state comes already
+        self._replica(edge)
+        inp = self._thin_in.get(edge.name)
+        if inp is not None and inp.periods == periods:
+            return
+        if inp is None:
+            sub = self.session.declare_subscriber(
+                thin_key(self.realm, edge.name, self.name),
+                lambda sample, name=edge.name: self._on_thin(name, sample),
+            )
+            inp = self._thin_in[edge.name] = _ThinInput(periods, 0, [], sub)
+        inp.periods = periods
+        self._declare_demands(edge.name, inp, self._offset_ns(edge.name))
+
+    def _declare_demands(self, edge: str, inp: _ThinInput, offset_ns: int) -> None:
+        """(Re)declare the demand tokens of a thinned input: the new ones first, so the
+        sensor's agent keeps the stream while the grid moves."""
+        old = inp.tokens
+        inp.tokens = [
+            self.session.liveliness().declare_token(
+                demand_key(self.realm, edge, self.name, Grid(p, offset_ns % p))
+            )
+            for p in sorted(inp.periods)
+        ]
+        inp.offset_ns = offset_ns
+        for token in old:
+            token.undeclare()
 
     def _ask_per_request(self, edge: Edge) -> None:
         """``pull_via: get``: a node asking the sensor's agent ``get/<edge>?t=`` per request."""
@@ -587,6 +803,58 @@ class Agent:
         return Measurement(w.exposure_ns - offset, pose, w.origin_ns - offset)
 
     # -- data path ------------------------------------------------------------------------------
+    def _mapping(self, edge: str) -> tuple[int, float] | None:
+        """Clock offset [ns] and its sigma [s] for a remote sensor's stamps (None: counted)."""
+        agent = self._live.get(edge)
+        rem = self._remotes.get(agent) if agent is not None else None
+        if rem is None:
+            self.rejections.add("sensor not live")
+            return None
+        if self.cfg.clock_sync != "estimate":
+            return 0, 0.0
+        if not rem.clock.known:
+            self.rejections.add("clock offset not yet estimated")
+            return None
+        return rem.clock.offset_ns, rem.clock.sigma_s
+
+    def _on_thin(self, edge: str, sample) -> None:
+        """A message of a thinned stream: the tick it completes (attachment) and a state of
+        the sensor's filter, or nothing new (heartbeat). The state joins the jitter buffer at
+        its host stamp as on the full stream; the tick tells the pump that this input is
+        complete up to there (mapped with the offset the demand was declared with)."""
+        att = sample.attachment
+        tick = att.to_bytes() if att is not None else b""
+        if len(tick) != 8:
+            self.rejections.add("thinned message without tick")
+            return
+        payload = sample.payload.to_bytes()
+        try:
+            s = wire.decode_state(payload) if payload else None
+        except wire.WireError as exc:
+            self.rejections.add(exc.reason)
+            return
+        mapping = self._mapping(edge)
+        if mapping is None:
+            return
+        offset, sigma = mapping
+        with self._heap_cv:
+            inp = self._thin_in.get(edge)
+            if inp is None:
+                return  # withdrawn meanwhile
+            covered = int.from_bytes(tick, "little", signed=True) - inp.offset_ns
+            if inp.covered_ns is None or covered > inp.covered_ns:
+                inp.covered_ns = covered
+            if s is not None:
+                self._buffer(edge, s, offset, sigma)
+            self._heap_cv.notify()
+
+    def _buffer(self, edge: str, s: wire.StateSample, offset: int, sigma: float) -> None:
+        """(Holding the lock.) Into the jitter buffer at the state's arrival stamp."""
+        arrival = s.host_ns - offset
+        if self.now_ns() > arrival + self._reorder_ns:
+            self.late_events += 1  # later than the jitter buffer: delivered out of order
+        heapq.heappush(self._heap, (arrival, _SENSOR, next(self._seq), (edge, s, offset, sigma)))
+
     def _on_state(self, edge: str, sample) -> None:
         """A state of another agent's sensor filter: decoded, its stamps mapped onto this
         agent's clock, then adopted by the replica at once or (jitter buffer) at its host
@@ -596,17 +864,10 @@ class Agent:
         except wire.WireError as exc:
             self.rejections.add(exc.reason)
             return
-        agent = self._live.get(edge)
-        rem = self._remotes.get(agent) if agent is not None else None
-        if rem is None:
-            self.rejections.add("sensor not live")
+        mapping = self._mapping(edge)
+        if mapping is None:
             return
-        offset, sigma = 0, 0.0
-        if self.cfg.clock_sync == "estimate":
-            if not rem.clock.known:
-                self.rejections.add("clock offset not yet estimated")
-                return
-            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+        offset, sigma = mapping
         last = self._last_seq.get(edge)
         if last is not None and s.seq > last + 1:
             self.lost_messages += s.seq - last - 1
@@ -616,13 +877,10 @@ class Agent:
                 self.net.clock.now_ns = self.now_ns()
                 self._deliver(edge, s, offset, sigma)
             return
-        arrival = s.host_ns - offset
         with self._heap_cv:
-            if self.now_ns() > arrival + self._reorder_ns:
-                self.late_events += 1  # later than the jitter buffer: delivered out of order
-            heapq.heappush(
-                self._heap, (arrival, _SENSOR, next(self._seq), (edge, s, offset, sigma))
-            )
+            if self.cfg.thin:  # every state sent before it has come (thin: ticks wait for it)
+                self._covered[edge] = max(self._covered.get(edge, -1), s.host_ns - offset - 1)
+            self._buffer(edge, s, offset, sigma)
             self._heap_cv.notify()
 
     def _deliver(self, edge: str, s: wire.StateSample, offset_ns: int, sigma_s: float) -> None:
@@ -648,8 +906,14 @@ class Agent:
                     self._heap_cv.wait(0.05)
                     continue
                 key, kind, _, payload = self._heap[0]
-                wait = (key + self._reorder_ns - self.now_ns()) * 1e-9
-                if wait > 0:
+                now = self.now_ns()
+                # thin: a state goes at once (every earlier tick has run); a tick as soon as
+                # every remote input of its query is complete up to it
+                early = self.cfg.thin and (
+                    kind == _SENSOR or (now >= key and self._complete(payload, key))
+                )
+                wait = (key + self._reorder_ns - now) * 1e-9
+                if wait > 0 and not early:
                     self._heap_cv.wait(min(wait, 0.05))
                     continue
                 heapq.heappop(self._heap)
@@ -666,6 +930,15 @@ class Agent:
                     self._tick(payload, key)
                     nxt = key + p
                 heapq.heappush(self._heap, (nxt, _TICK, next(self._seq), payload))
+
+    def _complete(self, query: str, t_ns: int) -> bool:
+        """(thin) Every remote input of the query has sent what its tick at ``t_ns`` needs."""
+        for e in self.queries[query].inputs:
+            inp = self._thin_in.get(e)
+            covered = inp.covered_ns if inp is not None else self._covered.get(e)
+            if covered is None or covered < t_ns:
+                return False
+        return True
 
     def _tick(self, name: str, t_ns: int) -> None:
         st = self.queries[name]
@@ -766,6 +1039,23 @@ class Agent:
                     n: {"states": f.stats.events_in, "rejections": dict(f.stats.rejections)}
                     for n, f in sorted(self._filters.items())
                     if isinstance(f, RemoteFilter)
+                },
+                "thin_streams": {
+                    e: {
+                        c: {
+                            "grids": sorted([g.period_ns, g.phase_ns] for g in st.thinner.grids),
+                            "sent": st.thinner.sent,
+                            "heartbeats": st.thinner.heartbeats,
+                            "late": st.thinner.late,
+                        }
+                        for c, st in sorted(ss.items())
+                    }
+                    for e, ss in sorted(self._thin_out.items())
+                    if ss
+                },
+                "thin_inputs": {
+                    e: {"periods_ns": sorted(inp.periods), "offset_ns": inp.offset_ns}
+                    for e, inp in sorted(self._thin_in.items())
                 },
                 "clocks": {
                     n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
