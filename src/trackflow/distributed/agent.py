@@ -26,6 +26,7 @@ path" with the reason).
 
 from __future__ import annotations
 
+import collections
 import gc
 import heapq
 import itertools
@@ -144,6 +145,9 @@ class Agent:
         self.setup = config.setup
         self.rejections = wire.Rejections()
         self.lost_messages = 0
+        self.received = [0, 0]  # messages and bytes of remote sensors' states (and ticks)
+        self._tick_waits: collections.deque = collections.deque(maxlen=4096)  # tick -> run [ns]
+        self._thin_arrivals: collections.deque = collections.deque(maxlen=4096)  # tick -> here
         self.late_events = 0
         self.missed_ticks = 0
         self.skipped_samples = 0
@@ -171,6 +175,7 @@ class Agent:
         self._covered: dict[str, int] = {}  # thin mode: raw remote edge -> covered up to [ns]
         self._thin_cv = threading.Condition(self._lock)
         self._grace_ns = int(round(config.thin_grace_ms * 1e6))
+        self._thin_next = 0  # (sensor side) no stream has a tick due before this [ns]
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
         self.net = Network()
@@ -410,7 +415,7 @@ class Agent:
                     self.rejections.add("too many thinned streams")
                     return
                 pub = self.session.declare_publisher(
-                    thin_key(self.realm, edge, consumer), express=True
+                    thin_key(self.realm, edge, consumer), express=False
                 )
                 st = streams[consumer] = _ThinStream(Thinner({grid: 0}, self.now_ns()), pub)
             if key in st.tokens:
@@ -419,6 +424,7 @@ class Agent:
             grids = dict(st.thinner.grids)
             grids[grid] = grids.get(grid, 0) + 1
             st.thinner.set_grids(grids)
+            self._thin_next = 0
             self._thin_cv.notify()
 
     def _withdraw(self, key: str) -> None:
@@ -442,13 +448,17 @@ class Agent:
 
     def _offer_thin(self, edge: str, h_ns: int, buf: bytes) -> None:
         """(Under the agent's lock, from the state publisher.) A new state of an own sensor's
-        filter, for every thinned stream of that sensor."""
+        filter, for every thinned stream of that sensor; then whatever ticks are due on any
+        stream go too (the thread holding the lock does it at once, instead of waking the
+        timer thread)."""
         streams = self._thin_out.get(edge)
         if not streams:
             return
         for st in streams.values():
             self._send_thin(st, st.thinner.offer(h_ns, buf))
-        self._thin_cv.notify()
+        now = self.now_ns()
+        if now >= self._thin_next:
+            self._flush_due(now)
 
     @staticmethod
     def _send_thin(st: _ThinStream, messages: list) -> None:
@@ -458,22 +468,34 @@ class Agent:
                 attachment=tick.to_bytes(8, "little", signed=True),
             )
 
+    def _grace(self, edge: str) -> int:
+        """How long after a tick a state made before it may still come [ns]: a live sensor's
+        states are stamped when the agent takes them (under its lock), so never; a
+        recording's player stamps its scheduled arrival, and its thread may run late."""
+        return self._grace_ns if isinstance(self._sources.get(edge), RecordingPlayer) else 0
+
+    def _flush_due(self, now: int) -> None:
+        """(Holding the lock.) Complete every stream's ticks that are due; remember the
+        soonest next deadline (offers only move deadlines later, so it stays a lower bound)."""
+        soonest = now + 50_000_000
+        for edge, streams in self._thin_out.items():
+            grace = self._grace(edge)
+            for st in streams.values():
+                self._send_thin(st, st.thinner.due(now, grace))
+                soonest = min(soonest, st.thinner.deadline(grace))
+        self._thin_next = soonest
+
     def _thin_loop(self) -> None:
-        """Completes the ticks of the thinned streams ``thin_grace_ms`` after they pass:
-        sends each stream's pending state (or a heartbeat)."""
+        """Completes the ticks of the thinned streams when no state did it before: sends
+        each stream's pending state (or a heartbeat) once the tick (plus the grace of
+        recordings) has passed."""
         with self._thin_cv:
             while not self._stop.is_set():
-                streams = [st for ss in self._thin_out.values() for st in ss.values()]
-                if not streams:
-                    self._thin_cv.wait(0.05)
-                    continue
                 now = self.now_ns()
-                soonest = min(st.thinner.deadline(self._grace_ns) for st in streams)
-                if soonest > now:
-                    self._thin_cv.wait(min((soonest - now) * 1e-9, 0.05))
+                if now < self._thin_next:
+                    self._thin_cv.wait(min((self._thin_next - now) * 1e-9, 0.05))
                     continue
-                for st in streams:
-                    self._send_thin(st, st.thinner.due(now, self._grace_ns))
+                self._flush_due(now)
 
     # -- discovery ------------------------------------------------------------------------------
     def _on_liveliness(self, sample) -> None:
@@ -828,6 +850,8 @@ class Agent:
             self.rejections.add("thinned message without tick")
             return
         payload = sample.payload.to_bytes()
+        self.received[0] += 1
+        self.received[1] += len(payload) + len(tick)
         try:
             s = wire.decode_state(payload) if payload else None
         except wire.WireError as exc:
@@ -842,6 +866,7 @@ class Agent:
             if inp is None:
                 return  # withdrawn meanwhile
             covered = int.from_bytes(tick, "little", signed=True) - inp.offset_ns
+            self._thin_arrivals.append(self.now_ns() - covered)
             if inp.covered_ns is None or covered > inp.covered_ns:
                 inp.covered_ns = covered
             if s is not None:
@@ -859,8 +884,11 @@ class Agent:
         """A state of another agent's sensor filter: decoded, its stamps mapped onto this
         agent's clock, then adopted by the replica at once or (jitter buffer) at its host
         stamp plus ``reorder_ms``."""
+        payload = sample.payload.to_bytes()
+        self.received[0] += 1
+        self.received[1] += len(payload)
         try:
-            s = wire.decode_state(sample.payload.to_bytes())
+            s = wire.decode_state(payload)
         except wire.WireError as exc:
             self.rejections.add(exc.reason)
             return
@@ -927,6 +955,7 @@ class Agent:
                     self.missed_ticks += 1  # the agent was stalled: skip to the present
                     nxt = (now - self._reorder_ns) // p * p + p
                 else:
+                    self._tick_waits.append(now - key)
                     self._tick(payload, key)
                     nxt = key + p
                 heapq.heappush(self._heap, (nxt, _TICK, next(self._seq), payload))
@@ -1032,6 +1061,11 @@ class Agent:
                 "statics": sorted(self._statics),
                 "rejections": dict(self.rejections.counts),
                 "lost_messages": self.lost_messages,
+                "tick_wait_ms": _percentiles(self._tick_waits),
+                "thin_arrival_ms": _percentiles(self._thin_arrivals),
+                "published_states": sum(p.seq for p in self._publishers.values()),
+                "received_messages": self.received[0],
+                "received_bytes": self.received[1],
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
                 "skipped_samples": self.skipped_samples,
@@ -1073,6 +1107,14 @@ class Agent:
                     "events": st.events[-20:],
                 }
             return out
+
+
+def _percentiles(values) -> dict:
+    """p50 and p99 of recent waits [ns], in ms (``{}`` before the first)."""
+    v = sorted(values)
+    if not v:
+        return {}
+    return {"p50": v[len(v) // 2] * 1e-6, "p99": v[min(len(v) - 1, int(0.99 * len(v)))] * 1e-6}
 
 
 def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0):
