@@ -437,25 +437,32 @@ def _tcp_bytes_sent(pid: int) -> int:
     return total
 
 
-def bench_thin(duration_s: float, work: Path, thin: bool, reorder_ms: float = 60.0) -> dict:
+def bench_thin(
+    duration_s: float, work: Path, thin: bool, reorder_ms: float = 60.0, pair: bool = False
+) -> dict:
     """The 20 x 240 Hz sender and two consumer agent processes, one with a 30 Hz and one with
     a 60 Hz push query per edge (40 queries), receiving every state (``thin=False``) or
     thinned streams. Measures what crosses loopback (the sender's socket writes, the
     consumers' received messages and bytes) and each answer's latency at its consumer (from
-    the tick to the result being published)."""
+    the tick to the result being published). ``pair``: instead, a thinned and an unthinned
+    consumer at 30 Hz side by side, whose answers are compared at equal stamps."""
     from trackflow.distributed.wire import decode
 
-    tag = "thin" if thin else f"raw{reorder_ms:g}"
+    if pair:
+        tag, spec = "pair", [("t30", 30, True), ("r30", 30, False)]
+    else:
+        tag = "thin" if thin else f"raw{reorder_ms:g}"
+        spec = [("c30", 30, thin), ("c60", 60, thin)]
     realm = f"{tag}{free_port()}"
     port = free_port()
     log = work / f"sender_{tag}.log"
+    n_thin = sum(t for _, _, t in spec)
     args = ["--role", "sender", "--realm", realm, "--listen", ep(port)]
-    args += ["--duration", str(duration_s), "--thin-consumers", str(2 if thin else 0)]
+    args += ["--duration", str(duration_s), "--thin-consumers", str(n_thin)]
     sender = spawn([__file__, *args], log)
     frames = [f"X{k:02d}" for k in range(N_EDGES)]
     consumers, files = {}, {}
-    for rate in (30, 60):
-        name = f"c{rate}"
+    for name, rate, thinned in spec:
         queries = [
             dict(name=f"{name}_{f}", source="W", target=f, mode="push", rate_hz=rate)
             for f in frames
@@ -467,14 +474,14 @@ def bench_thin(duration_s: float, work: Path, thin: bool, reorder_ms: float = 60
                 "realm": realm,
                 "clock_sync": "none",
                 "reorder_ms": reorder_ms,
-                "thin": thin,
+                "thin": thinned,
                 "zenoh": {"connect": {"endpoints": [ep(port)]}},
             },
             "frames": ["W", *frames],
             "queries": queries,
         }
         files[name].write_text(yaml.safe_dump(doc, sort_keys=False))
-    answers: dict[str, list] = {"c30": [], "c60": []}
+    answers: dict[str, list] = {name: [] for name, _, _ in spec}
     session = None
     try:
         for name, f in files.items():
@@ -483,15 +490,15 @@ def bench_thin(duration_s: float, work: Path, thin: bool, reorder_ms: float = 60
 
         def on_result(sample) -> None:
             w = decode(sample.payload.to_bytes())
-            who = str(sample.key_expr).rsplit("/", 1)[-1].split("_")[0]
-            answers[who].append((w.exposure_ns, w.host_ns))
+            who, frame = str(sample.key_expr).rsplit("/", 1)[-1].split("_")
+            answers[who].append((w.exposure_ns, w.host_ns, frame, w.pose))
 
         sub = session.declare_subscriber(f"trackflow/{realm}/result/**", on_result)
         deadline = time.monotonic() + 150
         while time.monotonic() < deadline and '"ready"' not in log.read_text():
             time.sleep(0.1)
         # measure the middle of the run: from 1 s after feeding started, for duration - 2 s
-        wait_for(lambda: answers["c60"] and answers["c30"], 150)  # the sender feeds
+        wait_for(lambda: all(answers.values()), 150)  # the sender feeds
         time.sleep(1.0)
         st0 = {n: status(session, realm, n) for n in consumers}
         fed = [status(session, realm, "sender")["published_states"]]
@@ -511,14 +518,26 @@ def bench_thin(duration_s: float, work: Path, thin: bool, reorder_ms: float = 60
             stop(p)
     span = t1 - t0
     out = {"mode": tag, "reorder_ms": reorder_ms, "seconds": round(span, 2)}
+    out["consumers"] = [f"{n}: {r} Hz, {'thinned' if t else 'every state'}" for n, r, t in spec]
     out["fed_per_s"] = (fed[1] - fed[0]) / span  # states made by the sensors' filters
     out["sender_bytes_per_s"] = (w1 - w0) / span
     msgs = sum(st1[n]["received_messages"] - st0[n]["received_messages"] for n in consumers)
     byts = sum(st1[n]["received_bytes"] - st0[n]["received_bytes"] for n in consumers)
     out["received_messages_per_s"] = msgs / span
     out["received_payload_bytes_per_s"] = byts / span
+    beats = sum(st1[n]["received_heartbeats"] - st0[n]["received_heartbeats"] for n in consumers)
+    out["received_heartbeats_per_s"] = beats / span
+    if pair:  # the same stamps of the same relationship, thinned and not
+        ref = {(f, e): pose for e, _, f, pose in got["r30"]}
+        both = [(ref[(f, e)], pose) for e, _, f, pose in got["t30"] if (f, e) in ref]
+        dp = np.array([np.linalg.norm(a.position - b.position) for a, b in both])
+        da = np.degrees([quat_angle(a.quaternion, b.quaternion) for a, b in both])
+        out["same_stamps"] = len(both)
+        out["within_0.1mm_0.01deg"] = float(np.mean((dp <= 1e-4) & (da <= 0.01)))
+        out["max_pos_diff_mm"] = float(dp.max() * 1e3)
+        out["max_ang_diff_deg"] = float(da.max())
     for n in consumers:
-        lat = np.array([h - e for e, h in got[n]], float) * 1e-3
+        lat = np.array([h - e for e, h, _, _ in got[n]], float) * 1e-3
         out[f"{n}_answers_per_s"] = len(lat) / span
         out[f"{n}_answer_p50_us"] = float(np.percentile(lat, 50)) if len(lat) else None
         out[f"{n}_answer_p99_us"] = float(np.percentile(lat, 99)) if len(lat) else None
@@ -526,7 +545,7 @@ def bench_thin(duration_s: float, work: Path, thin: bool, reorder_ms: float = 60
         out[f"{n}_tick_wait_ms"] = st1[n]["tick_wait_ms"]
         out[f"{n}_thin_arrival_ms"] = st1[n]["thin_arrival_ms"]
         out[f"{n}_lost_messages"] = st1[n]["lost_messages"]
-    lat = np.array([h - e for a in got.values() for e, h in a], float) * 1e-3
+    lat = np.array([h - e for a in got.values() for e, h, _, _ in a], float) * 1e-3
     out["answer_p50_us"] = float(np.percentile(lat, 50))
     out["answer_p99_us"] = float(np.percentile(lat, 99))
     return out
@@ -860,6 +879,7 @@ def bench_demo(
                 "lost_messages",
                 "received_messages",
                 "received_bytes",
+                "received_heartbeats",
                 "tick_wait_ms",
             )
         },
@@ -909,6 +929,7 @@ def main() -> int:
             for thin, reorder in ((False, 60.0), (False, 0.0), (True, 60.0)):
                 out = bench_thin(args.thin_seconds, work, thin, reorder)
                 print(json.dumps(out, indent=2))
+            print(json.dumps(bench_thin(args.thin_seconds, work, True, pair=True), indent=2))
             return 0
         if args.only_latency:
             out = {"receive_path": bench_receive_path()}

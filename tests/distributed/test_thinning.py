@@ -159,3 +159,19 @@ def test_demand_keys_round_trip_and_garbage_is_rejected():
     for k, reason in bad.items():
         with pytest.raises(ValueError, match=reason):
             parse_demand(k, "r")
+
+
+def test_thin_needs_a_deadline_and_is_off_by_default(tmp_path):
+    from trackflow.dataflow import parse_setup
+    from trackflow.distributed import AgentConfig, load_agent
+
+    setup = parse_setup({})
+    assert AgentConfig("a", setup).thin is False
+    with pytest.raises(ValueError, match="thin: true needs reorder_ms > 0"):
+        AgentConfig("a", setup, thin=True)
+    with pytest.raises(ValueError, match="thin must be true or false"):
+        AgentConfig("a", setup, thin="yes", reorder_ms=10)
+    path = tmp_path / "a.yaml"
+    path.write_text("agent: {name: a, thin: true, reorder_ms: 20, thin_grace_ms: 2}\n")
+    cfg = load_agent(path)
+    assert cfg.thin is True and cfg.thin_grace_ms == 2.0

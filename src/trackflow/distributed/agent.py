@@ -145,7 +145,7 @@ class Agent:
         self.setup = config.setup
         self.rejections = wire.Rejections()
         self.lost_messages = 0
-        self.received = [0, 0]  # messages and bytes of remote sensors' states (and ticks)
+        self.received = [0, 0, 0]  # messages, bytes, heartbeats of remote sensors' streams
         self._tick_waits: collections.deque = collections.deque(maxlen=4096)  # tick -> run [ns]
         self._thin_arrivals: collections.deque = collections.deque(maxlen=4096)  # tick -> here
         self.late_events = 0
@@ -852,6 +852,7 @@ class Agent:
         payload = sample.payload.to_bytes()
         self.received[0] += 1
         self.received[1] += len(payload) + len(tick)
+        self.received[2] += not payload
         try:
             s = wire.decode_state(payload) if payload else None
         except wire.WireError as exc:
@@ -1066,6 +1067,7 @@ class Agent:
                 "published_states": sum(p.seq for p in self._publishers.values()),
                 "received_messages": self.received[0],
                 "received_bytes": self.received[1],
+                "received_heartbeats": self.received[2],
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
                 "skipped_samples": self.skipped_samples,
