@@ -56,7 +56,7 @@ def test_one_state_per_tick_the_newest_before_it():
     assert len(states) == 59  # ticks 1..59 (tick 0 precedes the first state)
     for tick, name in states:
         assert tick % p == 0 and name == newest_before(events, tick)
-    assert th.late == 0 and th.heartbeats == 1  # the tick at 0 had nothing new
+    assert th.late == 0 and th.heartbeats == 0  # none before the first state (tick 0)
 
 
 def test_burst_sends_only_the_last_state_of_the_burst():
@@ -69,9 +69,8 @@ def test_burst_sends_only_the_last_state_of_the_burst():
 def test_gap_sends_heartbeats_then_resumes():
     events = [(1 * MS, "a"), (57 * MS, "b")]
     _, out = run([Grid(10 * MS, 0)], events, 70 * MS)
-    assert out[0] == (0, None)  # nothing before the first tick
-    assert (10 * MS, "a") in out
-    assert [t for t, n in out if n is None][1:] == [20 * MS, 30 * MS, 40 * MS, 50 * MS]
+    assert out[0] == (10 * MS, "a")  # no heartbeat before the first state
+    assert [t for t, n in out if n is None] == [20 * MS, 30 * MS, 40 * MS, 50 * MS]
     assert (60 * MS, "b") in out
 
 
@@ -79,7 +78,7 @@ def test_next_state_completes_the_tick_before_the_timer():
     """A state after the tick tells the thinner the previous one was the newest: it leaves
     then, before the grace period is over, completing every tick before the new state."""
     th = Thinner({Grid(10 * MS, 0): 1}, 0)
-    assert th.offer(8 * MS, "x") == [(0, None)]  # the tick at 0 had nothing new
+    assert th.offer(8 * MS, "x") == []  # tick 0 had nothing, but no state came before
     assert th.offer(10 * MS + 1, "y") == [(10 * MS, "x")]
     assert th.offer(45 * MS, "z") == [(40 * MS, "y")]  # also answers the ticks 20, 30 and 40
     assert th.due(50 * MS + GRACE - 1, GRACE) == []
@@ -101,7 +100,7 @@ def test_consumer_faster_than_sensor_sends_every_state_once():
     events = [(k * 33_333_333 + 2 * MS, k) for k in range(30)]
     th, out = run([Grid(10 * MS, 0)], events, 1_000 * MS)
     assert sorted(n for _, n in out if n is not None) == list(range(30))
-    assert th.sent == 30 and th.heartbeats == 100 - 30  # ticks 0 .. 990 ms completed
+    assert th.sent == 30 and th.heartbeats == 100 - 30 - 1  # ticks 10 .. 990 ms
 
 
 def test_union_of_two_grids_serves_both_and_never_more_than_every_state():
@@ -139,9 +138,11 @@ def test_every_tick_gets_the_newest_state_before_it(stamps, period, phase):
         done = [k for k, (t, _) in enumerate(out) if t >= tick]
         if not done:
             continue
-        got = [n for _, n in out[: done[0] + 1] if n is not None]
         want = newest_before(events, tick)
-        assert (got[-1] if got else None) == want
+        if want is None:
+            continue  # before the first state nothing is sent (no heartbeats either)
+        got = [n for _, n in out[: done[0] + 1] if n is not None]
+        assert got and got[-1] == want
 
 
 def test_demand_keys_round_trip_and_garbage_is_rejected():

@@ -19,7 +19,8 @@ different rates); the sensor's agent serves the union of them on one stream per 
 Every message there carries, as its Zenoh attachment, the tick it completes (int64 ns,
 little-endian, sensor clock): "every state sent before this tick is accounted for". Its
 payload is either a filter state (``docs/wire.md``, version 2), the newest one sent at or
-before that tick, or empty (a heartbeat: nothing new since the previous tick). So a consumer
+before that tick, or empty (a heartbeat: nothing new since the previous tick; none are sent
+before the sensor's first state). So a consumer
 knows when it has everything a tick needs and answers at once instead of waiting for a jitter
 buffer.
 
@@ -128,7 +129,8 @@ class Thinner:
 
     def offer(self, h_ns: int, payload) -> list:
         """A new state of the filter, made at ``h_ns`` (sensor clock)."""
-        h = h_ns if self._last_h is None else max(h_ns, self._last_h)
+        first = self._last_h is None
+        h = h_ns if first else max(h_ns, self._last_h)
         self._last_h = h
         if h <= self._done:  # its tick was completed already: send at once
             self.late += 1
@@ -138,7 +140,8 @@ class Thinner:
         if h > self._upcoming():
             # the pending state (or nothing new) is the answer to every tick in [that, h)
             self._done = prev_tick(h, self.grids)
-            out.append((self._done, self._take()))
+            if not first:
+                out.append((self._done, self._take()))
         self._pending, self._pending_tick = payload, next_tick(h, self.grids)
         return out
 
@@ -166,6 +169,8 @@ class Thinner:
         if now_ns < self.deadline(grace_ns):
             return []
         self._done = prev_tick(now_ns - grace_ns + 1, self.grids)
+        if self._last_h is None:
+            return []  # no state yet: nothing to answer with, so no heartbeat either
         return [(self._done, self._take())]
 
     def set_grids(self, grids: dict) -> None:
