@@ -18,6 +18,12 @@ thesis demo split over three agent processes (``docs/distributed.md``).
 * ``plan_1000_frames_ms``: ``plan_query`` on a random 1,000-frame, 3,000-edge graph (latency
   evaluation), median over random frame pairs.
 
+Then (unless ``--no-thin``) the thinned-delivery keys: the same sender with a 30 Hz and a
+60 Hz consumer agent (a push query per edge each), receiving every state (``raw_*``, 60 ms
+jitter buffer) or thinned streams (``thinned_*``): ``*_bytes_per_s`` sent by the sender's
+process on its TCP connections, ``*_messages_per_s`` received by the consumers,
+``*_answer_p50_us``/``*_answer_p99_us`` from a tick to its answer at the consumer.
+
 ``--demo`` also runs the thesis demo split (tracker, camera and application agents) and
 compares it with the single-process network on the same recordings.
 """
@@ -548,7 +554,33 @@ def bench_thin(
     lat = np.array([h - e for a in got.values() for e, h, _, _ in a], float) * 1e-3
     out["answer_p50_us"] = float(np.percentile(lat, 50))
     out["answer_p99_us"] = float(np.percentile(lat, 99))
+    out["_latencies_us"] = lat  # for --plot-thin; not printed
     return out
+
+
+def plot_thin(path: Path, runs: list[dict], load: str) -> None:
+    """Answer latency (tick -> answer at the consumer) of each delivery, as distributions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for r in runs:
+        v = np.sort(r["_latencies_us"]) * 1e-3
+        label = (
+            f"{r['mode']}: {r['sender_bytes_per_s'] / 1e6:.2f} MB/s sent, "
+            f"{r['fed_per_s']:.0f} of 4800 states/s made"
+        )
+        ax.semilogx(v, np.arange(1, len(v) + 1) / len(v), label=label)
+    ax.axhline(0.99, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("answer latency at the consumer (tick -> answer) [ms]")
+    ax.set_ylabel("fraction of answers")
+    ax.set_title(f"20 sensors at 240 Hz, consumers at 30 and 60 Hz (load {load})")
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _write_agent(path: Path, name: str, realm: str, zenoh: dict, start_ns: int = 0, **setup):
@@ -887,6 +919,10 @@ def bench_demo(
     }
 
 
+def _printable(out: dict) -> dict:
+    return {k: v for k, v in out.items() if not k.startswith("_")}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print the issue's keys only")
@@ -909,6 +945,7 @@ def main() -> int:
         "--only-thin", action="store_true", help="only thinned vs full delivery (full output)"
     )
     ap.add_argument("--thin-seconds", type=float, default=10.0)
+    ap.add_argument("--plot-thin", type=Path, help="with --only-thin: write the latency CDFs")
     ap.add_argument("--demo-thin", action="store_true", help="the demo's app agent thins")
     ap.add_argument("--demo-rate", type=float, default=60.0, help="the demo query's rate [Hz]")
     args = ap.parse_args()
@@ -926,10 +963,14 @@ def main() -> int:
                 print(json.dumps(out, indent=2))
             return 0
         if args.only_thin:  # full delivery with and without the jitter buffer, thinned
+            runs = []
             for thin, reorder in ((False, 60.0), (False, 0.0), (True, 60.0)):
-                out = bench_thin(args.thin_seconds, work, thin, reorder)
-                print(json.dumps(out, indent=2))
-            print(json.dumps(bench_thin(args.thin_seconds, work, True, pair=True), indent=2))
+                runs.append(bench_thin(args.thin_seconds, work, thin, reorder))
+                print(json.dumps(_printable(runs[-1]), indent=2))
+            if args.plot_thin is not None:
+                plot_thin(args.plot_thin, runs, f"{os.getloadavg()[0]:.1f}")
+            pair = bench_thin(args.thin_seconds, work, True, pair=True)
+            print(json.dumps(_printable(pair), indent=2))
             return 0
         if args.only_latency:
             out = {"receive_path": bench_receive_path()}
@@ -949,7 +990,7 @@ def main() -> int:
         thin = {}
         if not args.no_thin:
             raw, thinned = (bench_thin(args.thin_seconds, work, t) for t in (False, True))
-            thin = {"thin_raw": raw, "thin_thinned": thinned}
+            thin = {"thin_raw": _printable(raw), "thin_thinned": _printable(thinned)}
             keys.update(
                 {
                     "raw_bytes_per_s": raw["sender_bytes_per_s"],
