@@ -31,14 +31,14 @@ pytestmark = pytest.mark.slow
 P30, P60 = int(round(1e9 / 30)), int(round(1e9 / 60))
 
 
-def _consumer(tmp_path, name, realm, port, sensor_port, rate, thin):
+def _consumer(tmp_path, name, realm, port, sensor_ports, rate, thin):
     return write_agent(
         tmp_path / f"{name}.yaml",
         name,
         realm,
         zenoh={
             "listen": {"endpoints": [endpoint(port)]},
-            "connect": {"endpoints": [endpoint(sensor_port)]},
+            "connect": {"endpoints": [endpoint(p) for p in sensor_ports]},
         },
         extra={"reorder_ms": 60, "thin": thin},
         frames=["W", "X"],
@@ -72,9 +72,9 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
         ],
     )
     files = {
-        "c30": _consumer(tmp_path, "c30", realm, ports["c30"], ports["s"], 30, True),
-        "c60": _consumer(tmp_path, "c60", realm, ports["c60"], ports["s"], 60, True),
-        "r30": _consumer(tmp_path, "r30", realm, ports["r30"], ports["s"], 30, False),
+        "c30": _consumer(tmp_path, "c30", realm, ports["c30"], [ports["s"]], 30, True),
+        "c60": _consumer(tmp_path, "c60", realm, ports["c60"], [ports["s"]], 60, True),
+        "r30": _consumer(tmp_path, "r30", realm, ports["r30"], [ports["s"]], 30, False),
     }
     procs = [AgentProcess(sensor, "--duration", "80", log_dir=tmp_path)]
     procs += [AgentProcess(f, "--duration", "80", log_dir=tmp_path) for f in files.values()]
@@ -201,3 +201,71 @@ def _without(session, realm):
     st = status(session, realm, "s") or {}
     streams = st.get("thin_streams", {}).get("s1", {})
     return st if "c60" not in streams and "c30" in streams else None
+
+
+def test_thinned_consumer_replans_after_kill9(tmp_path):
+    """A thinned push query re-plans through the other sensor when the better one's agent
+    is killed, and asks the remaining sensor's agent for a thinned stream of it."""
+    realm = f"tr{free_port()}"
+    ports = {n: free_port() for n in "abc"}
+    start_ns = time.time_ns()
+    common = dict(
+        rate_hz=240,
+        sigma_pos_mm=1.0,
+        sigma_ori_deg=0.2,
+        motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
+    )
+    rec1 = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=240, duration_s=90, seed=5)
+    rec2 = write_recording(tmp_path / "s2.tfrec", "W", "Y", rate_hz=240, duration_s=90, seed=6)
+    a = write_agent(
+        tmp_path / "a.yaml",
+        "a",
+        realm,
+        zenoh={"listen": {"endpoints": [endpoint(ports["a"])]}},
+        start_ns=start_ns,
+        sensors=[
+            dict(name="s1", source="W", target="X", latency_ms=2, recording=str(rec1), **common)
+        ],
+    )
+    b = write_agent(
+        tmp_path / "b.yaml",
+        "b",
+        realm,
+        zenoh={
+            "listen": {"endpoints": [endpoint(ports["b"])]},
+            "connect": {"endpoints": [endpoint(ports["a"])]},
+        },
+        start_ns=start_ns,
+        sensors=[
+            dict(name="s2", source="W", target="Y", latency_ms=20, recording=str(rec2), **common)
+        ],
+        statics=[dict(name="yx", source="Y", target="X", sigma_pos_mm=0.1, sigma_ori_deg=0.01)],
+    )
+    c = _consumer(tmp_path, "c", realm, ports["c"], [ports["a"], ports["b"]], 50, True)
+    procs = [AgentProcess(f, "--duration", "80", log_dir=tmp_path) for f in (a, b, c)]
+    session = None
+    try:
+        for p in procs:
+            p.wait_ready()
+        session = observer([endpoint(ports[n]) for n in "bc"])
+
+        def query(sensor, min_published=0):
+            st = status(session, realm, "c") or {}
+            q = st.get("queries", {}).get("q_c", {})
+            ok = q.get("state") == "running" and any(sensor in p for p in q.get("paths", []))
+            return st if ok and q.get("published", 0) >= min_published else None
+
+        st = wait_for(lambda: query("s1", 20), 60)
+        assert "s1" in st["thin_inputs"]
+        procs[0].kill9()
+        st = wait_for(lambda: query("s2"), 30)
+        before = st["queries"]["q_c"]["published"]
+        st = wait_for(lambda: query("s2", before + 20), 30)
+        assert "s2" in st["thin_inputs"]
+        served = status(session, realm, "b")["thin_streams"]
+        assert "c" in served["s2"] and served["s2"]["c"]["sent"] > 0
+    finally:
+        if session is not None:
+            session.close()
+        for p in procs:
+            p.stop()
