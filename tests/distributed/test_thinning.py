@@ -7,8 +7,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trackflow.distributed.thinning import (
+    MAX_STREAMS_PER_EDGE,
     Grid,
     Thinner,
+    ThinStreams,
     demand_key,
     next_tick,
     parse_demand,
@@ -176,3 +178,59 @@ def test_thin_needs_a_deadline_and_is_off_by_default(tmp_path):
     path.write_text("agent: {name: a, thin: true, reorder_ms: 20, thin_grace_ms: 2}\n")
     cfg = load_agent(path)
     assert cfg.thin is True and cfg.thin_grace_ms == 2.0
+
+
+class _Pub:
+    def __init__(self, key):
+        self.key, self.sent, self.closed = key, [], False
+
+    def put(self, payload, attachment):
+        self.sent.append((int.from_bytes(attachment, "little", signed=True), payload))
+
+    def undeclare(self):
+        self.closed = True
+
+
+def test_stream_table_serves_each_consumer_its_union_and_ends_with_the_last_token():
+    opened = []
+
+    def open_publisher(key):
+        opened.append(_Pub(key))
+        return opened[-1]
+
+    table = ThinStreams("r", open_publisher, lambda edge: 0)
+    g30, g60 = Grid(33_333_333, 0), Grid(16_666_667, 0)
+    keys = {
+        "a30": demand_key("r", "s1", "a", g30),
+        "a60": demand_key("r", "s1", "a", g60),
+        "b30": demand_key("r", "s1", "b", g30),
+    }
+    for k in keys.values():
+        assert table.declare(k, *parse_demand(k, "r"), now_ns=0) == ""
+    assert [p.key for p in opened] == ["trackflow/r/thin/s1/a", "trackflow/r/thin/s1/b"]
+    for k in range(1, 241):  # one second of a 240 Hz sensor
+        h = round(k * 1e9 / 240)
+        table.offer("s1", h, f"x{k}".encode(), now_ns=h)
+    a, b = opened
+    ticks_a = {t for t, p in a.sent}
+    assert {k * g30.period_ns for k in range(1, 30)} <= ticks_a  # both of a's grids
+    assert {k * g60.period_ns for k in range(1, 59)} <= ticks_a
+    assert len([p for _, p in b.sent if p]) <= 31  # b only asked for 30 Hz
+    assert len([p for _, p in a.sent if p]) <= 240
+    assert table.status()["s1"]["a"]["grids"] == [[16_666_667, 0], [33_333_333, 0]]
+    table.withdraw(keys["a60"])
+    assert not a.closed and table.status()["s1"]["a"]["grids"] == [[33_333_333, 0]]
+    table.withdraw(keys["a30"])
+    assert a.closed and "a" not in table.status()["s1"]
+    table.withdraw(keys["b30"])
+    assert b.closed and table.status() == {}
+
+
+def test_stream_table_limits_consumers_per_sensor():
+    table = ThinStreams("r", _Pub, lambda edge: 0)
+    g = Grid(10_000_000, 0)
+    for i in range(MAX_STREAMS_PER_EDGE):
+        k = demand_key("r", "s1", f"c{i}", g)
+        assert table.declare(k, "s1", f"c{i}", g, 0) == ""
+    k = demand_key("r", "s1", "one_more", g)
+    assert table.declare(k, "s1", "one_more", g, 0) == "too many thinned streams"

@@ -53,13 +53,12 @@ from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
-from .thinning import Grid, Thinner, demand_key, parse_demand, thin_key
+from .thinning import Grid, ThinStreams, demand_key, parse_demand, thin_key
 
 __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
 _GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
-_MAX_THIN_STREAMS = 64  # per own edge: consumers with thinned streams (more: rejected)
 _REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
 
 
@@ -96,15 +95,6 @@ class QueryState:
     published: int = 0
     last: Measurement | None = None
     inputs: frozenset = frozenset()  # remote sensors of the plan (thin: ticks wait for them)
-
-
-@dataclass
-class _ThinStream:
-    """(Sensor side) one consumer's thinned stream of one own sensor."""
-
-    thinner: Thinner
-    publisher: object
-    tokens: set = field(default_factory=set)
 
 
 @dataclass
@@ -170,12 +160,15 @@ class Agent:
         self._filters: dict[str, KalmanFilter] = {}
         self._last_seq: dict[str, int] = {}
         self._subs: dict[str, object] = {}
-        self._thin_out: dict[str, dict[str, _ThinStream]] = {}  # own edge -> consumer -> stream
         self._thin_in: dict[str, _ThinInput] = {}  # remote edge -> its thinned subscription
         self._covered: dict[str, int] = {}  # thin mode: raw remote edge -> covered up to [ns]
         self._thin_cv = threading.Condition(self._lock)
         self._grace_ns = int(round(config.thin_grace_ms * 1e6))
-        self._thin_next = 0  # (sensor side) no stream has a tick due before this [ns]
+        self._thin = ThinStreams(  # (sensor side) consumers' thinned streams of own sensors
+            config.realm,
+            lambda key: self.session.declare_publisher(key, express=False),  # batched
+            self._grace,
+        )
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
         self.net = Network()
@@ -394,7 +387,7 @@ class Agent:
         key = str(sample.key_expr)
         if sample.kind == zenoh.SampleKind.DELETE:
             with self._lock:
-                self._withdraw(key)
+                self._thin.withdraw(key)
             return
         try:
             edge, consumer, grid = parse_demand(key, self.realm)
@@ -408,82 +401,20 @@ class Agent:
                 self.rejections.add("demand for unknown edge")
             return  # another agent's sensor: its agent serves it
         with self._lock:
-            streams = self._thin_out.setdefault(edge, {})
-            st = streams.get(consumer)
-            if st is None:
-                if len(streams) >= _MAX_THIN_STREAMS:
-                    self.rejections.add("too many thinned streams")
-                    return
-                pub = self.session.declare_publisher(
-                    thin_key(self.realm, edge, consumer), express=False
-                )
-                st = streams[consumer] = _ThinStream(Thinner({grid: 0}, self.now_ns()), pub)
-            if key in st.tokens:
-                return
-            st.tokens.add(key)
-            grids = dict(st.thinner.grids)
-            grids[grid] = grids.get(grid, 0) + 1
-            st.thinner.set_grids(grids)
-            self._thin_next = 0
+            refused = self._thin.declare(key, edge, consumer, grid, self.now_ns())
+            if refused:
+                self.rejections.add(refused)
             self._thin_cv.notify()
 
-    def _withdraw(self, key: str) -> None:
-        """Forget a demand token; a stream without tokens ends (its consumer costs nothing)."""
-        for streams in self._thin_out.values():
-            for consumer, st in list(streams.items()):
-                if key not in st.tokens:
-                    continue
-                st.tokens.discard(key)
-                grid = parse_demand(key, self.realm)[2]
-                grids = dict(st.thinner.grids)
-                grids[grid] -= 1
-                if grids[grid] <= 0:
-                    del grids[grid]
-                if grids:
-                    st.thinner.set_grids(grids)
-                else:
-                    del streams[consumer]
-                    st.publisher.undeclare()
-                return
-
     def _offer_thin(self, edge: str, h_ns: int, buf: bytes) -> None:
-        """(Under the agent's lock, from the state publisher.) A new state of an own sensor's
-        filter, for every thinned stream of that sensor; then whatever ticks are due on any
-        stream go too (the thread holding the lock does it at once, instead of waking the
-        timer thread)."""
-        streams = self._thin_out.get(edge)
-        if not streams:
-            return
-        for st in streams.values():
-            self._send_thin(st, st.thinner.offer(h_ns, buf))
-        now = self.now_ns()
-        if now >= self._thin_next:
-            self._flush_due(now)
-
-    @staticmethod
-    def _send_thin(st: _ThinStream, messages: list) -> None:
-        for tick, payload in messages:
-            st.publisher.put(
-                b"" if payload is None else payload,
-                attachment=tick.to_bytes(8, "little", signed=True),
-            )
+        """(Under the agent's lock, from the state publisher.) A new state of an own sensor."""
+        self._thin.offer(edge, h_ns, buf, self.now_ns())
 
     def _grace(self, edge: str) -> int:
         """How long after a tick a state made before it may still come [ns]: a live sensor's
         states are stamped when the agent takes them (under its lock), so never; a
         recording's player stamps its scheduled arrival, and its thread may run late."""
         return self._grace_ns if isinstance(self._sources.get(edge), RecordingPlayer) else 0
-
-    def _flush_due(self, now: int) -> None:
-        """(Holding the lock.) Complete every stream's ticks that are due; remember the
-        soonest next deadline (offers only move deadlines later, so it stays a lower bound)."""
-        soonest = now + 50_000_000
-        for edge, streams in self._thin_out.items():
-            grace = self._grace(edge)
-            for st in streams.values():
-                self._send_thin(st, st.thinner.due(now, grace))
-                soonest = min(soonest, st.thinner.deadline(grace))
-        self._thin_next = soonest
 
     def _thin_loop(self) -> None:
         """Completes the ticks of the thinned streams when no state did it before: sends
@@ -492,10 +423,10 @@ class Agent:
         with self._thin_cv:
             while not self._stop.is_set():
                 now = self.now_ns()
-                if now < self._thin_next:
-                    self._thin_cv.wait(min((self._thin_next - now) * 1e-9, 0.05))
+                if now < self._thin.next_due:
+                    self._thin_cv.wait(min((self._thin.next_due - now) * 1e-9, 0.05))
                     continue
-                self._flush_due(now)
+                self._thin.flush(now)
 
     # -- discovery ------------------------------------------------------------------------------
     def _on_liveliness(self, sample) -> None:
@@ -1076,19 +1007,7 @@ class Agent:
                     for n, f in sorted(self._filters.items())
                     if isinstance(f, RemoteFilter)
                 },
-                "thin_streams": {
-                    e: {
-                        c: {
-                            "grids": sorted([g.period_ns, g.phase_ns] for g in st.thinner.grids),
-                            "sent": st.thinner.sent,
-                            "heartbeats": st.thinner.heartbeats,
-                            "late": st.thinner.late,
-                        }
-                        for c, st in sorted(ss.items())
-                    }
-                    for e, ss in sorted(self._thin_out.items())
-                    if ss
-                },
+                "thin_streams": self._thin.status(),
                 "thin_inputs": {
                     e: {"periods_ns": sorted(inp.periods), "offset_ns": inp.offset_ns}
                     for e, inp in sorted(self._thin_in.items())

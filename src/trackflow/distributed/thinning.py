@@ -39,7 +39,9 @@ from typing import NamedTuple
 
 __all__ = [
     "DEMAND_LIMITS_NS",
+    "MAX_STREAMS_PER_EDGE",
     "Grid",
+    "ThinStreams",
     "Thinner",
     "demand_key",
     "next_tick",
@@ -49,6 +51,8 @@ __all__ = [
 ]
 
 DEMAND_LIMITS_NS = (1_000_000, 60_000_000_000)  # accepted tick periods: 1 ms .. 60 s
+MAX_STREAMS_PER_EDGE = 64  # consumers with a thinned stream of one sensor (more: rejected)
+_IDLE_NS = 50_000_000  # without streams, look again after 50 ms
 
 
 class Grid(NamedTuple):
@@ -178,3 +182,118 @@ class Thinner:
         self.grids = grids
         if self._pending is not None:
             self._pending_tick = next_tick(self._last_h, grids)
+
+
+@dataclass
+class _Stream:
+    thinner: Thinner
+    publisher: object
+    tokens: set = field(default_factory=set)
+
+
+class ThinStreams:
+    """(Sensor side) The thinned streams of an agent's own sensors: one per (sensor,
+    consumer), opened by the consumer's first demand token and closed with its last.
+
+    Not thread-safe: the agent calls it holding its lock.
+
+    Parameters
+    ----------
+    realm : str
+    open_publisher : callable
+        ``open_publisher(key)``: a publisher (``put(payload, attachment=...)``,
+        ``undeclare()``) on a stream's key.
+    grace_of : callable
+        ``grace_of(edge)``: how long after a tick a state made before it may still be offered
+        for that sensor [ns].
+    """
+
+    def __init__(self, realm: str, open_publisher, grace_of):
+        self.realm = realm
+        self._open = open_publisher
+        self._grace_of = grace_of
+        self.streams: dict[str, dict[str, _Stream]] = {}
+        self.next_due = 0  # no stream has a tick due before this [ns]
+
+    def declare(self, key: str, edge: str, consumer: str, grid: Grid, now_ns: int) -> str:
+        """A demand token appeared; returns ``""`` or the reason it was refused."""
+        streams = self.streams.setdefault(edge, {})
+        st = streams.get(consumer)
+        if st is None:
+            if len(streams) >= MAX_STREAMS_PER_EDGE:
+                return "too many thinned streams"
+            publisher = self._open(thin_key(self.realm, edge, consumer))
+            st = streams[consumer] = _Stream(Thinner({grid: 0}, now_ns), publisher)
+        if key not in st.tokens:
+            st.tokens.add(key)
+            grids = dict(st.thinner.grids)
+            grids[grid] = grids.get(grid, 0) + 1
+            st.thinner.set_grids(grids)
+            self.next_due = 0
+        return ""
+
+    def withdraw(self, key: str) -> None:
+        """A demand token went away; a stream without tokens ends (a consumer that left or
+        died costs nothing)."""
+        for streams in self.streams.values():
+            for consumer, st in list(streams.items()):
+                if key not in st.tokens:
+                    continue
+                st.tokens.discard(key)
+                grid = parse_demand(key, self.realm)[2]
+                grids = dict(st.thinner.grids)
+                grids[grid] -= 1
+                if grids[grid] <= 0:
+                    del grids[grid]
+                if grids:
+                    st.thinner.set_grids(grids)
+                else:
+                    del streams[consumer]
+                    st.publisher.undeclare()
+                return
+
+    def offer(self, edge: str, h_ns: int, payload: bytes, now_ns: int) -> None:
+        """A new state of an own sensor's filter (made at ``h_ns``), for each of its streams;
+        then whatever ticks are due on any stream go too (the caller, holding the lock
+        anyway, does the timer's work on the spot)."""
+        streams = self.streams.get(edge)
+        if not streams:
+            return
+        for st in streams.values():
+            _send(st, st.thinner.offer(h_ns, payload))
+        if now_ns >= self.next_due:
+            self.flush(now_ns)
+
+    def flush(self, now_ns: int) -> None:
+        """Complete every stream's ticks that are due; remember the soonest next deadline
+        (offers only move deadlines later, so it stays a lower bound)."""
+        soonest = now_ns + _IDLE_NS
+        for edge, streams in self.streams.items():
+            grace = self._grace_of(edge)
+            for st in streams.values():
+                _send(st, st.thinner.due(now_ns, grace))
+                soonest = min(soonest, st.thinner.deadline(grace))
+        self.next_due = soonest
+
+    def status(self) -> dict:
+        return {
+            e: {
+                c: {
+                    "grids": sorted([g.period_ns, g.phase_ns] for g in st.thinner.grids),
+                    "sent": st.thinner.sent,
+                    "heartbeats": st.thinner.heartbeats,
+                    "late": st.thinner.late,
+                }
+                for c, st in sorted(ss.items())
+            }
+            for e, ss in sorted(self.streams.items())
+            if ss
+        }
+
+
+def _send(st: _Stream, messages: list) -> None:
+    for tick, payload in messages:
+        st.publisher.put(
+            b"" if payload is None else payload,
+            attachment=tick.to_bytes(8, "little", signed=True),
+        )
