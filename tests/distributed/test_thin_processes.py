@@ -127,7 +127,10 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             assert [g[0] for g in grid] == [period]
             ticks = [t for t, _ in msgs]
             assert ticks == sorted(ticks)
-            assert all((t - grid[0][1]) % period == 0 for t in ticks)
+            # on the consumer's grid: one phase, or a few while the consumer re-declares it to
+            # follow its clock-offset estimate (which moves under load)
+            phases = collections.Counter(t % period for t in ticks)
+            assert len(phases) <= 3 and grid[0][1] in phases, (n, phases, grid)
             states = [(t, decode_state(p)) for t, p in msgs if p]
             late = st["thin_streams"]["s1"][n]["late"]
             per_tick = collections.Counter(t for t, _ in states)
