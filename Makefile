@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-min lint demo demo-live bench clean browser
+.PHONY: venv test test-min lint demo demo-live bench clean browser tls-tools
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,7 +28,12 @@ browser:
 	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
 		{ $(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq chromium; }
 
-test: lint browser
+# openssl makes the certificates of the Zenoh TLS test (tests/distributed/test_tls_processes.py).
+tls-tools:
+	@command -v openssl >/dev/null 2>&1 || \
+		{ $(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq openssl; }
+
+test: lint browser tls-tools
 	$(PY) -m pytest -q -n 2 --dist loadfile
 
 # The suite on the declared minimum versions (constraints/min.txt), in a venv of its own.

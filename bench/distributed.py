@@ -18,6 +18,12 @@ thesis demo split over three agent processes (``docs/distributed.md``).
 * ``plan_1000_frames_ms``: ``plan_query`` on a random 1,000-frame, 3,000-edge graph (latency
   evaluation), median over random frame pairs.
 
+Then (unless ``--no-thin``) the thinned-delivery keys: the same sender with a 30 Hz and a
+60 Hz consumer agent (a push query per edge each), receiving every state (``raw_*``, 60 ms
+jitter buffer) or thinned streams (``thinned_*``): ``*_bytes_per_s`` sent by the sender's
+process on its TCP connections, ``*_messages_per_s`` received by the consumers,
+``*_answer_p50_us``/``*_answer_p99_us`` from a tick to its answer at the consumer.
+
 ``--demo`` also runs the thesis demo split (tracker, camera and application agents) and
 compares it with the single-process network on the same recordings.
 """
@@ -105,10 +111,11 @@ def observer(connect: list[str]):
     return zenoh.open(c)
 
 
-def status(session, realm: str, agent: str) -> dict:
-    for r in session.get(f"trackflow/{realm}/status/{agent}", timeout=3.0):
-        if r.ok is not None:
-            return json.loads(r.ok.payload.to_bytes())
+def status(session, realm: str, agent: str, attempts: int = 1) -> dict:
+    for _ in range(attempts):
+        for r in session.get(f"trackflow/{realm}/status/{agent}", timeout=3.0):
+            if r.ok is not None:
+                return json.loads(r.ok.payload.to_bytes())
     return {}
 
 
@@ -158,9 +165,11 @@ def _sensor_setup():
     return parse_setup({"sensors": sensors})
 
 
-def run_sender(realm: str, listen: str, duration_s: float) -> None:
+def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int = 0) -> None:
     """(Child process.) An agent with 20 live sensors fed at 240 Hz; prints, per message, its
-    stamp and the time its filter's new state was available (the local path)."""
+    stamp and the time its filter's new state was available (the local path). It starts
+    feeding once a receiver subscribed to every edge (or, with ``thin_consumers``, once that
+    many consumers asked for a thinned stream of every edge)."""
     from trackflow.distributed import Agent, AgentConfig, calm_gc
 
     cfg = AgentConfig(
@@ -188,9 +197,14 @@ def run_sender(realm: str, listen: str, duration_s: float) -> None:
             pub.push = timed
         print(json.dumps({"ready": "sender"}), flush=True)
         deadline = time.monotonic() + 120  # until the receiver has subscribed to every edge
-        while time.monotonic() < deadline and not all(
-            p.publisher.matching_status.matching for p in agent._publishers.values()
-        ):
+
+        def subscribed() -> bool:
+            if thin_consumers:
+                streams = agent.status()["thin_streams"]
+                return all(len(streams.get(e, {})) >= thin_consumers for e in agent._publishers)
+            return all(p.publisher.matching_status.matching for p in agent._publishers.values())
+
+        while time.monotonic() < deadline and not subscribed():
             time.sleep(0.1)
         time.sleep(0.5)
         calm_gc()
@@ -412,6 +426,165 @@ def bench_receive_path(n: int = 2000, repeats: int = 5) -> dict:
 
 
 # -- 3. re-planning after kill -9 --------------------------------------------------------------
+# -- 3. thinned delivery: 20 edges at 240 Hz to a 30 Hz and a 60 Hz consumer ------------------
+def _tcp_bytes_sent(pid: int) -> int:
+    """Bytes the process has sent on its established TCP connections (the kernel's
+    ``tcpi_bytes_sent``, read with ``ss``: Zenoh's framing included) [B]."""
+    out = subprocess.run(
+        ["ss", "-tinpH", "state", "established"], capture_output=True, text=True, timeout=10
+    ).stdout
+    total, mine = 0, False
+    for line in out.splitlines():
+        if not line.startswith(("\t", " ")):
+            mine = f"pid={pid}," in line
+        elif mine:
+            for field in line.split():
+                if field.startswith("bytes_sent:"):
+                    total += int(field.split(":")[1])
+    return total
+
+
+def bench_thin(
+    duration_s: float, work: Path, thin: bool, reorder_ms: float = 60.0, pair: bool = False
+) -> dict:
+    """The 20 x 240 Hz sender and two consumer agent processes, one with a 30 Hz and one with
+    a 60 Hz push query per edge (40 queries), receiving every state (``thin=False``) or
+    thinned streams. Measures what crosses loopback (the sender's socket writes, the
+    consumers' received messages and bytes) and each answer's latency at its consumer (from
+    the tick to the result being published). ``pair``: instead, a thinned and an unthinned
+    consumer at 30 Hz side by side, whose answers are compared at equal stamps."""
+    from trackflow.distributed.wire import decode
+
+    if pair:
+        tag, spec = "pair", [("t30", 30, True), ("r30", 30, False)]
+    else:
+        tag = "thin" if thin else f"raw{reorder_ms:g}"
+        spec = [("c30", 30, thin), ("c60", 60, thin)]
+    realm = f"{tag}{free_port()}"
+    port = free_port()
+    log = work / f"sender_{tag}.log"
+    n_thin = sum(t for _, _, t in spec)
+    args = ["--role", "sender", "--realm", realm, "--listen", ep(port)]
+    args += ["--duration", str(duration_s), "--thin-consumers", str(n_thin)]
+    sender = spawn([__file__, *args], log)
+    frames = [f"X{k:02d}" for k in range(N_EDGES)]
+    consumers, files = {}, {}
+    for name, rate, thinned in spec:
+        queries = [
+            dict(name=f"{name}_{f}", source="W", target=f, mode="push", rate_hz=rate)
+            for f in frames
+        ]
+        files[name] = work / f"{tag}_{name}.yaml"
+        doc = {
+            "agent": {
+                "name": name,
+                "realm": realm,
+                "clock_sync": "none",
+                "reorder_ms": reorder_ms,
+                "thin": thinned,
+                "zenoh": {"connect": {"endpoints": [ep(port)]}},
+            },
+            "frames": ["W", *frames],
+            "queries": queries,
+        }
+        files[name].write_text(yaml.safe_dump(doc, sort_keys=False))
+    answers: dict[str, list] = {name: [] for name, _, _ in spec}
+    session = None
+    try:
+        for name, f in files.items():
+            consumers[name] = spawn_agent(f, "--duration", str(duration_s + 90), log_dir=work)
+        session = observer([ep(port)])
+
+        def on_result(sample) -> None:
+            w = decode(sample.payload.to_bytes())
+            who, frame = str(sample.key_expr).rsplit("/", 1)[-1].split("_")
+            answers[who].append((w.exposure_ns, w.host_ns, frame, w.pose))
+
+        sub = session.declare_subscriber(f"trackflow/{realm}/result/**", on_result)
+        deadline = time.monotonic() + 150
+        while time.monotonic() < deadline and '"ready"' not in log.read_text():
+            time.sleep(0.1)
+        # measure the middle of the run: from 1 s after feeding started, for duration - 2 s
+        wait_for(lambda: all(answers.values()), 150)  # the sender feeds
+        time.sleep(1.0)
+        st0 = {n: status(session, realm, n, 5) for n in consumers}
+        fed = [status(session, realm, "sender", 5).get("published_states", 0)]
+        w0, t0 = _tcp_bytes_sent(sender.pid), time.monotonic()
+        for a in answers.values():
+            a.clear()
+        time.sleep(max(1.0, duration_s - 2.0))
+        w1, t1 = _tcp_bytes_sent(sender.pid), time.monotonic()
+        fed.append(status(session, realm, "sender", 5).get("published_states", 0))
+        st1 = {n: status(session, realm, n, 5) for n in consumers}
+        got = {n: list(a) for n, a in answers.items()}
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        for p in (sender, *consumers.values()):
+            stop(p)
+    span = t1 - t0
+    out = {"mode": tag, "reorder_ms": reorder_ms, "seconds": round(span, 2)}
+    out["consumers"] = [f"{n}: {r} Hz, {'thinned' if t else 'every state'}" for n, r, t in spec]
+    out["fed_per_s"] = (fed[1] - fed[0]) / span  # states made by the sensors' filters
+    out["sender_bytes_per_s"] = (w1 - w0) / span
+    msgs = sum(st1[n]["received_messages"] - st0[n]["received_messages"] for n in consumers)
+    byts = sum(st1[n]["received_bytes"] - st0[n]["received_bytes"] for n in consumers)
+    out["received_messages_per_s"] = msgs / span
+    out["received_payload_bytes_per_s"] = byts / span
+    beats = sum(st1[n]["received_heartbeats"] - st0[n]["received_heartbeats"] for n in consumers)
+    out["received_heartbeats_per_s"] = beats / span
+    if pair:  # the same stamps of the same relationship, thinned and not
+        ref = {(f, e): pose for e, _, f, pose in got["r30"]}
+        both = [(ref[(f, e)], pose) for e, _, f, pose in got["t30"] if (f, e) in ref]
+        dp = np.array([np.linalg.norm(a.position - b.position) for a, b in both])
+        da = np.degrees([quat_angle(a.quaternion, b.quaternion) for a, b in both])
+        out["same_stamps"] = len(both)
+        out["within_0.1mm_0.01deg"] = float(np.mean((dp <= 1e-4) & (da <= 0.01)))
+        out["max_pos_diff_mm"] = float(dp.max() * 1e3)
+        out["max_ang_diff_deg"] = float(da.max())
+    for n in consumers:
+        lat = np.array([h - e for e, h, _, _ in got[n]], float) * 1e-3
+        out[f"{n}_answers_per_s"] = len(lat) / span
+        out[f"{n}_answer_p50_us"] = float(np.percentile(lat, 50)) if len(lat) else None
+        out[f"{n}_answer_p99_us"] = float(np.percentile(lat, 99)) if len(lat) else None
+        out[f"{n}_late_events"] = st1[n]["late_events"]
+        out[f"{n}_tick_wait_ms"] = st1[n]["tick_wait_ms"]
+        out[f"{n}_thin_arrival_ms"] = st1[n]["thin_arrival_ms"]
+        out[f"{n}_lost_messages"] = st1[n]["lost_messages"]
+    lat = np.array([h - e for a in got.values() for e, h, _, _ in a], float) * 1e-3
+    out["answer_p50_us"] = float(np.percentile(lat, 50))
+    out["answer_p99_us"] = float(np.percentile(lat, 99))
+    out["_latencies_us"] = lat  # for --plot-thin; not printed
+    return out
+
+
+def plot_thin(path: Path, runs: list[dict], load: str) -> None:
+    """Answer latency (tick -> answer at the consumer) of each delivery, as distributions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for r in runs:
+        v = np.sort(r["_latencies_us"]) * 1e-3
+        name = {"raw60": "every state, 60 ms buffer", "raw0": "every state, no buffer"}
+        label = (
+            f"{name.get(r['mode'], 'thinned')}: {r['sender_bytes_per_s'] / 1e6:.2f} MB/s sent, "
+            f"{r['fed_per_s']:.0f} of 4800 states/s made"
+        )
+        ax.semilogx(v, np.arange(1, len(v) + 1) / len(v), label=label)
+    ax.axhline(0.99, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("answer latency at the consumer (tick -> answer) [ms]")
+    ax.set_ylabel("fraction of answers")
+    ax.set_title(f"20 sensors at 240 Hz, consumers at 30 and 60 Hz (load {load})")
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _write_agent(path: Path, name: str, realm: str, zenoh: dict, start_ns: int = 0, **setup):
     doc = {"agent": {"name": name, "realm": realm, "zenoh": zenoh, "start_ns": int(start_ns)}}
     doc.update(setup)
@@ -589,9 +762,13 @@ def make_demo_recordings(out: Path, seconds: float, seed: int = 7) -> dict[str, 
     return paths
 
 
-def single_process(recordings: dict[str, Path]):
-    """The demo query on one network, virtual clock, on the same recordings."""
-    setup = load_setup(ROOT / "examples" / "demo_setup.yaml")
+def single_process(recordings: dict[str, Path], rate_hz: float = 60.0):
+    """The demo query (at ``rate_hz``) on one network, virtual clock, on the same
+    recordings."""
+    path = ROOT / "examples" / "demo_setup.yaml"
+    doc = yaml.safe_load(path.read_text())
+    doc["queries"][0]["rate_hz"] = rate_hz
+    setup = parse_setup(doc, str(path), path.parent)
     setup.recordings = dict(recordings)
     net, rec = setup.plan().build(setup.players())
     net.run()
@@ -626,10 +803,17 @@ def _plot_demo(path: Path, ref: dict, results: dict, common: list, clock_sync: s
     plt.close(fig)
 
 
-def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = None) -> dict:
+def bench_demo(
+    work: Path,
+    seconds: float,
+    clock_sync: str,
+    plot: Path | None = None,
+    thin: bool = False,
+    rate_hz: float = 60.0,
+) -> dict:
     from trackflow.distributed.wire import decode
 
-    work = work / f"demo_{clock_sync}"
+    work = work / f"demo_{clock_sync}_{'thin' if thin else 'raw'}_{rate_hz:g}"
     work.mkdir(exist_ok=True)
     recs = make_demo_recordings(work, seconds)
     realm = f"demo{free_port()}"
@@ -639,12 +823,15 @@ def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = 
         doc = yaml.safe_load((ROOT / "examples" / "distributed" / f"{n}.yaml").read_text())
         doc["agent"]["realm"] = realm
         doc["agent"]["clock_sync"] = clock_sync
+        if n == "app":
+            doc["agent"]["thin"] = thin
+            doc["queries"][0]["rate_hz"] = rate_hz
         files[n] = work / f"{n}.yaml"
         files[n].write_text(yaml.safe_dump(doc, sort_keys=False))
-    period = int(round(1e9 / 60))
+    period = int(round(1e9 / rate_hz))
     start_ns = -(-(time.time_ns() + 20_000_000_000) // period) * period
     connect = {"tracker": [], "camera": ["tracker"], "app": ["tracker", "camera"]}
-    procs, results = [], {}
+    procs, results, latency = [], {}, []
     session = None
     try:
         for n in ("tracker", "camera", "app"):
@@ -666,6 +853,7 @@ def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = 
         def on_result(sample) -> None:
             w = decode(sample.payload.to_bytes())
             results[w.exposure_ns - start_ns] = w.pose  # recording time of the result
+            latency.append(w.host_ns - w.exposure_ns)  # tick -> answer published (app clock)
 
         sub = session.declare_subscriber(f"trackflow/{realm}/result/sheep", on_result)
         st = wait_for(
@@ -687,14 +875,19 @@ def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = 
             session.close()
         for p in procs:
             stop(p)
-    ref = single_process(recs)
+    ref = single_process(recs, rate_hz)
     common = sorted(set(ref) & set(results))
     if plot is not None:
         _plot_demo(plot, ref, results, common, clock_sync)
     dp = np.array([np.linalg.norm(ref[t].position - results[t].position) for t in common])
     da = np.array([quat_angle(ref[t].quaternion, results[t].quaternion) for t in common])
+    lat = np.array(latency, float) * 1e-3
     return {
         "clock_sync": clock_sync,
+        "thin": thin,
+        "rate_hz": rate_hz,
+        "answer_p50_us": float(np.percentile(lat, 50)) if len(lat) else None,
+        "answer_p99_us": float(np.percentile(lat, 99)) if len(lat) else None,
         "seconds": seconds,
         "single_results": len(ref),
         "distributed_results": len(results),
@@ -712,10 +905,24 @@ def bench_demo(work: Path, seconds: float, clock_sync: str, plot: Path | None = 
         "ready_before_start": bool(ready_before_start),
         "app_status": {
             k: st.get(k)
-            for k in ("rejections", "late_events", "missed_ticks", "clocks", "lost_messages")
+            for k in (
+                "rejections",
+                "late_events",
+                "missed_ticks",
+                "clocks",
+                "lost_messages",
+                "received_messages",
+                "received_bytes",
+                "received_heartbeats",
+                "tick_wait_ms",
+            )
         },
         "paths": st["queries"]["sheep"]["paths"],
     }
+
+
+def _printable(out: dict) -> dict:
+    return {k: v for k, v in out.items() if not k.startswith("_")}
 
 
 def main() -> int:
@@ -734,16 +941,38 @@ def main() -> int:
     ap.add_argument("--realm", help=argparse.SUPPRESS)
     ap.add_argument("--listen", help=argparse.SUPPRESS)
     ap.add_argument("--duration", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--thin-consumers", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--no-thin", action="store_true", help="skip the thinned-delivery measurement")
+    ap.add_argument(
+        "--only-thin", action="store_true", help="only thinned vs full delivery (full output)"
+    )
+    ap.add_argument("--thin-seconds", type=float, default=10.0)
+    ap.add_argument("--plot-thin", type=Path, help="with --only-thin: write the latency CDFs")
+    ap.add_argument("--demo-thin", action="store_true", help="the demo's app agent thins")
+    ap.add_argument("--demo-rate", type=float, default=60.0, help="the demo query's rate [Hz]")
     args = ap.parse_args()
     if args.role == "sender":
-        run_sender(args.realm, args.listen, args.duration)
+        run_sender(args.realm, args.listen, args.duration, args.thin_consumers)
         return 0
     work = Path(tempfile.mkdtemp(prefix="trackflow-distributed-"))
     try:
         if args.only_demo:
             for sync in ("none", "estimate"):
                 plot = args.plot if sync == "none" else None
-                print(json.dumps(bench_demo(work, args.demo_seconds, sync, plot), indent=2))
+                out = bench_demo(
+                    work, args.demo_seconds, sync, plot, args.demo_thin, args.demo_rate
+                )
+                print(json.dumps(out, indent=2))
+            return 0
+        if args.only_thin:  # full delivery with and without the jitter buffer, thinned
+            runs = []
+            for thin, reorder in ((False, 60.0), (False, 0.0), (True, 60.0)):
+                runs.append(bench_thin(args.thin_seconds, work, thin, reorder))
+                print(json.dumps(_printable(runs[-1]), indent=2))
+            if args.plot_thin is not None:
+                plot_thin(args.plot_thin, runs, f"{os.getloadavg()[0]:.1f}")
+            pair = bench_thin(args.thin_seconds, work, True, pair=True)
+            print(json.dumps(_printable(pair), indent=2))
             return 0
         if args.only_latency:
             out = {"receive_path": bench_receive_path()}
@@ -760,6 +989,22 @@ def main() -> int:
             "replan_ms": rep["replan_ms"],
             "plan_1000_frames_ms": plan["latency"],
         }
+        thin = {}
+        if not args.no_thin:
+            raw, thinned = (bench_thin(args.thin_seconds, work, t) for t in (False, True))
+            thin = {"thin_raw": _printable(raw), "thin_thinned": _printable(thinned)}
+            keys.update(
+                {
+                    "raw_bytes_per_s": raw["sender_bytes_per_s"],
+                    "thinned_bytes_per_s": thinned["sender_bytes_per_s"],
+                    "raw_messages_per_s": raw["received_messages_per_s"],
+                    "thinned_messages_per_s": thinned["received_messages_per_s"],
+                    "raw_answer_p50_us": raw["answer_p50_us"],
+                    "raw_answer_p99_us": raw["answer_p99_us"],
+                    "thinned_answer_p50_us": thinned["answer_p50_us"],
+                    "thinned_answer_p99_us": thinned["answer_p99_us"],
+                }
+            )
         if args.json:
             print(json.dumps(keys))
         else:
@@ -771,6 +1016,7 @@ def main() -> int:
                         "receive_path": bench_receive_path(),
                         "latency": lat,
                         "replan": rep,
+                        **thin,
                     },
                     indent=2,
                 )

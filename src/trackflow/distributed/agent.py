@@ -6,6 +6,9 @@ Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
     trackflow/<realm>/fragment/<agent>       queryable: the agent's SRG fragment (JSON)
     trackflow/<realm>/clock/<agent>          queryable: the agent's clock reading (int64 ns)
     trackflow/<realm>/edge/<edge>            pub/sub: a sensor filter's states (docs/wire.md, v2)
+    trackflow/<realm>/demand/<edge>/<consumer>/<period_ns>/<phase_ns>
+                                             liveliness token: a consumer's tick grid (thin)
+    trackflow/<realm>/thin/<edge>/<consumer> pub/sub: the states that grid needs (thinning.py)
     trackflow/<realm>/get/<edge>?t=<ns>      queryable: the sensor filter's get(t) (wire)
     trackflow/<realm>/query/<query>?t=<ns>   queryable: a pull query's get(t) (wire)
     trackflow/<realm>/result/<query>         pub/sub: a push query's results (wire)
@@ -23,6 +26,7 @@ path" with the reason).
 
 from __future__ import annotations
 
+import collections
 import gc
 import heapq
 import itertools
@@ -49,11 +53,13 @@ from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
+from .thinning import Grid, ThinStreams, demand_key, parse_demand, thin_key
 
 __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
 _GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
+_REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
 
 
 def _key(realm: str, *parts: str) -> str:
@@ -88,6 +94,18 @@ class QueryState:
     events: list[dict] = field(default_factory=list)
     published: int = 0
     last: Measurement | None = None
+    inputs: frozenset = frozenset()  # remote sensors of the plan (thin: ticks wait for them)
+
+
+@dataclass
+class _ThinInput:
+    """(Consumer side) a remote sensor received thinned: its demand tokens and coverage."""
+
+    periods: frozenset
+    offset_ns: int
+    tokens: list
+    subscriber: object
+    covered_ns: int | None = None
 
 
 @dataclass
@@ -117,6 +135,9 @@ class Agent:
         self.setup = config.setup
         self.rejections = wire.Rejections()
         self.lost_messages = 0
+        self.received = [0, 0, 0]  # messages, bytes, heartbeats of remote sensors' streams
+        self._tick_waits: collections.deque = collections.deque(maxlen=4096)  # tick -> run [ns]
+        self._thin_arrivals: collections.deque = collections.deque(maxlen=4096)  # tick -> here
         self.late_events = 0
         self.missed_ticks = 0
         self.skipped_samples = 0
@@ -139,6 +160,15 @@ class Agent:
         self._filters: dict[str, KalmanFilter] = {}
         self._last_seq: dict[str, int] = {}
         self._subs: dict[str, object] = {}
+        self._thin_in: dict[str, _ThinInput] = {}  # remote edge -> its thinned subscription
+        self._covered: dict[str, int] = {}  # thin mode: raw remote edge -> covered up to [ns]
+        self._thin_cv = threading.Condition(self._lock)
+        self._grace_ns = int(round(config.thin_grace_ms * 1e6))
+        self._thin = ThinStreams(  # (sensor side) consumers' thinned streams of own sensors
+            config.realm,
+            lambda key: self.session.declare_publisher(key, express=False),  # batched
+            self._grace,
+        )
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
         self.net = Network()
@@ -185,7 +215,10 @@ class Agent:
             for n, q in self.setup.queries.items()
             if q.mode == "push"
         }
-        for target in (self._worker, self._pump, self._clock_loop):
+        targets = [self._worker, self._pump, self._clock_loop]
+        if self._own:
+            targets.append(self._thin_loop)
+        for target in targets:
             th = threading.Thread(target=target, name=f"{self.name}-{target.__name__}", daemon=True)
             th.start()
             self._threads.append(th)
@@ -193,6 +226,10 @@ class Agent:
         self._discovery = s.liveliness().declare_subscriber(
             _key(r, "alive", "**"), self._on_liveliness, history=True
         )
+        if self._own:  # consumers' tick grids for thinned streams of the own sensors
+            self._demands = s.liveliness().declare_subscriber(
+                _key(r, "demand", "**"), self._on_demand, history=True
+            )
         for _, th in self._players:
             th.start()
         return self
@@ -202,6 +239,7 @@ class Agent:
         self._stop.set()
         with self._heap_cv:
             self._heap_cv.notify_all()
+            self._thin_cv.notify_all()
         self._work.put(("stop",))
         for _, th in self._players:
             if th.is_alive():
@@ -258,12 +296,13 @@ class Agent:
             self._sources[edge.name] = src
             kf = self._filters[edge.name] = self._make_filter(edge)
             self._own.add(edge.name)
-            self._publishers[edge.name] = StatePublisher(
+            pub = self._publishers[edge.name] = StatePublisher(
                 f"publish_{edge.name}",
                 kf,
                 # express: each state leaves at once, not batched with later ones
                 self.session.declare_publisher(_key(self.realm, "edge", edge.name), express=True),
             )
+            pub.tap = lambda h_ns, buf, name=edge.name: self._offer_thin(name, h_ns, buf)
         with self._lock:
             self._rebuild_base()
 
@@ -338,6 +377,56 @@ class Agent:
             with self._lock:
                 self.net.clock.now_ns = arrival
                 player.deliver(idx)
+
+    # -- thinned streams of own sensors (sensor side) ------------------------------------------
+    def _on_demand(self, sample) -> None:
+        """A consumer's tick grid for one of this agent's sensors appeared (PUT) or went away
+        (DELETE: withdrawn, or the consumer died). Garbage is a counted rejection."""
+        import zenoh
+
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.DELETE:
+            with self._lock:
+                self._thin.withdraw(key)
+            return
+        try:
+            edge, consumer, grid = parse_demand(key, self.realm)
+        except ValueError as exc:
+            self.rejections.add(str(exc))
+            return
+        if edge not in self._own:
+            if edge in self._statics or edge in {e.name for e in self.setup.graph.edges}:
+                self.rejections.add("demand for a static edge")
+            elif edge not in self._live:  # (also while this agent has not met the owner yet)
+                self.rejections.add("demand for unknown edge")
+            return  # another agent's sensor: its agent serves it
+        with self._lock:
+            refused = self._thin.declare(key, edge, consumer, grid, self.now_ns())
+            if refused:
+                self.rejections.add(refused)
+            self._thin_cv.notify()
+
+    def _offer_thin(self, edge: str, h_ns: int, buf: bytes) -> None:
+        """(Under the agent's lock, from the state publisher.) A new state of an own sensor."""
+        self._thin.offer(edge, h_ns, buf, self.now_ns())
+
+    def _grace(self, edge: str) -> int:
+        """How long after a tick a state made before it may still come [ns]: a live sensor's
+        states are stamped when the agent takes them (under its lock), so never; a
+        recording's player stamps its scheduled arrival, and its thread may run late."""
+        return self._grace_ns if isinstance(self._sources.get(edge), RecordingPlayer) else 0
+
+    def _thin_loop(self) -> None:
+        """Completes the ticks of the thinned streams when no state did it before: sends
+        each stream's pending state (or a heartbeat) once the tick (plus the grace of
+        recordings) has passed."""
+        with self._thin_cv:
+            while not self._stop.is_set():
+                now = self.now_ns()
+                if now < self._thin.next_due:
+                    self._thin_cv.wait(min((self._thin.next_due - now) * 1e-9, 0.05))
+                    continue
+                self._thin.flush(now)
 
     # -- discovery ------------------------------------------------------------------------------
     def _on_liveliness(self, sample) -> None:
@@ -447,6 +536,14 @@ class Agent:
                     self._ping(rem, 1)
                 except zenoh.ZError:  # the remote may be gone; next round
                     continue
+            with self._lock:  # thinned inputs follow the clock offset's estimate
+                for edge, inp in self._thin_in.items():
+                    offset = self._offset_ns(edge)
+                    if abs(offset - inp.offset_ns) > _REDECLARE_NS:
+                        try:
+                            self._declare_demands(edge, inp, offset)
+                        except zenoh.ZError:
+                            continue
 
     # -- planning -------------------------------------------------------------------------------
     def union_graph(self) -> SpatialRelationshipGraph:
@@ -496,6 +593,7 @@ class Agent:
                 used |= sensors
                 if q.mode == "push":
                     pushed |= sensors
+                    st.inputs = frozenset(sensors - self._own)
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue
@@ -505,8 +603,11 @@ class Agent:
                 changed = True
             if not changed:
                 return
+            thin = self._thin_periods(plans) if self.cfg.thin else {}
             for edge in sorted(used - self._own):
-                if self.cfg.pull_via == "replica" or edge in pushed:
+                if edge in thin:
+                    self._subscribe_thin(graph.edge(edge), thin[edge])
+                elif self.cfg.pull_via == "replica" or edge in pushed:
                     self._subscribe(graph.edge(edge))
                 elif edge not in self._sources:
                     self._ask_per_request(graph.edge(edge))
@@ -535,19 +636,87 @@ class Agent:
             "replan_ms": (time.perf_counter_ns() - t_event_ns) * 1e-6,
         }
 
+    def _replica(self, edge: Edge) -> None:
+        if not isinstance(self._filters.get(edge.name), RemoteFilter):
+            self._sources[edge.name] = RemoteSource(edge.name)
+            self._filters[edge.name] = RemoteFilter(
+                f"kf_{edge.name}",
+                edge.motion,
+                stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9)),
+            )
+
     def _subscribe(self, edge: Edge) -> None:
         """A replica of a remote sensor's filter, fed by a subscription to its states (also
-        replacing a per-request node once a push query needs the sensor)."""
-        if isinstance(self._filters.get(edge.name), RemoteFilter):
+        replacing a per-request node once a push query needs the sensor, or a thinned
+        subscription once a query needs every state)."""
+        if edge.name in self._subs:
             return
-        self._sources[edge.name] = RemoteSource(edge.name)
-        self._filters[edge.name] = RemoteFilter(
-            f"kf_{edge.name}", edge.motion, stamp_offset_ns=int(round(edge.stamp_offset_s * 1e9))
-        )
+        self._replica(edge)
+        inp = self._thin_in.pop(edge.name, None)
+        if inp is not None:
+            for token in inp.tokens:
+                token.undeclare()
+            inp.subscriber.undeclare()
         self._subs[edge.name] = self.session.declare_subscriber(
             _key(self.realm, "edge", edge.name),
             lambda sample, name=edge.name: self._on_state(name, sample),
         )
+
+    def _thin_periods(self, plans: dict) -> dict[str, frozenset]:
+        """(``thin: true``) The remote sensors that may be received thinned, with the tick
+        periods [ns] of the push queries using them: not those a pull query reads from a
+        replica, nor those of a push query answering in the past (``time_offset_ms < 0``
+        interpolates between states, so it needs them all)."""
+        periods: dict[str, set] = {}
+        raw: set[str] = set()
+        for plan in plans.values():
+            q = plan.query
+            sensors = {s for p in plan.paths for s in p.sensors} - self._own
+            if q.mode == "push" and q.time_offset_s >= 0:
+                for e in sensors:
+                    periods.setdefault(e, set()).add(int(round(1e9 / q.rate_hz)))
+            elif q.mode == "push" or self.cfg.pull_via == "replica":
+                raw |= sensors
+        return {e: frozenset(p) for e, p in periods.items() if e not in raw}
+
+    def _offset_ns(self, edge: str) -> int:
+        """The clock offset (remote minus this agent) of a live remote sensor's agent [ns]."""
+        rem = self._remotes.get(self._live.get(edge, ""))
+        if rem is None or self.cfg.clock_sync != "estimate" or not rem.clock.known:
+            return 0
+        return rem.clock.offset_ns
+
+    def _subscribe_thin(self, edge: Edge, periods: frozenset) -> None:
+        """A replica fed by a thinned stream: one demand token per tick period (the grid
+        mapped onto the sensor agent's clock) and a subscription to the stream."""
+        if edge.name in self._subs:
+            return  # every state comes already
+        self._replica(edge)
+        inp = self._thin_in.get(edge.name)
+        if inp is not None and inp.periods == periods:
+            return
+        if inp is None:
+            sub = self.session.declare_subscriber(
+                thin_key(self.realm, edge.name, self.name),
+                lambda sample, name=edge.name: self._on_thin(name, sample),
+            )
+            inp = self._thin_in[edge.name] = _ThinInput(periods, 0, [], sub)
+        inp.periods = periods
+        self._declare_demands(edge.name, inp, self._offset_ns(edge.name))
+
+    def _declare_demands(self, edge: str, inp: _ThinInput, offset_ns: int) -> None:
+        """(Re)declare the demand tokens of a thinned input: the new ones first, so the
+        sensor's agent keeps the stream while the grid moves."""
+        old = inp.tokens
+        inp.tokens = [
+            self.session.liveliness().declare_token(
+                demand_key(self.realm, edge, self.name, Grid(p, offset_ns % p))
+            )
+            for p in sorted(inp.periods)
+        ]
+        inp.offset_ns = offset_ns
+        for token in old:
+            token.undeclare()
 
     def _ask_per_request(self, edge: Edge) -> None:
         """``pull_via: get``: a node asking the sensor's agent ``get/<edge>?t=`` per request."""
@@ -587,26 +756,78 @@ class Agent:
         return Measurement(w.exposure_ns - offset, pose, w.origin_ns - offset)
 
     # -- data path ------------------------------------------------------------------------------
-    def _on_state(self, edge: str, sample) -> None:
-        """A state of another agent's sensor filter: decoded, its stamps mapped onto this
-        agent's clock, then adopted by the replica at once or (jitter buffer) at its host
-        stamp plus ``reorder_ms``."""
-        try:
-            s = wire.decode_state(sample.payload.to_bytes())
-        except wire.WireError as exc:
-            self.rejections.add(exc.reason)
-            return
+    def _mapping(self, edge: str) -> tuple[int, float] | None:
+        """Clock offset [ns] and its sigma [s] for a remote sensor's stamps (None: counted)."""
         agent = self._live.get(edge)
         rem = self._remotes.get(agent) if agent is not None else None
         if rem is None:
             self.rejections.add("sensor not live")
+            return None
+        if self.cfg.clock_sync != "estimate":
+            return 0, 0.0
+        if not rem.clock.known:
+            self.rejections.add("clock offset not yet estimated")
+            return None
+        return rem.clock.offset_ns, rem.clock.sigma_s
+
+    def _on_thin(self, edge: str, sample) -> None:
+        """A message of a thinned stream: the tick it completes (attachment) and a state of
+        the sensor's filter, or nothing new (heartbeat). The state joins the jitter buffer at
+        its host stamp as on the full stream; the tick tells the pump that this input is
+        complete up to there (mapped with the offset the demand was declared with)."""
+        att = sample.attachment
+        tick = att.to_bytes() if att is not None else b""
+        if len(tick) != 8:
+            self.rejections.add("thinned message without tick")
             return
-        offset, sigma = 0, 0.0
-        if self.cfg.clock_sync == "estimate":
-            if not rem.clock.known:
-                self.rejections.add("clock offset not yet estimated")
-                return
-            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+        payload = sample.payload.to_bytes()
+        self.received[0] += 1
+        self.received[1] += len(payload) + len(tick)
+        self.received[2] += not payload
+        try:
+            s = wire.decode_state(payload) if payload else None
+        except wire.WireError as exc:
+            self.rejections.add(exc.reason)
+            return
+        mapping = self._mapping(edge)
+        if mapping is None:
+            return
+        offset, sigma = mapping
+        with self._heap_cv:
+            inp = self._thin_in.get(edge)
+            if inp is None:
+                return  # withdrawn meanwhile
+            covered = int.from_bytes(tick, "little", signed=True) - inp.offset_ns
+            self._thin_arrivals.append(self.now_ns() - covered)
+            if inp.covered_ns is None or covered > inp.covered_ns:
+                inp.covered_ns = covered
+            if s is not None:
+                self._buffer(edge, s, offset, sigma)
+            self._heap_cv.notify()
+
+    def _buffer(self, edge: str, s: wire.StateSample, offset: int, sigma: float) -> None:
+        """(Holding the lock.) Into the jitter buffer at the state's arrival stamp."""
+        arrival = s.host_ns - offset
+        if self.now_ns() > arrival + self._reorder_ns:
+            self.late_events += 1  # later than the jitter buffer: delivered out of order
+        heapq.heappush(self._heap, (arrival, _SENSOR, next(self._seq), (edge, s, offset, sigma)))
+
+    def _on_state(self, edge: str, sample) -> None:
+        """A state of another agent's sensor filter: decoded, its stamps mapped onto this
+        agent's clock, then adopted by the replica at once or (jitter buffer) at its host
+        stamp plus ``reorder_ms``."""
+        payload = sample.payload.to_bytes()
+        self.received[0] += 1
+        self.received[1] += len(payload)
+        try:
+            s = wire.decode_state(payload)
+        except wire.WireError as exc:
+            self.rejections.add(exc.reason)
+            return
+        mapping = self._mapping(edge)
+        if mapping is None:
+            return
+        offset, sigma = mapping
         last = self._last_seq.get(edge)
         if last is not None and s.seq > last + 1:
             self.lost_messages += s.seq - last - 1
@@ -616,13 +837,10 @@ class Agent:
                 self.net.clock.now_ns = self.now_ns()
                 self._deliver(edge, s, offset, sigma)
             return
-        arrival = s.host_ns - offset
         with self._heap_cv:
-            if self.now_ns() > arrival + self._reorder_ns:
-                self.late_events += 1  # later than the jitter buffer: delivered out of order
-            heapq.heappush(
-                self._heap, (arrival, _SENSOR, next(self._seq), (edge, s, offset, sigma))
-            )
+            if self.cfg.thin:  # every state sent before it has come (thin: ticks wait for it)
+                self._covered[edge] = max(self._covered.get(edge, -1), s.host_ns - offset - 1)
+            self._buffer(edge, s, offset, sigma)
             self._heap_cv.notify()
 
     def _deliver(self, edge: str, s: wire.StateSample, offset_ns: int, sigma_s: float) -> None:
@@ -648,8 +866,14 @@ class Agent:
                     self._heap_cv.wait(0.05)
                     continue
                 key, kind, _, payload = self._heap[0]
-                wait = (key + self._reorder_ns - self.now_ns()) * 1e-9
-                if wait > 0:
+                now = self.now_ns()
+                # thin: a state goes at once (every earlier tick has run); a tick as soon as
+                # every remote input of its query is complete up to it
+                early = self.cfg.thin and (
+                    kind == _SENSOR or (now >= key and self._complete(payload, key))
+                )
+                wait = (key + self._reorder_ns - now) * 1e-9
+                if wait > 0 and not early:
                     self._heap_cv.wait(min(wait, 0.05))
                     continue
                 heapq.heappop(self._heap)
@@ -663,9 +887,19 @@ class Agent:
                     self.missed_ticks += 1  # the agent was stalled: skip to the present
                     nxt = (now - self._reorder_ns) // p * p + p
                 else:
+                    self._tick_waits.append(now - key)
                     self._tick(payload, key)
                     nxt = key + p
                 heapq.heappush(self._heap, (nxt, _TICK, next(self._seq), payload))
+
+    def _complete(self, query: str, t_ns: int) -> bool:
+        """(thin) Every remote input of the query has sent what its tick at ``t_ns`` needs."""
+        for e in self.queries[query].inputs:
+            inp = self._thin_in.get(e)
+            covered = inp.covered_ns if inp is not None else self._covered.get(e)
+            if covered is None or covered < t_ns:
+                return False
+        return True
 
     def _tick(self, name: str, t_ns: int) -> None:
         st = self.queries[name]
@@ -759,6 +993,12 @@ class Agent:
                 "statics": sorted(self._statics),
                 "rejections": dict(self.rejections.counts),
                 "lost_messages": self.lost_messages,
+                "tick_wait_ms": _percentiles(self._tick_waits),
+                "thin_arrival_ms": _percentiles(self._thin_arrivals),
+                "published_states": sum(p.seq for p in self._publishers.values()),
+                "received_messages": self.received[0],
+                "received_bytes": self.received[1],
+                "received_heartbeats": self.received[2],
                 "late_events": self.late_events,
                 "missed_ticks": self.missed_ticks,
                 "skipped_samples": self.skipped_samples,
@@ -766,6 +1006,11 @@ class Agent:
                     n: {"states": f.stats.events_in, "rejections": dict(f.stats.rejections)}
                     for n, f in sorted(self._filters.items())
                     if isinstance(f, RemoteFilter)
+                },
+                "thin_streams": self._thin.status(),
+                "thin_inputs": {
+                    e: {"periods_ns": sorted(inp.periods), "offset_ns": inp.offset_ns}
+                    for e, inp in sorted(self._thin_in.items())
                 },
                 "clocks": {
                     n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
@@ -783,6 +1028,14 @@ class Agent:
                     "events": st.events[-20:],
                 }
             return out
+
+
+def _percentiles(values) -> dict:
+    """p50 and p99 of recent waits [ns], in ms (``{}`` before the first)."""
+    v = sorted(values)
+    if not v:
+        return {}
+    return {"p50": v[len(v) // 2] * 1e-6, "p99": v[min(len(v) - 1, int(0.99 * len(v)))] * 1e-6}
 
 
 def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0):

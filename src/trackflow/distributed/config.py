@@ -17,6 +17,10 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
       clock_offset_ms: 0        # shifts this agent's clock (emulates another host's clock)
       pull_via: replica         # pull queries read remote sensors from replicas of their
                                 # filters (replica) or ask get/<edge> per request (get)
+      thin: false               # push queries ask the sensors' agents for the states their
+                                # ticks need only (needs reorder_ms > 0: the deadline of a tick)
+      thin_grace_ms: 1.0        # (sensor side, recordings) a played state is the newest
+                                # before a tick once the clock is this far past the tick
 
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
 ``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts
@@ -47,6 +51,8 @@ _AGENT_KEYS = {
     "clock_sync",
     "clock_offset_ms",
     "pull_via",
+    "thin",
+    "thin_grace_ms",
 }
 DEFAULT_ZENOH = {
     "mode": "peer",
@@ -73,6 +79,8 @@ class AgentConfig:
     clock_sync: str = "estimate"
     clock_offset_ms: float = 0.0
     pull_via: str = "replica"
+    thin: bool = False
+    thin_grace_ms: float = 1.0
 
     def __post_init__(self):
         for what, value in (("name", self.name), ("realm", self.realm)):
@@ -87,6 +95,15 @@ class AgentConfig:
             raise ValueError(f"pull_via must be 'replica' or 'get', got {self.pull_via!r}")
         if not self.reorder_ms >= 0:
             raise ValueError(f"reorder_ms must be >= 0, got {self.reorder_ms}")
+        if not isinstance(self.thin, bool):
+            raise ValueError(f"thin must be true or false, got {self.thin!r}")
+        if self.thin and not self.reorder_ms > 0:
+            raise ValueError(
+                "thin: true needs reorder_ms > 0 (thinned states come just after the tick "
+                "they serve; reorder_ms is how long a tick may wait for them)"
+            )
+        if not 0 <= self.thin_grace_ms <= 1000:
+            raise ValueError(f"thin_grace_ms must be in 0..1000, got {self.thin_grace_ms}")
 
 
 def _insert(conf, key: str, value) -> None:
@@ -156,6 +173,8 @@ def load_agent(path: str | Path) -> AgentConfig:
             clock_sync=str(a.get("clock_sync", "estimate")),
             clock_offset_ms=float(a.get("clock_offset_ms", 0.0)),
             pull_via=str(a.get("pull_via", "replica")),
+            thin=a.get("thin", False),
+            thin_grace_ms=float(a.get("thin_grace_ms", 1.0)),
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: agent: {exc}") from exc

@@ -47,6 +47,10 @@ class StatePublisher(Component):
     gated measurement leaves a predicted state in the filter's history, which is published
     from there, so the replicas hold the filter's exact history and answer past queries to
     the last bit as the filter does. Each state is published once.
+
+    ``tap`` (optional, ``tap(host_ns, buf)``) is handed each encoded state after it was
+    published, with its send stamp: the agent's thinned streams take theirs from there
+    (:mod:`trackflow.distributed.thinning`).
     """
 
     push_in = 2
@@ -62,6 +66,7 @@ class StatePublisher(Component):
         self.kf = kf
         self.publisher = publisher
         self.seq = 0
+        self.tap = None
         self._last_x = None
 
     def push(self, m: Measurement, port: int = 0) -> None:
@@ -90,6 +95,8 @@ class StatePublisher(Component):
         )
         self.publisher.put(buf)
         self.stats.events_out += 1
+        if self.tap is not None:
+            self.tap(self.clock.now_ns, buf)
 
 
 class RemoteFilter(KalmanFilter):
