@@ -119,10 +119,12 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
         time.sleep(4.0)
 
         # each consumer's stream: ticks of its own grid, in order, one state per tick at most
-        # (a state made before a tick that was already completed is sent late, counted)
+        # (a state made before a tick that was already completed is sent late, counted). The
+        # messages are taken before the status: its late counters then cover every one of them.
+        got = {n: list(m) for n, m in thin_msgs.items()}
         st = status(session, realm, "s")
         for n, period in (("c30", P30), ("c60", P60)):
-            msgs = [(int.from_bytes(a, "little", signed=True), p) for a, p, _ in thin_msgs[n]]
+            msgs = [(int.from_bytes(a, "little", signed=True), p) for a, p, _ in got[n]]
             grid = st["thin_streams"]["s1"][n]["grids"]
             assert [g[0] for g in grid] == [period]
             ticks = [t for t, _ in msgs]
