@@ -201,9 +201,16 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
         # placement: d answers from its replica of s1's filter (running on a) what a's filter
         # answers itself, up to the estimated clock offset between the two (~0.01 ms)
         wait_for(_running_on(session, realm, "d", "qd", "s1"), 30)
-        t = time.time_ns() - 50_000_000
-        at_d = remote_get(session, realm, "query/qd", t)
-        at_a = remote_get(session, realm, "get/s1", t)
+
+        def same_states():
+            # both answers must come from the same newest state (origin, up to the clock
+            # offset): a state that reaches a between the two requests changes a's answer
+            t = time.time_ns() - 50_000_000
+            at_d = remote_get(session, realm, "query/qd", t)
+            at_a = remote_get(session, realm, "get/s1", t)
+            return (at_d, at_a) if abs(at_d.origin_ns - at_a.origin_ns) < 1_000_000 else None
+
+        at_d, at_a = wait_for(same_states, 30)
         assert np.linalg.norm(at_d.pose.position - at_a.pose.position) < 1e-4
         with pytest.raises(ValueError, match="missing or not an integer"):
             for reply in session.get(f"trackflow/{realm}/query/qd?t=soon", timeout=3.0):
