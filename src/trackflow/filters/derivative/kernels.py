@@ -93,6 +93,8 @@ KERNELS = (
     "constants",
     "step_packed",
     "predict_pose_packed",
+    "step_bank",
+    "predict_pose_bank",
     "measurement_cov",
     "row_is_finite",
     "run",
@@ -912,6 +914,27 @@ def predict_pose_packed(x, p, dt, c, out):
     sp = c[7 : 7 + n_sp]
     so = c[7 + n_sp : 7 + n_sp + int(c[6])]
     predict_pose_into(x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, out)
+
+
+def step_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis):
+    """:func:`step_packed` of pose measurements (``lp = lo = 0``) for several filters of
+    one kind in one call: row ``k`` updates the state ``xs[rows[k]], ps[rows[k]]`` over
+    ``dts[k]`` with ``zp[k], zo[k], r[k]`` and writes the record ``logs[k]``, its status
+    and NIS into ``status[k], nis[k]``. The same operations, in the same order, as one
+    :func:`step_packed` per filter."""
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        s, v = step_packed(xs[i], ps[i], dts[k], c, 0, 0, zp[k], zo[k], r[k], gate, logs[k])
+        status[k] = s
+        nis[k] = v
+
+
+def predict_pose_bank(xs, ps, rows, dts, c, out):
+    """:func:`predict_pose_packed` for several filters of one kind: row ``k`` predicts the
+    state ``xs[rows[k]], ps[rows[k]]`` over ``dts[k]`` into ``out[k]`` (:data:`POSE_OUT`)."""
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        predict_pose_packed(xs[i], ps[i], dts[k], c, out[k])
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):

@@ -1,0 +1,248 @@
+"""A bank of pose Kalman filters: the filters fed by one packet updated in one compiled call.
+
+A live tracker sends the poses of many bodies in one packet, and each body has its own
+:class:`PoseKalmanFilter`. Updating them one by one costs more in Python (argument
+unboxing, the log record, bookkeeping) than in arithmetic. :class:`PoseFilterBank` keeps the
+states of filters of one kind (same motion model, formulation, noise, angular-velocity bound
+and gate) as rows of one array and runs one kernel over all the measurements of a call
+(:func:`kernels.step_bank`, :func:`kernels.predict_pose_bank`): the same operations, in the
+same order, as the filters' own :meth:`PoseKalmanFilter.update_pose` and
+:meth:`PoseKalmanFilter.predict`, so the results are equal to the last bit, and every
+filter's history, statistics, gate decisions (status and NIS in its log) and resets are the
+ones it would have recorded on its own.
+
+Each filter stays usable on its own: its state arrays are views of the bank's rows while the
+bank drives it; a filter that replaced them (a reset, an out-of-order re-filtering) is taken
+back into its row on the next call. A measurement the bank does not run in its kernel goes
+through the filter's own method, in the order given: the filter's first measurement, a
+measurement older than the filter's newest one, one due for a reset after a gated run, a
+second measurement of the same filter in one call, and every filter of another class or of a
+model without both position and orientation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from trackflow.math import UncertainPose
+
+from .. import gating
+from . import kernels as _source
+from .streaming import PoseKalmanFilter, _Entry, kernels
+
+__all__ = ["PoseFilterBank"]
+
+
+class _Kind:
+    """The filters of one kind: their states as rows of ``xs`` (n, nx) and ``ps`` (n, nc,
+    nc), the packed constants, the gate of a pose measurement and the record length."""
+
+    def __init__(self, f: PoseKalmanFilter, n: int):
+        self.const = f._const
+        self.gate = f._gates[6]
+        self.reset_after = f._policy.reset_after
+        self.nx, self.nc = f._nx, f._nc
+        self.size = f._log_sizes[6]
+        self.xs = np.zeros((n, self.nx))
+        self.ps = np.zeros((n, self.nc, self.nc))
+        self.xv = list(self.xs)  # row views: the filters' state arrays while banked
+        self.pv = list(self.ps)
+
+    def fits(self, f: PoseKalmanFilter) -> bool:
+        return (
+            f._nx == self.nx
+            and f._nc == self.nc
+            and f._gates[6] == self.gate
+            and f._policy.reset_after == self.reset_after
+            and np.array_equal(f._const, self.const)
+        )
+
+
+def _bankable(f) -> bool:
+    return type(f) is PoseKalmanFilter and f._pose_model
+
+
+class PoseFilterBank:
+    """Pose Kalman filters updated and predicted together (module docstring).
+
+    Parameters
+    ----------
+    filters : sequence of PoseFilter
+        The filters, addressed by their index in the calls. Filters of
+        :class:`PoseKalmanFilter` with a model of both position and orientation are grouped
+        by kind (one kernel call per kind and call); any other filter is driven through its
+        own methods.
+    """
+
+    def __init__(self, filters: Sequence):
+        self.filters = list(filters)
+        self._kinds: list[_Kind] = []
+        self._slot: list[tuple[_Kind, int] | None] = []
+        members: list[list[int]] = []
+        for i, f in enumerate(self.filters):
+            k = None
+            if _bankable(f):
+                k = next((j for j, kind in enumerate(self._kinds) if kind.fits(f)), None)
+                if k is None:
+                    self._kinds.append(_Kind(f, len(self.filters)))
+                    members.append([])
+                    k = len(self._kinds) - 1
+                members[k].append(i)
+            self._slot.append(None if k is None else (self._kinds[k], len(members[k]) - 1))
+        for kind, rows in zip(self._kinds, members):  # only as many rows as members
+            kind.xs = kind.xs[: len(rows)].copy()
+            kind.ps = kind.ps[: len(rows)].copy()
+            kind.xv, kind.pv = list(kind.xs), list(kind.ps)
+
+    @property
+    def kinds(self) -> int:
+        """Number of filter kinds run by the bank's kernels (one kernel call each)."""
+        return len(self._kinds)
+
+    def _take(self, f: PoseKalmanFilter, kind: _Kind, row: int) -> None:
+        """Make the filter's state arrays the bank's row (copying its state in if it
+        replaced them since)."""
+        x, p = kind.xv[row], kind.pv[row]
+        if f._x is not x:
+            x[:] = f._x
+            f._x = x
+        if f._p is not p:
+            p[:, :] = f._p
+            f._p = p
+
+    # -- updates -----------------------------------------------------------------------------
+    def update_poses(self, index: Sequence[int], t: Sequence[float], poses: Sequence) -> list:
+        """Integrate pose measurement ``poses[k]`` at time ``t[k]`` [s] into filter
+        ``index[k]``, for every ``k``, exactly as ``filters[index[k]].update_pose(t[k],
+        poses[k])`` one after the other would.
+
+        Returns
+        -------
+        list of bool
+            Per measurement: ``True`` if integrated, ``False`` if rejected (gated, older than
+            the history, or a measurement the filter's own method refuses with
+            ``ValueError``, such as a non-finite time). The gate decision and NIS of each
+            measurement are in the filter's log (:attr:`PoseKalmanFilter.nis`, ``stats``).
+        """
+        out: list = [False] * len(index)
+        seen: set[int] = set()
+        later: list[int] = []  # rows of a filter met before in this call: after the kernels
+        batch: dict[int, list] = {}  # kind -> [(k, filter, row, t)]
+        for k, i in enumerate(index):
+            f = self.filters[i]
+            if i in seen:
+                later.append(k)
+                continue
+            seen.add(i)
+            slot = self._slot[i]
+            tk = float(t[k])
+            pose = poses[k]
+            if (
+                slot is None
+                or f._t is None
+                or not tk >= f._t
+                or not math.isfinite(tk)
+                or gating.reset_due(True, f._gated_run, slot[0].reset_after)
+                or not isinstance(pose, UncertainPose)
+                or pose.shape != ()
+            ):
+                out[k] = self._one(f, tk, pose)
+                continue
+            batch.setdefault(id(slot[0]), []).append((k, f, slot[1], tk))
+        for rows in batch.values():
+            self._step(self._slot[index[rows[0][0]]][0], rows, poses, out)
+        for k in later:
+            out[k] = self._one(self.filters[index[k]], t[k], poses[k])
+        return out
+
+    @staticmethod
+    def _one(f, t, pose) -> bool:
+        try:
+            return bool(f.update_pose(t, pose))
+        except ValueError:
+            return False
+
+    def _step(self, kind: _Kind, rows: list, poses: Sequence, out: list) -> None:
+        """One kernel call for the measurements ``rows`` of filters of ``kind``, then each
+        filter's log entry and bookkeeping as :meth:`PoseKalmanFilter._apply` does."""
+        m = len(rows)
+        sel = np.empty(m, np.int64)
+        dts = np.empty(m)
+        zp = np.empty((m, 3))
+        zo = np.empty((m, 4))
+        r = np.empty((m, 6, 6))
+        for j, (k, f, row, tk) in enumerate(rows):
+            self._take(f, kind, row)
+            pose = poses[k]
+            sel[j] = row
+            dts[j] = tk - f._t
+            zp[j] = pose.position
+            zo[j] = pose.quaternion
+            r[j] = pose.covariance
+        logs = np.empty((m, kind.size))
+        status = np.empty(m, np.int64)
+        nis = np.empty(m)
+        kernels().step_bank(
+            kind.xs, kind.ps, sel, dts, kind.const, zp, zo, r, kind.gate, logs, status, nis
+        )
+        diverged = gating.DIVERGED
+        for j, (k, f, row, tk) in enumerate(rows):
+            if f._smooth_cache:
+                f._smooth_cache = {}
+            e = _Entry(tk, 0, 0, logs[j], kind.nx, kind.nc, 6)
+            e.status, e.nis = int(status[j]), float(nis[j])
+            if e.status == diverged:
+                f._reinit(e, "singular innovation covariance or non-finite state")
+                e.store_state(f._x, f._p)
+            f._gated_run = gating.next_gated_run(e.status, f._gated_run)
+            f._t = tk
+            e.gated_run = f._gated_run
+            f._log.append(e)
+            f._times.append(tk)
+            f._prune()
+            out[k] = e.status != gating.GATED
+
+    # -- predictions -------------------------------------------------------------------------
+    def predict_poses(self, index: Sequence[int], t: Sequence[float]) -> list:
+        """``filters[index[k]].predict(t[k])`` for every ``k`` [s].
+
+        Returns
+        -------
+        list of UncertainPose or None
+            The predicted (or, for a past time, smoothed) pose of each request, equal to the
+            filter's own answer to the last bit; ``None`` where the filter's
+            :meth:`~PoseKalmanFilter.predict` raises ``ValueError`` (no measurement yet, a
+            time before its history or not finite).
+        """
+        out: list = [None] * len(index)
+        batch: dict[int, list] = {}
+        for k, i in enumerate(index):
+            f = self.filters[i]
+            slot = self._slot[i]
+            tk = float(t[k])
+            if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
+                try:
+                    out[k] = f.predict(tk)
+                except ValueError:
+                    pass
+                continue
+            batch.setdefault(id(slot[0]), []).append((k, f, slot[1], tk))
+        for rows in batch.values():
+            kind = self._slot[index[rows[0][0]]][0]
+            m = len(rows)
+            sel = np.empty(m, np.int64)
+            dts = np.empty(m)
+            for j, (k, f, row, tk) in enumerate(rows):
+                self._take(f, kind, row)
+                sel[j] = row
+                dts[j] = tk - f._t
+            res = np.empty((m, _source.POSE_OUT))
+            kernels().predict_pose_bank(kind.xs, kind.ps, sel, dts, kind.const, res)
+            trusted = UncertainPose._trusted
+            for j, (k, _, _, _) in enumerate(rows):
+                o = res[j]
+                out[k] = trusted(o[:3], o[3:7], o[7:].reshape(6, 6))
+        return out
