@@ -189,7 +189,7 @@ class PoseFilterBank:
             kind.xs, kind.ps, sel, dts, kind.const, zp, zo, r, kind.gate, logs, status, nis
         )
         diverged = gating.DIVERGED
-        for j, (k, f, row, tk) in enumerate(rows):
+        for j, (k, f, _, tk) in enumerate(rows):
             if f._smooth_cache:
                 f._smooth_cache = {}
             e = _Entry(tk, 0, 0, logs[j], kind.nx, kind.nc, 6)
@@ -235,7 +235,7 @@ class PoseFilterBank:
             m = len(rows)
             sel = np.empty(m, np.int64)
             dts = np.empty(m)
-            for j, (k, f, row, tk) in enumerate(rows):
+            for j, (_, f, row, tk) in enumerate(rows):
                 self._take(f, kind, row)
                 sel[j] = row
                 dts[j] = tk - f._t
