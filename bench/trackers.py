@@ -9,7 +9,9 @@
 * ``e2e_latency_us``: a ``trackflow simulate natnet`` process sends 20 bodies at 240 Hz
   (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one core,
   receives each packet, decodes it, maps the exposure time, pushes 20 measurements through
-  the runtime's queue into 20 pose Kalman filters and delivers the 20 filtered answers; the
+  the runtime's queue into 20 pose Kalman filters (``LiveSources.deliver``, as ``trackflow
+  run`` does: the filters' updates in one batched call) and delivers the 20 filtered answers
+  (``KalmanBank.pull``, one batched prediction at each sample's arrival time); the
   latency is from the packet's receipt (the kernel's receive stamp, so time in the socket
   buffer counts) to the last of its answers being delivered (``time.time_ns``, same clock).
 
@@ -37,7 +39,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import make_inputs
-from trackflow.trackers.runtime import LiveSource, calm_gc, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,6 +162,8 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
     service_cpu: list[int] = []  # the same, CPU time of the scheduling thread
 
     names = [b.name for b in inp.bodies]
+    delivery = LiveSources(sources)
+    rows_of = delivery.row
 
     def sink(i, data, arrival):
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
@@ -177,9 +181,9 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
             except queue.Empty:
                 continue
             taken, cpu = time.time_ns(), time.thread_time_ns()
-            for name, smp in samples:
-                sources[name].deliver(smp)
-                answer = filters[name].pull(smp.arrival_ns)
+            delivery.deliver(samples)  # as trackflow run delivers a packet
+            answers = delivery.filters.pull([(rows_of[n], smp.arrival_ns) for n, smp in samples])
+            answer = answers[-1]
             now = time.time_ns()  # the last answer of the packet is delivered
             if answer is not None:
                 latencies.append(now - t0)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..dataflow import (
     Component,
+    KalmanBank,
     KalmanFilter,
     Measurement,
     Network,
@@ -45,6 +46,7 @@ from .inputs import CheckedSample, LiveInput, Sample, host_ns, make_inputs
 
 __all__ = [
     "LiveSource",
+    "LiveSources",
     "ReplayResult",
     "calm_gc",
     "RunResult",
@@ -74,6 +76,15 @@ class LiveSource(Component):
         self._valid_cov = None  # the last read-only covariance found valid (checked once)
 
     def deliver(self, s: Sample) -> UncertainPose | None:
+        """Take a sample (:meth:`accept`) and push its measurement to the consumers."""
+        pose = self.accept(s)
+        if pose is not None:
+            self.emit(Measurement(s.t_ns, pose, s.t_ns))
+        return pose
+
+    def accept(self, s: Sample) -> UncertainPose | None:
+        """The sample's pose, counted and checked as :meth:`deliver` does, not yet pushed;
+        ``None`` for a counted rejection."""
         self.stats.events_in += 1
         if self._last_t is not None and s.t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
@@ -89,7 +100,6 @@ class LiveSource(Component):
                 self.stats.reject("invalid pose or covariance")
                 return None
         self._last_t = s.t_ns
-        self.emit(Measurement(s.t_ns, pose, s.t_ns))
         return pose
 
     def _plain_pose(self, s: Sample) -> UncertainPose | None:
@@ -123,6 +133,62 @@ class LiveSource(Component):
             if not c.flags.writeable:
                 self._valid_cov = c
         return UncertainPose._trusted(p, q, c)
+
+
+class LiveSources:
+    """The live sources of a network delivering the samples of a packet together.
+
+    :meth:`deliver` does what ``sources[name].deliver(sample)`` one after the other does;
+    the measurements of sources whose only consumer is a plain :class:`KalmanFilter` go to
+    the filters in one batched call (:class:`trackflow.dataflow.KalmanBank`), the others
+    one by one, in order (the batch so far is pushed first).
+
+    Parameters
+    ----------
+    sources : dict
+        ``{name: LiveSource}``, wired to their consumers.
+    """
+
+    def __init__(self, sources: dict[str, LiveSource]):
+        self.sources = sources
+        kfs: list[KalmanFilter] = []
+        self._row: dict[str, tuple[int, list]] = {}
+        for name, src in sources.items():
+            if len(src.consumers) == 1 and type(src.consumers[0][0]) is KalmanFilter:
+                self._row[name] = (len(kfs), list(src.consumers))
+                kfs.append(src.consumers[0][0])
+        #: the filters fed directly by a source, in one bank (pull answers through it)
+        self.filters = KalmanBank(kfs)
+        self.row = {name: r[0] for name, r in self._row.items()}
+
+    def deliver(self, items, clock=None) -> list[UncertainPose | None]:
+        """Deliver ``(name, sample)`` pairs in order; the accepted poses (``None`` for a
+        rejection). ``clock`` (a network's) is set to each sample's arrival before a
+        consumer other than a batched filter sees it, and to the last one's at the end."""
+        batch: list[tuple[int, Measurement]] = []
+        out: list[UncertainPose | None] = []
+        for name, s in items:
+            src = self.sources[name]
+            row = self._row.get(name)
+            if row is not None and src.consumers == row[1]:
+                pose = src.accept(s)
+                if pose is not None:
+                    src.stats.events_out += 1
+                    batch.append((row[0], Measurement(s.t_ns, pose, s.t_ns)))
+            else:
+                if batch:
+                    self.filters.push(batch)
+                    batch = []
+                if clock is not None:
+                    clock.now_ns = s.arrival_ns
+                    clock.dispatch_wall_ns = time.perf_counter_ns()
+                pose = src.deliver(s)
+            out.append(pose)
+        if batch:
+            self.filters.push(batch)
+        if clock is not None and items:
+            clock.now_ns = items[-1][1].arrival_ns
+        return out
 
 
 def warm_up(net) -> None:
@@ -205,6 +271,7 @@ class _Scheduler:
         self.clock = net.clock
         self.sampler = sampler
         self.sources = sources
+        self.delivery = LiveSources(sources)
         self.writers = writers
         self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
         self.events: queue.SimpleQueue = queue.SimpleQueue()
@@ -229,14 +296,18 @@ class _Scheduler:
                 )
             self.last = a + max(len(pairs) - 1, 0)
 
-    def dispatch(self, arrival: int, name: str, s: Sample) -> None:
-        self.clock.now_ns = arrival
+    def dispatch(self, items: list[tuple[str, Sample]]) -> None:
+        """Deliver samples with no tick between them (one batch, :class:`LiveSources`) and
+        record the accepted ones."""
+        self.clock.now_ns = items[0][1].arrival_ns
         self.clock.dispatch_wall_ns = time.perf_counter_ns()
-        pose = self.sources[name].deliver(s)
-        if pose is not None and name in self.writers:
-            p, q, c = pose.position, pose.quaternion, pose.covariance
-            self.writers[name][0].append_sample(s.t_ns, p, q, c)
-            self.writers[name][1].append_sample(arrival, p, q, c)
+        poses = self.delivery.deliver(items, self.clock)
+        if self.writers:
+            for (name, s), pose in zip(items, poses):
+                if pose is not None and name in self.writers:
+                    p, q, c = pose.position, pose.quaternion, pose.covariance
+                    self.writers[name][0].append_sample(s.t_ns, p, q, c)
+                    self.writers[name][1].append_sample(s.arrival_ns, p, q, c)
 
     def fire(self, t: int) -> None:
         self.clock.now_ns = t
@@ -260,12 +331,17 @@ class _Scheduler:
                 )
             except queue.Empty:
                 item = None
-            if item is not None:
-                for name, s in item:  # the samples of one packet
-                    while next_tick < s.arrival_ns:  # ticks before it (a sample first at ties)
+            if item is not None:  # the samples of one packet, split at the ticks among them
+                i, n = 0, len(item)
+                while i < n:
+                    while next_tick < item[i][1].arrival_ns:  # a sample first at ties
                         self.fire(next_tick)
                         next_tick += period
-                    self.dispatch(s.arrival_ns, name, s)
+                    j = i + 1
+                    while j < n and item[j][1].arrival_ns <= next_tick:
+                        j += 1
+                    self.dispatch(item[i:j])
+                    i = j
                 continue
             if host_ns() >= next_tick:
                 with self.lock:  # no sample stamped before the tick may still be on its way
