@@ -5,8 +5,8 @@ bodies at 240 Hz goes through ``LiveInput.handle`` (decode, clock mapping, 20 ch
 samples). The samples go through ``LiveSources.deliver`` (each source's checks, then the 20
 pose Kalman filters' updates in one batched call, as ``trackflow run`` delivers a packet),
 then the 20 filtered answers are pulled (``KalmanBank.pull``, one batched prediction).
-Thread CPU times are less sensitive to other jobs than wall-clock latencies. The script prints the p10 and p50 per
-packet over ``--packets`` packets, after 200 warm-up packets.
+Thread CPU times are less sensitive to other jobs than wall-clock latencies. The script
+prints the p10 and p50 per packet over ``--packets`` packets, after 200 warm-up packets.
 
 Usage: ``python bench/trackers_cpu.py [--json] [--packets N]``.
 """
