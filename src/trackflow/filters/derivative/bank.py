@@ -174,8 +174,10 @@ class PoseFilterBank:
         zp = np.empty((m, 3))
         zo = np.empty((m, 4))
         r = np.empty((m, 6, 6))
+        xv, pv = kind.xv, kind.pv
         for j, (k, f, row, tk) in enumerate(rows):
-            self._take(f, kind, row)
+            if f._x is not xv[row] or f._p is not pv[row]:
+                self._take(f, kind, row)
             pose = poses[k]
             sel[j] = row
             dts[j] = tk - f._t
@@ -188,22 +190,24 @@ class PoseFilterBank:
         kernels().step_bank(
             kind.xs, kind.ps, sel, dts, kind.const, zp, zo, r, kind.gate, logs, status, nis
         )
-        diverged = gating.DIVERGED
-        for j, (k, f, _, tk) in enumerate(rows):
+        diverged, gated = gating.DIVERGED, gating.GATED
+        nx, nc = kind.nx, kind.nc
+        for (k, f, _, tk), buf, st, v in zip(rows, logs, status.tolist(), nis.tolist()):
             if f._smooth_cache:
                 f._smooth_cache = {}
-            e = _Entry(tk, 0, 0, logs[j], kind.nx, kind.nc, 6)
-            e.status, e.nis = int(status[j]), float(nis[j])
-            if e.status == diverged:
+            e = _Entry(tk, 0, 0, buf, nx, nc, 6)
+            e.status, e.nis = st, v
+            if st == diverged:
                 f._reinit(e, "singular innovation covariance or non-finite state")
                 e.store_state(f._x, f._p)
-            f._gated_run = gating.next_gated_run(e.status, f._gated_run)
+            e.gated_run = f._gated_run = f._gated_run + 1 if st == gated else 0
             f._t = tk
-            e.gated_run = f._gated_run
             f._log.append(e)
-            f._times.append(tk)
-            f._prune()
-            out[k] = e.status != gating.GATED
+            times = f._times
+            times.append(tk)
+            if len(times) > 1 and times[1] < tk - f._history:  # what _prune would cut
+                f._prune()
+            out[k] = st != gated
 
     # -- predictions -------------------------------------------------------------------------
     def predict_poses(self, index: Sequence[int], t: Sequence[float]) -> list:
@@ -242,7 +246,7 @@ class PoseFilterBank:
             res = np.empty((m, _source.POSE_OUT))
             kernels().predict_pose_bank(kind.xs, kind.ps, sel, dts, kind.const, res)
             trusted = UncertainPose._trusted
+            pos, quat, cov = res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6)
             for j, (k, _, _, _) in enumerate(rows):
-                o = res[j]
-                out[k] = trusted(o[:3], o[3:7], o[7:].reshape(6, 6))
+                out[k] = trusted(pos[j], quat[j], cov[j])
         return out
