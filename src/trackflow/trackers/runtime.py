@@ -2,12 +2,14 @@
 
 Live event order. Every packet is stamped on arrival (host clock, ``time.time_ns``) under one
 lock that also hands out strictly increasing dispatch times (samples of one packet get
-``arrival, arrival + 1 ns, ...``), so the queue is in time order; the scheduler thread
-dispatches samples and sampler ticks in time order, a sample before a tick at the same
-nanosecond, exactly as the virtual clock of :meth:`trackflow.dataflow.Network.run` orders
-them. A tick is fired only when no sample with an earlier time can still arrive (the lock
-raises a floor under later stamps). The answers therefore depend only on the recorded inputs
-and their dispatch times, and :func:`replay` reproduces them bit for bit.
+``arrival, arrival + 1 ns, ...``); the receiving thread dispatches the packet under that
+lock (no hand-off to another thread), after the sampler ticks before its samples, a sample
+before a tick at the same nanosecond, exactly as the virtual clock of
+:meth:`trackflow.dataflow.Network.run` orders them. The scheduling thread fires, under the
+same lock, the ticks that fall due while no packet arrives; a packet stamped before an
+already fired tick is dispatched after it (the lock raises a floor under later stamps). The
+answers therefore depend only on the recorded inputs and their dispatch times, and
+:func:`replay` reproduces them bit for bit.
 
 Recording (``record=out.tfrec``): ``out.tfrec`` holds the answers (``T_source_target`` of the
 query with covariance, as :class:`trackflow.dataflow.Recorder` writes them); for every
@@ -20,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -264,7 +265,10 @@ def _sensor_edges(plan) -> list[str]:
 class _Scheduler:
     """Time-ordered dispatch of live samples and sampler ticks (module docstring).
 
-    Receiving threads call :meth:`packet`; the scheduling thread runs :meth:`loop`.
+    A receiving thread dispatches its packet itself (:meth:`packet`: no hand-off to another
+    thread, so a packet's answers are not delayed by a thread switch); the scheduling
+    thread (:meth:`loop`) fires the ticks that fall due while no packet arrives. Both hold
+    one lock, so events are dispatched one at a time, in time order.
     """
 
     def __init__(self, net, sampler: Sampler, sources: dict, inputs: list, writers: dict):
@@ -274,27 +278,49 @@ class _Scheduler:
         self.delivery = LiveSources(sources)
         self.writers = writers
         self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
-        self.events: queue.SimpleQueue = queue.SimpleQueue()
         self.lock = threading.Lock()
         self.last = 0  # the latest dispatch time handed out
         self.floor = 0  # no dispatch time at or below a fired tick
+        self.next_tick = 0  # the next tick to fire (set before the inputs start)
         self.ticks = 0
+        self.error: BaseException | None = None  # raised in a receiving thread
+        self.stop = threading.Event()
 
     def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
-        """Decode a packet and queue its samples (one queue item) with strictly increasing
-        dispatch times ``a, a + 1, ...``."""
+        """Decode a packet and dispatch its samples with strictly increasing dispatch times
+        ``a, a + 1, ...``, after the ticks before them (a sample first at ties)."""
         with self.lock:
-            a = max(stamp, self.last + 1, self.floor)
-            pairs = inp.handle(data, a)
-            if pairs:
-                key = id(inp)
-                self.events.put(
-                    [
-                        (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
-                        for k, (bi, s) in enumerate(pairs)
-                    ]
-                )
-            self.last = a + max(len(pairs) - 1, 0)
+            if self.stop.is_set():  # the run is over (or failed): nothing more dispatched
+                return
+            try:
+                a = max(stamp, self.last + 1, self.floor)
+                pairs = inp.handle(data, a)
+                self.last = a + max(len(pairs) - 1, 0)
+                if pairs:
+                    key = id(inp)
+                    self._dispatch_packet(
+                        [
+                            (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
+                            for k, (bi, s) in enumerate(pairs)
+                        ]
+                    )
+            except BaseException as exc:  # reported by the scheduling thread, which stops
+                self.error = exc
+                self.stop.set()
+
+    def _dispatch_packet(self, item: list[tuple[str, Sample]]) -> None:
+        """The samples of one packet, split at the ticks among them."""
+        period = self.sampler.period_ns
+        i, n = 0, len(item)
+        while i < n:
+            while self.next_tick < item[i][1].arrival_ns:
+                self.fire(self.next_tick)
+                self.next_tick += period
+            j = i + 1
+            while j < n and item[j][1].arrival_ns <= self.next_tick:
+                j += 1
+            self.dispatch(item[i:j])
+            i = j
 
     def dispatch(self, items: list[tuple[str, Sample]]) -> None:
         """Deliver samples with no tick between them (one batch, :class:`LiveSources`) and
@@ -315,41 +341,29 @@ class _Scheduler:
         self.sampler.tick(t)
         self.ticks += 1
 
-    def loop(self, next_tick: int, deadline: int | None, stop: threading.Event, status) -> None:
-        """Dispatch until ``deadline`` (host ns) or ``stop``; ``status(now)`` is called
-        between events."""
+    def loop(self, deadline: int | None, stop: threading.Event, status) -> None:
+        """Fire the ticks that fall due until ``deadline`` (host ns) or ``stop``;
+        ``status(now)`` is called between them. An error raised while a receiving thread
+        dispatched its packet is raised here."""
         period = self.sampler.period_ns
-        while not stop.is_set():
+        while not (stop.is_set() or self.stop.is_set()):
             now = host_ns()
             if deadline is not None and now >= deadline:
-                return
+                break
             status(now)
-            wait = min(next_tick - now, 100_000_000)
-            try:
-                item = (
-                    self.events.get(timeout=wait * 1e-9) if wait > 0 else self.events.get_nowait()
-                )
-            except queue.Empty:
-                item = None
-            if item is not None:  # the samples of one packet, split at the ticks among them
-                i, n = 0, len(item)
-                while i < n:
-                    while next_tick < item[i][1].arrival_ns:  # a sample first at ties
-                        self.fire(next_tick)
-                        next_tick += period
-                    j = i + 1
-                    while j < n and item[j][1].arrival_ns <= next_tick:
-                        j += 1
-                    self.dispatch(item[i:j])
-                    i = j
+            wait = min(self.next_tick - now, 100_000_000)
+            if wait > 0:
+                self.stop.wait(wait * 1e-9)
                 continue
-            if host_ns() >= next_tick:
-                with self.lock:  # no sample stamped before the tick may still be on its way
-                    if not self.events.empty():
-                        continue
-                    self.floor = max(self.floor, next_tick + 1)
-                self.fire(next_tick)
-                next_tick += period
+            with self.lock:  # no sample stamped before the tick may still come after it
+                if host_ns() >= self.next_tick and self.error is None:
+                    self.floor = max(self.floor, self.next_tick + 1)
+                    self.fire(self.next_tick)
+                    self.next_tick += period
+        with self.lock:
+            self.stop.set()
+        if self.error is not None:
+            raise self.error
 
 
 def _writers(setup: Setup, edges: list[str], record) -> dict:
@@ -433,7 +447,7 @@ def run_live(
 
     t_start = host_ns()
     next_tick = -(-t_start // sampler.period_ns) * sampler.period_ns
-    sampler.start_ns = next_tick
+    sampler.start_ns = sched.next_tick = next_tick
     deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
     next_status[0] = t_start + int(status_period_s * 1e9)
     interrupted = False
@@ -445,7 +459,7 @@ def run_live(
         if on_status is not None:
             on_status([f"listening: {', '.join(b.name for b in bodies)}"])
         with calm_gc():
-            sched.loop(next_tick, deadline, stop or threading.Event(), status)
+            sched.loop(deadline, stop or threading.Event(), status)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -80,6 +80,7 @@ KERNELS = (
     "selection_rows",
     "update_into",
     "update",
+    "update_with",
     "local",
     "initialize",
     "pose_of",
@@ -89,6 +90,7 @@ KERNELS = (
     "smooth",
     "step",
     "step_into",
+    "step_with",
     "log_size",
     "constants",
     "step_packed",
@@ -578,8 +580,17 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
     """
     nc = p.shape[0]
     m = y.shape[0]
-    ws = update_scratch(m, nc)
-    idx = np.empty(m, np.int64)
+    return update_with(
+        x, p, y, h, r, gate, n_dp, n_do, additive, wmax, update_scratch(m, nc),
+        np.empty(m, np.int64),
+    )  # fmt: skip
+
+
+def update_with(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws, idx):
+    """:func:`update` with its scratch arrays given (:func:`update_scratch` and ``idx``
+    (m,) int), so that a loop over many filters allocates them once."""
+    nc = p.shape[0]
+    m = y.shape[0]
     if selection_rows(h, idx):
         return update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws)
     hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
@@ -858,6 +869,23 @@ def step_into(
     One compiled call per update instead of a call and five copies made from Python.
     """
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = residual_size(additive, lp, lo)
+    return step_with(
+        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log,
+        predict_scratch(n_dp, n_do, additive), np.empty(m), np.empty((m, nc)),
+        update_scratch(m, nc), np.empty(m, np.int64),
+    )  # fmt: skip
+
+
+def step_with(
+    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log,
+    pws, y, h, uws, idx,
+):  # fmt: skip
+    """:func:`step_into` with its scratch arrays given: ``pws`` (:func:`predict_scratch`),
+    the innovation ``y`` (m,) and Jacobian ``h`` (m, nc) (:func:`residual_size`), ``uws``
+    (:func:`update_scratch`) and ``idx`` (m,) int; a loop over many filters allocates them
+    once. Every scratch array is written before it is read."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
     if log.shape[0] > 0:
         o = nx + nc * nc
         for k in range(3):
@@ -868,12 +896,12 @@ def step_into(
         for i in range(rows):
             for j in range(rows):
                 log[o + 7 + i * rows + j] = r[i, j]
-    ws = predict_scratch(n_dp, n_do, additive)
-    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws)
-    y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
-    status, nis = update(
-        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive, wmax
-    )
+    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
+    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+    status, nis = update_with(
+        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive,
+        wmax, uws, idx,
+    )  # fmt: skip
     if log.shape[0] > 0:
         for i in range(nx):
             log[i] = x[i]
@@ -922,9 +950,23 @@ def step_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis):
     ``dts[k]`` with ``zp[k], zo[k], r[k]`` and writes the record ``logs[k]``, its status
     and NIS into ``status[k], nis[k]``. The same operations, in the same order, as one
     :func:`step_packed` per filter."""
+    n_dp, n_do, additive, kind, wmax = int(c[0]), int(c[1]), int(c[2]), int(c[3]), c[4]
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = residual_size(additive, 0, 0)
+    pws = predict_scratch(n_dp, n_do, additive)  # scratch shared by the rows
+    uws = update_scratch(m, nc)
+    y = np.empty(m)
+    h = np.empty((m, nc))
+    idx = np.empty(m, np.int64)
     for k in range(rows.shape[0]):
         i = rows[k]
-        s, v = step_packed(xs[i], ps[i], dts[k], c, 0, 0, zp[k], zo[k], r[k], gate, logs[k])
+        s, v = step_with(
+            xs[i], ps[i], dts[k], n_dp, n_do, additive, kind, sp, so, 0, 0, zp[k], zo[k], r[k],
+            gate, wmax, logs[k], pws, y, h, uws, idx,
+        )  # fmt: skip
         status[k] = s
         nis[k] = v
 
