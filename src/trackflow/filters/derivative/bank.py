@@ -61,6 +61,22 @@ class _Kind:
         )
 
 
+class _Batch:
+    """The kernel's inputs for up to ``n`` measurements of filters of one kind."""
+
+    __slots__ = ("kind", "m", "rows", "sel", "dts", "zp", "zo", "r")
+
+    def __init__(self, kind: _Kind, n: int):
+        self.kind = kind
+        self.m = 0
+        self.rows: list = []  # (measurement index, filter, time)
+        self.sel = np.empty(n, np.int64)
+        self.dts = np.empty(n)
+        self.zp = np.empty((n, 3))
+        self.zo = np.empty((n, 4))
+        self.r = np.empty((n, 6, 6))
+
+
 def _bankable(f) -> bool:
     return type(f) is PoseKalmanFilter and f._pose_model
 
@@ -127,17 +143,19 @@ class PoseFilterBank:
             ``ValueError``, such as a non-finite time). The gate decision and NIS of each
             measurement are in the filter's log (:attr:`PoseKalmanFilter.nis`, ``stats``).
         """
-        out: list = [False] * len(index)
+        n = len(index)
+        out: list = [False] * n
         seen: set[int] = set()
         later: list[int] = []  # rows of a filter met before in this call: after the kernels
-        batch: dict[int, list] = {}  # kind -> [(k, filter, row, t)]
+        batch: dict[int, _Batch] = {}  # per kind: the kernel's inputs
+        filters, slots = self.filters, self._slot
         for k, i in enumerate(index):
-            f = self.filters[i]
             if i in seen:
                 later.append(k)
                 continue
             seen.add(i)
-            slot = self._slot[i]
+            f = filters[i]
+            slot = slots[i]
             tk = float(t[k])
             pose = poses[k]
             if (
@@ -145,17 +163,30 @@ class PoseFilterBank:
                 or f._t is None
                 or not tk >= f._t
                 or not math.isfinite(tk)
-                or gating.reset_due(True, f._gated_run, slot[0].reset_after)
+                or f._gated_run >= slot[0].reset_after  # a reset is due
                 or not isinstance(pose, UncertainPose)
                 or pose.shape != ()
             ):
                 out[k] = self._one(f, tk, pose)
                 continue
-            batch.setdefault(id(slot[0]), []).append((k, f, slot[1], tk))
-        for rows in batch.values():
-            self._step(self._slot[index[rows[0][0]]][0], rows, poses, out)
+            kind, row = slot
+            b = batch.get(id(kind))
+            if b is None:
+                b = batch[id(kind)] = _Batch(kind, n)
+            if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
+                self._take(f, kind, row)
+            j = b.m
+            b.m += 1
+            b.rows.append((k, f, tk))
+            b.sel[j] = row
+            b.dts[j] = tk - f._t
+            b.zp[j] = pose.position
+            b.zo[j] = pose.quaternion
+            b.r[j] = pose.covariance
+        for b in batch.values():
+            self._step(b, out)
         for k in later:
-            out[k] = self._one(self.filters[index[k]], t[k], poses[k])
+            out[k] = self._one(filters[index[k]], t[k], poses[k])
         return out
 
     @staticmethod
@@ -165,34 +196,21 @@ class PoseFilterBank:
         except ValueError:
             return False
 
-    def _step(self, kind: _Kind, rows: list, poses: Sequence, out: list) -> None:
-        """One kernel call for the measurements ``rows`` of filters of ``kind``, then each
-        filter's log entry and bookkeeping as :meth:`PoseKalmanFilter._apply` does."""
-        m = len(rows)
-        sel = np.empty(m, np.int64)
-        dts = np.empty(m)
-        zp = np.empty((m, 3))
-        zo = np.empty((m, 4))
-        r = np.empty((m, 6, 6))
-        xv, pv = kind.xv, kind.pv
-        for j, (k, f, row, tk) in enumerate(rows):
-            if f._x is not xv[row] or f._p is not pv[row]:
-                self._take(f, kind, row)
-            pose = poses[k]
-            sel[j] = row
-            dts[j] = tk - f._t
-            zp[j] = pose.position
-            zo[j] = pose.quaternion
-            r[j] = pose.covariance
+    @staticmethod
+    def _step(b: _Batch, out: list) -> None:
+        """One kernel call for the measurements of ``b``, then each filter's log entry and
+        bookkeeping as :meth:`PoseKalmanFilter._apply` does."""
+        kind, m = b.kind, b.m
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
         nis = np.empty(m)
         kernels().step_bank(
-            kind.xs, kind.ps, sel, dts, kind.const, zp, zo, r, kind.gate, logs, status, nis
-        )
+            kind.xs, kind.ps, b.sel[:m], b.dts[:m], kind.const, b.zp[:m], b.zo[:m], b.r[:m],
+            kind.gate, logs, status, nis,
+        )  # fmt: skip
         diverged, gated = gating.DIVERGED, gating.GATED
         nx, nc = kind.nx, kind.nc
-        for (k, f, _, tk), buf, st, v in zip(rows, logs, status.tolist(), nis.tolist()):
+        for (k, f, tk), buf, st, v in zip(b.rows, logs, status.tolist(), nis.tolist()):
             if f._smooth_cache:
                 f._smooth_cache = {}
             e = _Entry(tk, 0, 0, buf, nx, nc, 6)
@@ -205,8 +223,16 @@ class PoseFilterBank:
             f._log.append(e)
             times = f._times
             times.append(tk)
-            if len(times) > 1 and times[1] < tk - f._history:  # what _prune would cut
-                f._prune()
+            h = tk - f._history
+            if len(times) > 1 and times[1] < h:  # what _prune would cut
+                if len(times) > 2 and times[2] < h:
+                    f._prune()
+                else:  # one entry before the new base: _prune's common case, inline
+                    log = f._log
+                    f._pruned[log[0].status] += 1
+                    f._base = log[0]
+                    del log[0]
+                    del times[0]
             out[k] = st != gated
 
     # -- predictions -------------------------------------------------------------------------
@@ -222,10 +248,11 @@ class PoseFilterBank:
             time before its history or not finite).
         """
         out: list = [None] * len(index)
-        batch: dict[int, list] = {}
+        batch: dict[int, tuple] = {}  # per kind: (kind, measurement indices, rows, steps)
+        filters, slots = self.filters, self._slot
         for k, i in enumerate(index):
-            f = self.filters[i]
-            slot = self._slot[i]
+            f = filters[i]
+            slot = slots[i]
             tk = float(t[k])
             if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
                 try:
@@ -233,20 +260,23 @@ class PoseFilterBank:
                 except ValueError:
                     pass
                 continue
-            batch.setdefault(id(slot[0]), []).append((k, f, slot[1], tk))
-        for rows in batch.values():
-            kind = self._slot[index[rows[0][0]]][0]
-            m = len(rows)
-            sel = np.empty(m, np.int64)
-            dts = np.empty(m)
-            for j, (_, f, row, tk) in enumerate(rows):
+            kind, row = slot
+            b = batch.get(id(kind))
+            if b is None:
+                b = batch[id(kind)] = (kind, [], [], [])
+            if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
                 self._take(f, kind, row)
-                sel[j] = row
-                dts[j] = tk - f._t
+            b[1].append(k)
+            b[2].append(row)
+            b[3].append(tk - f._t)
+        trusted = UncertainPose._trusted
+        for kind, ks, rows, dts in batch.values():
+            m = len(ks)
             res = np.empty((m, _source.POSE_OUT))
-            kernels().predict_pose_bank(kind.xs, kind.ps, sel, dts, kind.const, res)
-            trusted = UncertainPose._trusted
+            kernels().predict_pose_bank(
+                kind.xs, kind.ps, np.array(rows, np.int64), np.array(dts), kind.const, res
+            )
             pos, quat, cov = res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6)
-            for j, (k, _, _, _) in enumerate(rows):
-                out[k] = trusted(pos[j], quat[j], cov[j])
+            for k, p, q, c in zip(ks, pos, quat, cov):
+                out[k] = trusted(p, q, c)
         return out
