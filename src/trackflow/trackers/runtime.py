@@ -41,6 +41,7 @@ from ..dataflow import (
     Sampler,
     Setup,
 )
+from ..filters import PoseFilterBank
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
 from .inputs import CheckedSample, LiveInput, Sample, host_ns, make_inputs
@@ -193,8 +194,9 @@ class LiveSources:
 
 
 def warm_up(net) -> None:
-    """Run every Kalman filter of ``net`` once on a throwaway copy, so that compiling its
-    kernels (numba, first use in a process) happens before the trackers are listened to."""
+    """Run every Kalman filter of ``net`` once on a throwaway copy, alone and in a filter
+    bank, so that compiling its kernels (numba, first use in a process) happens before the
+    trackers are listened to."""
     seen = set()
     for c in net.components.values():
         if isinstance(c, KalmanFilter) and (c.motion, c.history_s) not in seen:
@@ -204,6 +206,11 @@ def warm_up(net) -> None:
             f.update_pose(0.0, u)
             f.update_pose(0.01, u)
             f.predict(0.02)
+            # and the batched kernels a packet of several bodies runs (LiveSources)
+            bank = PoseFilterBank([c.filter_factory(c.motion, c.history_s) for _ in range(2)])
+            for t in (0.0, 0.01):
+                bank.update_poses([0, 1], [t, t], [u, u])
+            bank.predict_poses([0, 1], [0.02, 0.02])
 
 
 @contextlib.contextmanager
