@@ -62,19 +62,19 @@ class _Kind:
 
 
 class _Batch:
-    """The kernel's inputs for up to ``n`` measurements of filters of one kind."""
+    """The kernel's inputs for the measurements of filters of one kind: per measurement its
+    ``(index, filter, time)``, the filter's row, the time step and the measurement."""
 
-    __slots__ = ("kind", "m", "rows", "sel", "dts", "zp", "zo", "r")
+    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r")
 
-    def __init__(self, kind: _Kind, n: int):
+    def __init__(self, kind: _Kind):
         self.kind = kind
-        self.m = 0
-        self.rows: list = []  # (measurement index, filter, time)
-        self.sel = np.empty(n, np.int64)
-        self.dts = np.empty(n)
-        self.zp = np.empty((n, 3))
-        self.zo = np.empty((n, 4))
-        self.r = np.empty((n, 6, 6))
+        self.rows: list = []
+        self.sel: list = []
+        self.dts: list = []
+        self.zp: list = []
+        self.zo: list = []
+        self.r: list = []
 
 
 def _bankable(f) -> bool:
@@ -143,8 +143,7 @@ class PoseFilterBank:
             ``ValueError``, such as a non-finite time). The gate decision and NIS of each
             measurement are in the filter's log (:attr:`PoseKalmanFilter.nis`, ``stats``).
         """
-        n = len(index)
-        out: list = [False] * n
+        out: list = [False] * len(index)
         seen: set[int] = set()
         later: list[int] = []  # rows of a filter met before in this call: after the kernels
         batch: dict[int, _Batch] = {}  # per kind: the kernel's inputs
@@ -165,24 +164,22 @@ class PoseFilterBank:
                 or not math.isfinite(tk)
                 or f._gated_run >= slot[0].reset_after  # a reset is due
                 or not isinstance(pose, UncertainPose)
-                or pose.shape != ()
+                or pose.covariance.ndim != 2  # a batch of poses
             ):
                 out[k] = self._one(f, tk, pose)
                 continue
             kind, row = slot
             b = batch.get(id(kind))
             if b is None:
-                b = batch[id(kind)] = _Batch(kind, n)
+                b = batch[id(kind)] = _Batch(kind)
             if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
                 self._take(f, kind, row)
-            j = b.m
-            b.m += 1
             b.rows.append((k, f, tk))
-            b.sel[j] = row
-            b.dts[j] = tk - f._t
-            b.zp[j] = pose.position
-            b.zo[j] = pose.quaternion
-            b.r[j] = pose.covariance
+            b.sel.append(row)
+            b.dts.append(tk - f._t)
+            b.zp.append(pose.position)
+            b.zo.append(pose.quaternion)
+            b.r.append(pose.covariance)
         for b in batch.values():
             self._step(b, out)
         for k in later:
@@ -200,13 +197,15 @@ class PoseFilterBank:
     def _step(b: _Batch, out: list) -> None:
         """One kernel call for the measurements of ``b``, then each filter's log entry and
         bookkeeping as :meth:`PoseKalmanFilter._apply` does."""
-        kind, m = b.kind, b.m
+        kind, m = b.kind, len(b.rows)
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
         nis = np.empty(m)
+        f64 = np.float64
         kernels().step_bank(
-            kind.xs, kind.ps, b.sel[:m], b.dts[:m], kind.const, b.zp[:m], b.zo[:m], b.r[:m],
-            kind.gate, logs, status, nis,
+            kind.xs, kind.ps, np.array(b.sel, np.int64), np.array(b.dts, f64), kind.const,
+            np.array(b.zp, f64), np.array(b.zo, f64), np.array(b.r, f64), kind.gate, logs,
+            status, nis,
         )  # fmt: skip
         diverged, gated = gating.DIVERGED, gating.GATED
         nx, nc = kind.nx, kind.nc
