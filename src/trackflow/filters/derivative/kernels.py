@@ -86,6 +86,7 @@ KERNELS = (
     "pose_of",
     "pose_mean_into",
     "predict_pose_into",
+    "predict_pose_with",
     "predict_pose",
     "smooth",
     "step",
@@ -765,14 +766,31 @@ def predict_pose_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out):
         q[:] = q4
         c[:, :] = c6
         return
-    xn, a = transition(x, dt, n_dp, n_do, additive)
-    qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    predict_pose_with(
+        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out,
+        predict_scratch(n_dp, n_do, additive), np.empty((6, nc)), np.empty(6, np.int64),
+    )  # fmt: skip
+
+
+def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, pws, t, sel):
+    """:func:`predict_pose_into` of the error-state formulation with its scratch arrays
+    given: ``pws`` (:func:`predict_scratch`), ``t`` (6, nc) and ``sel`` (6,) int, so that a
+    loop over many filters allocates them once."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    pos = out[:3]
+    q = out[3:7]
+    c = out[7:POSE_OUT].reshape((6, 6))
+    cf, b, d, xn, a, qm, lv = pws[0], pws[1], pws[2], pws[3], pws[4], pws[5], pws[6]
+    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
     qo = 3 * npl
-    sel = np.empty(6, np.int64)
     for k in range(3):
         sel[k] = k if npl > 0 else 0
         sel[3 + k] = qo + k if nol > 0 else 0
-    t = np.zeros((6, nc))
+    for r in range(6):
+        for k in range(nc):
+            t[r, k] = 0.0
     for r in range(6):
         for k in range(nc):
             v = a[sel[r], k]
@@ -973,10 +991,24 @@ def step_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis):
 
 def predict_pose_bank(xs, ps, rows, dts, c, out):
     """:func:`predict_pose_packed` for several filters of one kind: row ``k`` predicts the
-    state ``xs[rows[k]], ps[rows[k]]`` over ``dts[k]`` into ``out[k]`` (:data:`POSE_OUT`)."""
+    state ``xs[rows[k]], ps[rows[k]]`` over ``dts[k]`` into ``out[k]`` (:data:`POSE_OUT`),
+    the error-state formulation with scratch arrays shared by the rows."""
+    n_dp, n_do, additive, kind = int(c[0]), int(c[1]), int(c[2]), int(c[3])
+    if additive:
+        for k in range(rows.shape[0]):
+            i = rows[k]
+            predict_pose_packed(xs[i], ps[i], dts[k], c, out[k])
+        return
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    pws = predict_scratch(n_dp, n_do, additive)
+    t = np.empty((6, nc))
+    sel = np.empty(6, np.int64)
     for k in range(rows.shape[0]):
         i = rows[k]
-        predict_pose_packed(xs[i], ps[i], dts[k], c, out[k])
+        predict_pose_with(xs[i], ps[i], dts[k], n_dp, n_do, 0, kind, sp, so, out[k], pws, t, sel)
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):
