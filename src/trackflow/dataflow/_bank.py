@@ -47,28 +47,31 @@ class KalmanBank:
     def push(self, items: Sequence[tuple[int, Measurement]]) -> None:
         """``components[i].push(m)`` for every ``(i, m)``, in order, with the updates of the
         components that only keep their state (no push consumers) batched."""
+        comps = self.components
         run: list[tuple[int, Measurement]] = []
+        index: list[int] = []
+        times: list[float] = []
+        poses: list = []
         for i, m in items:
-            c = self.components[i]
+            c = comps[i]
             if c.consumers or c.prior is not None or type(c) is not KalmanFilter:
                 if run:
-                    self._push_run(run)
-                    run = []
+                    self._push_run(run, index, times, poses)
+                    run, index, times, poses = [], [], [], []
                 c.push(m)
-            else:
-                run.append((i, m))
-        if run:
-            self._push_run(run)
-
-    def _push_run(self, run: list[tuple[int, Measurement]]) -> None:
-        comps = self.components
-        index, times, poses = [], [], []
-        for i, m in run:
-            c = comps[i]
+                continue
             c.stats.events_in += 1
+            run.append((i, m))
             index.append(i)
             times.append((m.t_ns - c.stamp_offset_ns) * 1e-9)
             poses.append(m.pose)
+        if run:
+            self._push_run(run, index, times, poses)
+
+    def _push_run(self, run, index, times, poses) -> None:
+        """The batched updates of ``run`` (counted in already), then each component's
+        bookkeeping as :meth:`KalmanFilter.push` does it."""
+        comps = self.components
         accepted = self._filters().update_poses(index, times, poses)
         for (i, m), ok in zip(run, accepted):
             c = comps[i]
