@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
-from trackflow.dataflow import load_setup
-from trackflow.trackers.runtime import replay
+from trackflow.dataflow import Component, load_setup
+from trackflow.trackers.runtime import replay, run_live
 
 from .test_live_e2e import _finish, _free_port, _trackflow
 
@@ -51,3 +52,44 @@ def test_a_live_run_of_two_bodies_per_packet_replays_bit_for_bit(shared_data, tm
     assert out["answers"] > 100, out
     rep = json.loads(_finish(_trackflow("run", setup, "--replay", rec, "--json"), 90))
     assert rep == {"answers": out["answers"], "recorded": out["answers"], "identical": True}
+
+
+class _Failing(Component):
+    """A push consumer that fails on its third event."""
+
+    push_in = 1
+
+    def push(self, m, port=0):
+        self.stats.events_in += 1
+        if self.stats.events_in == 3:
+            raise RuntimeError("consumer failed")
+
+
+@pytest.mark.slow
+def test_an_error_while_a_receiving_thread_dispatches_stops_the_run(shared_data, tmp_path):
+    """The receiving thread dispatches its packet itself; an error there ends the run and
+    is raised by run_live (not lost with the thread)."""
+    room1 = shared_data / "tumvi" / "dataset-room1_512_16.txt"
+    if not room1.exists():
+        pytest.skip(f"{room1} not present")
+    port = _free_port()
+    path = tmp_path / "live.yaml"
+    path.write_text((BEFORE / "setup.yaml").read_text().replace("47811", str(port)))
+    failing = _Failing("failing")
+
+    def attach(net, plan, inputs):
+        net.components["head"].consumers.append((failing, 0))
+
+    sim = _trackflow(
+        "simulate", "natnet", room1, "--port", port, "--body", "rig", "--bodies", 2,
+        "--duration", 3, "--wait", 30,
+    )  # fmt: skip
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(RuntimeError, match="consumer failed"):
+            run_live(load_setup(path), duration_s=30, on_network=attach)
+        assert time.monotonic() - t0 < 25  # stopped at the error, not at the deadline
+    finally:
+        sim.kill()
+        sim.communicate(timeout=10)
+    assert failing.stats.events_in == 3
