@@ -470,6 +470,8 @@ def run_live(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        with sched.lock:  # no packet is dispatched from here on (also after Ctrl-C)
+            sched.stop.set()
         for inp in inputs:
             inp.stop()
         for c in net.components.values():
