@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from trackflow.math import UncertainPose
+from trackflow.math import UncertainPose, frozen
 
 from .. import gating
 from . import kernels as _source
@@ -41,7 +41,7 @@ class _Kind:
     nc), the packed constants, the gate of a pose measurement and the record length."""
 
     def __init__(self, f: PoseKalmanFilter, n: int):
-        self.const = f._const
+        self.const = frozen(f._const)  # kernel inputs read-only: one specialisation
         self.gate = f._gates[6]
         self.reset_after = f._policy.reset_after
         self.nx, self.nc = f._nx, f._nc
@@ -201,11 +201,9 @@ class PoseFilterBank:
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
         nis = np.empty(m)
-        f64 = np.float64
         kernels().step_bank(
-            kind.xs, kind.ps, np.array(b.sel, np.int64), np.array(b.dts, f64), kind.const,
-            np.array(b.zp, f64), np.array(b.zo, f64), np.array(b.r, f64), kind.gate, logs,
-            status, nis,
+            kind.xs, kind.ps, frozen(b.sel, np.int64), frozen(b.dts), kind.const,
+            frozen(b.zp), frozen(b.zo), frozen(b.r), kind.gate, logs, status, nis,
         )  # fmt: skip
         diverged, gated = gating.DIVERGED, gating.GATED
         nx, nc = kind.nx, kind.nc
@@ -273,7 +271,7 @@ class PoseFilterBank:
             m = len(ks)
             res = np.empty((m, _source.POSE_OUT))
             kernels().predict_pose_bank(
-                kind.xs, kind.ps, np.array(rows, np.int64), np.array(dts), kind.const, res
+                kind.xs, kind.ps, frozen(rows, np.int64), frozen(dts), kind.const, res
             )
             pos, quat, cov = res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6)
             for k, p, q, c in zip(ks, pos, quat, cov):
