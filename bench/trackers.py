@@ -8,10 +8,13 @@
   (``DataFrame.read_from_buffer``), the peer, measured in the same run.
 * ``e2e_latency_us``: a ``trackflow simulate natnet`` process sends 20 bodies at 240 Hz
   (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one core,
-  receives each packet, decodes it, maps the exposure time, pushes 20 measurements through
-  the runtime's queue into 20 pose Kalman filters and delivers the 20 filtered answers; the
-  latency is from the packet's receipt (the kernel's receive stamp, so time in the socket
-  buffer counts) to the last of its answers being delivered (``time.time_ns``, same clock).
+  receives each packet, decodes it, maps the exposure time and, in the receiving thread as
+  ``trackflow run`` does, pushes 20 measurements into 20 pose Kalman filters
+  (``LiveSources.deliver``: the filters' updates in one batched call) and delivers the 20
+  filtered answers (``KalmanBank.pull``, one batched prediction at each sample's arrival
+  time); the latency is from the packet's receipt (the kernel's receive stamp, so time in
+  the socket buffer counts) to the last of its answers being delivered (``time.time_ns``,
+  same clock).
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
 shared: take the figures as the best of a few runs.
@@ -22,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import queue
 import socket
 import subprocess
 import sys
@@ -37,7 +39,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import make_inputs
-from trackflow.trackers.runtime import LiveSource, calm_gc, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,42 +155,32 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
             components = {"kf": kf}
 
         warm_up(_Net)
-    events: queue.SimpleQueue = queue.SimpleQueue()
     lock = threading.Lock()
     latencies: list[int] = []
-    service: list[int] = []  # a packet taken from the queue -> its last answer
-    service_cpu: list[int] = []  # the same, CPU time of the scheduling thread
+    service: list[int] = []  # a packet decoded -> its last answer
+    service_cpu: list[int] = []  # the same, CPU time of the receiving thread
 
     names = [b.name for b in inp.bodies]
+    delivery = LiveSources(sources)
+    rows_of = delivery.row
 
     def sink(i, data, arrival):
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
-        with lock:
+        with lock:  # as trackflow run dispatches a packet: in the receiving thread
             pairs = i.handle(data, arrival)
-            if pairs:  # one queue item per packet, as the runtime's scheduler queues them
-                events.put((t0, [(names[bi], smp) for bi, smp in pairs]))
-
-    stop = threading.Event()
-
-    def schedule():
-        while not stop.is_set():
-            try:
-                t0, samples = events.get(timeout=0.1)
-            except queue.Empty:
-                continue
+            if not pairs:
+                return
             taken, cpu = time.time_ns(), time.thread_time_ns()
-            for name, smp in samples:
-                sources[name].deliver(smp)
-                answer = filters[name].pull(smp.arrival_ns)
+            samples = [(names[bi], smp) for bi, smp in pairs]
+            delivery.deliver(samples)
+            answers = delivery.filters.pull([(rows_of[n], smp.arrival_ns) for n, smp in samples])
             now = time.time_ns()  # the last answer of the packet is delivered
-            if answer is not None:
+            if answers[-1] is not None:
                 latencies.append(now - t0)
                 service.append(now - taken)
                 service_cpu.append(time.thread_time_ns() - cpu)
 
     with calm_gc():  # as trackflow run does once the network is warm
-        th = threading.Thread(target=schedule, daemon=True)
-        th.start()
         inp.start(sink)
         inp.ready.wait(5)
         env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
@@ -210,8 +202,6 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
                 sender.kill()
             time.sleep(0.2)
             inp.stop()
-            stop.set()
-            th.join(2)
     lat = np.asarray(latencies[RATE:], dtype=float) * 1e-3  # skip the first second
     if len(lat) == 0:
         raise RuntimeError(f"no answers; input status: {inp.status.summary(time.time_ns())}")
@@ -256,7 +246,7 @@ def main(argv=None) -> int:
         if d["pkg"]:
             print(f"natnet decode vs the natnet package: {d['decode']['natnet'] / d['pkg']:.1f}x")
         print(
-            f"processing one packet (20 updates + 20 answers) once dequeued: p50 "
+            f"processing one packet (20 updates + 20 answers) once decoded: p50 "
             f"{lat['service_p50']:.0f} us, p99 {lat['service_p99']:.0f} us "
             f"(period {1e6 / RATE:.0f} us); CPU time p50 {lat['service_cpu_p50']:.0f} us"
         )

@@ -2,10 +2,11 @@
 
 The work `bench/trackers.py` times end to end, in one thread: a NatNet 4.1 packet of 20
 bodies at 240 Hz goes through ``LiveInput.handle`` (decode, clock mapping, 20 checked
-samples). Each sample goes through ``LiveSource.deliver``, which includes the pose Kalman
-filter's update, and then ``KalmanFilter.pull`` (the filtered answer). Thread CPU times are
-less sensitive to other jobs than wall-clock latencies. The script prints the p10 and p50 per
-packet over ``--packets`` packets, after 200 warm-up packets.
+samples). The samples go through ``LiveSources.deliver`` (each source's checks, then the 20
+pose Kalman filters' updates in one batched call, as ``trackflow run`` delivers a packet),
+then the 20 filtered answers are pulled (``KalmanBank.pull``, one batched prediction).
+Thread CPU times are less sensitive to other jobs than wall-clock latencies. The script
+prints the p10 and p50 per packet over ``--packets`` packets, after 200 warm-up packets.
 
 Usage: ``python bench/trackers_cpu.py [--json] [--packets N]``.
 """
@@ -24,7 +25,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp
 from trackflow.trackers import natnet
 from trackflow.trackers.inputs import make_inputs
-from trackflow.trackers.runtime import LiveSource, calm_gc, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up
 
 BODIES, RATE, FREQ = 20, 240, 10_000_000
 
@@ -66,6 +67,8 @@ def measure(packets: int) -> dict:
 
     warm_up(_Net)
     names = [b.name for b in inp.bodies]
+    delivery = LiveSources(sources)
+    rows_of = delivery.row
     rows = []
     clock = time.thread_time_ns
     with calm_gc():
@@ -73,16 +76,13 @@ def measure(packets: int) -> dict:
             t0 = clock()
             pairs = inp.handle(data, arrival)
             t1 = clock()
-            deliver = answer = 0
-            for bi, s in pairs:
-                a = clock()
-                sources[names[bi]].deliver(s)
-                b = clock()
-                filters[names[bi]].pull(s.arrival_ns)
-                answer += clock() - b
-                deliver += b - a
+            items = [(names[bi], s) for bi, s in pairs]
+            delivery.deliver(items)
+            t2 = clock()
+            delivery.filters.pull([(rows_of[name], s.arrival_ns) for name, s in items])
+            t3 = clock()
             if k >= 200:
-                rows.append((t1 - t0, deliver, answer, clock() - t0))
+                rows.append((t1 - t0, t2 - t1, t3 - t2, t3 - t0))
     r = np.asarray(rows, dtype=float) * 1e-3
     keys = ("handle_us", "deliver_us", "answer_us", "packet_us")
     return {

@@ -7,6 +7,7 @@ those bodies' pose sensors (``docs/inertial.md``).
 """
 
 from ..filters import make_filter  # the default filter factory, re-exported for plans
+from ._bank import KalmanBank
 from ._component import Component
 from ._events import ComponentStats, Measurement
 from ._inertial import ImuPlayer, ImuSample, ImuSpec, InertialKalmanFilter
@@ -42,6 +43,7 @@ __all__ = [
     "feed_factory",
     "register_feed",
     "Inversion",
+    "KalmanBank",
     "KalmanFilter",
     "LatestValue",
     "LookupResult",

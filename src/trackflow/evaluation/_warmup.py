@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..filters import PoseKalmanFilter, TwistARModel
+from ..filters import PoseFilterBank, PoseKalmanFilter, TwistARModel
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, get_backend, quat_exp
 from ._model_file import filter_stream
@@ -79,6 +79,11 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     for k in range(50):
         kf.update_pose(float(t[k]), meas[k])
     kf.predict(float(t[49]) + 0.05), kf.predict(float(t[25]) + 1e-3)
+    # the filter bank of a live packet's bodies (trackflow run, bench/trackers.py)
+    bank = PoseFilterBank([PoseKalmanFilter(live.model, history=1.0) for _ in range(2)])
+    for k in range(3):
+        bank.update_poses([0, 1], [float(t[k])] * 2, [meas[k], meas[k]])
+    bank.predict_poses([0, 1], [float(t[2]) + 1e-3] * 2)
     steps.append("live")
 
     say("uncertain composition")

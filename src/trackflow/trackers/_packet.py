@@ -22,6 +22,11 @@ class PacketError(ValueError):
         self.reason = reason
 
 
+#: compiled struct formats by byte order, shared by every reader (at most _MAX_FORMATS each)
+_STRUCTS: dict[str, dict[str, struct.Struct]] = {}
+_MAX_FORMATS = 256
+
+
 class Reader:
     """Sequential reads from a bytes-like object; every read is bounds-checked.
 
@@ -39,7 +44,7 @@ class Reader:
         self.pos = pos
         self.end = len(data) if end is None else end
         self.endian = endian
-        self._cache: dict[str, struct.Struct] = {}
+        self._cache = _STRUCTS.setdefault(endian, {})  # formats shared by every reader
 
     def remaining(self) -> int:
         return self.end - self.pos
@@ -51,11 +56,14 @@ class Reader:
     def unpack(self, fmt: str, what: str) -> tuple:
         s = self._cache.get(fmt)
         if s is None:
-            s = self._cache[fmt] = struct.Struct(self.endian + fmt)
-        self.need(s.size, what)
-        out = s.unpack_from(self.data, self.pos)
-        self.pos += s.size
-        return out
+            s = struct.Struct(self.endian + fmt)
+            if len(self._cache) < _MAX_FORMATS:  # counted formats ("60f") vary per packet
+                self._cache[fmt] = s
+        pos = self.pos
+        if pos + s.size > self.end:
+            raise PacketError("truncated", f"{what} needs {s.size} bytes at offset {pos}")
+        self.pos = pos + s.size
+        return s.unpack_from(self.data, pos)
 
     def skip(self, n: int, what: str) -> None:
         self.need(n, what)

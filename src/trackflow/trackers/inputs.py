@@ -255,6 +255,10 @@ class LiveInput:
 
     def _frame(self, number: int) -> bool:
         ok = True
+        if self.bodies and all(b.status.last_frame == number - 1 for b in self.bodies):
+            for b in self.bodies:  # the next frame of every body: no gap, no restart
+                b.status.last_frame = number
+            return True
         for b in self.bodies:
             before = b.status.connection.get("frame counter restarted", 0)
             ok = b.status.frame(number) and ok
@@ -428,6 +432,7 @@ class NatNetInput(LiveInput):
         self.models: natnet.ModelDefinitions | None = None
         self.echo = True  # the server answers echo requests (until it says otherwise)
         self.echoes_sent = 0
+        self._plan = None  # (frame ids, model definitions, _body_rows of them)
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -460,7 +465,7 @@ class NatNetInput(LiveInput):
             raise PacketError("unexpected message", f"id {msg}")
         if self.server is None:
             raise PacketError("no handshake yet", "frame before SERVERINFO")
-        f = natnet.decode_frame(payload, self.server.version)
+        f = natnet.decode_frame(payload, self.server.version, table=True)
         if not self._frame(f.frame):
             return []
         freq = self.server.clock_frequency
@@ -470,25 +475,139 @@ class NatNetInput(LiveInput):
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
         t = self._map(tx_ns, lat_ns, arrival_ns)
+        if f.body_table is not None:
+            return self._table_samples(f.body_table, t, arrival_ns)
         by_id = {rb.id: rb for rb in f.rigid_bodies}
 
         def one(b: Body):
             rb = by_id.get(self.body_id(b))
             if rb is None:
                 raise PacketError("body not in frame", str(b.options["body"]))
-            if rb.valid is False:
-                raise PacketError("not tracked", str(b.options["body"]))
-            cov = None
-            ref = b.nominal_sigma
-            if rb.mean_error is not None and ref > 0:
-                err = rb.mean_error * b.conv.scale
-                if not (math.isfinite(err) and err >= 0):
-                    raise PacketError("bad mean error", f"{rb.mean_error}")
-                if err > ref:  # scaled by (error / nominal)^2: still exactly symmetric
-                    cov = b.nominal * (err / ref) ** 2
-            return self._sample(b, t, arrival_ns, rb.position, rb.quaternion, cov)
+            return self._body_sample(b, rb, t, arrival_ns)
 
         return self._per_body(one)
+
+    def _body_sample(self, b: Body, rb: natnet.NatNetRigidBody, t: int, arrival_ns: int):
+        """The sample of body ``b`` from its rigid body ``rb`` (covariance scaled by the mean
+        marker error when that is above the nominal sigma)."""
+        if rb.valid is False:
+            raise PacketError("not tracked", str(b.options["body"]))
+        cov = None
+        ref = b.nominal_sigma
+        if rb.mean_error is not None and ref > 0:
+            err = rb.mean_error * b.conv.scale
+            if not (math.isfinite(err) and err >= 0):
+                raise PacketError("bad mean error", f"{rb.mean_error}")
+            if err > ref:  # scaled by (error / nominal)^2: still exactly symmetric
+                cov = b.nominal * (err / ref) ** 2
+        return self._sample(b, t, arrival_ns, rb.position, rb.quaternion, cov)
+
+    def _body_rows(self, ids: list[int]) -> list | None:
+        """Per body, for frames with these rigid-body ids: ``(index, row, unit scale,
+        nominal sigma, sample class, nominal covariance)``, when every body is in the frame
+        and sent in trackflow's frame (Z-up); else ``None``."""
+        row_of = {bid: k for k, bid in enumerate(ids)}
+        out = []
+        for i, b in enumerate(self.bodies):
+            try:
+                row = row_of.get(self.body_id(b))
+            except PacketError:
+                return None
+            if row is None or b.conv.up != "z":
+                return None
+            kind = CheckedSample if b.nominal_valid else Sample
+            out.append((i, row, b.conv.scale, b.nominal_sigma, kind, b.nominal_converted))
+        return out
+
+    @staticmethod
+    def _plain_samples(rows, pos, qn, err, params, finite, unit, scaled) -> list | None:
+        """``(index, sample class, position, quaternion, covariance)`` of every body of
+        :meth:`_body_rows` when all are plainly valid (tracked, finite, a unit quaternion
+        to 10 %, no mean marker error above the nominal sigma, no overflow by the unit
+        scale), with no side effect; ``None`` as soon as one is not."""
+        out = []
+        for i, row, k, ref, kind, cov in rows:
+            if not (params[row] & 1 and finite[row] and unit[row]):
+                return None
+            if ref > 0 and not 0.0 <= err[row] * k <= ref:
+                return None
+            sk = scaled.get(k)
+            if sk is None:
+                with np.errstate(all="ignore"):
+                    p = pos * k
+                    sk = scaled[k] = (p, np.isfinite(p[:, 0] + p[:, 1] + p[:, 2]).tolist())
+            if not sk[1][row]:
+                return None
+            out.append((i, kind, sk[0][row], qn[row], cov))
+        return out
+
+    def _table_samples(self, tab: np.ndarray, t: int, arrival_ns: int):
+        """:meth:`_body_sample` for every body from a frame's rigid-body table
+        (:data:`natnet.RIGID_BODY_DTYPE`), the arithmetic of :meth:`LiveInput._sample` done
+        for all rows at once (the same operations, so the same bits). A body whose
+        covariance is scaled or whose frame is converted (Y-up) takes the per-body path."""
+        t, arrival_ns = int(t), int(arrival_ns)
+        ids = tab["id"].tolist()
+        row_of = {bid: k for k, bid in enumerate(ids)}  # the last of a repeated id, as a dict
+        pos = tab["position"].astype(np.float64)
+        quat = tab["quaternion"].astype(np.float64)
+        err = tab["mean_error"].tolist()
+        params = tab["params"].tolist()
+        with np.errstate(all="ignore"):  # non-finite rows are rejected below, per body
+            q0, q1, q2, q3 = quat.T
+            n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+            finite = np.isfinite(pos[:, 0] + pos[:, 1] + pos[:, 2]) & np.isfinite(n2)
+            unit = (0.81 < n2) & (n2 < 1.21)
+            qn = quat / np.sqrt(np.where(unit, n2, 1.0))[:, None]
+        finite, unit = finite.tolist(), unit.tolist()
+        scaled: dict[float, tuple[np.ndarray, list]] = {}  # unit scale -> positions, finite
+        plan = self._plan
+        if plan is None or plan[0] != ids or plan[1] is not self.models:
+            plan = self._plan = (ids, self.models, self._body_rows(ids))
+        if plan[2] is not None:
+            out = self._plain_samples(plan[2], pos, qn, err, params, finite, unit, scaled)
+            if out is not None:
+                for b in self.bodies:
+                    b.status.measured(arrival_ns, t)
+                return [(i, kind(t, arrival_ns, p, q, c)) for i, kind, p, q, c in out]
+        out = []
+        for i, b in enumerate(self.bodies):
+            try:
+                row = row_of.get(self.body_id(b))
+                if row is None:
+                    raise PacketError("body not in frame", str(b.options["body"]))
+                conv = b.conv
+                e = err[row]
+                ref = b.nominal_sigma
+                if conv.up != "z" or (ref > 0 and not 0.0 <= e * conv.scale <= ref):
+                    rb = natnet.NatNetRigidBody(
+                        ids[row], tuple(tab["position"][row].tolist()),
+                        tuple(tab["quaternion"][row].tolist()), e, params[row] & 1 == 1,
+                    )  # fmt: skip
+                    out.append((i, self._body_sample(b, rb, t, arrival_ns)))
+                    continue
+                if not params[row] & 1:
+                    raise PacketError("not tracked", str(b.options["body"]))
+                if not finite[row]:
+                    raise PacketError("non-finite pose", b.name)
+                if not unit[row]:
+                    raise PacketError("non-unit quaternion", f"|q|^2 = {float(n2[row]):.4g}")
+                k = conv.scale
+                if k not in scaled:
+                    with np.errstate(all="ignore"):
+                        p = pos * k
+                        ok = np.isfinite(p[:, 0] + p[:, 1] + p[:, 2]).tolist()
+                    scaled[k] = (p, ok)
+                p, ok = scaled[k]
+                if not ok[row]:  # the unit scale made it overflow
+                    raise PacketError("non-finite pose", b.name)
+            except PacketError as exc:
+                b.status.reject(exc.reason)
+                continue
+            b.status.measured(arrival_ns, t)
+            kind = CheckedSample if b.nominal_valid else Sample
+            out.append((i, kind(t, arrival_ns, p[row], qn[row], b.nominal_converted)))
+        return out
 
     def _ticks_ns(self, ticks: int) -> int:
         """Server clock ticks -> tracker time [ns] (exact integers)."""

@@ -22,8 +22,10 @@ the handshake. Layout of a frame of mocap data (message 7), by version (NatNet S
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
+
+import numpy as np
 
 from ._packet import MAX_DATAGRAM, PacketError, Reader
 
@@ -45,6 +47,7 @@ __all__ = [
     "ModelDefinitions",
     "NatNetFrame",
     "NatNetRigidBody",
+    "RIGID_BODY_DTYPE",
     "RigidBodyDescription",
     "ServerInfo",
     "decode_echo_response",
@@ -71,6 +74,12 @@ SUPPORTED_VERSIONS = ((2, 0), (2, 6), (2, 7), (2, 9), (2, 11), (3, 0), (3, 1), (
 
 _HEAD = struct.Struct("<HH")
 _RB3 = struct.Struct("<i3f4ffh")  # >= 3.0 rigid body: 38 bytes
+#: the same 38 bytes as a NumPy record: the rigid bodies of a frame in one array
+RIGID_BODY_DTYPE = np.dtype(
+    [("id", "<i4"), ("position", "<f4", (3,)), ("quaternion", "<f4", (4,)),
+     ("mean_error", "<f4"), ("params", "<i2")]
+)  # fmt: skip
+assert RIGID_BODY_DTYPE.itemsize == _RB3.size
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +130,9 @@ class NatNetFrame:
     marker_sets: tuple[tuple[str, tuple[tuple[float, float, float], ...]], ...] = ()
     labeled_markers: int = 0
     software_latency: float | None = None
+    #: from 3.0, with ``decode_frame(..., table=True)``: the rigid bodies as one read-only
+    #: array of :data:`RIGID_BODY_DTYPE` records (``rigid_bodies`` is then empty)
+    body_table: np.ndarray | None = field(default=None, compare=False)
 
     def body(self, body_id: int) -> NatNetRigidBody | None:
         for b in self.rigid_bodies:
@@ -275,8 +287,12 @@ def _vec_floats(r: Reader, what: str) -> None:
         r.skip(4 * nf, what)
 
 
-def decode_frame(payload, version) -> NatNetFrame:
+def decode_frame(payload, version, *, table: bool = False) -> NatNetFrame:
     """Decode the payload of a FRAMEOFDATA message for NatNet ``version`` (major, minor).
+
+    ``table=True`` (NatNet 3.0+): the rigid bodies come as one array of
+    :data:`RIGID_BODY_DTYPE` records in ``body_table`` (the bytes of the packet, not copied)
+    instead of one :class:`NatNetRigidBody` each; before 3.0 the option changes nothing.
 
     Raises
     ------
@@ -303,7 +319,13 @@ def decode_frame(payload, version) -> NatNetFrame:
     # rigid bodies
     n, size = _section(r, v, "rigid bodies", 38 if v >= (3, 0) else 32)
     start = r.pos
-    if v >= (3, 0):
+    tab = None
+    if v >= (3, 0) and table:
+        r.need(38 * n, "rigid bodies")
+        tab = np.frombuffer(r.data, RIGID_BODY_DTYPE, n, r.pos)
+        bodies = ()
+        r.pos += 38 * n
+    elif v >= (3, 0):
         r.need(38 * n, "rigid bodies")
         bodies = tuple(
             NatNetRigidBody(t[0], t[1:4], t[4:8], t[8], t[9] & 1 == 1)
@@ -350,7 +372,7 @@ def decode_frame(payload, version) -> NatNetFrame:
     if r.remaining() >= 4:
         r.skip(4, "end of data")
     return NatNetFrame(
-        frame, bodies, ts, mid, recv, tx, prec, params & 0xFFFF, tc, tuple(msets), nlab, lat
+        frame, bodies, ts, mid, recv, tx, prec, params & 0xFFFF, tc, tuple(msets), nlab, lat, tab
     )
 
 

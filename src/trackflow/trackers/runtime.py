@@ -2,12 +2,14 @@
 
 Live event order. Every packet is stamped on arrival (host clock, ``time.time_ns``) under one
 lock that also hands out strictly increasing dispatch times (samples of one packet get
-``arrival, arrival + 1 ns, ...``), so the queue is in time order; the scheduler thread
-dispatches samples and sampler ticks in time order, a sample before a tick at the same
-nanosecond, exactly as the virtual clock of :meth:`trackflow.dataflow.Network.run` orders
-them. A tick is fired only when no sample with an earlier time can still arrive (the lock
-raises a floor under later stamps). The answers therefore depend only on the recorded inputs
-and their dispatch times, and :func:`replay` reproduces them bit for bit.
+``arrival, arrival + 1 ns, ...``); the receiving thread dispatches the packet under that
+lock (no hand-off to another thread), after the sampler ticks before its samples, a sample
+before a tick at the same nanosecond, exactly as the virtual clock of
+:meth:`trackflow.dataflow.Network.run` orders them. The scheduling thread fires, under the
+same lock, the ticks that fall due while no packet arrives; a packet stamped before an
+already fired tick is dispatched after it (the lock raises a floor under later stamps). The
+answers therefore depend only on the recorded inputs and their dispatch times, and
+:func:`replay` reproduces them bit for bit.
 
 Recording (``record=out.tfrec``): ``out.tfrec`` holds the answers (``T_source_target`` of the
 query with covariance, as :class:`trackflow.dataflow.Recorder` writes them); for every
@@ -20,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -31,6 +32,7 @@ import numpy as np
 
 from ..dataflow import (
     Component,
+    KalmanBank,
     KalmanFilter,
     Measurement,
     Network,
@@ -39,12 +41,14 @@ from ..dataflow import (
     Sampler,
     Setup,
 )
+from ..filters import PoseFilterBank
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
 from .inputs import CheckedSample, LiveInput, Sample, host_ns, make_inputs
 
 __all__ = [
     "LiveSource",
+    "LiveSources",
     "ReplayResult",
     "calm_gc",
     "RunResult",
@@ -74,6 +78,15 @@ class LiveSource(Component):
         self._valid_cov = None  # the last read-only covariance found valid (checked once)
 
     def deliver(self, s: Sample) -> UncertainPose | None:
+        """Take a sample (:meth:`accept`) and push its measurement to the consumers."""
+        pose = self.accept(s)
+        if pose is not None:
+            self.emit(Measurement(s.t_ns, pose, s.t_ns))
+        return pose
+
+    def accept(self, s: Sample) -> UncertainPose | None:
+        """The sample's pose, counted and checked as :meth:`deliver` does, not yet pushed;
+        ``None`` for a counted rejection."""
         self.stats.events_in += 1
         if self._last_t is not None and s.t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
@@ -89,7 +102,6 @@ class LiveSource(Component):
                 self.stats.reject("invalid pose or covariance")
                 return None
         self._last_t = s.t_ns
-        self.emit(Measurement(s.t_ns, pose, s.t_ns))
         return pose
 
     def _plain_pose(self, s: Sample) -> UncertainPose | None:
@@ -125,9 +137,66 @@ class LiveSource(Component):
         return UncertainPose._trusted(p, q, c)
 
 
+class LiveSources:
+    """The live sources of a network delivering the samples of a packet together.
+
+    :meth:`deliver` does what ``sources[name].deliver(sample)`` one after the other does;
+    the measurements of sources whose only consumer is a plain :class:`KalmanFilter` go to
+    the filters in one batched call (:class:`trackflow.dataflow.KalmanBank`), the others
+    one by one, in order (the batch so far is pushed first).
+
+    Parameters
+    ----------
+    sources : dict
+        ``{name: LiveSource}``, wired to their consumers.
+    """
+
+    def __init__(self, sources: dict[str, LiveSource]):
+        self.sources = sources
+        kfs: list[KalmanFilter] = []
+        self._row: dict[str, tuple[int, list]] = {}
+        for name, src in sources.items():
+            if len(src.consumers) == 1 and type(src.consumers[0][0]) is KalmanFilter:
+                self._row[name] = (len(kfs), list(src.consumers))
+                kfs.append(src.consumers[0][0])
+        #: the filters fed directly by a source, in one bank (pull answers through it)
+        self.filters = KalmanBank(kfs)
+        self.row = {name: r[0] for name, r in self._row.items()}
+
+    def deliver(self, items, clock=None) -> list[UncertainPose | None]:
+        """Deliver ``(name, sample)`` pairs in order; the accepted poses (``None`` for a
+        rejection). ``clock`` (a network's) is set to each sample's arrival before a
+        consumer other than a batched filter sees it, and to the last one's at the end."""
+        batch: list[tuple[int, Measurement]] = []
+        out: list[UncertainPose | None] = []
+        for name, s in items:
+            src = self.sources[name]
+            row = self._row.get(name)
+            if row is not None and src.consumers == row[1]:
+                pose = src.accept(s)
+                if pose is not None:
+                    src.stats.events_out += 1
+                    batch.append((row[0], Measurement(s.t_ns, pose, s.t_ns)))
+            else:
+                if batch:
+                    self.filters.push(batch)
+                    batch = []
+                if clock is not None:
+                    clock.now_ns = s.arrival_ns
+                    clock.dispatch_wall_ns = time.perf_counter_ns()
+                pose = src.deliver(s)
+            out.append(pose)
+        if batch:
+            self.filters.push(batch)
+        if clock is not None and items:
+            clock.now_ns = items[-1][1].arrival_ns
+        return out
+
+
 def warm_up(net) -> None:
-    """Run every Kalman filter of ``net`` once on a throwaway copy, so that compiling its
-    kernels (numba, first use in a process) happens before the trackers are listened to."""
+    """Run every Kalman filter of ``net`` once on a throwaway copy, alone and in a filter
+    bank, so that compiling its kernels (numba, first use in a process) happens before the
+    trackers are listened to."""
     seen = set()
     for c in net.components.values():
         if isinstance(c, KalmanFilter) and (c.motion, c.history_s) not in seen:
@@ -137,6 +206,11 @@ def warm_up(net) -> None:
             f.update_pose(0.0, u)
             f.update_pose(0.01, u)
             f.predict(0.02)
+            # and the batched kernels a packet of several bodies runs (LiveSources)
+            bank = PoseFilterBank([c.filter_factory(c.motion, c.history_s) for _ in range(2)])
+            for t in (0.0, 0.01):
+                bank.update_poses([0, 1], [t, t], [u, u])
+            bank.predict_poses([0, 1], [0.02, 0.02])
 
 
 @contextlib.contextmanager
@@ -198,45 +272,75 @@ def _sensor_edges(plan) -> list[str]:
 class _Scheduler:
     """Time-ordered dispatch of live samples and sampler ticks (module docstring).
 
-    Receiving threads call :meth:`packet`; the scheduling thread runs :meth:`loop`.
+    A receiving thread dispatches its packet itself (:meth:`packet`: no hand-off to another
+    thread, so a packet's answers are not delayed by a thread switch); the scheduling
+    thread (:meth:`loop`) fires the ticks that fall due while no packet arrives. Both hold
+    one lock, so events are dispatched one at a time, in time order.
     """
 
     def __init__(self, net, sampler: Sampler, sources: dict, inputs: list, writers: dict):
         self.clock = net.clock
         self.sampler = sampler
         self.sources = sources
+        self.delivery = LiveSources(sources)
         self.writers = writers
         self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
-        self.events: queue.SimpleQueue = queue.SimpleQueue()
         self.lock = threading.Lock()
         self.last = 0  # the latest dispatch time handed out
         self.floor = 0  # no dispatch time at or below a fired tick
+        self.next_tick = 0  # the next tick to fire (set before the inputs start)
         self.ticks = 0
+        self.error: BaseException | None = None  # raised in a receiving thread
+        self.stop = threading.Event()
 
     def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
-        """Decode a packet and queue its samples (one queue item) with strictly increasing
-        dispatch times ``a, a + 1, ...``."""
+        """Decode a packet and dispatch its samples with strictly increasing dispatch times
+        ``a, a + 1, ...``, after the ticks before them (a sample first at ties)."""
         with self.lock:
-            a = max(stamp, self.last + 1, self.floor)
-            pairs = inp.handle(data, a)
-            if pairs:
-                key = id(inp)
-                self.events.put(
-                    [
-                        (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
-                        for k, (bi, s) in enumerate(pairs)
-                    ]
-                )
-            self.last = a + max(len(pairs) - 1, 0)
+            if self.stop.is_set():  # the run is over (or failed): nothing more dispatched
+                return
+            try:
+                a = max(stamp, self.last + 1, self.floor)
+                pairs = inp.handle(data, a)
+                self.last = a + max(len(pairs) - 1, 0)
+                if pairs:
+                    key = id(inp)
+                    self._dispatch_packet(
+                        [
+                            (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
+                            for k, (bi, s) in enumerate(pairs)
+                        ]
+                    )
+            except BaseException as exc:  # reported by the scheduling thread, which stops
+                self.error = exc
+                self.stop.set()
 
-    def dispatch(self, arrival: int, name: str, s: Sample) -> None:
-        self.clock.now_ns = arrival
+    def _dispatch_packet(self, item: list[tuple[str, Sample]]) -> None:
+        """The samples of one packet, split at the ticks among them."""
+        period = self.sampler.period_ns
+        i, n = 0, len(item)
+        while i < n:
+            while self.next_tick < item[i][1].arrival_ns:
+                self.fire(self.next_tick)
+                self.next_tick += period
+            j = i + 1
+            while j < n and item[j][1].arrival_ns <= self.next_tick:
+                j += 1
+            self.dispatch(item[i:j])
+            i = j
+
+    def dispatch(self, items: list[tuple[str, Sample]]) -> None:
+        """Deliver samples with no tick between them (one batch, :class:`LiveSources`) and
+        record the accepted ones."""
+        self.clock.now_ns = items[0][1].arrival_ns
         self.clock.dispatch_wall_ns = time.perf_counter_ns()
-        pose = self.sources[name].deliver(s)
-        if pose is not None and name in self.writers:
-            p, q, c = pose.position, pose.quaternion, pose.covariance
-            self.writers[name][0].append_sample(s.t_ns, p, q, c)
-            self.writers[name][1].append_sample(arrival, p, q, c)
+        poses = self.delivery.deliver(items, self.clock)
+        if self.writers:
+            for (name, s), pose in zip(items, poses):
+                if pose is not None and name in self.writers:
+                    p, q, c = pose.position, pose.quaternion, pose.covariance
+                    self.writers[name][0].append_sample(s.t_ns, p, q, c)
+                    self.writers[name][1].append_sample(s.arrival_ns, p, q, c)
 
     def fire(self, t: int) -> None:
         self.clock.now_ns = t
@@ -244,36 +348,29 @@ class _Scheduler:
         self.sampler.tick(t)
         self.ticks += 1
 
-    def loop(self, next_tick: int, deadline: int | None, stop: threading.Event, status) -> None:
-        """Dispatch until ``deadline`` (host ns) or ``stop``; ``status(now)`` is called
-        between events."""
+    def loop(self, deadline: int | None, stop: threading.Event, status) -> None:
+        """Fire the ticks that fall due until ``deadline`` (host ns) or ``stop``;
+        ``status(now)`` is called between them. An error raised while a receiving thread
+        dispatched its packet is raised here."""
         period = self.sampler.period_ns
-        while not stop.is_set():
+        while not (stop.is_set() or self.stop.is_set()):
             now = host_ns()
             if deadline is not None and now >= deadline:
-                return
+                break
             status(now)
-            wait = min(next_tick - now, 100_000_000)
-            try:
-                item = (
-                    self.events.get(timeout=wait * 1e-9) if wait > 0 else self.events.get_nowait()
-                )
-            except queue.Empty:
-                item = None
-            if item is not None:
-                for name, s in item:  # the samples of one packet
-                    while next_tick < s.arrival_ns:  # ticks before it (a sample first at ties)
-                        self.fire(next_tick)
-                        next_tick += period
-                    self.dispatch(s.arrival_ns, name, s)
+            wait = min(self.next_tick - now, 100_000_000)
+            if wait > 0:
+                self.stop.wait(wait * 1e-9)
                 continue
-            if host_ns() >= next_tick:
-                with self.lock:  # no sample stamped before the tick may still be on its way
-                    if not self.events.empty():
-                        continue
-                    self.floor = max(self.floor, next_tick + 1)
-                self.fire(next_tick)
-                next_tick += period
+            with self.lock:  # no sample stamped before the tick may still come after it
+                if host_ns() >= self.next_tick and self.error is None:
+                    self.floor = max(self.floor, self.next_tick + 1)
+                    self.fire(self.next_tick)
+                    self.next_tick += period
+        with self.lock:
+            self.stop.set()
+        if self.error is not None:
+            raise self.error
 
 
 def _writers(setup: Setup, edges: list[str], record) -> dict:
@@ -357,7 +454,7 @@ def run_live(
 
     t_start = host_ns()
     next_tick = -(-t_start // sampler.period_ns) * sampler.period_ns
-    sampler.start_ns = next_tick
+    sampler.start_ns = sched.next_tick = next_tick
     deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
     next_status[0] = t_start + int(status_period_s * 1e9)
     interrupted = False
@@ -369,10 +466,12 @@ def run_live(
         if on_status is not None:
             on_status([f"listening: {', '.join(b.name for b in bodies)}"])
         with calm_gc():
-            sched.loop(next_tick, deadline, stop or threading.Event(), status)
+            sched.loop(deadline, stop or threading.Event(), status)
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        with sched.lock:  # no packet is dispatched from here on (also after Ctrl-C)
+            sched.stop.set()
         for inp in inputs:
             inp.stop()
         for c in net.components.values():

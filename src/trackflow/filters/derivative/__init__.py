@@ -2,10 +2,12 @@
 
 ``model`` (:class:`MotionModel`: state layout and process noise), ``kernels`` (the compiled
 prediction, update and offline loop), ``streaming`` (:class:`PoseKalmanFilter`: predict,
-interpolate, fuse, estimate static poses) and ``offline`` (:func:`run_filter` and the smoother
+interpolate, fuse, estimate static poses), ``bank`` (:class:`PoseFilterBank`: the filters of
+one packet in one compiled call) and ``offline`` (:func:`run_filter` and the smoother
 :func:`smooth_filter` over whole recordings). See ``docs/filters.md``.
 """
 
+from .bank import PoseFilterBank
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter, smooth_filter
 from .streaming import FilterSnapshot, PoseKalmanFilter
@@ -15,6 +17,7 @@ __all__ = [
     "FilterResult",
     "FilterSnapshot",
     "MotionModel",
+    "PoseFilterBank",
     "PoseKalmanFilter",
     "run_filter",
     "smooth_filter",

@@ -80,19 +80,24 @@ KERNELS = (
     "selection_rows",
     "update_into",
     "update",
+    "update_with",
     "local",
     "initialize",
     "pose_of",
     "pose_mean_into",
     "predict_pose_into",
+    "predict_pose_with",
     "predict_pose",
     "smooth",
     "step",
     "step_into",
+    "step_with",
     "log_size",
     "constants",
     "step_packed",
     "predict_pose_packed",
+    "step_bank",
+    "predict_pose_bank",
     "measurement_cov",
     "row_is_finite",
     "run",
@@ -576,8 +581,17 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
     """
     nc = p.shape[0]
     m = y.shape[0]
-    ws = update_scratch(m, nc)
-    idx = np.empty(m, np.int64)
+    return update_with(
+        x, p, y, h, r, gate, n_dp, n_do, additive, wmax, update_scratch(m, nc),
+        np.empty(m, np.int64),
+    )  # fmt: skip
+
+
+def update_with(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws, idx):
+    """:func:`update` with its scratch arrays given (:func:`update_scratch` and ``idx``
+    (m,) int), so that a loop over many filters allocates them once."""
+    nc = p.shape[0]
+    m = y.shape[0]
     if selection_rows(h, idx):
         return update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws)
     hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
@@ -752,14 +766,31 @@ def predict_pose_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out):
         q[:] = q4
         c[:, :] = c6
         return
-    xn, a = transition(x, dt, n_dp, n_do, additive)
-    qm = process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+    predict_pose_with(
+        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out,
+        predict_scratch(n_dp, n_do, additive), np.empty((6, nc)), np.empty(6, np.int64),
+    )  # fmt: skip
+
+
+def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, pws, t, sel):
+    """:func:`predict_pose_into` of the error-state formulation with its scratch arrays
+    given: ``pws`` (:func:`predict_scratch`), ``t`` (6, nc) and ``sel`` (6,) int, so that a
+    loop over many filters allocates them once."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    pos = out[:3]
+    q = out[3:7]
+    c = out[7:POSE_OUT].reshape((6, 6))
+    cf, b, d, xn, a, qm, lv = pws[0], pws[1], pws[2], pws[3], pws[4], pws[5], pws[6]
+    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
     qo = 3 * npl
-    sel = np.empty(6, np.int64)
     for k in range(3):
         sel[k] = k if npl > 0 else 0
         sel[3 + k] = qo + k if nol > 0 else 0
-    t = np.zeros((6, nc))
+    for r in range(6):
+        for k in range(nc):
+            t[r, k] = 0.0
     for r in range(6):
         for k in range(nc):
             v = a[sel[r], k]
@@ -856,6 +887,23 @@ def step_into(
     One compiled call per update instead of a call and five copies made from Python.
     """
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = residual_size(additive, lp, lo)
+    return step_with(
+        x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log,
+        predict_scratch(n_dp, n_do, additive), np.empty(m), np.empty((m, nc)),
+        update_scratch(m, nc), np.empty(m, np.int64),
+    )  # fmt: skip
+
+
+def step_with(
+    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, lp, lo, zp, zo, r, gate, wmax, log,
+    pws, y, h, uws, idx,
+):  # fmt: skip
+    """:func:`step_into` with its scratch arrays given: ``pws`` (:func:`predict_scratch`),
+    the innovation ``y`` (m,) and Jacobian ``h`` (m, nc) (:func:`residual_size`), ``uws``
+    (:func:`update_scratch`) and ``idx`` (m,) int; a loop over many filters allocates them
+    once. Every scratch array is written before it is read."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
     if log.shape[0] > 0:
         o = nx + nc * nc
         for k in range(3):
@@ -866,12 +914,12 @@ def step_into(
         for i in range(rows):
             for j in range(rows):
                 log[o + 7 + i * rows + j] = r[i, j]
-    ws = predict_scratch(n_dp, n_do, additive)
-    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws)
-    y, h = residual(x, n_dp, n_do, additive, lp, lo, zp, zo)
-    status, nis = update(
-        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive, wmax
-    )
+    predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
+    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+    status, nis = update_with(
+        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive,
+        wmax, uws, idx,
+    )  # fmt: skip
     if log.shape[0] > 0:
         for i in range(nx):
             log[i] = x[i]
@@ -912,6 +960,55 @@ def predict_pose_packed(x, p, dt, c, out):
     sp = c[7 : 7 + n_sp]
     so = c[7 + n_sp : 7 + n_sp + int(c[6])]
     predict_pose_into(x, p, dt, int(c[0]), int(c[1]), int(c[2]), int(c[3]), sp, so, out)
+
+
+def step_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis):
+    """:func:`step_packed` of pose measurements (``lp = lo = 0``) for several filters of
+    one kind in one call: row ``k`` updates the state ``xs[rows[k]], ps[rows[k]]`` over
+    ``dts[k]`` with ``zp[k], zo[k], r[k]`` and writes the record ``logs[k]``, its status
+    and NIS into ``status[k], nis[k]``. The same operations, in the same order, as one
+    :func:`step_packed` per filter."""
+    n_dp, n_do, additive, kind, wmax = int(c[0]), int(c[1]), int(c[2]), int(c[3]), c[4]
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    m = residual_size(additive, 0, 0)
+    pws = predict_scratch(n_dp, n_do, additive)  # scratch shared by the rows
+    uws = update_scratch(m, nc)
+    y = np.empty(m)
+    h = np.empty((m, nc))
+    idx = np.empty(m, np.int64)
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        s, v = step_with(
+            xs[i], ps[i], dts[k], n_dp, n_do, additive, kind, sp, so, 0, 0, zp[k], zo[k], r[k],
+            gate, wmax, logs[k], pws, y, h, uws, idx,
+        )  # fmt: skip
+        status[k] = s
+        nis[k] = v
+
+
+def predict_pose_bank(xs, ps, rows, dts, c, out):
+    """:func:`predict_pose_packed` for several filters of one kind: row ``k`` predicts the
+    state ``xs[rows[k]], ps[rows[k]]`` over ``dts[k]`` into ``out[k]`` (:data:`POSE_OUT`),
+    the error-state formulation with scratch arrays shared by the rows."""
+    n_dp, n_do, additive, kind = int(c[0]), int(c[1]), int(c[2]), int(c[3])
+    if additive:
+        for k in range(rows.shape[0]):
+            i = rows[k]
+            predict_pose_packed(xs[i], ps[i], dts[k], c, out[k])
+        return
+    n_sp = int(c[5])
+    sp = c[7 : 7 + n_sp]
+    so = c[7 + n_sp : 7 + n_sp + int(c[6])]
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    pws = predict_scratch(n_dp, n_do, additive)
+    t = np.empty((6, nc))
+    sel = np.empty(6, np.int64)
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        predict_pose_with(xs[i], ps[i], dts[k], n_dp, n_do, 0, kind, sp, so, out[k], pws, t, sel)
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):

@@ -1,0 +1,152 @@
+"""The filter bank (:class:`PoseFilterBank`) gives every filter the answers, log records, gate
+decisions and resets it gives on its own, to the last bit, on both backends: on a real
+recording replayed as several bodies, with outliers (gated, then a reset after a burst),
+bodies missing from packets (occluded), out-of-order arrivals, two measurements of one filter
+in one call, past-time queries, and filters the kernels do not run (another formulation,
+another noise, a position-only model, another filter class) mixed in."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from trackflow import Pose, UncertainPose
+from trackflow.filters import (
+    FilterStatus,
+    MotionModel,
+    PoseKalmanFilter,
+    RelativeMotionPoseFilter,
+)
+from trackflow.filters.derivative.bank import PoseFilterBank
+from trackflow.io import read_stream
+from trackflow.math import use_backend
+
+NOISE = (0.0, 30.0, 0.0, 100.0)
+C_POSE = np.diag([1e-6] * 3 + [1e-5] * 3)
+BODIES = 6
+
+
+def _filters():
+    """Bodies 0-2 one kind, 3 another noise, 4 the additive formulation, 5 another class;
+    a position-only model as a seventh."""
+    m = MotionModel(1, 1, noise=NOISE)
+    return [
+        PoseKalmanFilter(m),
+        PoseKalmanFilter(m),
+        PoseKalmanFilter(m),
+        PoseKalmanFilter(MotionModel(1, 1, noise=(0.0, 10.0, 0.0, 50.0))),
+        PoseKalmanFilter(m, formulation="additive"),
+        RelativeMotionPoseFilter(900.0, 1e4),
+        PoseKalmanFilter(MotionModel(1, -1, noise=(0.0, 30.0))),
+    ]
+
+
+def _packets(shared_data, n):
+    """Per packet: ``[(body, t, UncertainPose)]``; a packet's order and content vary."""
+    s, _ = read_stream(shared_data / "tumvi" / "dataset-room1_512_16.txt")
+    t, p, q = s.times_s[:n], s.position[:n].copy(), s.quaternion[:n]
+    p[20::37] += 0.5  # single outliers: gated
+    p[40:53] += 2.0  # a burst: gated ten times, then a reset
+    ro = C_POSE.copy()
+    ro.flags.writeable = False  # a sensor's nominal noise: shared and read-only
+    rng = np.random.default_rng(3)
+    out = []
+    for i in range(n):
+        rows = []
+        for b in range(BODIES + 1):
+            if (i + b) % 17 == 0:
+                continue  # occluded in this packet
+            pose = UncertainPose._trusted(p[i] + 0.1 * b, q[i], ro if b % 2 else C_POSE.copy())
+            rows.append((b, float(t[i]), pose))
+        if i % 29 == 5 and i > 10:  # a late measurement of body 1 (out of order)
+            rows.append(
+                (1, float(t[i - 3]) + 1e-4, UncertainPose(Pose(p[i - 3], q[i - 3]), C_POSE))
+            )
+        if i % 41 == 7:  # body 2 twice in one packet
+            rows.append((2, float(t[i]) + 2e-4, UncertainPose(Pose(p[i], q[i]), C_POSE)))
+        if i == 60:  # a non-finite time: refused (False), as update_pose raises
+            rows.append((0, math.nan, UncertainPose(Pose(p[i], q[i]), C_POSE)))
+        order = rng.permutation(len(rows))
+        out.append([rows[k] for k in order])
+    return out
+
+
+def _same(a, b):
+    if a is None or b is None:
+        return a is None and b is None
+    return (
+        np.array_equal(a.position, b.position)
+        and np.array_equal(a.quaternion, b.quaternion)
+        and np.array_equal(a.covariance, b.covariance)
+    )
+
+
+def _log(f):
+    if not isinstance(f, PoseKalmanFilter):
+        return None
+    return [
+        (e.t, e.status, np.float64(e.nis).tobytes(), e.gated_run, e.buf.tobytes()) for e in f._log
+    ]
+
+
+@pytest.mark.parametrize("backend", ["numba", pytest.param("numpy", marks=pytest.mark.slow)])
+def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend):
+    with use_backend(backend):
+        packets = _packets(shared_data, 220 if backend == "numba" else 90)
+        alone, banked = _filters(), _filters()
+        bank = PoseFilterBank(banked)
+        assert bank.kinds == 3  # (0-2), 3 and 4; 5 and 6 through their own methods
+        statuses = set()
+        for n, rows in enumerate(packets):
+            ok_alone = []
+            for b, t, pose in rows:
+                try:
+                    ok_alone.append(alone[b].update_pose(t, pose))
+                except ValueError:
+                    ok_alone.append(False)
+            ok_bank = bank.update_poses(
+                [r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows]
+            )
+            assert ok_bank == ok_alone, n
+            # answers 3 ms ahead and 20 ms back (smoothed), and before any data
+            queries = [(b, rows[0][1] + dt) for b in range(len(alone)) for dt in (3e-3, -2e-2)]
+            got = bank.predict_poses([q[0] for q in queries], [q[1] for q in queries])
+            for (b, t), g in zip(queries, got):
+                try:
+                    want = alone[b].predict(t)
+                except ValueError:
+                    want = None
+                assert _same(g, want), (n, b, t)
+            for fa in alone:
+                if isinstance(fa, PoseKalmanFilter):
+                    statuses.update(e.status for e in fa._log)
+        for fa, fb in zip(alone, banked):
+            assert fa.stats == fb.stats
+            assert _log(fa) == _log(fb)
+            if isinstance(fa, PoseKalmanFilter):
+                xa, pa = fa.state
+                xb, pb = fb.state
+                assert np.array_equal(xa, xb) and np.array_equal(pa, pb)
+        # the scenario reached every decision the bank has to report
+        assert {FilterStatus.ACCEPTED, FilterStatus.GATED, FilterStatus.RESET} <= statuses
+        assert banked[0].stats["rejected_gate"] > 0 and banked[0].stats["resets"] >= 1
+        assert banked[1].stats["out_of_order"] > 0
+        # and the bank ran them: the kernels' filters hold rows of its arrays
+        assert all(banked[b]._x.base is not None for b in (0, 3, 4))
+
+
+def test_a_filter_reset_outside_the_bank_is_taken_back(shared_data):
+    f = PoseKalmanFilter(MotionModel(1, 1, noise=NOISE))
+    g = PoseKalmanFilter(MotionModel(1, 1, noise=NOISE))
+    bank = PoseFilterBank([f])
+    u = UncertainPose(Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), C_POSE)
+    for k in range(5):
+        assert bank.update_poses([0], [0.01 * k], [u]) == [g.update_pose(0.01 * k, u)]
+    f.reset()  # new state arrays, not the bank's rows
+    g.reset()
+    for k in range(5):
+        assert bank.update_poses([0], [0.01 * k], [u]) == [g.update_pose(0.01 * k, u)]
+        assert _same(bank.predict_poses([0], [0.01 * k + 0.002])[0], g.predict(0.01 * k + 0.002))
+    assert np.array_equal(f.state[1], g.state[1])
