@@ -334,9 +334,11 @@ def test_kernel_receive_stamps_do_not_wait_for_the_reader():
         sent = host_ns()
         s.sendto(b"frame", r.getsockname())
         time.sleep(0.05)  # the reader is late
+        before_read = host_ns()
         data, arrival = recv_stamped(r, kernel)
-        read = host_ns()
     assert data == b"frame"
     if not kernel:
         pytest.skip("no kernel receive stamps on this platform")
-    assert sent <= arrival and read - arrival >= 40_000_000
+    # the stamp is the datagram's receipt, before the late read began (under load the kernel
+    # may stamp it some ms after the send: only the order is certain, not the gap)
+    assert sent <= arrival < before_read
