@@ -43,7 +43,7 @@ def test_a_live_run_of_two_bodies_per_packet_replays_bit_for_bit(shared_data, tm
     first: list[str] = []
     reader = threading.Thread(target=lambda: first.append(run.stderr.readline()), daemon=True)
     reader.start()
-    reader.join(60)  # the run compiles its filters, then says it is listening
+    reader.join(180)  # the run compiles (or loads) its filters, then says it is listening
     assert first and first[0].startswith("listening"), first
     sim = _trackflow(
         "simulate", "natnet", room1, "--port", port, "--body", "rig", "--bodies", 2,

@@ -307,7 +307,7 @@ def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
     first: list[str] = []
     reader = threading.Thread(target=lambda: first.append(run.stderr.readline()), daemon=True)
     reader.start()
-    reader.join(60)  # the run compiles its filters, then says it is listening
+    reader.join(180)  # the run compiles (or loads) its filters, then says it is listening
     assert first and first[0].startswith("listening"), first
     common = ("--duration", 3, "--jitter-ms", 1, "--wait", 20)
     s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
