@@ -48,7 +48,9 @@ def _packets(n: int) -> list[tuple[bytes, int]]:
     return out
 
 
-def measure(packets: int) -> dict:
+def measure(packets: int, between=None) -> dict:
+    """Per-packet thread CPU times [us]; ``between()``, if given, runs before each packet
+    (``experiments/trackers_idle_core.py`` sleeps or spins there for the packet period)."""
     specs = {
         f"b{k}": (parse_input({"natnet": {"command_port": 1, "body": k}}), np.eye(6) * 1e-6)
         for k in range(1, BODIES + 1)
@@ -73,6 +75,8 @@ def measure(packets: int) -> dict:
     clock = time.thread_time_ns
     with calm_gc():
         for k, (data, arrival) in enumerate(_packets(packets + 200)):
+            if between is not None:
+                between()
             t0 = clock()
             pairs = inp.handle(data, arrival)
             t1 = clock()

@@ -10,6 +10,7 @@ and :meth:`KalmanFilter.pull` would have kept them.
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 
 from ..filters import PoseFilterBank
@@ -17,6 +18,11 @@ from ._events import Measurement
 from ._processing import KalmanFilter
 
 __all__ = ["KalmanBank"]
+
+
+def _same(a: list, b: list) -> bool:
+    """Whether two lists hold the same objects in the same order."""
+    return len(a) == len(b) and all(map(operator.is_, a, b))
 
 
 class KalmanBank:
@@ -38,10 +44,9 @@ class KalmanBank:
     def _filters(self) -> PoseFilterBank:
         """The filter bank over the components' current filters (rebuilt after a reset)."""
         bank = self._bank
-        if bank is None or any(
-            c.filter is not f for c, f in zip(self.components, bank.filters, strict=True)
-        ):
-            bank = self._bank = PoseFilterBank([c.filter for c in self.components])
+        filters = [c.filter for c in self.components]
+        if bank is None or not _same(bank.filters, filters):
+            bank = self._bank = PoseFilterBank(filters)
         return bank
 
     def push(self, items: Sequence[tuple[int, Measurement]]) -> None:

@@ -641,10 +641,15 @@ class NatNetInput(LiveInput):
             self.ready.set()
             return
         self.ready.set()
+        # the selector waits; the sockets never do (a blocking socket with a timeout polls
+        # once more before every receive)
+        cmd.setblocking(False)
+        data.setblocking(False)
         sel = selectors.DefaultSelector()
         sel.register(cmd, selectors.EVENT_READ)
         sel.register(data, selectors.EVENT_READ)
         next_cmd = next_keepalive = last_echo = 0.0
+        connected = None
         need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
         try:
             while not self._stop.is_set():
@@ -670,12 +675,14 @@ class NatNetInput(LiveInput):
                 for key, _ in sel.select(timeout=0.1):
                     try:
                         raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
-                    except OSError:  # timeouts, ICMP port unreachable while no server runs
+                    except OSError:  # nothing to read, ICMP port unreachable while no server
                         continue
                     had_server = self.server is not None
                     sink(self, raw, arrival)
-                    self._connected(self.server is not None)
-                    if not had_server and self.server is not None:
+                    if connected is not (self.server is not None):
+                        connected = self.server is not None
+                        self._connected(connected)
+                    if not had_server and connected:
                         next_cmd = 0.0  # ask for the model definitions at once
         finally:
             sel.close()

@@ -148,6 +148,7 @@ class PoseFilterBank:
         later: list[int] = []  # rows of a filter met before in this call: after the kernels
         batch: dict[int, _Batch] = {}  # per kind: the kernel's inputs
         filters, slots = self.filters, self._slot
+        isfinite = math.isfinite
         for k, i in enumerate(index):
             if i in seen:
                 later.append(k)
@@ -157,15 +158,19 @@ class PoseFilterBank:
             slot = slots[i]
             tk = float(t[k])
             pose = poses[k]
+            t0 = f._t
             if (
                 slot is None
-                or f._t is None
-                or not tk >= f._t
-                or not math.isfinite(tk)
+                or t0 is None
+                or not tk >= t0
+                or not isfinite(tk)
                 or f._gated_run >= slot[0].reset_after  # a reset is due
                 or not isinstance(pose, UncertainPose)
-                or pose.covariance.ndim != 2  # a batch of poses
             ):
+                out[k] = self._one(f, tk, pose)
+                continue
+            r = pose.covariance
+            if r.ndim != 2:  # a batch of poses
                 out[k] = self._one(f, tk, pose)
                 continue
             kind, row = slot
@@ -174,12 +179,13 @@ class PoseFilterBank:
                 b = batch[id(kind)] = _Batch(kind)
             if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
                 self._take(f, kind, row)
+            p = pose.pose
             b.rows.append((k, f, tk))
             b.sel.append(row)
-            b.dts.append(tk - f._t)
-            b.zp.append(pose.position)
-            b.zo.append(pose.quaternion)
-            b.r.append(pose.covariance)
+            b.dts.append(tk - t0)
+            b.zp.append(p.position)
+            b.zo.append(p.quaternion)
+            b.r.append(r)
         for b in batch.values():
             self._step(b, out)
         for k in later:
@@ -207,17 +213,19 @@ class PoseFilterBank:
         )  # fmt: skip
         diverged, gated = gating.DIVERGED, gating.GATED
         nx, nc = kind.nx, kind.nc
+        entry = _Entry
         for (k, f, tk), buf, st, v in zip(b.rows, logs, status.tolist(), nis.tolist()):
             if f._smooth_cache:
                 f._smooth_cache = {}
-            e = _Entry(tk, 0, 0, buf, nx, nc, 6)
+            e = entry(tk, 0, 0, buf, nx, nc, 6)
             e.status, e.nis = st, v
             if st == diverged:
                 f._reinit(e, "singular innovation covariance or non-finite state")
                 e.store_state(f._x, f._p)
             e.gated_run = f._gated_run = f._gated_run + 1 if st == gated else 0
             f._t = tk
-            f._log.append(e)
+            log = f._log
+            log.append(e)
             times = f._times
             times.append(tk)
             h = tk - f._history
@@ -225,7 +233,6 @@ class PoseFilterBank:
                 if len(times) > 2 and times[2] < h:
                     f._prune()
                 else:  # one entry before the new base: _prune's common case, inline
-                    log = f._log
                     f._pruned[log[0].status] += 1
                     f._base = log[0]
                     del log[0]
