@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -119,14 +120,26 @@ class Browser:
         fixed time rather than counting animation frames (one frame can take seconds)."""
         page.wait_for_timeout(ms)
 
-    def capture(self, page, path: str | Path | None = None) -> np.ndarray:
-        """Screenshot as an RGB array (H, W, 3) of uint8; also written to ``path``."""
+    def capture(self, page, path: str | Path | None = None, stable_s: float = 0.0) -> np.ndarray:
+        """Screenshot as an RGB array (H, W, 3) of uint8; also written to ``path``.
+
+        ``stable_s > 0``: for a still scene, take screenshots 0.25 s apart until two are
+        identical (objects fade in over several frames, slower in software WebGL), for at most
+        ``stable_s``; then the last one is returned. A moving (live) scene keeps the default.
+        """
         from io import BytesIO
 
         from PIL import Image
 
         self.settle(page)
         png = page.screenshot()
+        deadline = time.monotonic() + stable_s
+        while time.monotonic() < deadline:
+            page.wait_for_timeout(250)
+            again = page.screenshot()
+            if again == png:
+                break
+            png = again
         if path is not None:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             Path(path).write_bytes(png)
@@ -148,5 +161,5 @@ def snapshot(
     out = Path(out)
     with Browser(width, height, timeout_s) as b:
         page = b.open(url, wait_text)
-        b.capture(page, out)
+        b.capture(page, out, stable_s=min(10.0, timeout_s))
     return out
