@@ -23,6 +23,7 @@ from trackflow.io._table import (
     parse_frames_comment,
     parse_time_ns,
 )
+from trackflow.io._textfile import read_lines  # unchanged since (KITTI times use it)
 
 
 def _table(where, t_ns, values, tokens, tail, meta, quat_cols, split_at) -> Table:
@@ -36,34 +37,6 @@ def _table(where, t_ns, values, tokens, tail, meta, quat_cols, split_at) -> Tabl
     )
     table.quat_tolerance = quat_tolerance_from_tokens(tokens, list(quat_cols))
     return table
-
-
-def read_lines(path: Path) -> tuple[list[str], bool, int]:
-    """Lines of a text file, whether the last one is unterminated, and its byte length.
-
-    A leading UTF-8 byte order mark is skipped; NUL bytes (binary or zero-filled data) and
-    invalid UTF-8 raise ``ValueError`` naming file and line.
-    """
-    raw = Path(path).read_bytes()
-    nul = raw.find(b"\0")
-    if nul >= 0:
-        line = raw[:nul].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
-    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte order mark (Windows editors)
-        raw = raw[3:]
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
-    unterminated = bool(raw) and not raw.endswith(b"\n")
-    del raw  # large files: never hold the bytes, the text and its lines at once
-    lines = text.split("\n")
-    del text
-    if not unterminated and lines and lines[-1] == "":
-        lines.pop()
-    tail_bytes = len(lines[-1].encode()) if unterminated and lines else 0
-    return lines, unterminated, tail_bytes
 
 
 def parse_rows(
