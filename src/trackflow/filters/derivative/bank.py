@@ -202,7 +202,7 @@ class PoseFilterBank:
     @staticmethod
     def _step(b: _Batch, out: list) -> None:
         """One kernel call for the measurements of ``b``, then each filter's log entry and
-        bookkeeping as :meth:`PoseKalmanFilter._apply` does."""
+        bookkeeping by the filter's own ``_stepped`` and ``_append``."""
         kind, m = b.kind, len(b.rows)
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
@@ -211,32 +211,14 @@ class PoseFilterBank:
             kind.xs, kind.ps, frozen(b.sel, np.int64), frozen(b.dts), kind.const,
             frozen(b.zp), frozen(b.zo), frozen(b.r), kind.gate, logs, status, nis,
         )  # fmt: skip
-        diverged, gated = gating.DIVERGED, gating.GATED
+        gated = gating.GATED
         nx, nc = kind.nx, kind.nc
-        entry = _Entry
         for (k, f, tk), buf, st, v in zip(b.rows, logs, status.tolist(), nis.tolist()):
             if f._smooth_cache:
                 f._smooth_cache = {}
-            e = entry(tk, 0, 0, buf, nx, nc, 6)
-            e.status, e.nis = st, v
-            if st == diverged:
-                f._reinit(e, "singular innovation covariance or non-finite state")
-                e.store_state(f._x, f._p)
-            e.gated_run = f._gated_run = f._gated_run + 1 if st == gated else 0
-            f._t = tk
-            log = f._log
-            log.append(e)
-            times = f._times
-            times.append(tk)
-            h = tk - f._history
-            if len(times) > 1 and times[1] < h:  # what _prune would cut
-                if len(times) > 2 and times[2] < h:
-                    f._prune()
-                else:  # one entry before the new base: _prune's common case, inline
-                    f._pruned[log[0].status] += 1
-                    f._base = log[0]
-                    del log[0]
-                    del times[0]
+            e = _Entry(tk, 0, 0, buf, nx, nc, 6)
+            f._stepped(e, st, v)
+            f._append(e)
             out[k] = st != gated
 
     # -- predictions -------------------------------------------------------------------------

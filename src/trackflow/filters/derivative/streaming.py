@@ -433,9 +433,7 @@ class PoseKalmanFilter(FilterClock):
         e = _Entry(t, lp, lo, np.empty(size), self._nx, self._nc, m, fn)
         if self._t is None or t >= self._t:
             self._apply(e, z)
-            self._log.append(e)
-            self._times.append(t)
-            self._prune()
+            self._append(e)
             return e.status != gating.GATED
         oldest = self._base.t if self._base is not None else -math.inf
         if t < self._t - self._history or t < oldest:
@@ -511,7 +509,6 @@ class PoseKalmanFilter(FilterClock):
         if z is None:
             e.replace_record()
         absolute = e.lp == 0 or e.lo == 0
-        logged = False
         if (
             e.fn is None
             and self._t is not None
@@ -522,33 +519,48 @@ class PoseKalmanFilter(FilterClock):
             status, nis = kernels().step_packed(
                 self._x, self._p, e.t - self._t, self._const, e.lp, e.lo, zp, zo, r, gate, e.buf
             )
-            e.status, e.nis = int(status), float(nis)
-            logged = True
-            if e.status == gating.DIVERGED:
-                self._reinit(e, "singular innovation covariance or non-finite state")
-                logged = False
-            self._gated_run = gating.next_gated_run(e.status, self._gated_run)
+            self._stepped(e, int(status), float(nis))
+            return
+        if z is not None:
+            e.store_measurement(*z)
+        if e.fn is not None and self._t is not None:
+            self._apply_function(e)
+        elif self._t is None:
+            self._reinit(e, "")
+            e.status, e.nis = FilterStatus.INITIALIZED, math.nan
+            self._gated_run = 0
         else:
-            if z is not None:
-                e.store_measurement(*z)
-            if e.fn is not None and self._t is not None:
-                self._apply_function(e)
-            elif self._t is None:
-                self._reinit(e, "")
-                e.status, e.nis = FilterStatus.INITIALIZED, math.nan
-                self._gated_run = 0
-            else:
-                self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
-                e.status, e.nis = FilterStatus.RESET, math.nan
-                self._gated_run = 0
+            self._reinit(e, f"{self._gated_run} consecutive measurements failed the gate")
+            e.status, e.nis = FilterStatus.RESET, math.nan
+            self._gated_run = 0
         self._t = e.t
-        if not logged:
-            e.store_state(self._x, self._p)
+        e.store_state(self._x, self._p)
         e.gated_run = self._gated_run
+
+    def _stepped(self, e: _Entry, status: int, nis: float) -> None:
+        """Bookkeeping after a kernel (``step_packed``, or ``step_bank`` for a
+        :class:`PoseFilterBank`) integrated entry ``e`` and wrote its state into ``e``'s record:
+        a diverged step re-initialises the filter from ``e``'s measurement."""
+        e.status, e.nis = status, nis
+        if status == gating.DIVERGED:
+            self._reinit(e, "singular innovation covariance or non-finite state")
+            e.store_state(self._x, self._p)
+        self._gated_run = gating.next_gated_run(status, self._gated_run)
+        self._t = e.t
+        e.gated_run = self._gated_run
+
+    def _append(self, e: _Entry) -> None:
+        """Entry ``e``, the newest, into the log; entries older than the history go."""
+        self._log.append(e)
+        self._times.append(e.t)
+        self._prune()
 
     def _prune(self) -> None:
         # entries 0 .. n-1 go when entry n (the new base's successor) is before the horizon
-        n = bisect.bisect_left(self._times, self._t - self._history, 1) - 1
+        times, horizon = self._times, self._t - self._history
+        if len(times) < 2 or not times[1] < horizon:
+            return  # nothing to cut (the common case, once per measurement)
+        n = bisect.bisect_left(times, horizon, 1) - 1
         if n > 0:
             for e in self._log[:n]:
                 self._pruned[e.status] += 1
