@@ -9,12 +9,12 @@
 * ``e2e_latency_us``: a ``trackflow simulate natnet`` process sends 20 bodies at 240 Hz
   (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one core,
   receives each packet, decodes it, maps the exposure time and, in the receiving thread as
-  ``trackflow run`` does, pushes 20 measurements into 20 pose Kalman filters
-  (``LiveSources.deliver``: the filters' updates in one batched call) and delivers the 20
-  filtered answers (``KalmanBank.pull``, one batched prediction at each sample's arrival
-  time); the latency is from the packet's receipt (the kernel's receive stamp, so time in
-  the socket buffer counts) to the last of its answers being delivered (``time.time_ns``,
-  same clock).
+  ``trackflow run`` does, pushes the packet's 20 measurements as arrays (a ``SampleBlock``)
+  into 20 pose Kalman filters (``LiveSources.deliver_block``: the filters' updates in one
+  batched call) and delivers the 20 filtered answers as arrays (``KalmanBank.pull_block``,
+  one batched prediction at the packet's arrival time); the latency is from the packet's
+  receipt (the kernel's receive stamp, so time in the socket buffer counts) to the last of
+  its answers being delivered (``time.time_ns``, same clock).
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
 shared: take the figures as the best of a few runs.
@@ -38,7 +38,7 @@ from trackflow.dataflow import KalmanFilter, parse_input
 from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
-from trackflow.trackers.inputs import make_inputs
+from trackflow.trackers.inputs import SampleBlock, make_inputs
 from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up
 
 BODIES, RATE = 20, 240
@@ -170,15 +170,15 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
         entered = time.time_ns()
         with lock:  # as trackflow run dispatches a packet: in the receiving thread
-            pairs = i.handle(data, arrival)
-            if not pairs:
+            samples = i.handle(data, arrival)
+            if type(samples) is not SampleBlock:  # not every body valid: not timed
                 return
             taken, cpu = time.time_ns(), time.thread_time_ns()
-            samples = [(names[bi], smp) for bi, smp in pairs]
-            delivery.deliver(samples)
-            answers = delivery.filters.pull([(rows_of[n], smp.arrival_ns) for n, smp in samples])
+            sensors = [names[bi] for bi in samples.index]
+            delivery.deliver_block(sensors, samples, arrival)
+            answers = delivery.filters.pull_block([rows_of[n] for n in sensors], [arrival] * BODIES)
             now = time.time_ns()  # the last answer of the packet is delivered
-            if answers[-1] is not None:
+            if answers.ok[-1]:
                 latencies.append(now - t0)
                 service.append(now - taken)
                 service_cpu.append(time.thread_time_ns() - cpu)

@@ -2,9 +2,10 @@
 
 The work `bench/trackers.py` times end to end, in one thread: a NatNet 4.1 packet of 20
 bodies at 240 Hz goes through ``LiveInput.handle`` (decode, clock mapping, 20 checked
-samples). The samples go through ``LiveSources.deliver`` (each source's checks, then the 20
-pose Kalman filters' updates in one batched call, as ``trackflow run`` delivers a packet),
-then the 20 filtered answers are pulled (``KalmanBank.pull``, one batched prediction).
+samples as arrays, a ``SampleBlock``). They go through ``LiveSources.deliver_block`` (each
+source's checks, then the 20 pose Kalman filters' updates in one batched call, as
+``trackflow run`` delivers a packet), then the 20 filtered answers are pulled as arrays
+(``KalmanBank.pull_block``, one batched prediction).
 Thread CPU times are less sensitive to other jobs than wall-clock latencies. The script
 prints the p10 and p50 per packet over ``--packets`` packets, after 200 warm-up packets.
 
@@ -78,13 +79,14 @@ def measure(packets: int, between=None) -> dict:
             if between is not None:
                 between()
             t0 = clock()
-            pairs = inp.handle(data, arrival)
+            block = inp.handle(data, arrival)
             t1 = clock()
-            items = [(names[bi], s) for bi, s in pairs]
-            delivery.deliver(items)
+            sensors = [names[bi] for bi in block.index]
+            delivery.deliver_block(sensors, block, arrival)
             t2 = clock()
-            delivery.filters.pull([(rows_of[name], s.arrival_ns) for name, s in items])
+            answers = delivery.filters.pull_block([rows_of[n] for n in sensors], [arrival] * BODIES)
             t3 = clock()
+            assert answers.ok[-1]
             if k >= 200:
                 rows.append((t1 - t0, t2 - t1, t3 - t2, t3 - t0))
     r = np.asarray(rows, dtype=float) * 1e-3

@@ -113,3 +113,45 @@ def test_bank_rebuilds_after_a_network_reset():
         bank.push([(i, m) for i, m in r if i < 2])
     assert kfs[0].stats.events_in == sum(1 for r in rows for i, _ in r if i == 0)
     assert bank.pull([(0, rows[-1][0][1].t_ns)])[0] is not None
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_bank_block_push_and_pull_equal_one_by_one(backend):
+    """push_block/pull_block (a packet's poses as arrays, one time) leave every component as
+    pushing and pulling one by one does; a packet with a component that pushes on or has a
+    prior takes the per-measurement path, in order."""
+    with use_backend(backend):
+        rng = np.random.default_rng(7)
+        net_a, kf_a, out_a = _network()
+        net_b, kf_b, out_b = _network()
+        bank = KalmanBank(kf_b)
+        for k in range(100 if backend == "numba" else 40):
+            t = 1_000_000_000 + k * 4_166_667
+            index = [i for i in range(N) if (k + i) % 11]
+            if k % 3:
+                index = [i for i in index if i < 4]  # plain components only: the arrays
+            m = len(index)
+            pos = np.array([[0.1 * i + 0.2 * np.sin(k * 0.02), 0.3, 0.5] for i in index])
+            pos += rng.normal(0, 1e-3, pos.shape)
+            if k % 23 == 9:
+                pos[0] += 1.0  # an outlier: gated
+            quat = quat_exp(np.array([[0.1, 0.2 + 0.003 * k, 0.3 * i] for i in index]))
+            cov = np.stack([C] * m)
+            for j, i in enumerate(index):
+                kf_a[i].push(Measurement(t, UncertainPose._trusted(pos[j], quat[j], cov[j]), t))
+            bank.push_block(index, t, pos, quat, cov)
+            asks = [(i, t + dt) for i in range(N) for dt in (1_000_000, -2_000_000)]
+            asks += [(0, 900_000_000), (2, t + 10**10)]
+            want = [kf_a[i].pull(tq) for i, tq in asks]
+            got = bank.pull_block([a[0] for a in asks], [a[1] for a in asks])
+            for j, w in enumerate(want):
+                assert got.ok[j] == (w is not None)
+                if w is not None:
+                    assert np.array_equal(got.position[j], w.pose.position)
+                    assert np.array_equal(got.quaternion[j], w.pose.quaternion)
+                    assert np.array_equal(got.covariance[j], w.pose.covariance)
+        assert net_a.stats() == net_b.stats()
+        for a, b in zip(kf_a, kf_b):
+            assert (a.first_t, a.last_t, a.last_origin) == (b.first_t, b.last_t, b.last_origin)
+        assert [_answer(m) for m in out_a] == [_answer(m) for m in out_b] and out_a
+        assert net_b.stats()["kf0"]["rejections"].get("filter rejected update", 0) > 0

@@ -3,7 +3,9 @@ decisions and resets it gives on its own, to the last bit, on both backends: on 
 recording replayed as several bodies, with outliers (gated, then a reset after a burst),
 bodies missing from packets (occluded), out-of-order arrivals, two measurements of one filter
 in one call, past-time queries, and filters the kernels do not run (another formulation,
-another noise, a position-only model, another filter class) mixed in."""
+another noise, a position-only model, another filter class) mixed in; with the poses given
+as objects (``update_poses``/``predict_poses``) or as arrays (``update_block``/
+``predict_block``)."""
 
 from __future__ import annotations
 
@@ -91,8 +93,31 @@ def _log(f):
     ]
 
 
+def _update(bank, api, rows):
+    index, times, poses = [r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows]
+    if api == "objects":
+        return bank.update_poses(index, times, poses)
+    return bank.update_block(
+        index, times, np.stack([u.position for u in poses]),
+        np.stack([u.quaternion for u in poses]), np.stack([u.covariance for u in poses]),
+    )  # fmt: skip
+
+
+def _predict(bank, api, queries):
+    index, times = [q[0] for q in queries], [q[1] for q in queries]
+    if api == "objects":
+        return bank.predict_poses(index, times)
+    res = bank.predict_block(index, times)
+    assert all(np.isnan(res.position[k]).all() for k, ok in enumerate(res.ok) if not ok)
+    return [
+        UncertainPose._trusted(p, q, c) if ok else None
+        for ok, p, q, c in zip(res.ok, res.position, res.quaternion, res.covariance)
+    ]
+
+
+@pytest.mark.parametrize("api", ["objects", "arrays"])
 @pytest.mark.parametrize("backend", ["numba", pytest.param("numpy", marks=pytest.mark.slow)])
-def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend):
+def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend, api):
     with use_backend(backend):
         packets = _packets(shared_data, 220 if backend == "numba" else 90)
         alone, banked = _filters(), _filters()
@@ -106,13 +131,10 @@ def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend):
                     ok_alone.append(alone[b].update_pose(t, pose))
                 except ValueError:
                     ok_alone.append(False)
-            ok_bank = bank.update_poses(
-                [r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows]
-            )
-            assert ok_bank == ok_alone, n
+            assert _update(bank, api, rows) == ok_alone, n
             # answers 3 ms ahead and 20 ms back (smoothed), and before any data
             queries = [(b, rows[0][1] + dt) for b in range(len(alone)) for dt in (3e-3, -2e-2)]
-            got = bank.predict_poses([q[0] for q in queries], [q[1] for q in queries])
+            got = _predict(bank, api, queries)
             for (b, t), g in zip(queries, got):
                 try:
                     want = alone[b].predict(t)

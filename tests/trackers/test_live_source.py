@@ -66,3 +66,66 @@ def test_bad_samples_are_counted_with_a_reason():
     assert src.deliver(_sample(4)) is None
     assert src.stats.rejections == {"invalid pose or covariance": 3, "timestamp backwards": 1}
     assert len(sink.got) == 1
+
+
+def _sources(tap: bool):
+    from trackflow.dataflow import KalmanFilter
+    from trackflow.graph import MotionSpec
+    from trackflow.trackers.runtime import LiveSources
+
+    motion = MotionSpec(static=False, n_dp=1, n_do=1, noise=(0.0, 30.0, 0.0, 100.0))
+    sources = {f"s{k}": LiveSource(f"s{k}") for k in range(4)}
+    filters = [KalmanFilter(f"kf{k}", motion) for k in range(4)]
+    for src, kf in zip(sources.values(), filters):
+        src.consumers.append((kf, 0))
+    sink = _Sink()
+    if tap:  # another consumer on s2: its samples cannot go to the bank as arrays
+        sources["s2"].consumers.append((sink, 0))
+    return LiveSources(sources), filters, sink
+
+
+def _block(index, t, rng):
+    from trackflow.math import quat_exp
+    from trackflow.trackers.inputs import SampleBlock
+
+    nominal = COV.copy()
+    nominal.flags.writeable = False
+    m = len(index)
+    pos = np.array([[0.1 * i, 0.2, 0.3] for i in index]) + rng.normal(0, 1e-3, (m, 3))
+    quat = quat_exp(rng.normal(0, 0.1, (m, 3)))
+    covs = (nominal,) * m
+    return SampleBlock(tuple(index), t, t + 3_000_000, pos, quat, np.stack(covs), covs)
+
+
+def test_a_block_is_delivered_as_its_samples_one_by_one():
+    """LiveSources.deliver_block leaves sources and filters as deliver of the block's samples
+    (dispatched at a, a + 1, ...): statistics, "timestamp backwards" rejections of some of
+    a block's samples, filter states; a source with another consumer takes the per-sample
+    path, and its consumer sees the same measurements."""
+    for tap in (False, True):
+        (blocks, kf_b, sink_b), (samples, kf_s, sink_s) = _sources(tap), _sources(tap)
+        rng = np.random.default_rng(2)
+        t0 = 1_700_000_000_000_000_000
+        script = [((0, 1, 2, 3), t0 + k * 4_166_667) for k in range(30)]
+        script.insert(12, ((0, 1), t0 + 13 * 4_166_667))  # s0, s1 ahead: later block rejected
+        got_b, got_s = [], []
+        for index, t in script:
+            block = _block(index, t, rng)
+            names = [f"s{i}" for i in index]
+            a = block.arrival_ns
+            got_b.append(blocks.deliver_block(names, block, a))
+            items = [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in
+                     enumerate(zip(names, block))]  # fmt: skip
+            got_s.append([p is not None for p in samples.deliver(items)])
+        assert got_b == got_s and not all(all(g) for g in got_b)
+        for a, b in zip(kf_b, kf_s):
+            assert a.stats.summary() == b.stats.summary()
+            xa, pa = a.filter.state
+            xb, pb = b.filter.state
+            assert xa.tobytes() == xb.tobytes() and pa.tobytes() == pb.tobytes()
+        for name in blocks.sources:
+            sa, sb = blocks.sources[name].stats, samples.sources[name].stats
+            assert sa.summary() == sb.summary()
+        assert blocks.sources["s0"].stats.rejections == {"timestamp backwards": 2}  # k = 12, 13
+        assert [m.t_ns for m in sink_b.got] == [m.t_ns for m in sink_s.got]
+        assert len(sink_b.got) == (30 if tap else 0)

@@ -9,12 +9,13 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trackflow.dataflow import parse_input
 from trackflow.trackers import natnet
-from trackflow.trackers.inputs import make_inputs
+from trackflow.trackers.inputs import SampleBlock, make_inputs
 
 FREQ = 10_000_000
 COV = np.diag([1e-6] * 3 + [1e-5] * 3)
@@ -110,10 +111,24 @@ def test_table_path_equals_per_body_path(frames, up_y, mm, seed):
         assert sa == sb
 
 
-def test_all_plain_bodies_take_the_one_pass_path():
-    inp = _input(0, 0)
+@pytest.mark.parametrize("mm", [0, 3])
+def test_all_plain_bodies_take_the_one_pass_path(mm):
+    """Every body plainly valid (some quaternions normalised, one in millimetres): one
+    SampleBlock, equal as a sequence to the per-body path's samples, with the statuses."""
+    fast, slow = _input(0, mm), _input(0, mm)
     rng = np.random.default_rng(1)
-    for i in range(3):
-        out = inp.handle(_frame(rng, i, ["ok"] * 6 + ["missing"]), 10**18 + i)
-        assert [i for i, _ in out] == list(range(6))
-    assert inp._plan is not None and inp._plan[2] is not None
+    for i in range(4):
+        kinds = ["ok", "slightly"] * 3 + ["missing"]
+        data = _frame(rng, i, kinds)
+        out = fast.handle(data, 10**18 + i)
+        assert isinstance(out, SampleBlock) and list(out.index) == list(range(6))
+        assert not out.position.flags.writeable and out.covariance.shape == (6, 6, 6)
+        want = _per_body(slow, data, 10**18 + i)
+        _same(out, want)
+        assert isinstance(out[2:5], SampleBlock)  # a slice is a block too
+        _same(out[2:5], want[2:5])
+    assert [b.status.measurements for b in fast.bodies] == [4] * 6
+    # an untracked body: the per-body path, which counts it
+    out = fast.handle(_frame(rng, 9, ["untracked"] + ["ok"] * 6), 10**18 + 9)
+    assert not isinstance(out, SampleBlock) and [i for i, _ in out] == list(range(1, 6))
+    assert fast.bodies[0].status.rejections == {"not tracked": 1}

@@ -31,6 +31,11 @@ def run(args) -> int:
             print(f"trackflow: compiling: {step} ...", file=sys.stderr, flush=True)
 
     steps = compile_kernels(say)
+    if steps:
+        from ..trackers.inputs import NatNetInput
+
+        say("live tracker packets (run)")
+        NatNetInput.warm_up()
     if not steps:
         print(f"trackflow: nothing to compile (backend {get_backend()})", file=sys.stderr)
     elif not args.quiet:

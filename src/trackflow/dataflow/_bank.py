@@ -13,7 +13,10 @@ from __future__ import annotations
 import operator
 from collections.abc import Sequence
 
-from ..filters import PoseFilterBank
+import numpy as np
+
+from ..filters import PoseFilterBank, PredictedPoses
+from ..math import UncertainPose
 from ._events import Measurement
 from ._processing import KalmanFilter
 
@@ -49,47 +52,82 @@ class KalmanBank:
             bank = self._bank = PoseFilterBank(filters)
         return bank
 
+    @staticmethod
+    def _plain(c: KalmanFilter) -> bool:
+        """Whether a component only keeps its state (its updates can be batched)."""
+        return not c.consumers and c.prior is None and type(c) is KalmanFilter
+
     def push(self, items: Sequence[tuple[int, Measurement]]) -> None:
         """``components[i].push(m)`` for every ``(i, m)``, in order, with the updates of the
         components that only keep their state (no push consumers) batched."""
         comps = self.components
         run: list[tuple[int, Measurement]] = []
-        index: list[int] = []
-        times: list[float] = []
-        poses: list = []
         for i, m in items:
             c = comps[i]
-            if c.consumers or c.prior is not None or type(c) is not KalmanFilter:
+            if not self._plain(c):
                 if run:
-                    self._push_run(run, index, times, poses)
-                    run, index, times, poses = [], [], [], []
+                    self._push_run(run)
+                    run = []
                 c.push(m)
                 continue
-            c.stats.events_in += 1
             run.append((i, m))
-            index.append(i)
-            times.append((m.t_ns - c.stamp_offset_ns) * 1e-9)
-            poses.append(m.pose)
         if run:
-            self._push_run(run, index, times, poses)
+            self._push_run(run)
 
-    def _push_run(self, run, index, times, poses) -> None:
-        """The batched updates of ``run`` (counted in already), then each component's
-        bookkeeping as :meth:`KalmanFilter.push` does it."""
+    def _push_run(self, run: list[tuple[int, Measurement]]) -> None:
+        """The batched updates of ``run``, counted and accounted for as
+        :meth:`KalmanFilter.push` does."""
+        index = [i for i, _ in run]
+        times = self._count_in(index, [m.t_ns for _, m in run])
+        accepted = self._filters().update_poses(index, times, [m.pose for _, m in run])
+        self._account(index, [(m.t_ns, m.origin_ns) for _, m in run], accepted)
+
+    def push_block(self, index: Sequence[int], t_ns: int, position, quaternion, covariance):
+        """``components[index[k]].push(m_k)`` for every ``k``, for trusted measurements of
+        one time given as arrays: ``m_k`` is ``Measurement(t_ns, pose_k, t_ns)`` with
+        ``pose_k`` made of ``position[k]`` (m, 3), ``quaternion[k]`` (m, 4) and
+        ``covariance[k]`` (m, 6, 6) as :meth:`UncertainPose._trusted` takes them
+        (:meth:`PoseFilterBank.update_block`: no object per measurement)."""
         comps = self.components
-        accepted = self._filters().update_poses(index, times, poses)
-        for (i, m), ok in zip(run, accepted):
+        if not all(self._plain(comps[i]) for i in index):
+            trusted = UncertainPose._trusted
+            self.push(
+                [
+                    (i, Measurement(t_ns, trusted(position[k], quaternion[k], covariance[k]), t_ns))
+                    for k, i in enumerate(index)
+                ]
+            )
+            return
+        times = self._count_in(index, [t_ns] * len(index))
+        accepted = self._filters().update_block(index, times, position, quaternion, covariance)
+        self._account(index, [(t_ns, t_ns)] * len(index), accepted)
+
+    def _count_in(self, index: Sequence[int], t_ns: Sequence[int]) -> list[float]:
+        """Count the measurements in; their filter times [s]."""
+        comps = self.components
+        times = []
+        for i, t in zip(index, t_ns):
+            c = comps[i]
+            c.stats.events_in += 1
+            times.append((t - c.stamp_offset_ns) * 1e-9)
+        return times
+
+    def _account(self, index, stamps, accepted) -> None:
+        """Each component's bookkeeping after its batched update, as
+        :meth:`KalmanFilter.push` keeps it; ``stamps`` are ``(t_ns, origin_ns)``."""
+        comps = self.components
+        for i, (t_ns, origin), ok in zip(index, stamps, accepted):
             c = comps[i]
             if not ok:
                 c.stats.reject("filter rejected update")
                 continue
-            t = m.t_ns - c.stamp_offset_ns
+            t = t_ns - c.stamp_offset_ns
             if c.first_t is None or t < c.first_t:
                 c.first_t = t
             if c.last_t is None or t > c.last_t:
                 c.last_t = t
-            if m.origin_ns > c.last_origin:
-                c.last_origin = m.origin_ns
+            if origin > c.last_origin:
+                c.last_origin = origin
             c.stats.events_out += 1  # emitted, to no consumer
 
     def pull(self, items: Sequence[tuple[int, int]]) -> list[Measurement | None]:
@@ -101,26 +139,57 @@ class KalmanBank:
             c = self.components[i]
             if type(c) is not KalmanFilter:
                 out[k] = c.pull(t_ns)
-                continue
-            if c.last_t is None:
-                c.stats.reject("no data yet")
-            elif c.max_extrapolation_ns is not None and t_ns - c.last_t > c.max_extrapolation_ns:
-                c.stats.reject("stale")
-            elif not c.motion.static and t_ns < c.first_t:
-                c.stats.reject("before first measurement")
-            elif not c.motion.static and c.last_t - t_ns > c._history_ns:
-                c.stats.reject("before history")
             else:
                 index.append(i)
-                times.append(t_ns * 1e-9)
+                times.append(t_ns)
                 where.append(k)
         if index:
-            poses = self._filters().predict_poses(index, times)
-            for k, i, pose in zip(where, index, poses):
-                c = self.components[i]
-                if pose is None:
-                    c.stats.reject("prediction failed")
-                    continue
-                c.stats.events_out += 1
-                out[k] = Measurement(int(items[k][1]), pose, c.last_origin)
+            res = self.pull_block(index, times)
+            trusted = UncertainPose._trusted
+            for k, i, t_ns, ok, p, q, cov in zip(
+                where, index, times, res.ok, res.position, res.quaternion, res.covariance
+            ):
+                if ok:
+                    origin = self.components[i].last_origin
+                    out[k] = Measurement(int(t_ns), trusted(p, q, cov), origin)
         return out
+
+    def pull_block(self, index: Sequence[int], t_ns: Sequence[int]) -> PredictedPoses:
+        """The poses of ``components[index[k]].pull(t_ns[k])`` for every ``k`` as arrays
+        (``ok[k]`` is ``False`` for a counted rejection), the predictions batched; every
+        component is a plain :class:`KalmanFilter`."""
+        index_ok, times, where = [], [], []
+        for k, (i, t) in enumerate(zip(index, t_ns)):
+            c = self.components[i]
+            if type(c) is not KalmanFilter:
+                raise TypeError(f"{c.name}: pull_block takes plain KalmanFilter components")
+            if c.last_t is None:
+                c.stats.reject("no data yet")
+            elif c.max_extrapolation_ns is not None and t - c.last_t > c.max_extrapolation_ns:
+                c.stats.reject("stale")
+            elif not c.motion.static and t < c.first_t:
+                c.stats.reject("before first measurement")
+            elif not c.motion.static and c.last_t - t > c._history_ns:
+                c.stats.reject("before history")
+            else:
+                index_ok.append(i)
+                times.append(t * 1e-9)
+                where.append(k)
+        res = self._filters().predict_block(index_ok, times)
+        for i, ok in zip(index_ok, res.ok):
+            c = self.components[i]
+            if ok:
+                c.stats.events_out += 1
+            else:
+                c.stats.reject("prediction failed")
+        if len(where) == len(index):
+            return res
+        m = len(index)
+        full = PredictedPoses(
+            np.full((m, 3), np.nan), np.full((m, 4), np.nan), np.full((m, 6, 6), np.nan),
+            [False] * m,
+        )  # fmt: skip
+        for j, k in enumerate(where):
+            full.position[k], full.quaternion[k] = res.position[j], res.quaternion[j]
+            full.covariance[k], full.ok[k] = res.covariance[j], res.ok[j]
+        return full

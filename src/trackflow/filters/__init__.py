@@ -34,6 +34,7 @@ from .derivative import (
     MotionModel,
     PoseFilterBank,
     PoseKalmanFilter,
+    PredictedPoses,
     run_filter,
     smooth_filter,
 )
@@ -96,6 +97,7 @@ __all__ = [
     "PoseFilter",
     "PoseFilterBank",
     "PoseKalmanFilter",
+    "PredictedPoses",
     "QuaternionSpaceFilter",
     "QuaternionSpacePoseFilter",
     "QuaternionSpaceState",

@@ -17,14 +17,15 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
 
 from ..dataflow import NETWORK_PROTOCOLS, InputSpec
-from ..math import check_covariance
+from ..math import check_covariance, frozen, kernels_for
 from . import dtrack, natnet, vrpn
+from . import kernels as _kernels
 from ._packet import PacketError
 from .axes import BoundaryConversion
 from .clock import ClockMapper
@@ -36,6 +37,7 @@ __all__ = [
     "LiveInput",
     "NatNetInput",
     "Sample",
+    "SampleBlock",
     "VrpnInput",
     "make_input",
     "make_inputs",
@@ -101,6 +103,57 @@ class CheckedSample(Sample):
     :class:`~trackflow.trackers.runtime.LiveSource` takes it without checking again."""
 
     __slots__ = ()
+
+
+class SampleBlock(Sequence):
+    """The samples of one packet as arrays, when every one is a :class:`CheckedSample` of
+    the packet's exposure and arrival times (the NatNet input makes them so from a frame's
+    rigid-body table).
+
+    As a sequence it is what :meth:`LiveInput.handle` returns otherwise, ``(body index,
+    sample)`` pairs, each made on access; the live runtime takes the arrays instead
+    (:meth:`~trackflow.trackers.runtime.LiveSources.deliver_block`), so a packet's bodies
+    cost no Python object each on their way to the filters.
+
+    Attributes
+    ----------
+    index : tuple of int (m,)
+        Body indices (into :attr:`LiveInput.bodies`), increasing.
+    t_ns, arrival_ns : int
+        Exposure on the host clock and host receive time [ns], shared by the samples.
+    position : ndarray (m, 3)
+        Positions [m], read-only.
+    quaternion : ndarray (m, 4)
+        Unit quaternions ``(x, y, z, w)``, read-only.
+    covariance : ndarray (m, 6, 6)
+        The bodies' nominal covariances (:attr:`Body.nominal_converted`), read-only.
+    covariances : tuple of ndarray (6, 6)
+        The same, as the bodies' own arrays (the samples of the sequence view share them).
+    """
+
+    __slots__ = ("index", "t_ns", "arrival_ns", "position", "quaternion", "covariance",
+                 "covariances")  # fmt: skip
+
+    def __init__(self, index, t_ns, arrival_ns, position, quaternion, covariance, covariances):
+        self.index = index
+        self.t_ns, self.arrival_ns = t_ns, arrival_ns
+        self.position, self.quaternion = position, quaternion
+        self.covariance, self.covariances = covariance, covariances
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return SampleBlock(
+                self.index[k], self.t_ns, self.arrival_ns, self.position[k],
+                self.quaternion[k], self.covariance[k], self.covariances[k],
+            )  # fmt: skip
+        s = CheckedSample(
+            self.t_ns, self.arrival_ns, self.position[k], self.quaternion[k],
+            self.covariances[k],
+        )  # fmt: skip
+        return self.index[k], s
 
 
 Sink = Callable[["LiveInput", bytes, int], None]
@@ -432,7 +485,7 @@ class NatNetInput(LiveInput):
         self.models: natnet.ModelDefinitions | None = None
         self.echo = True  # the server answers echo requests (until it says otherwise)
         self.echoes_sent = 0
-        self._plan = None  # (frame ids, model definitions, _body_rows of them)
+        self._plan = None  # (frame ids, model definitions, _body_rows, _block_plan of them)
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -519,35 +572,80 @@ class NatNetInput(LiveInput):
             out.append((i, row, b.conv.scale, b.nominal_sigma, kind, b.nominal_converted))
         return out
 
+    @classmethod
+    def warm_up(cls) -> None:
+        """Run the one pass of a frame's bodies (:meth:`_block`) once, so that compiling its
+        kernel (numba, first use in a process) happens before a tracker is listened to."""
+        tab = np.zeros(1, natnet.RIGID_BODY_DTYPE)
+        tab["quaternion"][0, 3], tab["params"][0] = 1.0, 1
+        nominal = np.eye(6) * 1e-6
+        plan = cls._block_plan([(0, 0, 1.0, 1e-3, CheckedSample, nominal)])
+        if cls._block(plan, tab, 0, 0) is None:
+            raise RuntimeError("the NatNet block kernel refused a plainly valid body")
+
     @staticmethod
-    def _plain_samples(rows, pos, qn, err, params, finite, unit, scaled) -> list | None:
-        """``(index, sample class, position, quaternion, covariance)`` of every body of
-        :meth:`_body_rows` when all are plainly valid (tracked, finite, a unit quaternion
-        to 10 %, no mean marker error above the nominal sigma, no overflow by the unit
-        scale), with no side effect; ``None`` as soon as one is not."""
-        out = []
-        for i, row, k, ref, kind, cov in rows:
-            if not (params[row] & 1 and finite[row] and unit[row]):
-                return None
-            if ref > 0 and not 0.0 <= err[row] * k <= ref:
-                return None
-            sk = scaled.get(k)
-            if sk is None:
-                with np.errstate(all="ignore"):
-                    p = pos * k
-                    sk = scaled[k] = (p, np.isfinite(p[:, 0] + p[:, 1] + p[:, 2]).tolist())
-            if not sk[1][row]:
-                return None
-            out.append((i, kind, sk[0][row], qn[row], cov))
-        return out
+    def _block_plan(rows: list | None) -> tuple | None:
+        """For rows of :meth:`_body_rows`: the constants of their :class:`SampleBlock` (body
+        indices, table rows, unit scales, bounds of the scaled mean marker error, the
+        covariances stacked (m, 6, 6) and as a tuple, the sample classes or ``None`` when
+        all are checked)."""
+        if rows is None:
+            return None
+        kinds = tuple(r[4] for r in rows)
+        covs = tuple(r[5] for r in rows)
+        ref = np.array([r[3] for r in rows])
+        return (
+            tuple(r[0] for r in rows),
+            frozen([r[1] for r in rows], np.int64),
+            frozen([r[2] for r in rows]),
+            frozen(np.where(ref > 0, 0.0, -np.inf)),  # no bound without a nominal sigma
+            frozen(np.where(ref > 0, ref, np.inf)),
+            frozen(np.stack(covs)),
+            covs,
+            None if all(k is CheckedSample for k in kinds) else kinds,
+        )
+
+    @staticmethod
+    def _block(plan: tuple, tab: np.ndarray, t: int, arrival_ns: int) -> SampleBlock | None:
+        """The :class:`SampleBlock` of a frame's table for a :meth:`_block_plan` when every
+        body in it is plainly valid (:func:`kernels.block_poses`: the arithmetic of
+        :meth:`LiveInput._sample`, so the same bits), with no side effect; ``None`` as soon
+        as one is not."""
+        index, rows, scales, lo, hi, stacked, covs, _ = plan
+        # position, quaternion and mean error of every row: 8 float32 after the id
+        v = np.ndarray((len(tab), 8), "<f4", tab, 4, (tab.itemsize, 4))
+        pos = np.empty((len(index), 3))
+        quat = np.empty((len(index), 4))
+        ok = kernels_for(_kernels).block_poses(
+            frozen(v), frozen(tab["params"], np.int64), rows, scales, lo, hi, pos, quat
+        )
+        if not ok:
+            return None
+        pos.flags.writeable = False
+        quat.flags.writeable = False
+        return SampleBlock(index, t, arrival_ns, pos, quat, stacked, covs)
 
     def _table_samples(self, tab: np.ndarray, t: int, arrival_ns: int):
         """:meth:`_body_sample` for every body from a frame's rigid-body table
         (:data:`natnet.RIGID_BODY_DTYPE`), the arithmetic of :meth:`LiveInput._sample` done
-        for all rows at once (the same operations, so the same bits). A body whose
-        covariance is scaled or whose frame is converted (Y-up) takes the per-body path."""
+        for all rows at once (the same operations, so the same bits): a :class:`SampleBlock`
+        when every body is plainly valid and makes checked samples. A body whose covariance
+        is scaled or whose frame is converted (Y-up) takes the per-body path."""
         t, arrival_ns = int(t), int(arrival_ns)
         ids = tab["id"].tolist()
+        plan = self._plan
+        if plan is None or plan[0] != ids or plan[1] is not self.models:
+            rows = self._body_rows(ids)
+            plan = self._plan = (ids, self.models, rows, self._block_plan(rows))
+        if plan[3] is not None:
+            block = self._block(plan[3], tab, t, arrival_ns)
+            if block is not None:
+                for b in self.bodies:
+                    b.status.measured(arrival_ns, t)
+                kinds = plan[3][7]
+                if kinds is None:
+                    return block
+                return [(i, kind(*s)) for (i, s), kind in zip(block, kinds)]
         row_of = {bid: k for k, bid in enumerate(ids)}  # the last of a repeated id, as a dict
         pos = tab["position"].astype(np.float64)
         quat = tab["quaternion"].astype(np.float64)
@@ -561,15 +659,6 @@ class NatNetInput(LiveInput):
             qn = quat / np.sqrt(np.where(unit, n2, 1.0))[:, None]
         finite, unit = finite.tolist(), unit.tolist()
         scaled: dict[float, tuple[np.ndarray, list]] = {}  # unit scale -> positions, finite
-        plan = self._plan
-        if plan is None or plan[0] != ids or plan[1] is not self.models:
-            plan = self._plan = (ids, self.models, self._body_rows(ids))
-        if plan[2] is not None:
-            out = self._plain_samples(plan[2], pos, qn, err, params, finite, unit, scaled)
-            if out is not None:
-                for b in self.bodies:
-                    b.status.measured(arrival_ns, t)
-                return [(i, kind(t, arrival_ns, p, q, c)) for i, kind, p, q, c in out]
         out = []
         for i, b in enumerate(self.bodies):
             try:

@@ -44,7 +44,15 @@ from ..dataflow import (
 from ..filters import PoseFilterBank
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
-from .inputs import CheckedSample, LiveInput, Sample, host_ns, make_inputs
+from .inputs import (
+    CheckedSample,
+    LiveInput,
+    NatNetInput,
+    Sample,
+    SampleBlock,
+    host_ns,
+    make_inputs,
+)
 
 __all__ = [
     "LiveSource",
@@ -87,9 +95,7 @@ class LiveSource(Component):
     def accept(self, s: Sample) -> UncertainPose | None:
         """The sample's pose, counted and checked as :meth:`deliver` does, not yet pushed;
         ``None`` for a counted rejection."""
-        self.stats.events_in += 1
-        if self._last_t is not None and s.t_ns <= self._last_t:
-            self.stats.reject("timestamp backwards")
+        if not self._fresh(s.t_ns):
             return None
         if type(s) is CheckedSample:
             pose = UncertainPose._trusted(s.position, s.quaternion, s.covariance)
@@ -103,6 +109,15 @@ class LiveSource(Component):
                 return None
         self._last_t = s.t_ns
         return pose
+
+    def _fresh(self, t_ns: int) -> bool:
+        """Count a sample in; ``False`` (a counted rejection) if it is not after the last
+        accepted one."""
+        self.stats.events_in += 1
+        if self._last_t is not None and t_ns <= self._last_t:
+            self.stats.reject("timestamp backwards")
+            return False
+        return True
 
     def _plain_pose(self, s: Sample) -> UncertainPose | None:
         """The sample's pose without copies when it is plainly valid (float64 arrays of the
@@ -192,11 +207,46 @@ class LiveSources:
             clock.now_ns = items[-1][1].arrival_ns
         return out
 
+    def deliver_block(self, names, block: SampleBlock, arrival_ns: int, clock=None) -> list:
+        """:meth:`deliver` of the samples of a block, sample ``k`` of source ``names[k]``
+        dispatched at ``arrival_ns + k``: the same outcome, with the block's arrays going to
+        the batched filters as they are (:meth:`KalmanBank.push_block`) when every source
+        feeds one only. Returns per sample whether it was accepted."""
+        srcs, rows = self.sources, self._row
+        index = []
+        for name in names:
+            row = rows.get(name)
+            if row is None or srcs[name].consumers != row[1]:
+                items = [(n, s._replace(arrival_ns=arrival_ns + k)) for k, (n, (_, s)) in
+                         enumerate(zip(names, block))]  # fmt: skip
+                return [pose is not None for pose in self.deliver(items, clock)]
+            index.append(row[0])
+        t = block.t_ns
+        ok = []
+        for name in names:
+            src = srcs[name]
+            fresh = src._fresh(t)
+            if fresh:
+                src._last_t = t
+                src.stats.events_out += 1
+            ok.append(fresh)
+        if all(ok):
+            self.filters.push_block(index, t, block.position, block.quaternion, block.covariance)
+        elif any(ok):
+            at = [k for k, good in enumerate(ok) if good]
+            self.filters.push_block(
+                [index[k] for k in at], t, block.position[at], block.quaternion[at],
+                block.covariance[at],
+            )  # fmt: skip
+        if clock is not None and names:
+            clock.now_ns = arrival_ns + len(names) - 1
+        return ok
+
 
 def warm_up(net) -> None:
     """Run every Kalman filter of ``net`` once on a throwaway copy, alone and in a filter
-    bank, so that compiling its kernels (numba, first use in a process) happens before the
-    trackers are listened to."""
+    bank, and the inputs' packet kernels, so that compiling them (numba, first use in a
+    process) happens before the trackers are listened to."""
     seen = set()
     for c in net.components.values():
         if isinstance(c, KalmanFilter) and (c.motion, c.history_s) not in seen:
@@ -211,6 +261,7 @@ def warm_up(net) -> None:
             for t in (0.0, 0.01):
                 bank.update_poses([0, 1], [t, t], [u, u])
             bank.predict_poses([0, 1], [0.02, 0.02])
+    NatNetInput.warm_up()  # and the one pass over a NatNet frame's bodies
 
 
 @contextlib.contextmanager
@@ -284,7 +335,7 @@ class _Scheduler:
         self.sources = sources
         self.delivery = LiveSources(sources)
         self.writers = writers
-        self.names = {(id(i), k): b.name for i in inputs for k, b in enumerate(i.bodies)}
+        self.names = {id(i): [b.name for b in i.bodies] for i in inputs}
         self.lock = threading.Lock()
         self.last = 0  # the latest dispatch time handed out
         self.floor = 0  # no dispatch time at or below a fired tick
@@ -301,46 +352,63 @@ class _Scheduler:
                 return
             try:
                 a = max(stamp, self.last + 1, self.floor)
-                pairs = inp.handle(data, a)
-                self.last = a + max(len(pairs) - 1, 0)
-                if pairs:
-                    key = id(inp)
-                    self._dispatch_packet(
-                        [
-                            (self.names[(key, bi)], type(s)(s.t_ns, a + k, *s[2:]))
-                            for k, (bi, s) in enumerate(pairs)
-                        ]
-                    )
+                samples = inp.handle(data, a)
+                self.last = a + max(len(samples) - 1, 0)
+                if samples:
+                    names = self.names[id(inp)]
+                    if type(samples) is SampleBlock:
+                        self._dispatch_packet([names[bi] for bi in samples.index], samples, a)
+                    else:
+                        self._dispatch_packet([names[bi] for bi, _ in samples], samples, a)
             except BaseException as exc:  # reported by the scheduling thread, which stops
                 self.error = exc
                 self.stop.set()
 
-    def _dispatch_packet(self, item: list[tuple[str, Sample]]) -> None:
-        """The samples of one packet, split at the ticks among them."""
+    def _dispatch_packet(self, names: list[str], samples, a: int) -> None:
+        """The samples of one packet (``(body index, sample)`` pairs or a block), sample
+        ``k`` of sensor ``names[k]`` at dispatch time ``a + k``, split at the ticks among
+        them."""
         period = self.sampler.period_ns
-        i, n = 0, len(item)
+        i, n = 0, len(samples)
         while i < n:
-            while self.next_tick < item[i][1].arrival_ns:
+            while self.next_tick < a + i:
                 self.fire(self.next_tick)
                 self.next_tick += period
-            j = i + 1
-            while j < n and item[j][1].arrival_ns <= self.next_tick:
-                j += 1
-            self.dispatch(item[i:j])
+            j = min(n, self.next_tick - a + 1)  # the samples at or before the next tick
+            self.dispatch(names[i:j], samples[i:j], a + i)
             i = j
 
-    def dispatch(self, items: list[tuple[str, Sample]]) -> None:
-        """Deliver samples with no tick between them (one batch, :class:`LiveSources`) and
-        record the accepted ones."""
-        self.clock.now_ns = items[0][1].arrival_ns
+    def dispatch(self, names: list[str], samples, a: int) -> None:
+        """Deliver samples with no tick between them, sample ``k`` at ``a + k`` (one batch,
+        :class:`LiveSources`), and record the accepted ones."""
+        self.clock.now_ns = a
         self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        if type(samples) is SampleBlock:
+            ok = self.delivery.deliver_block(names, samples, a, self.clock)
+            if self.writers:
+                for k, (name, good) in enumerate(zip(names, ok)):
+                    if good and name in self.writers:
+                        self._record(
+                            name, samples.t_ns, a + k, samples.position[k],
+                            samples.quaternion[k], samples.covariance[k],
+                        )  # fmt: skip
+            return
+        items = [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in
+                 enumerate(zip(names, samples))]  # fmt: skip
         poses = self.delivery.deliver(items, self.clock)
         if self.writers:
             for (name, s), pose in zip(items, poses):
                 if pose is not None and name in self.writers:
-                    p, q, c = pose.position, pose.quaternion, pose.covariance
-                    self.writers[name][0].append_sample(s.t_ns, p, q, c)
-                    self.writers[name][1].append_sample(s.arrival_ns, p, q, c)
+                    self._record(
+                        name, s.t_ns, s.arrival_ns, pose.position, pose.quaternion,
+                        pose.covariance,
+                    )  # fmt: skip
+
+    def _record(self, name: str, t_ns: int, arrival_ns: int, p, q, c) -> None:
+        """An accepted sample into its sensor's input recordings (exposure and dispatch)."""
+        exposure, arrival = self.writers[name]
+        exposure.append_sample(t_ns, p, q, c)
+        arrival.append_sample(arrival_ns, p, q, c)
 
     def fire(self, t: int) -> None:
         self.clock.now_ns = t

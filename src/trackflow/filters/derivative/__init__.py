@@ -7,7 +7,7 @@ one packet in one compiled call) and ``offline`` (:func:`run_filter` and the smo
 :func:`smooth_filter` over whole recordings). See ``docs/filters.md``.
 """
 
-from .bank import PoseFilterBank
+from .bank import PoseFilterBank, PredictedPoses
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter, smooth_filter
 from .streaming import FilterSnapshot, PoseKalmanFilter
@@ -19,6 +19,7 @@ __all__ = [
     "MotionModel",
     "PoseFilterBank",
     "PoseKalmanFilter",
+    "PredictedPoses",
     "run_filter",
     "smooth_filter",
 ]

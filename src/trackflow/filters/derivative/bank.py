@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from .. import gating
 from . import kernels as _source
 from .streaming import PoseKalmanFilter, _Entry, kernels
 
-__all__ = ["PoseFilterBank"]
+__all__ = ["PoseFilterBank", "PredictedPoses"]
 
 
 class _Kind:
@@ -63,9 +64,10 @@ class _Kind:
 
 class _Batch:
     """The kernel's inputs for the measurements of filters of one kind: per measurement its
-    ``(index, filter, time)``, the filter's row, the time step and the measurement."""
+    ``(index, filter, time)``, the filter's row, the time step and (:meth:`update_poses`)
+    the measurement, or (:meth:`update_block`) its index in the block's arrays."""
 
-    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r")
+    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at")
 
     def __init__(self, kind: _Kind):
         self.kind = kind
@@ -75,6 +77,19 @@ class _Batch:
         self.zp: list = []
         self.zo: list = []
         self.r: list = []
+        self.at: list = []
+
+
+class PredictedPoses(NamedTuple):
+    """Poses predicted by a :class:`PoseFilterBank` (:meth:`~PoseFilterBank.predict_block`),
+    one row per request: ``position`` (m, 3) [m], ``quaternion`` (m, 4) ``(x, y, z, w)``,
+    ``covariance`` (m, 6, 6) over ``(dt, dtheta)``, and ``ok`` (m,) ``False`` where the
+    filter has no answer (its row holds NaN)."""
+
+    position: np.ndarray
+    quaternion: np.ndarray
+    covariance: np.ndarray
+    ok: list
 
 
 def _bankable(f) -> bool:
@@ -130,6 +145,35 @@ class PoseFilterBank:
             f._p = p
 
     # -- updates -----------------------------------------------------------------------------
+    def _ready(self, f, slot, tk: float) -> bool:
+        """Whether the kernel can take a measurement at ``tk`` of filter ``f`` (in bank slot
+        ``slot``): a banked filter with a state not after ``tk`` and no reset due; its state
+        arrays are made the bank's row. Otherwise the filter's own method takes it."""
+        t0 = f._t
+        if (
+            slot is None
+            or t0 is None
+            or not tk >= t0
+            or not math.isfinite(tk)
+            or f._gated_run >= slot[0].reset_after  # a reset is due
+        ):
+            return False
+        kind, row = slot
+        if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
+            self._take(f, kind, row)
+        return True
+
+    def _batch(self, batch: dict, slot, k: int, f, tk: float) -> _Batch:
+        """Measurement ``k`` of filter ``f`` at ``tk`` added to its kind's batch."""
+        kind, row = slot
+        b = batch.get(id(kind))
+        if b is None:
+            b = batch[id(kind)] = _Batch(kind)
+        b.rows.append((k, f, tk))
+        b.sel.append(row)
+        b.dts.append(tk - f._t)
+        return b
+
     def update_poses(self, index: Sequence[int], t: Sequence[float], poses: Sequence) -> list:
         """Integrate pose measurement ``poses[k]`` at time ``t[k]`` [s] into filter
         ``index[k]``, for every ``k``, exactly as ``filters[index[k]].update_pose(t[k],
@@ -148,7 +192,6 @@ class PoseFilterBank:
         later: list[int] = []  # rows of a filter met before in this call: after the kernels
         batch: dict[int, _Batch] = {}  # per kind: the kernel's inputs
         filters, slots = self.filters, self._slot
-        isfinite = math.isfinite
         for k, i in enumerate(index):
             if i in seen:
                 later.append(k)
@@ -158,39 +201,57 @@ class PoseFilterBank:
             slot = slots[i]
             tk = float(t[k])
             pose = poses[k]
-            t0 = f._t
             if (
-                slot is None
-                or t0 is None
-                or not tk >= t0
-                or not isfinite(tk)
-                or f._gated_run >= slot[0].reset_after  # a reset is due
-                or not isinstance(pose, UncertainPose)
+                not isinstance(pose, UncertainPose)
+                or pose.covariance.ndim != 2  # a batch of poses
+                or not self._ready(f, slot, tk)
             ):
                 out[k] = self._one(f, tk, pose)
                 continue
-            r = pose.covariance
-            if r.ndim != 2:  # a batch of poses
-                out[k] = self._one(f, tk, pose)
-                continue
-            kind, row = slot
-            b = batch.get(id(kind))
-            if b is None:
-                b = batch[id(kind)] = _Batch(kind)
-            if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
-                self._take(f, kind, row)
+            b = self._batch(batch, slot, k, f, tk)
             p = pose.pose
-            b.rows.append((k, f, tk))
-            b.sel.append(row)
-            b.dts.append(tk - t0)
             b.zp.append(p.position)
             b.zo.append(p.quaternion)
-            b.r.append(r)
+            b.r.append(pose.covariance)
         for b in batch.values():
-            self._step(b, out)
+            self._step(b, b.zp, b.zo, b.r, out)
         for k in later:
             out[k] = self._one(filters[index[k]], t[k], poses[k])
         return out
+
+    def update_block(
+        self, index: Sequence[int], t: Sequence[float], position, quaternion, covariance
+    ) -> list:
+        """:meth:`update_poses` of trusted pose measurements given as arrays: the pose of
+        measurement ``k`` is ``position[k]`` (m, 3) [m], ``quaternion[k]`` (m, 4) unit
+        ``(x, y, z, w)`` and ``covariance[k]`` (m, 6, 6), as :class:`UncertainPose` takes
+        them without checks (finite, unit, valid). No object is made per measurement on the
+        kernel's path: the arrays go to it as they are."""
+        filters, slots = self.filters, self._slot
+        if len(set(index)) != len(index):  # a filter twice: in order, through update_poses
+            return self._update_trusted(index, t, position, quaternion, covariance)
+        out: list = [False] * len(index)
+        batch: dict[int, _Batch] = {}
+        for k, i in enumerate(index):
+            f = filters[i]
+            tk = float(t[k])
+            if self._ready(f, slots[i], tk):
+                self._batch(batch, slots[i], k, f, tk).at.append(k)
+            else:
+                trusted = UncertainPose._trusted(position[k], quaternion[k], covariance[k])
+                out[k] = self._one(f, tk, trusted)
+        for b in batch.values():
+            if len(b.at) == len(index):  # all of them, in order: the arrays as they are
+                self._step(b, position, quaternion, covariance, out)
+            else:
+                at = np.asarray(b.at)
+                self._step(b, position[at], quaternion[at], covariance[at], out)
+        return out
+
+    def _update_trusted(self, index, t, position, quaternion, covariance) -> list:
+        trusted = UncertainPose._trusted
+        poses = [trusted(position[k], quaternion[k], covariance[k]) for k in range(len(index))]
+        return self.update_poses(index, t, poses)
 
     @staticmethod
     def _one(f, t, pose) -> bool:
@@ -200,16 +261,18 @@ class PoseFilterBank:
             return False
 
     @staticmethod
-    def _step(b: _Batch, out: list) -> None:
-        """One kernel call for the measurements of ``b``, then each filter's log entry and
-        bookkeeping by the filter's own ``_stepped`` and ``_append``."""
+    def _step(b: _Batch, zp, zo, r, out: list) -> None:
+        """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
+        quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
+        rows), then each filter's log entry and bookkeeping by the filter's own
+        ``_stepped`` and ``_append``."""
         kind, m = b.kind, len(b.rows)
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
         nis = np.empty(m)
         kernels().step_bank(
             kind.xs, kind.ps, frozen(b.sel, np.int64), frozen(b.dts), kind.const,
-            frozen(b.zp), frozen(b.zo), frozen(b.r), kind.gate, logs, status, nis,
+            frozen(zp), frozen(zo), frozen(r), kind.gate, logs, status, nis,
         )  # fmt: skip
         gated = gating.GATED
         nx, nc = kind.nx, kind.nc
@@ -233,7 +296,18 @@ class PoseFilterBank:
             :meth:`~PoseKalmanFilter.predict` raises ``ValueError`` (no measurement yet, a
             time before its history or not finite).
         """
-        out: list = [None] * len(index)
+        res = self.predict_block(index, t)
+        trusted = UncertainPose._trusted
+        return [
+            trusted(p, q, c) if ok else None
+            for ok, p, q, c in zip(res.ok, res.position, res.quaternion, res.covariance)
+        ]
+
+    def predict_block(self, index: Sequence[int], t: Sequence[float]) -> PredictedPoses:
+        """:meth:`predict_poses` with the poses as arrays (:class:`PredictedPoses`)."""
+        m = len(index)
+        res = np.full((m, _source.POSE_OUT), np.nan)
+        ok = [False] * m
         batch: dict[int, tuple] = {}  # per kind: (kind, measurement indices, rows, steps)
         filters, slots = self.filters, self._slot
         for k, i in enumerate(index):
@@ -242,9 +316,12 @@ class PoseFilterBank:
             tk = float(t[k])
             if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
                 try:
-                    out[k] = f.predict(tk)
+                    pose = f.predict(tk)
                 except ValueError:
-                    pass
+                    continue
+                res[k, :3], res[k, 3:7] = pose.position, pose.quaternion
+                res[k, 7:] = pose.covariance.reshape(-1)
+                ok[k] = True
                 continue
             kind, row = slot
             b = batch.get(id(kind))
@@ -255,14 +332,13 @@ class PoseFilterBank:
             b[1].append(k)
             b[2].append(row)
             b[3].append(tk - f._t)
-        trusted = UncertainPose._trusted
+            ok[k] = True
         for kind, ks, rows, dts in batch.values():
-            m = len(ks)
-            res = np.empty((m, _source.POSE_OUT))
+            whole = len(ks) == m  # every request, in order: straight into the result
+            dst = res if whole else np.empty((len(ks), _source.POSE_OUT))
             kernels().predict_pose_bank(
-                kind.xs, kind.ps, frozen(rows, np.int64), frozen(dts), kind.const, res
+                kind.xs, kind.ps, frozen(rows, np.int64), frozen(dts), kind.const, dst
             )
-            pos, quat, cov = res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6)
-            for k, p, q, c in zip(ks, pos, quat, cov):
-                out[k] = trusted(p, q, c)
-        return out
+            if not whole:
+                res[ks] = dst
+        return PredictedPoses(res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), ok)

@@ -559,8 +559,11 @@ class PoseKalmanFilter(FilterClock):
         # entries 0 .. n-1 go when entry n (the new base's successor) is before the horizon
         times, horizon = self._times, self._t - self._history
         if len(times) < 2 or not times[1] < horizon:
-            return  # nothing to cut (the common case, once per measurement)
-        n = bisect.bisect_left(times, horizon, 1) - 1
+            return  # nothing to cut
+        if len(times) < 3 or not times[2] < horizon:  # one entry goes (a steady stream)
+            n = 1
+        else:
+            n = bisect.bisect_left(times, horizon, 1) - 1
         if n > 0:
             for e in self._log[:n]:
                 self._pruned[e.status] += 1
