@@ -65,10 +65,15 @@ def frozen(array, dtype=float):
     """A C-contiguous, read-only view of ``array`` as ``dtype`` (a copy only when needed).
 
     The one argument form of every array a driver passes into a kernel (see the module notes:
-    one compiled specialisation per kernel). The caller's array is never made read-only.
+    one compiled specialisation per kernel). The caller's array is never made read-only; one that
+    already is frozen (read-only, C-contiguous, of ``dtype``) is returned as it is.
     """
     import numpy as np
 
+    if type(array) is np.ndarray:
+        flags = array.flags
+        if not flags.writeable and flags.c_contiguous and array.dtype == dtype:
+            return array  # already frozen: as it is
     view = np.ascontiguousarray(array, dtype=dtype).view()
     view.flags.writeable = False
     return view

@@ -157,6 +157,7 @@ class ClockMapper:
         self._env: ClockEstimate | None = None  # the envelope fit alone
         #: the published mapping (the envelope minus the transit found by round trips)
         self.estimate: ClockEstimate | None = None
+        self._published: tuple | None = None  # (envelope, round trip) of the estimate
         self.round_trips: deque[tuple[int, int, int]] = deque()  # (tracker, rtt, offset)
         #: round trips rejected (negative or longer than ``max_rtt_s``)
         self.rejected_round_trips = 0
@@ -166,7 +167,7 @@ class ClockMapper:
     def reset(self) -> None:
         """Forget everything (the tracker restarted)."""
         self.bins.clear()
-        self._cur = self._cur_bin = self._env = self.estimate = None
+        self._cur = self._cur_bin = self._env = self.estimate = self._published = None
         self.round_trips.clear()
         self._newest = 0
 
@@ -260,11 +261,14 @@ class ClockMapper:
         if e is None or not self.round_trips:
             self.estimate = e
             return
+        if self._published == (e, self._best):  # neither changed: the same estimate
+            return
         x, rtt, mid = self._best
         transit = max(e.offset_ns + e.drift * (x - e.ref_ns) - mid, 0.0)
         self.estimate = ClockEstimate(
             e.offset_ns, e.drift, e.ref_ns, e.sigma_ns, e.points, transit, rtt / 2
         )
+        self._published = (e, self._best)
 
     def to_host(self, tracker_ns: int) -> int:
         """Host time [ns] of a tracker time [ns] (the latest estimate)."""

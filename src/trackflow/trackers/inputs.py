@@ -269,8 +269,10 @@ class LiveInput:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
         by the envelope fit, minus the protocol's exposure-to-send latency."""
         self.clock.add(tx_ns, arrival_ns)
-        for b in self.bodies:
-            b.status.clock = self.clock.estimate
+        est = self.clock.estimate
+        if est is not self.bodies[0].status.clock:  # a new estimate: every body's status
+            for b in self.bodies:
+                b.status.clock = est
         return self.clock.to_host(tx_ns) - latency_ns
 
     @staticmethod

@@ -306,7 +306,7 @@ class PoseFilterBank:
     def predict_block(self, index: Sequence[int], t: Sequence[float]) -> PredictedPoses:
         """:meth:`predict_poses` with the poses as arrays (:class:`PredictedPoses`)."""
         m = len(index)
-        res = np.full((m, _source.POSE_OUT), np.nan)
+        res = np.empty((m, _source.POSE_OUT))
         ok = [False] * m
         batch: dict[int, tuple] = {}  # per kind: (kind, measurement indices, rows, steps)
         filters, slots = self.filters, self._slot
@@ -341,4 +341,6 @@ class PoseFilterBank:
             )
             if not whole:
                 res[ks] = dst
+        if not all(ok):
+            res[[k for k in range(m) if not ok[k]]] = np.nan
         return PredictedPoses(res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), ok)
