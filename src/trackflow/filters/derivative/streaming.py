@@ -561,9 +561,11 @@ class PoseKalmanFilter(FilterClock):
         if len(times) < 2 or not times[1] < horizon:
             return  # nothing to cut
         if len(times) < 3 or not times[2] < horizon:  # one entry goes (a steady stream)
-            n = 1
-        else:
-            n = bisect.bisect_left(times, horizon, 1) - 1
+            e = self._base = self._log.pop(0)
+            times.pop(0)
+            self._pruned[e.status] += 1
+            return
+        n = bisect.bisect_left(times, horizon, 1) - 1
         if n > 0:
             for e in self._log[:n]:
                 self._pruned[e.status] += 1
