@@ -39,7 +39,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import SampleBlock, make_inputs
-from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, collect_due, warm_up
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]
@@ -166,24 +166,29 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
     delivery = LiveSources(sources)
     rows_of = delivery.row
 
+    def answer(samples, t0, entered):
+        taken, cpu = time.time_ns(), time.thread_time_ns()
+        sensors = [names[bi] for bi in samples.index]
+        delivery.deliver_block(sensors, samples, samples.arrival_ns)
+        answers = delivery.filters.pull_block(
+            [rows_of[n] for n in sensors], [samples.arrival_ns] * BODIES
+        )
+        now = time.time_ns()  # the last answer of the packet is delivered
+        if answers.ok[-1]:
+            latencies.append(now - t0)
+            service.append(now - taken)
+            service_cpu.append(time.thread_time_ns() - cpu)
+            woken.append(entered - t0)
+            handled.append(taken - entered)
+
     def sink(i, data, arrival):
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts
         entered = time.time_ns()
         with lock:  # as trackflow run dispatches a packet: in the receiving thread
             samples = i.handle(data, arrival)
-            if type(samples) is not SampleBlock:  # not every body valid: not timed
-                return
-            taken, cpu = time.time_ns(), time.thread_time_ns()
-            sensors = [names[bi] for bi in samples.index]
-            delivery.deliver_block(sensors, samples, arrival)
-            answers = delivery.filters.pull_block([rows_of[n] for n in sensors], [arrival] * BODIES)
-            now = time.time_ns()  # the last answer of the packet is delivered
-            if answers.ok[-1]:
-                latencies.append(now - t0)
-                service.append(now - taken)
-                service_cpu.append(time.thread_time_ns() - cpu)
-                woken.append(entered - t0)
-                handled.append(taken - entered)
+            if type(samples) is SampleBlock:  # else not every body valid: not timed
+                answer(samples, t0, entered)
+        collect_due()  # as trackflow run does once a packet is answered
 
     with calm_gc():  # as trackflow run does once the network is warm
         inp.start(sink)

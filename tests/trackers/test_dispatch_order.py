@@ -65,3 +65,27 @@ def test_ticks_among_a_packets_samples(as_block, tick):
     events += [(t, 1, ("tick", t)) for t in range(tick, last, 100)]
     assert log == [e for *_, e in sorted(events)]
     assert s.next_tick == (tick if tick >= last else tick + 100)
+
+
+def test_calm_gc_leaves_collections_to_collect_due():
+    """Inside calm_gc the automatic collector is off (no collection in a packet's path);
+    collect_due makes the one that is due; on exit the collector is as before."""
+    import gc
+
+    from trackflow.trackers.runtime import calm_gc, collect_due
+
+    class Node:
+        def __init__(self):
+            self.other = self  # a cycle: only the collector frees it
+
+    was_on = gc.isenabled()
+    with calm_gc():
+        assert not gc.isenabled()
+        t0 = gc.get_threshold()[0]
+        for _ in range(t0 + 10):  # more young objects than the threshold: a collection due
+            Node()
+        assert gc.get_count()[0] > t0  # nothing collected them
+        collect_due()
+        assert gc.get_count()[0] < t0
+        collect_due()  # nothing due: nothing happens
+    assert gc.isenabled() == was_on

@@ -59,6 +59,7 @@ __all__ = [
     "LiveSources",
     "ReplayResult",
     "calm_gc",
+    "collect_due",
     "RunResult",
     "input_paths",
     "replay",
@@ -266,19 +267,35 @@ def warm_up(net) -> None:
 
 @contextlib.contextmanager
 def calm_gc():
-    """Within the block, the garbage collector leaves alone everything alive at its start.
+    """Within the block, garbage collection stays off the packets' path.
 
     Entered once the network is built and warm: it collects, then freezes every object alive
-    (:func:`gc.freeze`), so that the collections a live run triggers look only at the objects
+    (:func:`gc.freeze`), so that the collections a live run makes look only at the objects
     made since (a full collection over the imported modules and compiled kernels would
-    otherwise stall one packet by milliseconds). On exit they are unfrozen again.
+    otherwise stall one packet by milliseconds), and turns the automatic collector off: a
+    thread calls :func:`collect_due` where it has just finished its work (after a packet's
+    answers, when the next packet is furthest away) to make the collections the collector
+    would have made. On exit the collector is on and the objects unfrozen again.
     """
     gc.collect()
     gc.freeze()
+    was_on = gc.isenabled()
+    gc.disable()
     try:
         yield
     finally:
+        if was_on:
+            gc.enable()
         gc.unfreeze()
+
+
+def collect_due() -> None:
+    """The collection the automatic collector would make now (by its thresholds: the oldest
+    generation whose count is due), or none; for use inside :func:`calm_gc`."""
+    t0, t1, t2 = gc.get_threshold()
+    c0, c1, c2 = gc.get_count()
+    if c0 > t0:
+        gc.collect(2 if c2 > t2 else 1 if c1 > t1 else 0)
 
 
 def input_paths(record, sensor: str) -> tuple[Path, Path]:
@@ -363,6 +380,7 @@ class _Scheduler:
             except BaseException as exc:  # reported by the scheduling thread, which stops
                 self.error = exc
                 self.stop.set()
+        collect_due()  # the packet is answered: the next one is furthest away
 
     def _dispatch_packet(self, names: list[str], samples, a: int) -> None:
         """The samples of one packet (``(body index, sample)`` pairs or a block), sample
@@ -426,6 +444,7 @@ class _Scheduler:
             if deadline is not None and now >= deadline:
                 break
             status(now)
+            collect_due()  # also when no packet comes
             wait = min(self.next_tick - now, 100_000_000)
             if wait > 0:
                 self.stop.wait(wait * 1e-9)
