@@ -29,6 +29,11 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
+from ..math import frozen, kernels_for
+from . import kernels as _kernels
+
 __all__ = ["ClockEstimate", "ClockMapper", "lower_envelope"]
 
 
@@ -72,33 +77,16 @@ class ClockEstimate:
         return tracker_ns + int(round(self.offset_ns - self.transit_ns + self.drift * dx))
 
 
-def lower_envelope(x: list[float], y: list[float]) -> tuple[float, float]:
+def lower_envelope(x, y) -> tuple[float, float]:
     """``(a, b)`` of the line ``a + b (x - mean(x))`` below every point with the largest sum.
 
-    ``x`` must be increasing. One point (or all at one ``x``): the lowest, ``b = 0``.
+    ``x`` must be increasing. One point (or all at one ``x``): the lowest, ``b = 0``
+    (:func:`trackflow.trackers.kernels.lower_envelope`).
     """
-    n = len(x)
-    if n == 0:
+    if len(x) == 0:
         raise ValueError("no points")
-    xm = sum(x) / n
-    if n == 1 or x[-1] == x[0]:
-        return min(y), 0.0
-    hull: list[int] = []
-    for i in range(n):  # lower hull, monotone chain
-        while len(hull) >= 2:
-            o, p = hull[-2], hull[-1]
-            cross = (x[p] - x[o]) * (y[i] - y[o]) - (y[p] - y[o]) * (x[i] - x[o])
-            if cross <= 0:
-                hull.pop()
-            else:
-                break
-        hull.append(i)
-    for k in range(len(hull) - 1):
-        i, j = hull[k], hull[k + 1]
-        if x[i] <= xm <= x[j] and x[j] > x[i]:
-            b = (y[j] - y[i]) / (x[j] - x[i])
-            return y[i] + b * (xm - x[i]), b
-    return min(y), 0.0  # pragma: no cover - xm lies within [x0, xn]
+    a, b = kernels_for(_kernels).lower_envelope(frozen(x), frozen(y))
+    return float(a), float(b)
 
 
 class ClockMapper:
@@ -151,7 +139,9 @@ class ClockMapper:
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
         self.max_drift = float(max_drift)
-        self.bins: deque[tuple[int, int]] = deque()  # (tracker ns, host - tracker ns) minima
+        #: the closed bins' minima, rows ``(tracker ns, host - tracker ns)`` in the order closed
+        self._bins = np.empty((int(window_s / bin_s) + 8, 2), np.int64)
+        self._nbins = 0
         self._cur: tuple[int, int] | None = None
         self._cur_bin: int | None = None
         self._env: ClockEstimate | None = None  # the envelope fit alone
@@ -166,7 +156,7 @@ class ClockMapper:
 
     def reset(self) -> None:
         """Forget everything (the tracker restarted)."""
-        self.bins.clear()
+        self._nbins = 0
         self._cur = self._cur_bin = self._env = self.estimate = self._published = None
         self.round_trips.clear()
         self._newest = 0
@@ -186,9 +176,7 @@ class ClockMapper:
         k = tracker_ns // self.bin_ns
         if self._cur_bin is None or k != self._cur_bin:
             if self._cur is not None:
-                self.bins.append(self._cur)
-                while self.bins and tracker_ns - self.bins[0][0] > self.window_ns:
-                    self.bins.popleft()
+                self._close_bin(tracker_ns)
                 self._refit()
             self._cur_bin, self._cur = k, (tracker_ns, y)
         elif y < self._cur[1]:
@@ -204,38 +192,58 @@ class ClockMapper:
                 )
         self._publish()
 
+    @staticmethod
+    def warm_up() -> None:
+        """Run the fit's kernels once, so that compiling them (numba, first use in a process)
+        happens before a tracker is listened to."""
+        c = ClockMapper(window_s=3.0, bin_s=0.1, min_span_s=0.2)
+        for k in range(6):
+            c.add(k * 100_000_000, k * 100_000_000 + 5_000)
+        if c.estimate is None or c.estimate.points < 2:
+            raise RuntimeError("the clock fit made no estimate")
+
+    @property
+    def bins(self) -> list[tuple[int, int]]:
+        """The closed bins' minima ``(tracker ns, host - tracker ns)`` in the window, in the
+        order they closed."""
+        return [(int(x), int(y)) for x, y in self._bins[: self._nbins]]
+
+    def _close_bin(self, tracker_ns: int) -> None:
+        """The open bin's minimum into the window; the bins older than the window go."""
+        n, pts = self._nbins, self._bins
+        if n == len(pts):
+            pts = self._bins = np.concatenate([pts, np.empty_like(pts)])
+        pts[n] = self._cur
+        n += 1
+        old = 0
+        while old < n and tracker_ns - int(pts[old, 0]) > self.window_ns:
+            old += 1
+        if old:
+            pts[: n - old] = pts[old:n].copy()
+            n -= old
+        self._nbins = n
+
     def _refit(self) -> None:
-        pts = sorted(self.bins)
-        if not pts:
+        n = self._nbins
+        if not n:
             return
-        ref = pts[0][0]
-        x = [(p[0] - ref) * 1e-9 for p in pts]  # seconds, for a well-conditioned slope
-        y = [float(p[1]) for p in pts]
-        b = 0.0
-        if pts[-1][0] - ref >= self.min_span_ns:
-            _, b = lower_envelope(x, y)
-            b = max(-self.max_drift * 1e9, min(self.max_drift * 1e9, b)) * 1e-9
-        # with that slope: the line below every bin of the window, and the line through the
-        # lowest recent bin; the recent one extrapolates over seconds instead of the whole
-        # window, unless every recent packet was late (a stalled sender or network), i.e. it
-        # sits far above the window's line compared with how high bins usually sit
-        ref_ns = pts[-1][0]
-        heights = [yi - b * (p[0] - ref_ns) for p, yi in zip(pts, y)]
-        a_full = min(heights)
-        recent = [h for p, h in zip(pts, heights) if ref_ns - p[0] <= self.anchor_ns]
-        a = min(recent)
-        typical = sorted(heights)[len(heights) // 2] - a_full
-        limit = a_full + 3.0 * typical + self.stall_ns
-        if a > limit:  # every recent packet late (a stall): keep the window's line
-            a = a_full
-        res = sorted(h - a for h in recent)
-        sigma = max(res[len(res) // 2], 0.0)
-        self._env = ClockEstimate(a, b, ref_ns, sigma, len(pts))
+        tx, y = self._bins[:n, 0], self._bins[:n, 1]
+        if n > 1 and (tx[1:] < tx[:-1]).any():  # a bin closed out of order: by time
+            order = np.lexsort((y, tx))
+            tx, y = tx[order], y[order]
+        # with the envelope's slope, the line through the lowest recent bin (it extrapolates
+        # over seconds instead of the whole window) unless every recent packet was late
+        a, b, sigma = kernels_for(_kernels).envelope_fit(
+            frozen(tx, np.int64), frozen(y), self.min_span_ns, self.max_drift, self.anchor_ns,
+            self.stall_ns,
+        )  # fmt: skip
+        a, b, sigma, ref_ns = float(a), float(b), float(sigma), int(tx[-1])
+        self._env = ClockEstimate(a, b, ref_ns, sigma, n)
         if self._cur is not None:  # the open bin may already hold a lower point
             x_c, y_c = self._cur
             line = a + b * (x_c - ref_ns)
             if y_c < line:
-                self._env = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, len(pts))
+                self._env = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, n)
 
     def add_round_trip(self, send_host_ns: int, tracker_ns: int, recv_host_ns: int) -> bool:
         """Add one round trip: a request sent at host time ``send_host_ns``, answered at

@@ -576,8 +576,10 @@ class NatNetInput(LiveInput):
 
     @classmethod
     def warm_up(cls) -> None:
-        """Run the one pass of a frame's bodies (:meth:`_block`) once, so that compiling its
-        kernel (numba, first use in a process) happens before a tracker is listened to."""
+        """Run the one pass of a frame's bodies (:meth:`_block`) and the clock fit once, so
+        that compiling their kernels (numba, first use in a process) happens before a
+        tracker is listened to."""
+        ClockMapper.warm_up()
         tab = np.zeros(1, natnet.RIGID_BODY_DTYPE)
         tab["quaternion"][0, 3], tab["params"][0] = 1.0, 1
         nominal = np.eye(6) * 1e-6
