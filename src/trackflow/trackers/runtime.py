@@ -218,8 +218,7 @@ class LiveSources:
         for name in names:
             row = rows.get(name)
             if row is None or srcs[name].consumers != row[1]:
-                items = [(n, s._replace(arrival_ns=arrival_ns + k)) for k, (n, (_, s)) in
-                         enumerate(zip(names, block))]  # fmt: skip
+                items = _dispatched(names, block, arrival_ns)
                 return [pose is not None for pose in self.deliver(items, clock)]
             index.append(row[0])
         t = block.t_ns
@@ -242,6 +241,12 @@ class LiveSources:
         if clock is not None and names:
             clock.now_ns = arrival_ns + len(names) - 1
         return ok
+
+
+def _dispatched(names, samples, a: int) -> list[tuple[str, Sample]]:
+    """``(name, sample)`` of ``(body index, sample)`` pairs (or a block), sample ``k`` of
+    sensor ``names[k]`` with the dispatch time ``a + k`` as its arrival."""
+    return [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in enumerate(zip(names, samples))]
 
 
 def warm_up(net) -> None:
@@ -374,9 +379,10 @@ class _Scheduler:
                 if samples:
                     names = self.names[id(inp)]
                     if type(samples) is SampleBlock:
-                        self._dispatch_packet([names[bi] for bi in samples.index], samples, a)
+                        index = samples.index
                     else:
-                        self._dispatch_packet([names[bi] for bi, _ in samples], samples, a)
+                        index = [bi for bi, _ in samples]
+                    self._dispatch_packet([names[bi] for bi in index], samples, a)
             except BaseException as exc:  # reported by the scheduling thread, which stops
                 self.error = exc
                 self.stop.set()
@@ -411,8 +417,7 @@ class _Scheduler:
                             samples.quaternion[k], samples.covariance[k],
                         )  # fmt: skip
             return
-        items = [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in
-                 enumerate(zip(names, samples))]  # fmt: skip
+        items = _dispatched(names, samples, a)
         poses = self.delivery.deliver(items, self.clock)
         if self.writers:
             for (name, s), pose in zip(items, poses):
