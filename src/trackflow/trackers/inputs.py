@@ -235,9 +235,10 @@ class LiveInput:
         return self.bodies[0].status
 
     # -- pure part --------------------------------------------------------------------------------
-    def handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
-        """Decode one packet into ``(body index, sample)`` pairs; rejections are counted in
-        the bodies' statuses (a packet-level error on every body), never raised."""
+    def handle(self, data: bytes, arrival_ns: int) -> Sequence[tuple[int, Sample]]:
+        """Decode one packet into ``(body index, sample)`` pairs (a :class:`SampleBlock`
+        when the input has them as arrays); rejections are counted in the bodies' statuses
+        (a packet-level error on every body), never raised."""
         self.packets += 1
         for b in self.bodies:
             b.status.packets += 1
