@@ -23,9 +23,11 @@ KERNELS = (
     "qmul",
     "qexp_into",
     "qexp",
+    "qlog_into",
     "qlog",
     "rotmat_into",
     "rotmat",
+    "right_jac_into",
     "right_jac",
     "left_mult",
     "right_mult",
@@ -104,8 +106,8 @@ def qexp(v):
     return out
 
 
-def qlog(q):
-    """``Log(q)``: rotation vector (rad) of the shortest rotation, ``|Log(q)| <= pi``."""
+def qlog_into(q, out):
+    """``out`` (3) = ``Log(q)``: rotation vector (rad) of the shortest rotation, ``|Log| <= pi``."""
     s = -1.0 if q[3] < 0.0 else 1.0
     w = s * q[3]
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
@@ -113,10 +115,15 @@ def qlog(q):
         k = 2.0 / w * (1.0 - n * n / (3.0 * w * w))
     else:
         k = 2.0 * math.atan2(n, w) / n
-    out = np.empty(3)
     out[0] = s * k * q[0]
     out[1] = s * k * q[1]
     out[2] = s * k * q[2]
+
+
+def qlog(q):
+    """``Log(q)`` as a new array (see :func:`qlog_into`)."""
+    out = np.empty(3)
+    qlog_into(q, out)
     return out
 
 
@@ -141,8 +148,8 @@ def rotmat(q):
     return r
 
 
-def right_jac(v):
-    """SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
+def right_jac_into(v, j):
+    """``j`` (3x3) = SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
     t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
     if t2 < SMALL * SMALL:
         a = 0.5 - t2 / 24.0
@@ -152,7 +159,6 @@ def right_jac(v):
         a = (1.0 - math.cos(t)) / t2
         b = (t - math.sin(t)) / (t2 * t)
     # Jr = I - a [v]x + b [v]x^2 with [v]x^2 = v v^T - |v|^2 I
-    j = np.empty((3, 3))
     for r in range(3):
         for c in range(3):
             j[r, c] = b * v[r] * v[c]
@@ -163,6 +169,12 @@ def right_jac(v):
     j[1, 2] += a * v[0]
     j[2, 0] += a * v[1]
     j[2, 1] -= a * v[0]
+
+
+def right_jac(v):
+    """``Jr(v)`` as a new array (see :func:`right_jac_into`)."""
+    j = np.empty((3, 3))
+    right_jac_into(v, j)
     return j
 
 
