@@ -8,7 +8,8 @@ velocity), for both formulations (error state and additive), both process-noise 
 every motion model with ``n_dp, n_do`` in ``-1..2``:
 
 * ``step_packed`` sequences with every measurement level the model allows (the records too);
-* ``step_bank`` and ``predict_pose_bank`` on a bank of filters, rows in random order;
+* ``step_bank`` and ``predict_pose_bank`` on a bank of filters, rows in random order, with
+  one time step for all rows (as in a live packet; signed zeros too) or one per row;
 * ``predict_pose_packed`` of single filters;
 * ``run`` (with and without covariances, with the states for smoothing) and ``smooth_run``
   through :func:`~trackflow.filters.run_filter` and :func:`~trackflow.filters.smooth_filter`;
@@ -215,6 +216,9 @@ def banks(k, rng, d: Digest, rounds: int) -> None:
                     rows = rng.permutation(nf)[: rng.integers(1, nf + 1)]
                     m = rows.size
                     dts = np.array([_dt(rng) for _ in range(m)])
+                    if rng.random() < 0.5:  # one packet: the same step for every row
+                        dts[:] = (-0.0, 0.0, dts[0], dts[0])[rng.integers(4)]
+                        dts[m // 2 :] = (dts[0], -dts[0])[rng.integers(2)]
                     zs = [
                         _measurement(rng, xs[i], n_dp, n_do, additive, 0, 0,
                                      CASES[rng.integers(len(CASES))])
@@ -235,6 +239,8 @@ def banks(k, rng, d: Digest, rounds: int) -> None:
                     d.add(xs, ps, logs, status, nis)
                     out = np.full((m, source.POSE_OUT), 7.0)
                     pdts = np.array([_dt(rng) for _ in range(m)])
+                    if rng.random() < 0.5:
+                        pdts[:] = (0.0, -0.0, pdts[0])[rng.integers(3)]
                     d.call(
                         k.predict_pose_bank, xs, ps, frozen(rows, np.int64), frozen(pdts), c, out
                     )
