@@ -67,6 +67,7 @@ KERNELS = (
     "transition",
     "process_noise_into",
     "process_noise",
+    "process_noise_memo",
     "predict_scratch",
     "predict_into",
     "predict",
@@ -309,14 +310,35 @@ def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
     return qm
 
 
+def process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo):
+    """:func:`process_noise_into` unless ``qm`` already holds the noise of this ``dt``.
+
+    The error-state noise depends on ``dt`` and the filter's constants only, so the filters
+    of a bank stepped over one packet's ``dt`` compute it once. ``memo`` (2,) records it:
+    ``memo[0] = 1`` once ``qm`` holds the noise of the step ``memo[1]`` (the same bits:
+    equal and of the same sign). The additive noise depends on ``x``: always computed.
+    """
+    if (
+        not additive
+        and memo[0] == 1.0
+        and memo[1] == dt
+        and math.copysign(1.0, memo[1]) == math.copysign(1.0, dt)
+    ):
+        return
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
+    memo[0] = 0.0 if additive else 1.0
+    memo[1] = dt
+
+
 def predict_scratch(n_dp, n_do, additive):
-    """Scratch arrays for :func:`predict_into`."""
+    """Scratch arrays for :func:`predict_into` (and :func:`predict_pose_with`), for one filter
+    kind: its process noise is kept between calls (:func:`process_noise_memo`)."""
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     nlev = max(npl, nol, 1)
     return (
         np.empty(nlev + 1), np.empty(3), np.empty(4), np.empty(nx), np.empty((nc, nc)),
         np.empty((nc, nc)), np.empty((nlev, nlev)), np.empty((nc, nc)), np.empty((nc, nc)),
-        np.empty((3, 3)),
+        np.empty((3, 3)), np.empty((nc, nc + 1), np.int64), np.zeros(2),
     )  # fmt: skip
 
 
@@ -325,11 +347,11 @@ def predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws):
 
     ``ws`` is a tuple of scratch arrays from :func:`predict_scratch`.
     """
-    cf, b, d, xn, a, qm, lv, tmp, out, m3 = ws
+    cf, b, d, xn, a, qm, lv, tmp, vals, m3, cols, memo = ws
     mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
     transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, m3)
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
-    sandwich_into(a, p, qm, tmp, out)
+    process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo)
+    sandwich_into(a, p, qm, tmp, vals, cols)
     for i in range(x.shape[0]):
         x[i] = xn[i]
 
@@ -783,7 +805,7 @@ def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, p
     cf, b, d, xn, a, qm, lv = pws[0], pws[1], pws[2], pws[3], pws[4], pws[5], pws[6]
     mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
     transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, pws[9])
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
+    process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, pws[11])
     qo = 3 * npl
     for k in range(3):
         sel[k] = k if npl > 0 else 0
