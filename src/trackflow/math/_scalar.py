@@ -23,9 +23,11 @@ KERNELS = (
     "qmul",
     "qexp_into",
     "qexp",
+    "qlog_into",
     "qlog",
     "rotmat_into",
     "rotmat",
+    "right_jac_into",
     "right_jac",
     "left_mult",
     "right_mult",
@@ -104,8 +106,8 @@ def qexp(v):
     return out
 
 
-def qlog(q):
-    """``Log(q)``: rotation vector (rad) of the shortest rotation, ``|Log(q)| <= pi``."""
+def qlog_into(q, out):
+    """``out`` (3) = ``Log(q)``: rotation vector (rad) of the shortest rotation, ``|Log| <= pi``."""
     s = -1.0 if q[3] < 0.0 else 1.0
     w = s * q[3]
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
@@ -113,10 +115,15 @@ def qlog(q):
         k = 2.0 / w * (1.0 - n * n / (3.0 * w * w))
     else:
         k = 2.0 * math.atan2(n, w) / n
-    out = np.empty(3)
     out[0] = s * k * q[0]
     out[1] = s * k * q[1]
     out[2] = s * k * q[2]
+
+
+def qlog(q):
+    """``Log(q)`` as a new array (see :func:`qlog_into`)."""
+    out = np.empty(3)
+    qlog_into(q, out)
     return out
 
 
@@ -141,8 +148,8 @@ def rotmat(q):
     return r
 
 
-def right_jac(v):
-    """SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
+def right_jac_into(v, j):
+    """``j`` (3x3) = SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
     t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
     if t2 < SMALL * SMALL:
         a = 0.5 - t2 / 24.0
@@ -152,7 +159,6 @@ def right_jac(v):
         a = (1.0 - math.cos(t)) / t2
         b = (t - math.sin(t)) / (t2 * t)
     # Jr = I - a [v]x + b [v]x^2 with [v]x^2 = v v^T - |v|^2 I
-    j = np.empty((3, 3))
     for r in range(3):
         for c in range(3):
             j[r, c] = b * v[r] * v[c]
@@ -163,6 +169,12 @@ def right_jac(v):
     j[1, 2] += a * v[0]
     j[2, 0] += a * v[1]
     j[2, 1] -= a * v[0]
+
+
+def right_jac(v):
+    """``Jr(v)`` as a new array (see :func:`right_jac_into`)."""
+    j = np.empty((3, 3))
+    right_jac_into(v, j)
     return j
 
 
@@ -214,31 +226,38 @@ def exp_jac(b):
 # -- small linear algebra -----------------------------------------------------------------------
 
 
-def sandwich_into(a, p, q, tmp, out):
-    """``p <- A P A^T + Q`` (symmetric) in place, skipping the zeros of the sparse ``A``.
+def sandwich_into(a, p, q, tmp, vals, cols):
+    """``p <- A P A^T + Q`` (symmetric) in place, over the nonzeros of the sparse ``A`` only.
 
-    ``tmp`` and ``out`` (n x n) are scratch.
+    ``tmp`` and ``vals`` (n x n) and ``cols`` (n x (n + 1), int) are scratch: row ``i`` of
+    ``A`` has ``cols[i, 0]`` nonzeros, in columns ``cols[i, 1:]`` with values ``vals[i]``. Each
+    entry is the sum of its nonzero terms in ascending column order, starting from zero.
     """
     n = p.shape[0]
     for i in range(n):
-        for j in range(n):
-            tmp[i, j] = 0.0
-            out[i, j] = 0.0
-    for i in range(n):
+        c = 0
         for k in range(n):
             v = a[i, k]
+            cols[i, 1 + c] = k
+            vals[i, c] = v
             if v != 0.0:
-                for j in range(n):
-                    tmp[i, j] += v * p[k, j]
+                c += 1
+        cols[i, 0] = c
+    for i in range(n):
+        for j in range(n):
+            tmp[i, j] = 0.0
+        for t in range(cols[i, 0]):
+            k = cols[i, 1 + t]
+            v = vals[i, t]
+            for j in range(n):
+                tmp[i, j] += v * p[k, j]
     for j in range(n):
-        for k in range(n):
-            v = a[j, k]
-            if v != 0.0:
-                for i in range(j + 1):
-                    out[i, j] += tmp[i, k] * v
-    for j in range(n):
+        nz = cols[j, 0]
         for i in range(j + 1):
-            w = out[i, j] + 0.5 * (q[i, j] + q[j, i])
+            s = 0.0
+            for t in range(nz):
+                s += tmp[i, cols[j, 1 + t]] * vals[j, t]
+            w = s + 0.5 * (q[i, j] + q[j, i])
             if abs(w) < TINY:
                 w = 0.0
             p[i, j] = w
@@ -249,7 +268,7 @@ def sandwich(a, p, q):
     """``A P A^T + Q`` (symmetric) as a new array; see :func:`sandwich_into`."""
     n = p.shape[0]
     out = p.copy()
-    sandwich_into(a, out, q, np.empty((n, n)), np.empty((n, n)))
+    sandwich_into(a, out, q, np.empty((n, n)), np.empty((n, n)), np.empty((n, n + 1), np.int64))
     return out
 
 
@@ -293,6 +312,18 @@ def chol_solve_rows(lo, b):
     """Solve ``L L^T X = B`` in place for ``B`` of shape (n, k), row operations (contiguous)."""
     n = lo.shape[0]
     k = b.shape[1]
+    if k == 1:  # the same operations, the running value kept in a register
+        for i in range(n):
+            v = b[i, 0]
+            for j in range(i):
+                v -= lo[i, j] * b[j, 0]
+            b[i, 0] = v * (1.0 / lo[i, i])
+        for i in range(n - 1, -1, -1):
+            v = b[i, 0]
+            for j in range(i + 1, n):
+                v -= lo[j, i] * b[j, 0]
+            b[i, 0] = v * (1.0 / lo[i, i])
+        return
     for i in range(n):
         for j in range(i):
             f = lo[i, j]

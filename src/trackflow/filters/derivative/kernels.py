@@ -48,11 +48,12 @@ from trackflow.math._scalar import (
     left_mult,
     qexp_into,
     qlog,
+    qlog_into,
     qmul,
     qmul_into,
-    right_jac,
+    right_jac_into,
     right_mult,
-    rotmat,
+    rotmat_into,
     sandwich_into,
     sym,
 )
@@ -66,6 +67,7 @@ KERNELS = (
     "transition",
     "process_noise_into",
     "process_noise",
+    "process_noise_memo",
     "predict_scratch",
     "predict_into",
     "predict",
@@ -189,12 +191,12 @@ def mean_transition_into(x, dt, n_dp, n_do, out, cf, b, d):
             out[qo + 4 + 3 * (lv - 1) + k] = v
 
 
-def transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a):
+def transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, m3):
     """``a`` = Jacobian ``A`` of :func:`transition` in the covariance coordinates.
 
     Needs ``cf``, ``b`` and ``d`` as left by :func:`mean_transition_into` for the same state and
     ``dt``. Error state: ``dtheta_new = Exp(b)^T dtheta + Jr(b) db``; additive: the thesis's
-    ``A_R`` with ``M(d)`` and ``B = L(q) dExp/db``.
+    ``A_R`` with ``M(d)`` and ``B = L(q) dExp/db``. ``m3`` (3x3) is scratch.
     """
     npl = n_dp + 1 if n_dp >= 0 else 0
     nc = a.shape[0]
@@ -217,16 +219,16 @@ def transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a):
             a[qo : qo + 4, qo + 4 + 3 * (lv - 1) : qo + 4 + 3 * lv] = c * bm
         base = qo + 4 - 3  # angular level lv sits at base + 3 lv
     else:
-        r = rotmat(d)
-        jr = right_jac(b)
+        rotmat_into(d, m3)
         for i in range(3):
             for j in range(3):
-                a[qo + i, qo + j] = r[j, i]
+                a[qo + i, qo + j] = m3[j, i]
+        right_jac_into(b, m3)
         for lv in range(1, n_do + 1):
             c = cf[lv]
             for i in range(3):
                 for j in range(3):
-                    a[qo + i, qo + 3 * lv + j] = c * jr[i, j]
+                    a[qo + i, qo + 3 * lv + j] = c * m3[i, j]
         base = qo
     for lv in range(1, n_do + 1):
         for j in range(lv, n_do + 1):
@@ -248,7 +250,7 @@ def transition(x, dt, n_dp, n_do, additive):
     b = np.empty(3)
     d = np.empty(4)
     mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
-    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, np.empty((3, 3)))
     return xn, a
 
 
@@ -308,13 +310,35 @@ def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
     return qm
 
 
+def process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo):
+    """:func:`process_noise_into` unless ``qm`` already holds the noise of this ``dt``.
+
+    The error-state noise depends on ``dt`` and the filter's constants only, so the filters
+    of a bank stepped over one packet's ``dt`` compute it once. ``memo`` (2,) records it:
+    ``memo[0] = 1`` once ``qm`` holds the noise of the step ``memo[1]`` (the same bits:
+    equal and of the same sign). The additive noise depends on ``x``: always computed.
+    """
+    if (
+        not additive
+        and memo[0] == 1.0
+        and memo[1] == dt
+        and math.copysign(1.0, memo[1]) == math.copysign(1.0, dt)
+    ):
+        return
+    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
+    memo[0] = 0.0 if additive else 1.0
+    memo[1] = dt
+
+
 def predict_scratch(n_dp, n_do, additive):
-    """Scratch arrays for :func:`predict_into`."""
+    """Scratch arrays for :func:`predict_into` (and :func:`predict_pose_with`), for one filter
+    kind: its process noise is kept between calls (:func:`process_noise_memo`)."""
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     nlev = max(npl, nol, 1)
     return (
         np.empty(nlev + 1), np.empty(3), np.empty(4), np.empty(nx), np.empty((nc, nc)),
         np.empty((nc, nc)), np.empty((nlev, nlev)), np.empty((nc, nc)), np.empty((nc, nc)),
+        np.empty((3, 3)), np.empty((nc, nc + 1), np.int64), np.zeros(2),
     )  # fmt: skip
 
 
@@ -323,11 +347,11 @@ def predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws):
 
     ``ws`` is a tuple of scratch arrays from :func:`predict_scratch`.
     """
-    cf, b, d, xn, a, qm, lv, tmp, out = ws
+    cf, b, d, xn, a, qm, lv, tmp, vals, m3, cols, memo = ws
     mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
-    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
-    sandwich_into(a, p, qm, tmp, out)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, m3)
+    process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo)
+    sandwich_into(a, p, qm, tmp, vals, cols)
     for i in range(x.shape[0]):
         x[i] = xn[i]
 
@@ -345,12 +369,13 @@ def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
 # -- measurements ----------------------------------------------------------------------------
 
 
-def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h):
+def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, qa, qb):
     """``y`` = innovation ``z - h(x)``, ``h`` = measurement Jacobian ``H`` (``y ~ H e + v``).
 
     ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
     not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
     ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
+    ``qa`` and ``qb`` (4) are scratch.
     """
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     for i in range(y.shape[0]):
@@ -366,7 +391,6 @@ def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h):
     if lo < 0:
         return
     qo = 3 * npl
-    q = x[qo : qo + 4]
     if lo >= 1:
         xo = qo + 4 + 3 * (lo - 1)
         co = xo if additive else qo + 3 * lo
@@ -375,13 +399,14 @@ def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h):
             h[r + k, co + k] = 1.0
         return
     if not additive:
-        qc = np.empty(4)
-        qc[0], qc[1], qc[2], qc[3] = -q[0], -q[1], -q[2], q[3]
-        e = qlog(qmul(qc, zo))
+        qa[0], qa[1], qa[2], qa[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
+        qmul_into(qa, zo, qb)
+        qlog_into(qb, qa)
         for k in range(3):
-            y[r + k] = e[k]
+            y[r + k] = qa[k]
             h[r + k, qo + k] = 1.0
         return
+    q = x[qo : qo + 4]
     dd = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
     ll = math.sqrt(dd)
     s = 1.0
@@ -407,7 +432,7 @@ def residual(x, n_dp, n_do, additive, lp, lo, zp, zo):
     m = residual_size(additive, lp, lo)
     y = np.empty(m)
     h = np.empty((m, nc))
-    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, np.empty(4), np.empty(4))
     return y, h
 
 
@@ -777,13 +802,10 @@ def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, p
     given: ``pws`` (:func:`predict_scratch`), ``t`` (6, nc) and ``sel`` (6,) int, so that a
     loop over many filters allocates them once."""
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    pos = out[:3]
-    q = out[3:7]
-    c = out[7:POSE_OUT].reshape((6, 6))
     cf, b, d, xn, a, qm, lv = pws[0], pws[1], pws[2], pws[3], pws[4], pws[5], pws[6]
     mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
-    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a)
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
+    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, pws[9])
+    process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, pws[11])
     qo = 3 * npl
     for k in range(3):
         sel[k] = k if npl > 0 else 0
@@ -797,33 +819,25 @@ def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, p
             if v != 0.0:
                 for j in range(nc):
                     t[r, j] += v * p[k, j]
+    co = 7  # the covariance in out, row by row: c[r, col] = out[co + 6 r + col]
     for r in range(6):
         for col in range(r, 6):
             w = qm[sel[r], sel[col]]
             for k in range(nc):
                 w += t[r, k] * a[sel[col], k]
-            c[r, col] = w
-            c[col, r] = w
+            out[co + 6 * r + col] = w
+            out[co + 6 * col + r] = w
     for k in range(3):
-        pos[k] = 0.0
-        q[k] = 0.0
-    q[3] = 1.0
-    if npl > 0:
-        pos[:] = xn[:3]
-    else:
-        for k in range(3):
-            for j in range(6):
-                c[k, j] = 0.0
-                c[j, k] = 0.0
-            c[k, k] = UNKNOWN_VARIANCE
-    if nol > 0:
-        q[:] = xn[qo : qo + 4]
-    else:
-        for k in range(3, 6):
-            for j in range(6):
-                c[k, j] = 0.0
-                c[j, k] = 0.0
-            c[k, k] = UNKNOWN_VARIANCE
+        out[k] = xn[k] if npl > 0 else 0.0
+        out[3 + k] = xn[qo + k] if nol > 0 else 0.0
+    out[6] = xn[qo + 3] if nol > 0 else 1.0
+    for lo, hi, known in ((0, 3, npl > 0), (3, 6, nol > 0)):
+        if not known:
+            for k in range(lo, hi):
+                for j in range(6):
+                    out[co + 6 * k + j] = 0.0
+                    out[co + 6 * j + k] = 0.0
+                out[co + 7 * k] = UNKNOWN_VARIANCE
 
 
 def predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
@@ -915,7 +929,7 @@ def step_with(
             for j in range(rows):
                 log[o + 7 + i * rows + j] = r[i, j]
     predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
-    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, uws[10], uws[11])
     status, nis = update_with(
         x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive,
         wmax, uws, idx,
@@ -1099,7 +1113,7 @@ def run(
             nis[i] = np.nan
         else:
             predict_into(x, p, times[i] - t_state, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
-            residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h)
+            residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, uws[10], uws[11])
             rr = measurement_cov(r, x, n_dp, lp, lo, additive)
             if selection_rows(h, idx):
                 st, v = update_into(x, p, y, rr, idx, gate, n_dp, n_do, additive, wmax, uws)
