@@ -168,12 +168,13 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             "demand for unknown edge",
         )
 
-        def counted():
+        def counted():  # two malformed keys, one of each other reason (in any order)
             rej = (status(session, realm, "s") or {}).get("rejections", {})
-            return rej if all(rej.get(r, 0) >= 1 for r in reasons) else None
+            want = {r: 2 if r == "malformed demand" else 1 for r in reasons}
+            return rej if all(rej.get(r, 0) >= n for r, n in want.items()) else None
 
         rej = wait_for(counted, 20)
-        assert rej["malformed demand"] >= 2
+        assert rej["malformed demand"] >= 2, rej
         for t in tokens:
             t.undeclare()
 
