@@ -1,9 +1,9 @@
 """The pose filter's inner kernels compute exactly (to the bit) what their definitions say.
 
-The speed-ups of ``sandwich_into`` (nonzero lists), ``chol_solve_rows`` (one column in a
-register) and the process noise kept between the rows of a bank must not change a single
-bit: each is checked against its definition written out in plain loops, with non-finite
-values and signed zeros in the inputs, on both backends.
+The speed-ups of ``sandwich_into`` (nonzero lists) and of the process noise kept between the
+rows of a bank must not change a single bit, and a one-column ``chol_solve_rows`` must equal
+its many-column form: each is checked against its definition written out in plain loops,
+with non-finite values and signed zeros in the inputs, on both backends.
 """
 
 from __future__ import annotations

@@ -32,10 +32,10 @@ def run(args) -> int:
 
     steps = compile_kernels(say)
     if steps:
-        from ..trackers.inputs import NatNetInput
+        from ..trackers.inputs import warm_up_inputs
 
         say("live tracker packets (run)")
-        NatNetInput.warm_up()
+        warm_up_inputs()
     if not steps:
         print(f"trackflow: nothing to compile (backend {get_backend()})", file=sys.stderr)
     elif not args.quiet:

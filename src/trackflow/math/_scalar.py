@@ -312,18 +312,6 @@ def chol_solve_rows(lo, b):
     """Solve ``L L^T X = B`` in place for ``B`` of shape (n, k), row operations (contiguous)."""
     n = lo.shape[0]
     k = b.shape[1]
-    if k == 1:  # the same operations, the running value kept in a register
-        for i in range(n):
-            v = b[i, 0]
-            for j in range(i):
-                v -= lo[i, j] * b[j, 0]
-            b[i, 0] = v * (1.0 / lo[i, i])
-        for i in range(n - 1, -1, -1):
-            v = b[i, 0]
-            for j in range(i + 1, n):
-                v -= lo[j, i] * b[j, 0]
-            b[i, 0] = v * (1.0 / lo[i, i])
-        return
     for i in range(n):
         for j in range(i):
             f = lo[i, j]

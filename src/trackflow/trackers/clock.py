@@ -202,12 +202,6 @@ class ClockMapper:
         if c.estimate is None or c.estimate.points < 2:
             raise RuntimeError("the clock fit made no estimate")
 
-    @property
-    def bins(self) -> list[tuple[int, int]]:
-        """The closed bins' minima ``(tracker ns, host - tracker ns)`` in the window, in the
-        order they closed."""
-        return [(int(x), int(y)) for x, y in self._bins[: self._nbins]]
-
     def _close_bin(self, tracker_ns: int) -> None:
         """The open bin's minimum into the window; the bins older than the window go."""
         n, pts = self._nbins, self._bins

@@ -41,6 +41,7 @@ __all__ = [
     "VrpnInput",
     "make_input",
     "make_inputs",
+    "warm_up_inputs",
 ]
 
 #: The host clock of live runs: ``time.time_ns`` (Unix time, integer ns).
@@ -577,10 +578,8 @@ class NatNetInput(LiveInput):
 
     @classmethod
     def warm_up(cls) -> None:
-        """Run the one pass of a frame's bodies (:meth:`_block`) and the clock fit once, so
-        that compiling their kernels (numba, first use in a process) happens before a
-        tracker is listened to."""
-        ClockMapper.warm_up()
+        """Run the one pass of a frame's bodies (:meth:`_block`) once, so that compiling its
+        kernel (numba, first use in a process) happens before a tracker is listened to."""
         tab = np.zeros(1, natnet.RIGID_BODY_DTYPE)
         tab["quaternion"][0, 3], tab["params"][0] = 1.0, 1
         nominal = np.eye(6) * 1e-6
@@ -902,6 +901,13 @@ class VrpnInput(LiveInput):
 
 
 _INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
+
+
+def warm_up_inputs() -> None:
+    """Compile (or load) the inputs' kernels, the clock fit and NatNet's one pass over a
+    frame's bodies, before any tracker is listened to."""
+    ClockMapper.warm_up()
+    NatNetInput.warm_up()
 
 
 def _input_class(protocol: str) -> type[LiveInput]:

@@ -47,11 +47,11 @@ from ..math import Pose, UncertainPose, check_covariance
 from .inputs import (
     CheckedSample,
     LiveInput,
-    NatNetInput,
     Sample,
     SampleBlock,
     host_ns,
     make_inputs,
+    warm_up_inputs,
 )
 
 __all__ = [
@@ -267,7 +267,7 @@ def warm_up(net) -> None:
             for t in (0.0, 0.01):
                 bank.update_poses([0, 1], [t, t], [u, u])
             bank.predict_poses([0, 1], [0.02, 0.02])
-    NatNetInput.warm_up()  # and the one pass over a NatNet frame's bodies
+    warm_up_inputs()  # and the inputs' kernels
 
 
 @contextlib.contextmanager
