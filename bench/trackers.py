@@ -11,10 +11,11 @@
   receives each packet, decodes it, maps the exposure time and, in the receiving thread as
   ``trackflow run`` does, pushes the packet's 20 measurements as arrays (a ``SampleBlock``)
   into 20 pose Kalman filters (``LiveSources.deliver_block``: the filters' updates in one
-  batched call) and delivers the 20 filtered answers as arrays (``KalmanBank.pull_block``,
-  one batched prediction at the packet's arrival time); the latency is from the packet's
-  receipt (the kernel's receive stamp, so time in the socket buffer counts) to the last of
-  its answers being delivered (``time.time_ns``, same clock).
+  batched call) with an answer: the 20 filtered poses at the packet's arrival time, as
+  arrays (one batched prediction), handed to a callback as soon as the filters are
+  updated; the filters' log entries are written after it. The latency is from the packet's
+  receipt (the kernel's receive stamp, so time in the socket buffer counts) to the answers'
+  delivery (``time.time_ns`` on entering the callback, same clock).
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
 shared: take the figures as the best of a few runs.
@@ -164,22 +165,23 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
 
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
-    rows_of = delivery.row
 
     def answer(samples, t0, entered):
         taken, cpu = time.time_ns(), time.thread_time_ns()
+
+        def delivered(answers):  # the packet's 20 answers, as arrays
+            now = time.time_ns()
+            if answers.ok[-1]:
+                latencies.append(now - t0)
+                service.append(now - taken)
+                service_cpu.append(time.thread_time_ns() - cpu)
+                woken.append(entered - t0)
+                handled.append(taken - entered)
+
         sensors = [names[bi] for bi in samples.index]
-        delivery.deliver_block(sensors, samples, samples.arrival_ns)
-        answers = delivery.filters.pull_block(
-            [rows_of[n] for n in sensors], [samples.arrival_ns] * BODIES
+        delivery.deliver_block(
+            sensors, samples, samples.arrival_ns, answer=(samples.arrival_ns, delivered)
         )
-        now = time.time_ns()  # the last answer of the packet is delivered
-        if answers.ok[-1]:
-            latencies.append(now - t0)
-            service.append(now - taken)
-            service_cpu.append(time.thread_time_ns() - cpu)
-            woken.append(entered - t0)
-            handled.append(taken - entered)
 
     def sink(i, data, arrival):
         t0 = arrival  # the kernel's receive stamp (host clock): socket queueing counts

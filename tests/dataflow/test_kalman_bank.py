@@ -66,6 +66,11 @@ def _packets(n, rng):
     return out
 
 
+def _log(c):
+    """A component's filter log: time, status, NIS, gate run and record of every entry."""
+    return [(e.t, e.status, repr(e.nis), e.gated_run, e.buf.tobytes()) for e in c.filter._log]
+
+
 def _answer(m):
     if m is None:
         return None
@@ -115,16 +120,20 @@ def test_bank_rebuilds_after_a_network_reset():
     assert bank.pull([(0, rows[-1][0][1].t_ns)])[0] is not None
 
 
+@pytest.mark.parametrize("answer", [False, True])
 @pytest.mark.parametrize("backend", ["numba", "numpy"])
-def test_bank_block_push_and_pull_equal_one_by_one(backend):
+def test_bank_block_push_and_pull_equal_one_by_one(backend, answer):
     """push_block/pull_block (a packet's poses as arrays, one time) leave every component as
     pushing and pulling one by one does; a packet with a component that pushes on or has a
-    prior takes the per-measurement path, in order."""
+    prior takes the per-measurement path, in order. With ``answer``, push_block hands the
+    packet's answers 1 ms ahead to a callback before the filters' logs are written: the same
+    answers, and the same logs and statistics once it returns."""
     with use_backend(backend):
         rng = np.random.default_rng(7)
         net_a, kf_a, out_a = _network()
         net_b, kf_b, out_b = _network()
         bank = KalmanBank(kf_b)
+        answered = 0
         for k in range(100 if backend == "numba" else 40):
             t = 1_000_000_000 + k * 4_166_667
             index = [i for i in range(N) if (k + i) % 11]
@@ -139,7 +148,21 @@ def test_bank_block_push_and_pull_equal_one_by_one(backend):
             cov = np.stack([C] * m)
             for j, i in enumerate(index):
                 kf_a[i].push(Measurement(t, UncertainPose._trusted(pos[j], quat[j], cov[j]), t))
-            bank.push_block(index, t, pos, quat, cov)
+            if answer:
+                delivered = []
+                bank.push_block(index, t, pos, quat, cov, (t + 1_000_000, delivered.append))
+                (early,) = delivered
+                for j, i in enumerate(index):
+                    w = kf_a[i].pull(t + 1_000_000)
+                    assert early.ok[j] == (w is not None)
+                    if w is not None:
+                        assert early.position[j].tobytes() == w.pose.position.tobytes()
+                        assert early.covariance[j].tobytes() == w.pose.covariance.tobytes()
+                        answered += 1
+                for i in index:  # the logs written after the callback, as one by one
+                    assert _log(kf_b[i]) == _log(kf_a[i])
+            else:
+                bank.push_block(index, t, pos, quat, cov)
             asks = [(i, t + dt) for i in range(N) for dt in (1_000_000, -2_000_000)]
             asks += [(0, 900_000_000), (2, t + 10**10)]
             want = [kf_a[i].pull(tq) for i, tq in asks]
@@ -155,3 +178,4 @@ def test_bank_block_push_and_pull_equal_one_by_one(backend):
             assert (a.first_t, a.last_t, a.last_origin) == (b.first_t, b.last_t, b.last_origin)
         assert [_answer(m) for m in out_a] == [_answer(m) for m in out_b] and out_a
         assert net_b.stats()["kf0"]["rejections"].get("filter rejected update", 0) > 0
+        assert (answered > 0) == answer

@@ -100,14 +100,11 @@ def _update(bank, api, rows):
     return bank.update_block(
         index, times, np.stack([u.position for u in poses]),
         np.stack([u.quaternion for u in poses]), np.stack([u.covariance for u in poses]),
+        defer=api == "deferred",
     )  # fmt: skip
 
 
-def _predict(bank, api, queries):
-    index, times = [q[0] for q in queries], [q[1] for q in queries]
-    if api == "objects":
-        return bank.predict_poses(index, times)
-    res = bank.predict_block(index, times)
+def _poses(res):
     assert all(np.isnan(res.position[k]).all() for k, ok in enumerate(res.ok) if not ok)
     return [
         UncertainPose._trusted(p, q, c) if ok else None
@@ -115,15 +112,34 @@ def _predict(bank, api, queries):
     ]
 
 
-@pytest.mark.parametrize("api", ["objects", "arrays"])
+def _predict(bank, api, queries):
+    index, times = [q[0] for q in queries], [q[1] for q in queries]
+    if api == "objects":
+        return bank.predict_poses(index, times)
+    if api == "arrays":
+        return _poses(bank.predict_block(index, times))
+    out = [None] * len(queries)  # deferred: ahead while the logs wait, then the past
+    for ahead in (True, False):
+        ks = [k for k, q in enumerate(queries) if q[2] == ahead]
+        res = bank.predict_block([index[k] for k in ks], [times[k] for k in ks])
+        for k, pose in zip(ks, _poses(res)):
+            out[k] = pose
+    return out
+
+
+@pytest.mark.parametrize("api", ["objects", "arrays", "deferred"])
 @pytest.mark.parametrize("backend", ["numba", pytest.param("numpy", marks=pytest.mark.slow)])
 def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend, api):
+    """The bank's answers, logs and states equal separate filters' to the bit, through the
+    object API, the array API, and the array API with the logs deferred (answers ahead
+    before they are written; a past answer or the next update writes them)."""
     with use_backend(backend):
         packets = _packets(shared_data, 220 if backend == "numba" else 90)
         alone, banked = _filters(), _filters()
         bank = PoseFilterBank(banked)
         assert bank.kinds == 3  # (0-2), 3 and 4; 5 and 6 through their own methods
         statuses = set()
+        deferred = 0  # updates whose logs waited
         for n, rows in enumerate(packets):
             ok_alone = []
             for b, t, pose in rows:
@@ -132,10 +148,13 @@ def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend, api)
                 except ValueError:
                     ok_alone.append(False)
             assert _update(bank, api, rows) == ok_alone, n
+            deferred += bool(bank._unlogged)
             # answers 3 ms ahead and 20 ms back (smoothed), and before any data
-            queries = [(b, rows[0][1] + dt) for b in range(len(alone)) for dt in (3e-3, -2e-2)]
+            queries = [
+                (b, rows[0][1] + dt, dt > 0) for b in range(len(alone)) for dt in (3e-3, -2e-2)
+            ]
             got = _predict(bank, api, queries)
-            for (b, t), g in zip(queries, got):
+            for (b, t, _), g in zip(queries, got):
                 try:
                     want = alone[b].predict(t)
                 except ValueError:
@@ -155,6 +174,7 @@ def test_bank_equals_separate_filters_to_the_last_bit(shared_data, backend, api)
         assert {FilterStatus.ACCEPTED, FilterStatus.GATED, FilterStatus.RESET} <= statuses
         assert banked[0].stats["rejected_gate"] > 0 and banked[0].stats["resets"] >= 1
         assert banked[1].stats["out_of_order"] > 0
+        assert (deferred > 0) == (api == "deferred")
         # and the bank ran them: the kernels' filters hold rows of its arrays
         assert all(banked[b]._x.base is not None for b in (0, 3, 4))
 

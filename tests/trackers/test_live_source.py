@@ -4,6 +4,7 @@ through the full checks, and bad samples are counted rejections with a reason.""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from trackflow.dataflow import Measurement
 from trackflow.math import Pose, UncertainPose
@@ -97,12 +98,14 @@ def _block(index, t, rng):
     return SampleBlock(tuple(index), t, t + 3_000_000, pos, quat, np.stack(covs), covs)
 
 
-def test_a_block_is_delivered_as_its_samples_one_by_one():
+@pytest.mark.parametrize("answer", [False, True])
+def test_a_block_is_delivered_as_its_samples_one_by_one(answer):
     """LiveSources.deliver_block leaves sources and filters as deliver of the block's samples
     (dispatched at a, a + 1, ...): statistics, "timestamp backwards" rejections of some of
     a block's samples, filter states; a source with another consumer takes the per-sample
-    path, and its consumer sees the same measurements."""
-    for tap in (False, True):
+    path, and its consumer sees the same measurements. With ``answer``, the block's answers
+    (the filters' poses at its arrival) come to a callback, equal to pulling them after."""
+    for tap in (False,) if answer else (False, True):
         (blocks, kf_b, sink_b), (samples, kf_s, sink_s) = _sources(tap), _sources(tap)
         rng = np.random.default_rng(2)
         t0 = 1_700_000_000_000_000_000
@@ -113,10 +116,18 @@ def test_a_block_is_delivered_as_its_samples_one_by_one():
             block = _block(index, t, rng)
             names = [f"s{i}" for i in index]
             a = block.arrival_ns
-            got_b.append(blocks.deliver_block(names, block, a))
+            delivered = []
+            ask = (a, delivered.append) if answer else None
+            got_b.append(blocks.deliver_block(names, block, a, answer=ask))
             items = [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in
                      enumerate(zip(names, block))]  # fmt: skip
             got_s.append([p is not None for p in samples.deliver(items)])
+            if answer:
+                (early,) = delivered
+                want = samples.filters.pull_block([samples.row[n] for n in names], [a] * len(names))
+                assert early.ok == want.ok and all(want.ok)
+                assert early.position.tobytes() == want.position.tobytes()
+                assert early.covariance.tobytes() == want.covariance.tobytes()
         assert got_b == got_s and not all(all(g) for g in got_b)
         for a, b in zip(kf_b, kf_s):
             assert a.stats.summary() == b.stats.summary()
@@ -129,3 +140,11 @@ def test_a_block_is_delivered_as_its_samples_one_by_one():
         assert blocks.sources["s0"].stats.rejections == {"timestamp backwards": 2}  # k = 12, 13
         assert [m.t_ns for m in sink_b.got] == [m.t_ns for m in sink_s.got]
         assert len(sink_b.got) == (30 if tap else 0)
+
+
+def test_answers_need_sources_that_feed_one_filter():
+    blocks, _, _ = _sources(tap=True)  # s2 feeds its filter and a tap
+    block = _block((1, 2), 1_700_000_000_000_000_000, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="s2: answers need a source that feeds one filter"):
+        blocks.deliver_block(["s1", "s2"], block, block.arrival_ns, answer=(0, print))
+    assert blocks.sources["s1"].stats.events_in == 0  # nothing delivered

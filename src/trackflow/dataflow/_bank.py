@@ -11,7 +11,7 @@ and :meth:`KalmanFilter.pull` would have kept them.
 from __future__ import annotations
 
 import operator
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -49,6 +49,8 @@ class KalmanBank:
         bank = self._bank
         filters = [c.filter for c in self.components]
         if bank is None or not _same(bank.filters, filters):
+            if bank is not None:
+                bank.settle()
             bank = self._bank = PoseFilterBank(filters)
         return bank
 
@@ -78,18 +80,31 @@ class KalmanBank:
         """The batched updates of ``run``, counted and accounted for as
         :meth:`KalmanFilter.push` does."""
         index = [i for i, _ in run]
-        times = self._count_in(index, [m.t_ns for _, m in run])
+        times = self._times(index, [m.t_ns for _, m in run])
         accepted = self._filters().update_poses(index, times, [m.pose for _, m in run])
         self._account(index, [(m.t_ns, m.origin_ns) for _, m in run], accepted)
 
-    def push_block(self, index: Sequence[int], t_ns: int, position, quaternion, covariance):
+    def push_block(
+        self,
+        index: Sequence[int],
+        t_ns: int,
+        position,
+        quaternion,
+        covariance,
+        answer: tuple[int, Callable[[PredictedPoses], object]] | None = None,
+    ) -> None:
         """``components[index[k]].push(m_k)`` for every ``k``, for trusted measurements of
         one time given as arrays: ``m_k`` is ``Measurement(t_ns, pose_k, t_ns)`` with
         ``pose_k`` made of ``position[k]`` (m, 3), ``quaternion[k]`` (m, 4) and
         ``covariance[k]`` (m, 6, 6) as :meth:`UncertainPose._trusted` takes them
-        (:meth:`PoseFilterBank.update_block`: no object per measurement)."""
+        (:meth:`PoseFilterBank.update_block`: no object per measurement).
+
+        ``answer = (at_ns, deliver)`` answers the packet as soon as the filters are updated:
+        ``deliver`` gets :meth:`pull_block` of the same components at ``at_ns`` [ns], before
+        the filters' log entries are written (:meth:`PoseFilterBank.settle`, right after
+        ``deliver`` returns). ``deliver`` must not call into the components."""
         comps = self.components
-        if not all(self._plain(comps[i]) for i in index):
+        if not all(map(self._plain, map(comps.__getitem__, index))):
             trusted = UncertainPose._trusted
             self.push(
                 [
@@ -97,27 +112,40 @@ class KalmanBank:
                     for k, i in enumerate(index)
                 ]
             )
+            if answer is not None:
+                self.answer(index, answer)
             return
-        times = self._count_in(index, [t_ns] * len(index))
-        accepted = self._filters().update_block(index, times, position, quaternion, covariance)
+        times = self._times(index, [t_ns] * len(index))
+        bank = self._filters()
+        accepted = bank.update_block(
+            index, times, position, quaternion, covariance, defer=answer is not None
+        )
         self._account(index, [(t_ns, t_ns)] * len(index), accepted)
+        if answer is not None:
+            try:
+                self.answer(index, answer)
+            finally:
+                bank.settle()
 
-    def _count_in(self, index: Sequence[int], t_ns: Sequence[int]) -> list[float]:
-        """Count the measurements in; their filter times [s]."""
+    def answer(self, index: Sequence[int], answer: tuple[int, Callable]) -> None:
+        """``deliver(pull_block(index, [at_ns] * len(index)))`` for ``answer = (at_ns,
+        deliver)``: the answers of the components ``index`` at one time."""
+        at_ns, deliver = answer
+        deliver(self.pull_block(index, [at_ns] * len(index)))
+
+    def _times(self, index: Sequence[int], t_ns: Sequence[int]) -> list[float]:
+        """The filter times [s] of measurements stamped ``t_ns`` for components ``index``."""
         comps = self.components
-        times = []
-        for i, t in zip(index, t_ns):
-            c = comps[i]
-            c.stats.events_in += 1
-            times.append((t - c.stamp_offset_ns) * 1e-9)
-        return times
+        return [(t - comps[i].stamp_offset_ns) * 1e-9 for i, t in zip(index, t_ns)]
 
     def _account(self, index, stamps, accepted) -> None:
-        """Each component's bookkeeping after its batched update, as
-        :meth:`KalmanFilter.push` keeps it; ``stamps`` are ``(t_ns, origin_ns)``."""
+        """Each component's bookkeeping after its batched update (measurements in and out,
+        rejections, first/last times and origin), as :meth:`KalmanFilter.push` keeps it;
+        ``stamps`` are ``(t_ns, origin_ns)``."""
         comps = self.components
         for i, (t_ns, origin), ok in zip(index, stamps, accepted):
             c = comps[i]
+            c.stats.events_in += 1
             if not ok:
                 c.stats.reject("filter rejected update")
                 continue

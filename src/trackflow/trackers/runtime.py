@@ -208,18 +208,31 @@ class LiveSources:
             clock.now_ns = items[-1][1].arrival_ns
         return out
 
-    def deliver_block(self, names, block: SampleBlock, arrival_ns: int, clock=None) -> list:
+    def deliver_block(
+        self, names, block: SampleBlock, arrival_ns: int, clock=None, answer=None
+    ) -> list:
         """:meth:`deliver` of the samples of a block, sample ``k`` of source ``names[k]``
         dispatched at ``arrival_ns + k``: the same outcome, with the block's arrays going to
         the batched filters as they are (:meth:`KalmanBank.push_block`) when every source
-        feeds one only. Returns per sample whether it was accepted."""
+        feeds one only. Returns per sample whether it was accepted.
+
+        ``answer = (at_ns, deliver)``: the packet's answers, the poses of the sources'
+        filters at ``at_ns`` [ns] as :class:`~trackflow.filters.PredictedPoses` in the order
+        of ``names``, go to ``deliver`` as soon as the filters are updated, before their
+        bookkeeping (:meth:`KalmanBank.push_block`); every source must feed one filter."""
         srcs, rows = self.sources, self._row
         index = []
         for name in names:
             row = rows.get(name)
             if row is None or srcs[name].consumers != row[1]:
+                lone = [n for n in names if n not in rows]
+                if answer is not None and lone:
+                    raise ValueError(f"{lone[0]}: answers need a source that feeds one filter")
                 items = _dispatched(names, block, arrival_ns)
-                return [pose is not None for pose in self.deliver(items, clock)]
+                ok = [pose is not None for pose in self.deliver(items, clock)]
+                if answer is not None:
+                    self.filters.answer([rows[n][0] for n in names], answer)
+                return ok
             index.append(row[0])
         t = block.t_ns
         ok = []
@@ -231,13 +244,17 @@ class LiveSources:
                 src.stats.events_out += 1
             ok.append(fresh)
         if all(ok):
-            self.filters.push_block(index, t, block.position, block.quaternion, block.covariance)
+            self.filters.push_block(
+                index, t, block.position, block.quaternion, block.covariance, answer
+            )
         elif any(ok):
             at = [k for k, good in enumerate(ok) if good]
             self.filters.push_block(
                 [index[k] for k in at], t, block.position[at], block.quaternion[at],
                 block.covariance[at],
             )  # fmt: skip
+        if answer is not None and not all(ok):
+            self.filters.answer(index, answer)
         if clock is not None and names:
             clock.now_ns = arrival_ns + len(names) - 1
         return ok

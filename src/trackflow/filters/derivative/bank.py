@@ -112,6 +112,7 @@ class PoseFilterBank:
         self.filters = list(filters)
         self._kinds: list[_Kind] = []
         self._slot: list[tuple[_Kind, int] | None] = []
+        self._unlogged: list = []  # kernel steps whose log entries are not written yet
         members: list[list[int]] = []
         for i, f in enumerate(self.filters):
             k = None
@@ -187,6 +188,8 @@ class PoseFilterBank:
             ``ValueError``, such as a non-finite time). The gate decision and NIS of each
             measurement are in the filter's log (:attr:`PoseKalmanFilter.nis`, ``stats``).
         """
+        if self._unlogged:
+            self.settle()
         out: list = [False] * len(index)
         seen: set[int] = set()
         later: list[int] = []  # rows of a filter met before in this call: after the kernels
@@ -220,13 +223,22 @@ class PoseFilterBank:
         return out
 
     def update_block(
-        self, index: Sequence[int], t: Sequence[float], position, quaternion, covariance
+        self,
+        index: Sequence[int],
+        t: Sequence[float],
+        position,
+        quaternion,
+        covariance,
+        defer: bool = False,
     ) -> list:
         """:meth:`update_poses` of trusted pose measurements given as arrays: the pose of
         measurement ``k`` is ``position[k]`` (m, 3) [m], ``quaternion[k]`` (m, 4) unit
         ``(x, y, z, w)`` and ``covariance[k]`` (m, 6, 6), as :class:`UncertainPose` takes
         them without checks (finite, unit, valid). No object is made per measurement on the
-        kernel's path: the arrays go to it as they are."""
+        kernel's path: the arrays go to it as they are. With ``defer``, the kernel's log
+        entries wait for :meth:`settle` (an answer first, the bookkeeping after it)."""
+        if self._unlogged:
+            self.settle()
         filters, slots = self.filters, self._slot
         if len(set(index)) != len(index):  # a filter twice: in order, through update_poses
             return self._update_trusted(index, t, position, quaternion, covariance)
@@ -242,10 +254,10 @@ class PoseFilterBank:
                 out[k] = self._one(f, tk, trusted)
         for b in batch.values():
             if len(b.at) == len(index):  # all of them, in order: the arrays as they are
-                self._step(b, position, quaternion, covariance, out)
+                self._step(b, position, quaternion, covariance, out, defer)
             else:
                 at = np.asarray(b.at)
-                self._step(b, position[at], quaternion[at], covariance[at], out)
+                self._step(b, position[at], quaternion[at], covariance[at], out, defer)
         return out
 
     def _update_trusted(self, index, t, position, quaternion, covariance) -> list:
@@ -260,12 +272,12 @@ class PoseFilterBank:
         except ValueError:
             return False
 
-    @staticmethod
-    def _step(b: _Batch, zp, zo, r, out: list) -> None:
+    def _step(self, b: _Batch, zp, zo, r, out: list, defer: bool = False) -> None:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
-        rows), then each filter's log entry and bookkeeping by the filter's own
-        ``_stepped`` and ``_append``."""
+        rows), then each filter's time and gate run (:meth:`PoseKalmanFilter._advance`) and
+        its log entry (:meth:`settle`; at once unless ``defer``). A diverged step takes the
+        filter's own ``_stepped`` (it re-initialises the filter), at once."""
         kind, m = b.kind, len(b.rows)
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
@@ -275,14 +287,38 @@ class PoseFilterBank:
             frozen(zp), frozen(zo), frozen(r), kind.gate, logs, status, nis,
         )  # fmt: skip
         gated = gating.GATED
-        nx, nc = kind.nx, kind.nc
-        for (k, f, tk), buf, st, v in zip(b.rows, logs, status.tolist(), nis.tolist()):
-            if f._smooth_cache:
-                f._smooth_cache = {}
-            e = _Entry(tk, 0, 0, buf, nx, nc, 6)
-            f._stepped(e, st, v)
-            f._append(e)
+        codes = status.tolist()
+        if gating.DIVERGED in codes:
+            nx, nc = kind.nx, kind.nc
+            for (k, f, tk), buf, st, v in zip(b.rows, logs, codes, nis.tolist()):
+                e = _Entry(tk, 0, 0, buf, nx, nc, 6)
+                if f._smooth_cache:
+                    f._smooth_cache = {}
+                f._stepped(e, st, v)
+                f._append(e)
+                out[k] = st != gated
+            return
+        runs = []
+        for (k, f, tk), st in zip(b.rows, codes):
+            runs.append(f._advance(st, tk))
             out[k] = st != gated
+        self._unlogged.append((b, logs, codes, nis, runs))
+        if not defer:
+            self.settle()
+
+    def settle(self) -> None:
+        """Write the log entries of the kernel steps an update left unlogged
+        (``update_block(..., defer=True)``): each filter's history, gate decision and NIS,
+        as its own update would have recorded them. The filters' states and times are
+        current without it; anything that reads a filter's history (a smoothed or past
+        answer, its statistics, another update) comes after it."""
+        pending, self._unlogged = self._unlogged, []
+        for b, logs, codes, nis, runs in pending:
+            nx, nc = b.kind.nx, b.kind.nc
+            for (_, f, tk), buf, st, v, run in zip(b.rows, logs, codes, nis.tolist(), runs):
+                e = _Entry(tk, 0, 0, buf, nx, nc, 6)
+                e.status, e.nis, e.gated_run = st, v, run
+                f._append(e)
 
     # -- predictions -------------------------------------------------------------------------
     def predict_poses(self, index: Sequence[int], t: Sequence[float]) -> list:
@@ -315,6 +351,8 @@ class PoseFilterBank:
             slot = slots[i]
             tk = float(t[k])
             if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
+                if self._unlogged:  # the filter's own answer may read its history
+                    self.settle()
                 try:
                     pose = f.predict(tk)
                 except ValueError:

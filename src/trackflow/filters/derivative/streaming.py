@@ -545,9 +545,16 @@ class PoseKalmanFilter(FilterClock):
         if status == gating.DIVERGED:
             self._reinit(e, "singular innovation covariance or non-finite state")
             e.store_state(self._x, self._p)
-        self._gated_run = gating.next_gated_run(status, self._gated_run)
-        self._t = e.t
-        e.gated_run = self._gated_run
+        e.gated_run = self._advance(status, e.t)
+
+    def _advance(self, status: int, t: float) -> int:
+        """The filter's time and run of gated measurements after a kernel step at ``t`` that
+        did not diverge; returns the new run length (the step's log entry records it)."""
+        if self._smooth_cache:  # smoothed past states change with a newer measurement
+            self._smooth_cache = {}
+        self._gated_run = run = gating.next_gated_run(status, self._gated_run)
+        self._t = t
+        return run
 
     def _append(self, e: _Entry) -> None:
         """Entry ``e``, the newest, into the log; entries older than the history go."""
