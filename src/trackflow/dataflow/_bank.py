@@ -117,15 +117,20 @@ class KalmanBank:
             return
         times = self._times(index, [t_ns] * len(index))
         bank = self._filters()
-        accepted = bank.update_block(
-            index, times, position, quaternion, covariance, defer=answer is not None
+        stamps = [(t_ns, t_ns)] * len(index)
+        if answer is None:
+            accepted = bank.update_block(index, times, position, quaternion, covariance)
+            self._account(index, stamps, accepted)
+            return
+        at_ns, deliver = answer
+        accepted, ahead = bank.update_block(
+            index, times, position, quaternion, covariance, defer=True, predict_at=at_ns * 1e-9
         )
-        self._account(index, [(t_ns, t_ns)] * len(index), accepted)
-        if answer is not None:
-            try:
-                self.answer(index, answer)
-            finally:
-                bank.settle()
+        self._account(index, stamps, accepted)
+        try:
+            deliver(self._pulled(index, [at_ns] * len(index), ahead))
+        finally:
+            bank.settle()
 
     def answer(self, index: Sequence[int], answer: tuple[int, Callable]) -> None:
         """``deliver(pull_block(index, [at_ns] * len(index)))`` for ``answer = (at_ns,
@@ -186,6 +191,11 @@ class KalmanBank:
         """The poses of ``components[index[k]].pull(t_ns[k])`` for every ``k`` as arrays
         (``ok[k]`` is ``False`` for a counted rejection), the predictions batched; every
         component is a plain :class:`KalmanFilter`."""
+        return self._pulled(index, t_ns, None)
+
+    def _pulled(self, index, t_ns, ahead: PredictedPoses | None) -> PredictedPoses:
+        """:meth:`pull_block`; ``ahead``, if given, holds the filters' predictions for
+        every request (made with their update), used when none is rejected."""
         index_ok, times, where = [], [], []
         for k, (i, t) in enumerate(zip(index, t_ns)):
             c = self.components[i]
@@ -203,7 +213,10 @@ class KalmanBank:
                 index_ok.append(i)
                 times.append(t * 1e-9)
                 where.append(k)
-        res = self._filters().predict_block(index_ok, times)
+        if ahead is not None and len(where) == len(index):
+            res = ahead
+        else:
+            res = self._filters().predict_block(index_ok, times)
         for i, ok in zip(index_ok, res.ok):
             c = self.components[i]
             if ok:

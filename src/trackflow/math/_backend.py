@@ -44,6 +44,8 @@ import tempfile
 import types
 from pathlib import Path
 
+import numpy as np
+
 __all__ = [
     "cache_is_warm",
     "frozen",
@@ -68,13 +70,13 @@ def frozen(array, dtype=float):
     one compiled specialisation per kernel). The caller's array is never made read-only; one that
     already is frozen (read-only, C-contiguous, of ``dtype``) is returned as it is.
     """
-    import numpy as np
-
     if type(array) is np.ndarray:
         flags = array.flags
         if not flags.writeable and flags.c_contiguous and array.dtype == dtype:
             return array  # already frozen: as it is
-    view = np.ascontiguousarray(array, dtype=dtype).view()
+        view = np.ascontiguousarray(array, dtype=dtype).view()  # never the caller's array
+    else:
+        view = np.array(array, dtype=dtype)  # a new array of a sequence
     view.flags.writeable = False
     return view
 

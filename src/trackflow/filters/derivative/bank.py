@@ -67,7 +67,7 @@ class _Batch:
     ``(index, filter, time)``, the filter's row, the time step and (:meth:`update_poses`)
     the measurement, or (:meth:`update_block`) its index in the block's arrays."""
 
-    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at")
+    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array")
 
     def __init__(self, kind: _Kind):
         self.kind = kind
@@ -78,6 +78,7 @@ class _Batch:
         self.zo: list = []
         self.r: list = []
         self.at: list = []
+        self.sel_array = None  # sel as the kernel took it
 
 
 class PredictedPoses(NamedTuple):
@@ -230,18 +231,24 @@ class PoseFilterBank:
         quaternion,
         covariance,
         defer: bool = False,
-    ) -> list:
+        predict_at: float | None = None,
+    ):
         """:meth:`update_poses` of trusted pose measurements given as arrays: the pose of
         measurement ``k`` is ``position[k]`` (m, 3) [m], ``quaternion[k]`` (m, 4) unit
         ``(x, y, z, w)`` and ``covariance[k]`` (m, 6, 6), as :class:`UncertainPose` takes
         them without checks (finite, unit, valid). No object is made per measurement on the
         kernel's path: the arrays go to it as they are. With ``defer``, the kernel's log
-        entries wait for :meth:`settle` (an answer first, the bookkeeping after it)."""
+        entries wait for :meth:`settle` (an answer first, the bookkeeping after it).
+
+        Returns the list of :meth:`update_poses`; with ``predict_at`` [s], the pair of it and
+        ``predict_block(index, [predict_at] * m)``, made right after the update (when the
+        kernel stepped every filter, from the rows it just wrote: no loop over them)."""
         if self._unlogged:
             self.settle()
         filters, slots = self.filters, self._slot
         if len(set(index)) != len(index):  # a filter twice: in order, through update_poses
-            return self._update_trusted(index, t, position, quaternion, covariance)
+            out = self._update_trusted(index, t, position, quaternion, covariance)
+            return out if predict_at is None else (out, self._ahead(index, predict_at))
         out: list = [False] * len(index)
         batch: dict[int, _Batch] = {}
         for k, i in enumerate(index):
@@ -254,11 +261,28 @@ class PoseFilterBank:
                 out[k] = self._one(f, tk, trusted)
         for b in batch.values():
             if len(b.at) == len(index):  # all of them, in order: the arrays as they are
-                self._step(b, position, quaternion, covariance, out, defer)
+                plain = self._step(b, position, quaternion, covariance, out, defer)
+                if predict_at is not None and plain:  # their rows, at one time
+                    return out, self._predict_rows(b, index, predict_at)
             else:
                 at = np.asarray(b.at)
                 self._step(b, position[at], quaternion[at], covariance[at], out, defer)
-        return out
+        return out if predict_at is None else (out, self._ahead(index, predict_at))
+
+    def _ahead(self, index: Sequence[int], t: float) -> PredictedPoses:
+        return self.predict_block(index, [t] * len(index))
+
+    def _predict_rows(self, b: _Batch, index: Sequence[int], t: float) -> PredictedPoses:
+        """``predict_block(index, [t] * m)`` [s] for the filters ``index`` the kernel has just
+        stepped, in order, in batch ``b``, none diverged: their states are its rows and each
+        filter's time is its step's."""
+        m = len(b.rows)
+        if not (math.isfinite(t) and all(t >= tk for _, _, tk in b.rows)):
+            return self._ahead(index, t)  # a past time: the filters' own smoothing
+        res = np.empty((m, _source.POSE_OUT))
+        dts = frozen([t - tk for _, _, tk in b.rows])
+        kernels().predict_pose_bank(b.kind.xs, b.kind.ps, b.sel_array, dts, b.kind.const, res)
+        return PredictedPoses(res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), [True] * m)
 
     def _update_trusted(self, index, t, position, quaternion, covariance) -> list:
         trusted = UncertainPose._trusted
@@ -272,18 +296,20 @@ class PoseFilterBank:
         except ValueError:
             return False
 
-    def _step(self, b: _Batch, zp, zo, r, out: list, defer: bool = False) -> None:
+    def _step(self, b: _Batch, zp, zo, r, out: list, defer: bool = False) -> bool:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
         rows), then each filter's time and gate run (:meth:`PoseKalmanFilter._advance`) and
         its log entry (:meth:`settle`; at once unless ``defer``). A diverged step takes the
-        filter's own ``_stepped`` (it re-initialises the filter), at once."""
+        filter's own ``_stepped`` (it re-initialises the filter), at once. Returns whether
+        none diverged (every filter's state is still its row)."""
         kind, m = b.kind, len(b.rows)
         logs = np.empty((m, kind.size))
         status = np.empty(m, np.int64)
         nis = np.empty(m)
+        b.sel_array = frozen(b.sel, np.int64)
         kernels().step_bank(
-            kind.xs, kind.ps, frozen(b.sel, np.int64), frozen(b.dts), kind.const,
+            kind.xs, kind.ps, b.sel_array, frozen(b.dts), kind.const,
             frozen(zp), frozen(zo), frozen(r), kind.gate, logs, status, nis,
         )  # fmt: skip
         gated = gating.GATED
@@ -297,7 +323,7 @@ class PoseFilterBank:
                 f._stepped(e, st, v)
                 f._append(e)
                 out[k] = st != gated
-            return
+            return False
         runs = []
         for (k, f, tk), st in zip(b.rows, codes):
             runs.append(f._advance(st, tk))
@@ -305,6 +331,7 @@ class PoseFilterBank:
         self._unlogged.append((b, logs, codes, nis, runs))
         if not defer:
             self.settle()
+        return True
 
     def settle(self) -> None:
         """Write the log entries of the kernel steps an update left unlogged
