@@ -129,8 +129,9 @@ def decode_rates(repeat: int) -> dict:
     return {"decode": out, "pkg": pkg}
 
 
-def e2e_latency(seconds: float, recording: Path) -> dict:
-    """Packet receipt -> 20 filtered answers delivered [us] (module docstring)."""
+def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
+    """Packet receipt -> 20 filtered answers delivered [us] (module docstring); ``spin_us``
+    is the input's polling window around a frame's due time (0: it sleeps until a packet)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -138,7 +139,10 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
     me, other = cores[0], cores[-1]
     os.sched_setaffinity(0, {me})
     specs = {
-        f"b{k}": (parse_input({"natnet": {"command_port": port, "body": k}}), np.eye(6) * 1e-6)
+        f"b{k}": (
+            parse_input({"natnet": {"command_port": port, "body": k, "spin_us": spin_us}}),
+            np.eye(6) * 1e-6,
+        )
         for k in range(1, BODIES + 1)
     }
     (inp,) = make_inputs(specs)
@@ -230,6 +234,8 @@ def e2e_latency(seconds: float, recording: Path) -> dict:
         "service_p50": float(np.percentile(svc, 50)),
         "service_p99": float(np.percentile(svc, 99)),
         "service_cpu_p50": float(np.percentile(cpu, 50)),
+        "polled_share": inp.waiting.polled_s / seconds,  # of a core
+        "caught_share": inp.waiting.caught / max(len(latencies), 1),
     }
 
 
@@ -239,6 +245,12 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=20.0, help="latency run length")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument(
+        "--spin-us",
+        type=float,
+        default=0.0,
+        help="the NatNet input's spin_us: poll around each frame's due time (default 0: sleep)",
+    )
+    ap.add_argument(
         "--recording",
         type=Path,
         default=ROOT.parent / "shared" / "data" / "tumvi" / "dataset-room1_512_16.txt",
@@ -247,7 +259,7 @@ def main(argv=None) -> int:
     if not args.recording.exists():
         args.recording = Path("/work/shared/data/tumvi/dataset-room1_512_16.txt")
     d = decode_rates(args.repeat)
-    lat = e2e_latency(args.seconds, args.recording)
+    lat = e2e_latency(args.seconds, args.recording, args.spin_us)
     out = {
         "decode_frames_per_s": {k: round(v) for k, v in d["decode"].items()},
         "natnet_pkg_frames_per_s": None if d["pkg"] is None else round(d["pkg"]),
@@ -272,6 +284,12 @@ def main(argv=None) -> int:
             f"{lat['wake_p50']:.0f} us, p99 {lat['wake_p99']:.0f} us (wake-up, receive "
             f"call); decoding and samples (handle) p50 {lat['handle_p50']:.0f} us"
         )
+        if args.spin_us:
+            print(
+                f"polling {args.spin_us:g} us around each frame's due time: "
+                f"{100 * lat['polled_share']:.1f} % of a core, "
+                f"{100 * lat['caught_share']:.0f} % of the packets caught while polling"
+            )
     return 0
 
 

@@ -196,29 +196,25 @@ class KalmanBank:
     def _pulled(self, index, t_ns, ahead: PredictedPoses | None) -> PredictedPoses:
         """:meth:`pull_block`; ``ahead``, if given, holds the filters' predictions for
         every request (made with their update), used when none is rejected."""
+        comps = self.components
         index_ok, times, where = [], [], []
         for k, (i, t) in enumerate(zip(index, t_ns)):
-            c = self.components[i]
+            c = comps[i]
             if type(c) is not KalmanFilter:
                 raise TypeError(f"{c.name}: pull_block takes plain KalmanFilter components")
-            if c.last_t is None:
-                c.stats.reject("no data yet")
-            elif c.max_extrapolation_ns is not None and t - c.last_t > c.max_extrapolation_ns:
-                c.stats.reject("stale")
-            elif not c.motion.static and t < c.first_t:
-                c.stats.reject("before first measurement")
-            elif not c.motion.static and c.last_t - t > c._history_ns:
-                c.stats.reject("before history")
-            else:
+            why = c.refusal(t)
+            if why is None:
                 index_ok.append(i)
                 times.append(t * 1e-9)
                 where.append(k)
+            else:
+                c.stats.reject(why)
         if ahead is not None and len(where) == len(index):
             res = ahead
         else:
             res = self._filters().predict_block(index_ok, times)
         for i, ok in zip(index_ok, res.ok):
-            c = self.components[i]
+            c = comps[i]
             if ok:
                 c.stats.events_out += 1
             else:

@@ -178,19 +178,25 @@ class KalmanFilter(Component):
             self.last_origin = m.origin_ns
         self.emit(m if t == m.t_ns else Measurement(t, m.pose, m.origin_ns))
 
+    def refusal(self, t_ns: int) -> str | None:
+        """Why a pull at ``t_ns`` gets no answer (the rejection's reason), or ``None``."""
+        last = self.last_t
+        if last is None:
+            return "no data yet"
+        limit = self.max_extrapolation_ns
+        if limit is not None and t_ns - last > limit:
+            return "stale"
+        if not self.motion.static:
+            if t_ns < self.first_t:  # an interpolator asked before the first sample (start-up)
+                return "before first measurement"
+            if last - t_ns > self._history_ns:
+                return "before history"
+        return None
+
     def pull(self, t_ns: int) -> Measurement | None:
-        if self.last_t is None:
-            self.stats.reject("no data yet")
-            return None
-        if self.max_extrapolation_ns is not None and t_ns - self.last_t > self.max_extrapolation_ns:
-            self.stats.reject("stale")
-            return None
-        if not self.motion.static and t_ns < self.first_t:
-            # an interpolator asked for a time before the sensor's first sample (start-up)
-            self.stats.reject("before first measurement")
-            return None
-        if not self.motion.static and self.last_t - t_ns > self._history_ns:
-            self.stats.reject("before history")
+        why = self.refusal(t_ns)
+        if why is not None:
+            self.stats.reject(why)
             return None
         try:
             pose = self.filter.predict(t_ns * 1e-9)

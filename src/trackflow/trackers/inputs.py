@@ -30,6 +30,7 @@ from ._packet import PacketError
 from .axes import BoundaryConversion
 from .clock import ClockMapper
 from .status import SensorStatus
+from .waiting import DueWait
 
 __all__ = [
     "Body",
@@ -744,6 +745,7 @@ class NatNetInput(LiveInput):
         next_cmd = next_keepalive = last_echo = 0.0
         connected = None
         need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
+        wait = self.waiting = DueWait(o["spin_us"] * 1e-6)
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -765,13 +767,16 @@ class NatNetInput(LiveInput):
                         last_echo = now
                 except OSError:
                     self._event_all("send failed")
-                for key, _ in sel.select(timeout=0.1):
+                for key, _ in wait.select(sel, 0.1):
+                    seen = time.monotonic()
                     try:
                         raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
                     except OSError:  # nothing to read, ICMP port unreachable while no server
                         continue
                     had_server = self.server is not None
                     sink(self, raw, arrival)
+                    if raw[:2] == _FRAME_ID:  # the stream's period is the frames'
+                        wait.arrived(seen)
                     if connected is not (self.server is not None):
                         connected = self.server is not None
                         self._connected(connected)
@@ -779,6 +784,9 @@ class NatNetInput(LiveInput):
                         next_cmd = 0.0  # ask for the model definitions at once
         finally:
             sel.close()
+
+
+_FRAME_ID = natnet.FRAMEOFDATA.to_bytes(2, "little")  # a NatNet frame's first bytes
 
 
 class VrpnInput(LiveInput):
