@@ -318,8 +318,6 @@ class PoseFilterBank:
             nx, nc = kind.nx, kind.nc
             for (k, f, tk), buf, st, v in zip(b.rows, logs, codes, nis.tolist()):
                 e = _Entry(tk, 0, 0, buf, nx, nc, 6)
-                if f._smooth_cache:
-                    f._smooth_cache = {}
                 f._stepped(e, st, v)
                 f._append(e)
                 out[k] = st != gated
