@@ -66,15 +66,21 @@ def _finish(p: subprocess.Popen, timeout: float = 60.0) -> str:
 
 
 def receive(
-    protocol: str, room1: Path, tmp_path: Path, seconds: float = 4.0, jitter_ms: float = 2.0
+    protocol: str,
+    room1: Path,
+    tmp_path: Path,
+    seconds: float = 4.0,
+    jitter_ms: float = 2.0,
+    spin_us: float = 0.0,
 ):
-    """Run a sender process for ``seconds`` of the recording and an input in this process;
-    returns (samples, status, truth, sender report)."""
+    """Run a sender process for ``seconds`` of the recording and an input in this process
+    (polling ``spin_us`` around each frame's due time); returns (samples, status, truth,
+    sender report, input)."""
     port = _free_port(socket.SOCK_STREAM if protocol == "vrpn" else socket.SOCK_DGRAM)
     truth_path = tmp_path / f"{protocol}_truth.tfrec"
     opts = {
-        "natnet": {"natnet": {"command_port": port, "body": "rig"}},
-        "dtrack": {"dtrack": {"port": port, "body": 1}},
+        "natnet": {"natnet": {"command_port": port, "body": "rig", "spin_us": spin_us}},
+        "dtrack": {"dtrack": {"port": port, "body": 1, "spin_us": spin_us}},
         "vrpn": {"vrpn": {"device": f"Tracker0@127.0.0.1:{port}", "latency_ms": 5.0}},
     }[protocol]
     inp = make_input("rig", parse_input(opts), COV)
@@ -93,13 +99,21 @@ def receive(
     finally:
         inp.stop()
     truth, _ = read_stream(truth_path)
-    return got, inp.status, truth, report
+    return got, inp.status, truth, report, inp
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("protocol", ["natnet", "dtrack", "vrpn"])
-def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, room1, tmp_path):
-    got, status, truth, report = receive(protocol, room1, tmp_path)
+@pytest.mark.parametrize(
+    ("protocol", "spin_us"),
+    [("natnet", 0), ("dtrack", 0), ("vrpn", 0), ("natnet", 500), ("dtrack", 500)],
+)
+def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, spin_us, room1, tmp_path):
+    """Every pose sent arrives (or its loss is counted), with its position to float32
+    rounding and its exposure time mapped; the input sleeps until a packet comes, or polls
+    around each frame's due time (``spin_us``)."""
+    got, status, truth, report, inp = receive(protocol, room1, tmp_path, spin_us=spin_us)
+    if spin_us:
+        assert inp.waiting.period_s is not None and inp.waiting.polled_s > 0
     assert report["sent"] == len(truth) and report["lost"] > 0
     # every pose sent is received or counted (NatNet frames that come before the handshake
     # and the model definitions are counted as "no handshake yet" / "unknown body name")
@@ -130,7 +144,7 @@ def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, room1, tmp_
 
 
 def test_short_natnet_stream_and_stale(room1, tmp_path):
-    got, status, truth, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
+    got, status, truth, _, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
     assert got and len(got) + status.rejected == len(truth), status.rejections
     assert status.stale(host_ns(), 0.2) and status.clock is not None
     # the simulator answers echo requests: the mapping uses round trips (loopback: < 10 ms)

@@ -64,6 +64,7 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
         "command": ((str, type(None)), None),
         "command_port": (int, 50105),
         "latency_ms": ((int, float), 0.0),
+        "spin_us": ((int, float), 0),
     },
     "vrpn": {
         "device": (str, ...),

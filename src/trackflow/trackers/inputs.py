@@ -445,14 +445,24 @@ class DTrackInput(LiveInput):
             return
         self._connected(True)
         self.ready.set()
-        while not self._stop.is_set():
-            try:
-                data, arrival = recv_stamped(s, self.kernel_stamps)
-            except TimeoutError:
-                continue
-            except OSError:
-                break
-            sink(self, data, arrival)
+        s.setblocking(False)  # the selector waits (DueWait: or polls around a frame's time)
+        sel = selectors.DefaultSelector()
+        sel.register(s, selectors.EVENT_READ)
+        wait = self.waiting = DueWait(o["spin_us"] * 1e-6)
+        try:
+            while not self._stop.is_set():
+                for _ in wait.select(sel, 0.2):
+                    seen = time.monotonic()
+                    try:
+                        data, arrival = recv_stamped(s, self.kernel_stamps)
+                    except BlockingIOError:
+                        continue
+                    except OSError:
+                        return
+                    sink(self, data, arrival)
+                    wait.arrived(seen)  # one datagram per frame
+        finally:
+            sel.close()
 
     def command(self, host: str, port: int, text: str, timeout: float = 2.0) -> str:
         """Send a DTrack2 command over TCP (NUL-terminated) and return the reply; a reply
