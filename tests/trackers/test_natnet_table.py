@@ -71,13 +71,16 @@ KINDS = ("ok", "ok", "ok", "missing", "untracked", "nan", "long", "slightly", "n
 
 
 def _per_body(inp, data, arrival):
-    """The per-body path: decode_frame without the table."""
+    """The per-body path: decode_frame without the table (and without the one pass over the
+    datagram, which finds the table by itself)."""
     real = natnet.decode_frame
     natnet.decode_frame = lambda payload, version, table=False: real(payload, version)
+    inp._frame_pass = lambda data, arrival_ns: None
     try:
         return inp.handle(data, arrival)
     finally:
         natnet.decode_frame = real
+        del inp._frame_pass
 
 
 def _same(a, b):
