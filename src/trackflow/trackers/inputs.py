@@ -29,7 +29,7 @@ from . import kernels as _kernels
 from ._packet import PacketError
 from .axes import BoundaryConversion
 from .clock import ClockMapper
-from .status import SensorStatus
+from .status import SensorStatus, StatusGroup
 
 __all__ = [
     "Body",
@@ -201,6 +201,8 @@ class LiveInput:
         self.spec = spec
         self.options = spec.options
         self.bodies: list[Body] = []
+        #: the bodies' statuses, counted once per packet where a packet counts for every body
+        self.statuses = StatusGroup()
         self.clock = ClockMapper()
         self.packets = 0
         self._stop = threading.Event()
@@ -228,6 +230,7 @@ class LiveInput:
             raise ValueError(f"sensor {name!r}: another connection than {self.spec.options}")
         b = Body(name, spec, covariance)
         self.bodies.append(b)
+        self.statuses.add(b.status)
         return b
 
     @property
@@ -241,8 +244,7 @@ class LiveInput:
         when the input has them as arrays); rejections are counted in the bodies' statuses
         (a packet-level error on every body), never raised."""
         self.packets += 1
-        for b in self.bodies:
-            b.status.packets += 1
+        self.statuses.packet()
         try:
             return self._handle(data, arrival_ns)
         except PacketError as exc:
@@ -312,10 +314,8 @@ class LiveInput:
 
     def _frame(self, number: int) -> bool:
         ok = True
-        if self.bodies and all(b.status.last_frame == number - 1 for b in self.bodies):
-            for b in self.bodies:  # the next frame of every body: no gap, no restart
-                b.status.last_frame = number
-            return True
+        if self.bodies and self.statuses.next_frame(number):
+            return True  # the next frame of every body: no gap, no restart
         for b in self.bodies:
             before = b.status.connection.get("frame counter restarted", 0)
             ok = b.status.frame(number) and ok
@@ -682,8 +682,7 @@ class NatNetInput(LiveInput):
     def _block_samples(self, plan: tuple, block: SampleBlock):
         """Count a block's samples in the bodies' statuses (every body is in it); the block,
         or its samples as pairs when some body's class is not :class:`CheckedSample`."""
-        for b in self.bodies:
-            b.status.measured(block.arrival_ns, block.t_ns)
+        self.statuses.measured(block.arrival_ns, block.t_ns)
         kinds = plan[7]
         if kinds is None:
             return block
