@@ -273,9 +273,11 @@ def natnet_frame(buf, version, ids, rows, bounds, want, pos, quat, out):
         o = table + 38 * rows[k]
         if buf[o + 36] & 1 == 0:  # params (i16, little-endian): bit 0 = tracked
             return FRAME_DECODED
-        f = buf[o + 4 : o + 36].view(np.float32).astype(np.float64)  # as block_poses reads
-        if not pose_row(f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], bounds[0, k],
-                        bounds[1, k], bounds[2, k], pos, quat, k):  # fmt: skip
+        f = buf[o + 4 : o + 36].view(np.float32)
+        if not pose_row(np.float64(f[0]), np.float64(f[1]), np.float64(f[2]),
+                        np.float64(f[3]), np.float64(f[4]), np.float64(f[5]),
+                        np.float64(f[6]), np.float64(f[7]), bounds[0, k], bounds[1, k],
+                        bounds[2, k], pos, quat, k):  # fmt: skip
             return FRAME_DECODED
     return FRAME_BLOCK
 
