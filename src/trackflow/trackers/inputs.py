@@ -272,12 +272,13 @@ class LiveInput:
     def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
         by the envelope fit, minus the protocol's exposure-to-send latency."""
-        self.clock.add(tx_ns, arrival_ns)
-        est = self.clock.estimate
+        clock = self.clock
+        clock.add(tx_ns, arrival_ns)
+        est = clock.estimate  # never None after add
         if est is not self.bodies[0].status.clock:  # a new estimate: every body's status
             for b in self.bodies:
                 b.status.clock = est
-        return self.clock.to_host(tx_ns) - latency_ns
+        return est.to_host(tx_ns) - latency_ns
 
     @staticmethod
     def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov=None) -> Sample:
