@@ -676,8 +676,8 @@ class NatNetInput(LiveInput):
     def _make_block(plan: tuple, pos, quat, t: int, arrival_ns: int) -> SampleBlock:
         """The :class:`SampleBlock` of a :meth:`_block_plan` with these positions and
         quaternions (made read-only)."""
-        pos.flags.writeable = False
-        quat.flags.writeable = False
+        pos.setflags(write=False)
+        quat.setflags(write=False)
         return SampleBlock(plan[0], t, arrival_ns, pos, quat, plan[5], plan[6])
 
     def _block_samples(self, plan: tuple, block: SampleBlock):
