@@ -266,18 +266,27 @@ def natnet_frame(buf, version, ids, rows, bounds, want, pos, quat, out):
         return FRAME_DECODED
     if n != ids.shape[0]:
         return FRAME_NEW_IDS
+    # the table's words as two arrays each (rows are 38 bytes: their words alternate
+    # between two alignments), so reading a row makes no array view of its own
+    a0, a2 = table % 4, (table + 2) % 4
+    i0 = buf[a0 : a0 + (end - a0) // 4 * 4].view(np.int32)
+    i2 = buf[a2 : a2 + (end - a2) // 4 * 4].view(np.int32)
+    f0 = buf[a0 : a0 + (end - a0) // 4 * 4].view(np.float32)
+    f2 = buf[a2 : a2 + (end - a2) // 4 * 4].view(np.float32)
     for r in range(n):
-        if _i32(buf, table + 38 * r) != ids[r]:
+        o = table + 38 * r
+        w = i0[(o - a0) // 4] if r % 2 == 0 else i2[(o - a2) // 4]
+        if w != ids[r]:
             return FRAME_NEW_IDS
     for k in range(rows.shape[0]):
         o = table + 38 * rows[k]
         if buf[o + 36] & 1 == 0:  # params (i16, little-endian): bit 0 = tracked
             return FRAME_DECODED
-        f = buf[o + 4 : o + 36].view(np.float32)
-        if not pose_row(np.float64(f[0]), np.float64(f[1]), np.float64(f[2]),
-                        np.float64(f[3]), np.float64(f[4]), np.float64(f[5]),
-                        np.float64(f[6]), np.float64(f[7]), bounds[0, k], bounds[1, k],
-                        bounds[2, k], pos, quat, k):  # fmt: skip
+        f, j = (f0, (o + 4 - a0) // 4) if rows[k] % 2 == 0 else (f2, (o + 4 - a2) // 4)
+        if not pose_row(np.float64(f[j]), np.float64(f[j + 1]), np.float64(f[j + 2]),
+                        np.float64(f[j + 3]), np.float64(f[j + 4]), np.float64(f[j + 5]),
+                        np.float64(f[j + 6]), np.float64(f[j + 7]), bounds[0, k],
+                        bounds[1, k], bounds[2, k], pos, quat, k):  # fmt: skip
             return FRAME_DECODED
     return FRAME_BLOCK
 
