@@ -343,3 +343,26 @@ def test_plain_frames_make_blocks_through_the_pass():
     finally:
         natnet.decode_frame = real
     assert calls == [] and [b.status.measurements for b in inp.bodies] == [3] * 20
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba (the compiled backend)")
+def test_warm_up_compiles_what_a_live_packet_runs():
+    """After warm_up_inputs, frames (blocks, per-body fallbacks, new ids) compile nothing."""
+    from trackflow.trackers.inputs import warm_up_inputs
+
+    with use_backend("numba"):
+        warm_up_inputs()
+        k = kernels_for(kernels)
+        before = {name: len(getattr(k, name).signatures) for name in kernels.KERNELS}
+        inp = _input((4, 1), 0, 0)
+        for i, d in enumerate(_stream(np.random.default_rng(3), 30, lambda i: KINDS[:7])):
+            inp.handle(build((4, 1), d), 10**18 + i * 4_166_667)
+        bodies = [(k, (0.1 * k, 1.0, 2.0), (0.0, 0.0, 0.6, 0.8), 1e-4, 1) for k in range(1, 8)]
+        d = {"frame": 10_000, "msets": [], "unlabeled": 0, "bodies": bodies, "skeletons": [],
+             "assets": 0, "labeled": 0, "plates": [], "devices": [], "ticks": (10, 20),
+             "eod": True}  # fmt: skip
+        for i in range(3):  # all plainly valid: blocks
+            out = inp.handle(build((4, 1), {**d, "frame": 10_000 + i}), 2 * 10**18 + i)
+            assert isinstance(out, SampleBlock)
+        after = {name: len(getattr(k, name).signatures) for name in kernels.KERNELS}
+    assert before == after
