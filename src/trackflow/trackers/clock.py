@@ -139,9 +139,11 @@ class ClockMapper:
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
         self.max_drift = float(max_drift)
-        #: the closed bins' minima, rows ``(tracker ns, host - tracker ns)`` in the order closed
-        self._bins = np.empty((int(window_s / bin_s) + 8, 2), np.int64)
+        #: the closed bins' minima, tracker ns and host - tracker ns, in the order closed
+        self._tx = np.empty(int(window_s / bin_s) + 8, np.int64)
+        self._y = np.empty_like(self._tx)
         self._nbins = 0
+        self._unordered = False  # a bin closed before the one closed previously
         self._cur: tuple[int, int] | None = None
         self._cur_bin: int | None = None
         self._env: ClockEstimate | None = None  # the envelope fit alone
@@ -157,6 +159,7 @@ class ClockMapper:
     def reset(self) -> None:
         """Forget everything (the tracker restarted)."""
         self._nbins = 0
+        self._unordered = False
         self._cur = self._cur_bin = self._env = self.estimate = self._published = None
         self.round_trips.clear()
         self._newest = 0
@@ -166,13 +169,14 @@ class ClockMapper:
         self.count += 1
         y = host_ns - tracker_ns
         e = self._env
-        if e is not None and (
-            tracker_ns < self._newest - self.step_ns
-            or y < e.offset_ns + e.drift * (tracker_ns - e.ref_ns) - self.step_ns
-        ):
-            self.reset()
-            self.steps += 1
-        self._newest = tracker_ns if self._env is None else max(self._newest, tracker_ns)
+        line = 0.0
+        if e is not None:
+            line = e.offset_ns + e.drift * (tracker_ns - e.ref_ns)  # the envelope at this x
+            if tracker_ns < self._newest - self.step_ns or y < line - self.step_ns:
+                self.reset()
+                self.steps += 1
+        if self._env is None or tracker_ns > self._newest:
+            self._newest = tracker_ns
         k = tracker_ns // self.bin_ns
         if self._cur_bin is None or k != self._cur_bin:
             if self._cur is not None:
@@ -181,14 +185,15 @@ class ClockMapper:
             self._cur_bin, self._cur = k, (tracker_ns, y)
         elif y < self._cur[1]:
             self._cur = (tracker_ns, y)
-        e = self._env
-        if e is None:
+        e2 = self._env
+        if e2 is None:
             self._env = ClockEstimate(float(y), 0.0, tracker_ns, 0.0, 1)
         else:
-            line = e.offset_ns + e.drift * (tracker_ns - e.ref_ns)
+            if e2 is not e:  # refitted or reset: the new envelope at this x
+                line = e2.offset_ns + e2.drift * (tracker_ns - e2.ref_ns)
             if y < line:  # below the envelope: lower it now, keep the slope
                 self._env = ClockEstimate(
-                    e.offset_ns - (line - y), e.drift, e.ref_ns, e.sigma_ns, e.points
+                    e2.offset_ns - (line - y), e2.drift, e2.ref_ns, e2.sigma_ns, e2.points
                 )
         self._publish()
 
@@ -204,16 +209,21 @@ class ClockMapper:
 
     def _close_bin(self, tracker_ns: int) -> None:
         """The open bin's minimum into the window; the bins older than the window go."""
-        n, pts = self._nbins, self._bins
-        if n == len(pts):
-            pts = self._bins = np.concatenate([pts, np.empty_like(pts)])
-        pts[n] = self._cur
+        n, tx, y = self._nbins, self._tx, self._y
+        if n == len(tx):
+            tx = self._tx = np.concatenate([tx, np.empty_like(tx)])
+            y = self._y = np.concatenate([y, np.empty_like(y)])
+        x_c, y_c = self._cur
+        if n and x_c < tx[n - 1]:
+            self._unordered = True
+        tx[n], y[n] = x_c, y_c
         n += 1
         old = 0
-        while old < n and tracker_ns - int(pts[old, 0]) > self.window_ns:
+        while old < n and tracker_ns - int(tx[old]) > self.window_ns:
             old += 1
         if old:
-            pts[: n - old] = pts[old:n].copy()
+            tx[: n - old] = tx[old:n].copy()
+            y[: n - old] = y[old:n].copy()
             n -= old
         self._nbins = n
 
@@ -221,10 +231,13 @@ class ClockMapper:
         n = self._nbins
         if not n:
             return
-        tx, y = self._bins[:n, 0], self._bins[:n, 1]
-        if n > 1 and (tx[1:] < tx[:-1]).any():  # a bin closed out of order: by time
-            order = np.lexsort((y, tx))
-            tx, y = tx[order], y[order]
+        tx, y = self._tx[:n], self._y[:n]
+        if self._unordered:  # a bin closed out of order (maybe gone from the window since)
+            if n > 1 and (tx[1:] < tx[:-1]).any():  # by time
+                order = np.lexsort((y, tx))
+                tx, y = tx[order], y[order]
+            else:
+                self._unordered = False
         # with the envelope's slope, the line through the lowest recent bin (it extrapolates
         # over seconds instead of the whole window) unless every recent packet was late
         a, b, sigma = kernels_for(_kernels).envelope_fit(

@@ -29,7 +29,7 @@ from . import kernels as _kernels
 from ._packet import PacketError
 from .axes import BoundaryConversion
 from .clock import ClockMapper
-from .status import SensorStatus
+from .status import SensorStatus, StatusGroup
 from .waiting import DueWait
 
 __all__ = [
@@ -202,6 +202,8 @@ class LiveInput:
         self.spec = spec
         self.options = spec.options
         self.bodies: list[Body] = []
+        #: the bodies' statuses, counted once per packet where a packet counts for every body
+        self.statuses = StatusGroup()
         self.clock = ClockMapper()
         self.packets = 0
         self._stop = threading.Event()
@@ -229,6 +231,7 @@ class LiveInput:
             raise ValueError(f"sensor {name!r}: another connection than {self.spec.options}")
         b = Body(name, spec, covariance)
         self.bodies.append(b)
+        self.statuses.add(b.status)
         return b
 
     @property
@@ -242,8 +245,7 @@ class LiveInput:
         when the input has them as arrays); rejections are counted in the bodies' statuses
         (a packet-level error on every body), never raised."""
         self.packets += 1
-        for b in self.bodies:
-            b.status.packets += 1
+        self.statuses.packet()
         try:
             return self._handle(data, arrival_ns)
         except PacketError as exc:
@@ -271,12 +273,13 @@ class LiveInput:
     def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
         by the envelope fit, minus the protocol's exposure-to-send latency."""
-        self.clock.add(tx_ns, arrival_ns)
-        est = self.clock.estimate
+        clock = self.clock
+        clock.add(tx_ns, arrival_ns)
+        est = clock.estimate  # never None after add
         if est is not self.bodies[0].status.clock:  # a new estimate: every body's status
             for b in self.bodies:
                 b.status.clock = est
-        return self.clock.to_host(tx_ns) - latency_ns
+        return est.to_host(tx_ns) - latency_ns
 
     @staticmethod
     def _sample(b: Body, t_ns: int, arrival_ns: int, position, quaternion, cov=None) -> Sample:
@@ -313,10 +316,8 @@ class LiveInput:
 
     def _frame(self, number: int) -> bool:
         ok = True
-        if self.bodies and all(b.status.last_frame == number - 1 for b in self.bodies):
-            for b in self.bodies:  # the next frame of every body: no gap, no restart
-                b.status.last_frame = number
-            return True
+        if self.bodies and self.statuses.next_frame(number):
+            return True  # the next frame of every body: no gap, no restart
         for b in self.bodies:
             before = b.status.connection.get("frame counter restarted", 0)
             ok = b.status.frame(number) and ok
@@ -500,7 +501,11 @@ class NatNetInput(LiveInput):
         self.models: natnet.ModelDefinitions | None = None
         self.echo = True  # the server answers echo requests (until it says otherwise)
         self.echoes_sent = 0
-        self._plan = None  # (frame ids, model definitions, _body_rows, _block_plan of them)
+        #: (frame ids, model definitions, _body_rows, _block_plan of them, the ids as an array)
+        self._plan = None
+        self._pass_server: natnet.ServerInfo | None = None  # the server _pass_version is of
+        self._pass_version = 0  # 256 major + minor when frames take the one pass, else 0
+        self._pass_out = np.zeros(5, np.uint64)  # the pass's frame number, ticks, table
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -512,6 +517,15 @@ class NatNetInput(LiveInput):
         return bid
 
     def _handle(self, data, arrival_ns):
+        if self._pass_server is not self.server:
+            s = self.server
+            self._pass_server = s
+            ok = s is not None and s.clock_frequency  # the stamps need the clock frequency
+            self._pass_version = 256 * s.version[0] + s.version[1] if ok else 0
+        if self._pass_version >= 3 * 256:
+            out = self._frame_pass(data, arrival_ns)
+            if out is not None:
+                return out
         msg, payload = natnet.decode_message(data)
         if msg == natnet.SERVERINFO:
             self.server = natnet.decode_server_info(payload)
@@ -555,6 +569,40 @@ class NatNetInput(LiveInput):
 
         return self._per_body(one)
 
+    def _frame_pass(self, data, arrival_ns):
+        """A FRAMEOFDATA datagram in one compiled pass (:func:`kernels.natnet_frame`): the
+        frame's layout checked as :func:`natnet.decode_frame` checks it, its frame number,
+        clock ticks and rigid-body table found, and, when the table's ids are the plan's and
+        every body is plainly valid, the :class:`SampleBlock` made, with no frame object and
+        no Python per body. ``None`` when the pass cannot tell (an error, another message, a
+        layout it does not take): :meth:`_handle` then decodes the datagram as before. The
+        rest (frame counter, stamps, clock mapping, the per-body path when there is no block)
+        is :meth:`_handle`'s, in the same order, so results and rejections are the same."""
+        plan = self._plan
+        if plan is not None and plan[1] is self.models and plan[3] is not None:
+            bp = plan[3]
+            ids, rows, bounds, want = plan[4], bp[1], bp[8], 1
+        else:
+            bp, ids, rows, bounds, want = None, _NO_ROWS, _NO_ROWS, _NO_BOUNDS, 0
+        m = len(rows)
+        pos, quat, out = np.empty((m, 3)), np.empty((m, 4)), self._pass_out
+        code = kernels_for(_kernels).natnet_frame(
+            np.frombuffer(data, np.uint8), self._pass_version, ids, rows, bounds, want, pos,
+            quat, out,
+        )  # fmt: skip
+        if code == _kernels.FRAME_SLOW:
+            return None
+        number, mid, tx, table, n = out.tolist()
+        if not self._frame(number - (number >> 31 << 32)):  # the frame number's i32 bits
+            return []
+        freq = self.server.clock_frequency
+        lat_ns = natnet.latency_ticks(mid, tx, freq) * 1_000_000_000 // freq
+        t = self._map(self._ticks_ns(tx), lat_ns, arrival_ns)
+        if code == _kernels.FRAME_BLOCK:
+            return self._block_samples(bp, self._make_block(bp, pos, quat, t, arrival_ns))
+        tab = np.frombuffer(data, natnet.RIGID_BODY_DTYPE, n, table)
+        return self._table_samples(tab, t, arrival_ns)
+
     def _body_sample(self, b: Body, rb: natnet.NatNetRigidBody, t: int, arrival_ns: int):
         """The sample of body ``b`` from its rigid body ``rb`` (covariance scaled by the mean
         marker error when that is above the nominal sigma)."""
@@ -589,36 +637,68 @@ class NatNetInput(LiveInput):
 
     @classmethod
     def warm_up(cls) -> None:
-        """Run the one pass of a frame's bodies (:meth:`_block`) once, so that compiling its
-        kernel (numba, first use in a process) happens before a tracker is listened to."""
+        """Run the one pass over a frame (:meth:`_frame_pass`) and over a frame's bodies
+        (:meth:`_block`) once, so that compiling their kernels (numba, first use in a
+        process) happens before a tracker is listened to."""
         tab = np.zeros(1, natnet.RIGID_BODY_DTYPE)
         tab["quaternion"][0, 3], tab["params"][0] = 1.0, 1
         nominal = np.eye(6) * 1e-6
         plan = cls._block_plan([(0, 0, 1.0, 1e-3, CheckedSample, nominal)])
         if cls._block(plan, tab, 0, 0) is None:
             raise RuntimeError("the NatNet block kernel refused a plainly valid body")
+        body = natnet.NatNetRigidBody(7, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0, True)
+        data = natnet.encode_frame(natnet.NatNetFrame(1, (body,), 0.0, 1, 1, 2), (4, 1))
+        kernel = kernels_for(_kernels).natnet_frame
+        pos, quat, out = np.empty((1, 3)), np.empty((1, 4)), np.zeros(5, np.uint64)
+        for ids, rows, bounds, want in ((frozen([7], np.int64), plan[1], plan[8], 1),
+                                        (_NO_ROWS, _NO_ROWS, _NO_BOUNDS, 0)):  # fmt: skip
+            code = kernel(np.frombuffer(data, np.uint8), 4 * 256 + 1, ids, rows, bounds, want,
+                          pos, quat, out)  # fmt: skip
+            if code != (_kernels.FRAME_BLOCK if want else _kernels.FRAME_DECODED):
+                raise RuntimeError("the NatNet frame kernel refused a plain frame")
 
     @staticmethod
     def _block_plan(rows: list | None) -> tuple | None:
         """For rows of :meth:`_body_rows`: the constants of their :class:`SampleBlock` (body
         indices, table rows, unit scales, bounds of the scaled mean marker error, the
         covariances stacked (m, 6, 6) and as a tuple, the sample classes or ``None`` when
-        all are checked)."""
+        all are checked, and the scales and bounds as one (3, m) array)."""
         if rows is None:
             return None
         kinds = tuple(r[4] for r in rows)
         covs = tuple(r[5] for r in rows)
         ref = np.array([r[3] for r in rows])
+        scales = frozen([r[2] for r in rows])
+        lo = frozen(np.where(ref > 0, 0.0, -np.inf))  # no bound without a nominal sigma
+        hi = frozen(np.where(ref > 0, ref, np.inf))
         return (
             tuple(r[0] for r in rows),
             frozen([r[1] for r in rows], np.int64),
-            frozen([r[2] for r in rows]),
-            frozen(np.where(ref > 0, 0.0, -np.inf)),  # no bound without a nominal sigma
-            frozen(np.where(ref > 0, ref, np.inf)),
+            scales,
+            lo,
+            hi,
             frozen(np.stack(covs)),
             covs,
             None if all(k is CheckedSample for k in kinds) else kinds,
+            frozen(np.stack([scales, lo, hi])),
         )
+
+    @staticmethod
+    def _make_block(plan: tuple, pos, quat, t: int, arrival_ns: int) -> SampleBlock:
+        """The :class:`SampleBlock` of a :meth:`_block_plan` with these positions and
+        quaternions (made read-only)."""
+        pos.setflags(write=False)
+        quat.setflags(write=False)
+        return SampleBlock(plan[0], t, arrival_ns, pos, quat, plan[5], plan[6])
+
+    def _block_samples(self, plan: tuple, block: SampleBlock):
+        """Count a block's samples in the bodies' statuses (every body is in it); the block,
+        or its samples as pairs when some body's class is not :class:`CheckedSample`."""
+        self.statuses.measured(block.arrival_ns, block.t_ns)
+        kinds = plan[7]
+        if kinds is None:
+            return block
+        return [(i, kind(*s)) for (i, s), kind in zip(block, kinds)]
 
     @staticmethod
     def _block(plan: tuple, tab: np.ndarray, t: int, arrival_ns: int) -> SampleBlock | None:
@@ -626,7 +706,7 @@ class NatNetInput(LiveInput):
         body in it is plainly valid (:func:`kernels.block_poses`: the arithmetic of
         :meth:`LiveInput._sample`, so the same bits), with no side effect; ``None`` as soon
         as one is not."""
-        index, rows, scales, lo, hi, stacked, covs, _ = plan
+        index, rows, scales, lo, hi = plan[:5]
         # position, quaternion and mean error of every row: 8 float32 after the id
         v = np.ndarray((len(tab), 8), "<f4", tab, 4, (tab.itemsize, 4))
         pos = np.empty((len(index), 3))
@@ -636,9 +716,7 @@ class NatNetInput(LiveInput):
         )
         if not ok:
             return None
-        pos.flags.writeable = False
-        quat.flags.writeable = False
-        return SampleBlock(index, t, arrival_ns, pos, quat, stacked, covs)
+        return NatNetInput._make_block(plan, pos, quat, t, arrival_ns)
 
     def _table_samples(self, tab: np.ndarray, t: int, arrival_ns: int):
         """:meth:`_body_sample` for every body from a frame's rigid-body table
@@ -651,16 +729,12 @@ class NatNetInput(LiveInput):
         plan = self._plan
         if plan is None or plan[0] != ids or plan[1] is not self.models:
             rows = self._body_rows(ids)
-            plan = self._plan = (ids, self.models, rows, self._block_plan(rows))
+            plan = (ids, self.models, rows, self._block_plan(rows), frozen(ids, np.int64))
+            self._plan = plan
         if plan[3] is not None:
             block = self._block(plan[3], tab, t, arrival_ns)
             if block is not None:
-                for b in self.bodies:
-                    b.status.measured(arrival_ns, t)
-                kinds = plan[3][7]
-                if kinds is None:
-                    return block
-                return [(i, kind(*s)) for (i, s), kind in zip(block, kinds)]
+                return self._block_samples(plan[3], block)
         row_of = {bid: k for k, bid in enumerate(ids)}  # the last of a repeated id, as a dict
         pos = tab["position"].astype(np.float64)
         quat = tab["quaternion"].astype(np.float64)
@@ -917,6 +991,10 @@ class VrpnInput(LiveInput):
                     self._socks.remove(conn)
             self._stop.wait(0.2)
 
+
+#: no plan for the one pass (:meth:`NatNetInput._frame_pass`): no ids, rows or bounds
+_NO_ROWS = frozen(np.empty(0, np.int64), np.int64)
+_NO_BOUNDS = frozen(np.empty((3, 0)))
 
 _INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
 

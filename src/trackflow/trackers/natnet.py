@@ -63,6 +63,7 @@ __all__ = [
     "encode_model_definitions",
     "encode_server_info",
     "exposure_and_latency",
+    "latency_ticks",
 ]
 
 CONNECT, SERVERINFO, REQUEST, RESPONSE = 0, 1, 2, 3
@@ -525,9 +526,21 @@ def exposure_and_latency(frame: NatNetFrame, clock_frequency: int | None):
     """
     if frame.mid_exposure is None or frame.transmit is None or not clock_frequency:
         return None
-    lat_ticks = frame.transmit - frame.mid_exposure
-    if lat_ticks < 0 or lat_ticks > 10 * clock_frequency:
-        raise PacketError("bad stamps", f"transmit - mid-exposure = {lat_ticks} ticks")
+    lat_ticks = latency_ticks(frame.mid_exposure, frame.transmit, clock_frequency)
     f = float(clock_frequency)
     tx_s = frame.transmit // clock_frequency + (frame.transmit % clock_frequency) / f
     return tx_s, tx_s - lat_ticks / f, lat_ticks / f
+
+
+def latency_ticks(mid_exposure: int, transmit: int, clock_frequency: int) -> int:
+    """The system latency ``transmit - mid_exposure`` [ticks] of a frame's stamps.
+
+    Raises
+    ------
+    PacketError
+        ``bad stamps``: transmit before mid-exposure, or a latency above 10 s.
+    """
+    lat_ticks = transmit - mid_exposure
+    if lat_ticks < 0 or lat_ticks > 10 * clock_frequency:
+        raise PacketError("bad stamps", f"transmit - mid-exposure = {lat_ticks} ticks")
+    return lat_ticks

@@ -4,19 +4,23 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from dataclasses import dataclass, field
 
 from .clock import ClockEstimate
 
-__all__ = ["RESTART_FRAMES", "SensorStatus"]
+__all__ = ["RESTART_FRAMES", "SensorStatus", "StatusGroup"]
 
 #: A frame counter jumping back (or ahead) by more than this many frames is a restart.
 RESTART_FRAMES = 10_000
 
+_UNKNOWN = object()  # StatusGroup.common_frame when the bodies' frame numbers may differ
 
-@dataclass
+
 class SensorStatus:
     """Counters of one live input (updated by its receiving thread, read by anyone).
+
+    A status may belong to a :class:`StatusGroup` (the bodies of one connection), which
+    counts what a packet does to every body of the group at once; every attribute below reads
+    the same figures as if each body had been counted on its own.
 
     Attributes
     ----------
@@ -32,25 +36,105 @@ class SensorStatus:
     connection : dict
         Connection events by kind (connection failed, lost, closed; socket errors).
     latency_ns : deque
-        Recent host arrival time minus mapped exposure time [ns].
+        Recent host arrival time minus mapped exposure time [ns] (the last 512).
+    arrivals_ns : deque
+        Host arrival times of the recent measurements [ns] (the last 1024).
     clock : ClockEstimate or None
         The tracker-to-host mapping.
+    last_frame, last_arrival_ns : int or None
+        The tracker's last frame number; the host arrival time of the last measurement [ns].
+    connected : bool
     """
 
-    name: str
-    protocol: str
-    packets: int = 0
-    measurements: int = 0
-    dropouts: int = 0
-    rejections: dict[str, int] = field(default_factory=dict)
-    connection: dict[str, int] = field(default_factory=dict)
-    latency_ns: deque = field(default_factory=lambda: deque(maxlen=512))
-    arrivals_ns: deque = field(default_factory=lambda: deque(maxlen=1024))
-    clock: ClockEstimate | None = None
-    last_frame: int | None = None
-    last_arrival_ns: int | None = None
-    connected: bool = False
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    def __init__(self, name: str, protocol: str):
+        self.name = name
+        self.protocol = protocol
+        self.dropouts = 0
+        self.rejections: dict[str, int] = {}
+        self.connection: dict[str, int] = {}
+        self.clock: ClockEstimate | None = None
+        self.connected = False
+        self._packets = 0
+        self._measurements = 0
+        self._latency_ns: deque = deque(maxlen=512)
+        self._arrivals_ns: deque = deque(maxlen=1024)
+        self._last_frame: int | None = None
+        self._last_arrival_ns: int | None = None
+        self._group: StatusGroup | None = None
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return (
+            f"SensorStatus({self.name!r}, {self.protocol!r}, packets={self.packets}, "
+            f"measurements={self.measurements}, dropouts={self.dropouts}, "
+            f"rejections={self.rejections})"
+        )
+
+    def _sync(self) -> None:
+        """Apply what the group counted for every body (before this status is read or
+        changed on its own)."""
+        g = self._group
+        if g is not None and g.pending:
+            g.flush()
+
+    def _own(self) -> None:
+        """This status changes on its own: the group's figures first; the group no longer
+        knows a frame number common to every body."""
+        g = self._group
+        if g is not None:
+            if g.pending:
+                g.flush()
+            g.common_frame = _UNKNOWN
+
+    @property
+    def packets(self) -> int:
+        self._sync()
+        return self._packets
+
+    @packets.setter
+    def packets(self, value: int) -> None:
+        self._sync()
+        self._packets = value
+
+    @property
+    def measurements(self) -> int:
+        self._sync()
+        return self._measurements
+
+    @measurements.setter
+    def measurements(self, value: int) -> None:
+        self._sync()
+        self._measurements = value
+
+    @property
+    def latency_ns(self) -> deque:
+        self._sync()
+        return self._latency_ns
+
+    @property
+    def arrivals_ns(self) -> deque:
+        self._sync()
+        return self._arrivals_ns
+
+    @property
+    def last_frame(self) -> int | None:
+        self._sync()
+        return self._last_frame
+
+    @last_frame.setter
+    def last_frame(self, value: int | None) -> None:
+        self._own()
+        self._last_frame = value
+
+    @property
+    def last_arrival_ns(self) -> int | None:
+        self._sync()
+        return self._last_arrival_ns
+
+    @last_arrival_ns.setter
+    def last_arrival_ns(self, value: int | None) -> None:
+        self._sync()
+        self._last_arrival_ns = value
 
     def reject(self, reason: str) -> None:
         with self._lock:
@@ -68,7 +152,8 @@ class SensorStatus:
     def frame(self, number: int) -> bool:
         """Account for a frame counter; False (counted "reordered") if it is not new. A jump
         of more than :data:`RESTART_FRAMES` either way is a restarted tracker (an event)."""
-        last = self.last_frame
+        self._own()
+        last = self._last_frame
         if last is not None:
             if last - RESTART_FRAMES < number <= last:
                 self.reject("reordered or duplicate frame")
@@ -77,19 +162,21 @@ class SensorStatus:
                 self.event("frame counter restarted")  # a restarted tracker, not a loss
             else:
                 self.dropouts += number - last - 1
-        self.last_frame = number
+        self._last_frame = number
         return True
 
     def measured(self, arrival_ns: int, exposure_ns: int) -> None:
-        self.measurements += 1
-        self.latency_ns.append(arrival_ns - exposure_ns)
-        self.arrivals_ns.append(arrival_ns)
-        self.last_arrival_ns = arrival_ns
+        self._sync()
+        self._measurements += 1
+        self._latency_ns.append(arrival_ns - exposure_ns)
+        self._arrivals_ns.append(arrival_ns)
+        self._last_arrival_ns = arrival_ns
 
     def rate_hz(self, now_ns: int, span_s: float = 2.0) -> float:
         """Measurements per second over the last ``span_s`` seconds."""
         lo = now_ns - int(span_s * 1e9)
-        n = sum(1 for a in self.arrivals_ns if a >= lo)
+        arrivals = list(self.arrivals_ns)  # one copy: the receiving thread may append meanwhile
+        n = sum(1 for a in arrivals if a >= lo)
         return n / span_s
 
     def stale(self, now_ns: int, after_s: float) -> bool:
@@ -132,3 +219,93 @@ class SensorStatus:
             f"{self.name} ({self.protocol}): {s['rate_hz']:.1f} Hz, latency {lat}, clock {off}"
             f"{sig}, dropouts {self.dropouts}, rejected {rej}{conn}{flag}"
         )
+
+
+class StatusGroup:
+    """The statuses of the bodies of one connection, counted once per packet for all of them.
+
+    A packet counts for every body (:meth:`packet`), a frame number that follows every
+    body's last one (:meth:`next_frame`) and a packet that measured every body at once
+    (:meth:`measured`) are kept here, in order, and applied to each status when it is read or
+    changed on its own (or after :attr:`FLUSH_AT` packets), so every reader sees the figures
+    that counting each body on its own gives, for a few operations per packet instead of a
+    few per body.
+    """
+
+    #: packets measured by every body kept before they are applied
+    FLUSH_AT = 256
+
+    def __init__(self):
+        self.members: list[SensorStatus] = []
+        self.pending = False
+        #: the last frame number of every member, or _UNKNOWN (they may differ)
+        self.common_frame = _UNKNOWN
+        self._packets = 0
+        self._arrivals: list[int] = []
+        self._latencies: list[int] = []
+        self._frame: int | None = None
+        self._set_frame = False
+        self._lock = threading.Lock()
+
+    def add(self, status: SensorStatus) -> None:
+        """Count ``status`` with the group from now on (it belongs to one group at most)."""
+        if status._group is not None:
+            raise ValueError(f"status of {status.name!r} is already in a group")
+        self.flush()
+        status._group = self
+        self.members.append(status)
+        self.common_frame = _UNKNOWN
+
+    def packet(self) -> None:
+        """A packet for every member (:attr:`SensorStatus.packets`)."""
+        with self._lock:
+            self._packets += 1
+            self.pending = True
+
+    def next_frame(self, number: int) -> bool:
+        """If ``number`` follows every member's last frame number: make it their last one and
+        return True (no gap, no restart, nothing to count); else False, nothing changed."""
+        common = self.common_frame
+        if common is _UNKNOWN:
+            self.flush()
+            last = {s._last_frame for s in self.members}
+            common = self.common_frame = last.pop() if len(last) == 1 else _UNKNOWN
+        if common is _UNKNOWN or common != number - 1:
+            return False
+        with self._lock:
+            self._frame, self._set_frame = number, True
+            self.common_frame = number
+            self.pending = True
+        return True
+
+    def measured(self, arrival_ns: int, exposure_ns: int) -> None:
+        """:meth:`SensorStatus.measured` for every member."""
+        with self._lock:
+            self._arrivals.append(arrival_ns)
+            self._latencies.append(arrival_ns - exposure_ns)
+            self.pending = True
+            if len(self._arrivals) >= self.FLUSH_AT:
+                self._apply()
+
+    def flush(self) -> None:
+        """Apply what is kept to every member."""
+        with self._lock:
+            self._apply()
+
+    def _apply(self) -> None:
+        if not self.pending:
+            return
+        arrivals, latencies = self._arrivals, self._latencies
+        for s in self.members:
+            s._packets += self._packets
+            if arrivals:
+                s._measurements += len(arrivals)
+                s._latency_ns.extend(latencies)
+                s._arrivals_ns.extend(arrivals)
+                s._last_arrival_ns = arrivals[-1]
+            if self._set_frame:
+                s._last_frame = self._frame
+        self._packets = 0
+        self._arrivals, self._latencies = [], []
+        self._set_frame = False
+        self.pending = False
