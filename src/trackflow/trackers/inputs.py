@@ -453,7 +453,6 @@ class DTrackInput(LiveInput):
         try:
             while not self._stop.is_set():
                 for _ in wait.select(sel, 0.2):
-                    seen = time.monotonic()
                     try:
                         data, arrival = recv_stamped(s, self.kernel_stamps)
                     except BlockingIOError:
@@ -461,7 +460,7 @@ class DTrackInput(LiveInput):
                     except OSError:
                         return
                     sink(self, data, arrival)
-                    wait.arrived(seen)  # one datagram per frame
+                    wait.arrived(arrival * 1e-9)  # one datagram per frame
         finally:
             sel.close()
 
@@ -852,7 +851,6 @@ class NatNetInput(LiveInput):
                 except OSError:
                     self._event_all("send failed")
                 for key, _ in wait.select(sel, 0.1):
-                    seen = time.monotonic()
                     try:
                         raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
                     except OSError:  # nothing to read, ICMP port unreachable while no server
@@ -860,7 +858,7 @@ class NatNetInput(LiveInput):
                     had_server = self.server is not None
                     sink(self, raw, arrival)
                     if raw[:2] == _FRAME_ID:  # the stream's period is the frames'
-                        wait.arrived(seen)
+                        wait.arrived(arrival * 1e-9)
                     if connected is not (self.server is not None):
                         connected = self.server is not None
                         self._connected(connected)

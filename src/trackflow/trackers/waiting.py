@@ -5,20 +5,29 @@ sleeps in its selector until a datagram arrives is woken by the kernel, and on a
 machine an idle core's wake-up costs about a tenth of a millisecond before the thread runs
 (``bench/trackers.py`` splits it out as "receipt -> packet in the receiving thread").
 :class:`DueWait` predicts when the next datagram is due (the last arrival plus the stream's
-period, the median of its recent intervals, so a lost frame or a late one does not move it)
-and sleeps only until ``spin_s`` before that; from then it polls the sockets without blocking
-until the datagram comes, or until ``spin_s`` after it was due, when it sleeps again. The
-price is CPU: about ``spin_s`` of polling per frame (7 % of a core for 0.3 ms at 240 Hz),
-counted in :attr:`DueWait.polled_s`. Off (``spin_s = 0``) it is the selector's plain wait.
+period, the median of its recent intervals, so a lost frame or a late one does not move it;
+the arrivals are the kernel's receive stamps on the host clock, so the thread's own delays
+do not shift the prediction) and sleeps only until ``spin_s`` before that; from then it polls
+the sockets without blocking until the datagram comes, or until ``spin_s`` after it was due,
+when it sleeps again. The price is CPU: about ``spin_s`` of polling per frame (7 % of a core
+for 0.3 ms at 240 Hz), counted in :attr:`DueWait.polled_s`. Off (``spin_s = 0``) it is the
+selector's plain wait.
 """
 
 from __future__ import annotations
 
+import select
 import statistics
 import time
 from collections import deque
 
-__all__ = ["DueWait"]
+__all__ = ["DueWait", "select_nap"]
+
+
+def select_nap(sel, seconds: float) -> None:
+    """Wait up to ``seconds`` for one of the files of selector ``sel`` to be readable, with
+    select(2)'s microsecond timeout (a selector's epoll rounds up to a whole millisecond)."""
+    select.select(list(sel.get_map()), [], [], seconds)
 
 
 class DueWait:
@@ -31,12 +40,16 @@ class DueWait:
     history : int
         Number of recent intervals whose median is the stream's period.
     clock : callable
-        The time [s] the arrivals are given in (``time.monotonic``).
+        The time [s] the arrivals are given in: the host clock (``time.time``), that of the
+        kernel's receive stamps.
+    nap : callable
+        ``nap(selector, seconds)`` waits up to ``seconds`` for one of the selector's files to
+        be readable (:func:`select_nap`).
     """
 
     MIN_INTERVALS = 3  # intervals seen before a period is trusted
 
-    def __init__(self, spin_s: float, history: int = 15, clock=time.monotonic):
+    def __init__(self, spin_s: float, history: int = 15, clock=time.time, nap=None):
         if not spin_s >= 0:
             raise ValueError(f"spin_s must be >= 0, got {spin_s}")
         self.spin_s = float(spin_s)
@@ -44,6 +57,7 @@ class DueWait:
         self.polled_s = 0.0  # time spent polling [s]
         self.caught = 0  # datagrams that arrived while polling
         self._clock = clock
+        self._nap = select_nap if nap is None else nap
         self._last: float | None = None
         self._gaps: deque[float] = deque(maxlen=history)
 
@@ -63,7 +77,8 @@ class DueWait:
             return sel.select(timeout)
         start = due - self.spin_s
         if start > now:  # asleep until the window opens
-            ready = sel.select(min(timeout, start - now))
+            self._nap(sel, min(timeout, start - now))
+            ready = sel.select(0)
             if ready:
                 return ready
             now = clock()
