@@ -221,6 +221,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
                 sender.kill()
             time.sleep(0.2)
             inp.stop()
+            os.sched_setaffinity(0, cores)  # for a next run: both cores again
     lat = np.asarray(latencies[RATE:], dtype=float) * 1e-3  # skip the first second
     if len(lat) == 0:
         raise RuntimeError(f"no answers; input status: {inp.status.summary(time.time_ns())}")
