@@ -7,7 +7,11 @@ it calls in ``KERNEL_SOURCES`` (module names). :func:`kernels` returns, for the 
 * ``"numpy"``: the kernel source module itself (the reference path), or
 * ``"numba"``: a second copy of the same source whose ``KERNELS`` are wrapped in
   ``numba.njit(cache=True)``, with every name it imported from another kernel source rebound to
-  that source's compiled copy, so compiled code only ever calls compiled code.
+  that source's compiled copy, so compiled code only ever calls compiled code. A source may
+  also list in ``KERNELS_INLINE`` kernels that numba inlines into their compiled callers
+  (``inline="always"``; still callable on their own): glue functions that pass many arrays on,
+  whose reference counting (two atomic operations per array argument and call) would otherwise
+  cost more than their arithmetic. Inlining changes no operation, hence no result.
 
 Nothing is compiled at import: numba itself is imported when the first compiled copy is made,
 and each function compiles (or loads from the on-disk cache) on its first call, so a command
@@ -277,8 +281,10 @@ def _compiled(name: str) -> types.ModuleType:
             for attr, value in list(vars(mod).items()):
                 if value is getattr(plain, kernel):
                     setattr(mod, attr, getattr(jit, kernel))
+    inline = set(getattr(source, "KERNELS_INLINE", ()))
     for kernel in source.KERNELS:
-        setattr(mod, kernel, numba.njit(**_JIT_OPTIONS)(getattr(mod, kernel)))
+        options = dict(_JIT_OPTIONS, inline="always") if kernel in inline else _JIT_OPTIONS
+        setattr(mod, kernel, numba.njit(**options)(getattr(mod, kernel)))
     return mod
 
 

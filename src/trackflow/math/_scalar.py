@@ -352,11 +352,11 @@ def joseph_selection(p, kt, kr, hp, idx, mp, g, acc):
     for i in range(nc):
         for a in range(m):
             g[a] = kr[i, a] - mp[i, idx[a]]
-        for j in range(nc):
+        for j in range(i, nc):  # the upper triangle only: the lower one is its mirror
             acc[j] = mp[i, j]
         for a in range(m):
             ga = g[a]
-            for j in range(nc):
+            for j in range(i, nc):
                 acc[j] += ga * kt[a, j]
         for j in range(i, nc):
             w = acc[j]

@@ -106,6 +106,10 @@ KERNELS = (
     "smooth_run",
 )
 KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
+# Glue of one filter's step and prediction, inlined into their compiled callers
+# (``trackflow.math._backend``): each passes 15 to 35 arrays on, and every array argument
+# of a call costs two atomic reference-count operations, more than the glue's own work.
+KERNELS_INLINE = ("step_with", "predict_into", "update_with", "update_into", "predict_pose_with")
 
 UNKNOWN_VARIANCE = 1e12  # reported for a pose part the model does not estimate
 
