@@ -142,3 +142,19 @@ def test_compose_compiles_one_batch_specialisation(rng):
         many.compose(many, cross_covariance=cross)
         many.compose(many, cross_covariance=cross[0])
     assert len(kernels(_kernels).compose_batch.signatures) == 1
+
+
+@needs_numba
+def test_kernels_named_for_inlining_are_kernels_and_compile_inlined():
+    """A name in a source's ``KERNELS_INLINE`` that is not one of its ``KERNELS`` would
+    silently inline nothing; the compiled copy marks the named ones, and only them."""
+    from trackflow.filters.derivative import kernels as source
+    from trackflow.math import kernels_for
+
+    inline = set(source.KERNELS_INLINE)
+    assert inline and inline <= set(source.KERNELS)
+    with use_backend("numba"):
+        compiled = kernels_for(source)
+    for name in source.KERNELS:
+        expected = "always" if name in inline else "never"
+        assert getattr(compiled, name).targetoptions.get("inline", "never") == expected, name
