@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from trackflow.trackers.waiting import DueWait
+from trackflow.trackers.waiting import DueWait, select_nap
 
 PERIOD = 1 / 240
 
@@ -156,3 +156,24 @@ def test_the_setup_option_is_checked():
     assert parse_input({"natnet": {"body": 1}}).options["spin_us"] == 0  # off by default
     with pytest.raises(ValueError, match=r"input.natnet.spin_us: -5 out of range"):
         parse_input({"natnet": {"body": 1, "spin_us": -5}})
+
+
+class _HighFds:
+    """A selector whose descriptor select(2) cannot take."""
+
+    def __init__(self):
+        self.calls = []
+
+    def get_map(self):
+        return {5000: None}
+
+    def select(self, timeout):
+        self.calls.append(timeout)
+        return []
+
+
+def test_a_descriptor_beyond_select_naps_in_the_selector_to_the_millisecond_below():
+    sel = _HighFds()
+    select_nap(sel, 3.7e-3)
+    select_nap(sel, 0.4e-3)  # under a millisecond: no nap, the window opens now
+    assert sel.calls == [pytest.approx(3e-3)]

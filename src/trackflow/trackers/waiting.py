@@ -16,6 +16,7 @@ selector's plain wait.
 
 from __future__ import annotations
 
+import math
 import select
 import statistics
 import time
@@ -24,10 +25,20 @@ from collections import deque
 __all__ = ["DueWait", "select_nap"]
 
 
+#: select(2) takes no file descriptor from this one on (FD_SETSIZE)
+_SELECT_LIMIT = 1024
+
+
 def select_nap(sel, seconds: float) -> None:
     """Wait up to ``seconds`` for one of the files of selector ``sel`` to be readable, with
-    select(2)'s microsecond timeout (a selector's epoll rounds up to a whole millisecond)."""
-    select.select(list(sel.get_map()), [], [], seconds)
+    select(2)'s microsecond timeout (a selector's epoll rounds up to a whole millisecond). A
+    descriptor select(2) cannot take: the selector, for the whole milliseconds below
+    ``seconds`` (the window then opens up to a millisecond early: more polling)."""
+    fds = list(sel.get_map())
+    if fds and max(fds) < _SELECT_LIMIT:
+        select.select(fds, [], [], seconds)
+    elif seconds >= 1e-3:
+        sel.select(math.floor(seconds * 1e3) * 1e-3)
 
 
 class DueWait:
