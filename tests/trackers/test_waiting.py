@@ -105,6 +105,7 @@ def test_off_or_unknown_period_is_the_plain_wait():
         sel = _Selector(clock, ready_at=clock.t + 1e-3)
         assert w.select(sel, 0.1) == ["datagram"]
         assert sel.calls == [0.1] and w.polled_s == 0.0
+        assert w.period_s is None  # off: no period learned either
     with pytest.raises(ValueError, match="spin_s must be >= 0"):
         DueWait(-1.0)
 

@@ -104,7 +104,10 @@ class DueWait:
         return ready
 
     def arrived(self, t: float) -> None:
-        """A datagram of the stream arrived at ``t`` [s] (the ``clock``'s time)."""
+        """A datagram of the stream arrived at ``t`` [s] (the ``clock``'s time); nothing
+        to learn when polling is off."""
+        if not self.spin_s:
+            return
         if self._last is not None:
             gap = t - self._last
             if 0.0 < gap < 1.0:  # not a pause of the stream
