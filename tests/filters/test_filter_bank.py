@@ -192,3 +192,46 @@ def test_a_filter_reset_outside_the_bank_is_taken_back(shared_data):
         assert bank.update_poses([0], [0.01 * k], [u]) == [g.update_pose(0.01 * k, u)]
         assert _same(bank.predict_poses([0], [0.01 * k + 0.002])[0], g.predict(0.01 * k + 0.002))
     assert np.array_equal(f.state[1], g.state[1])
+
+
+def test_a_step_that_diverges_in_a_packet_layout_is_the_filters_own():
+    """Filters updated together packet after packet (a lane: looked up once): a step the
+    kernel finds diverged (an innovation covariance that is not positive definite) is
+    handled for every filter of the call as their own updates handle it, the next packets
+    go on from there, and the answers ahead, logs and states stay equal to the bit."""
+    m = MotionModel(1, 1, noise=NOISE)
+    alone = [PoseKalmanFilter(m) for _ in range(3)]
+    bank = PoseFilterBank([PoseKalmanFilter(m) for _ in range(3)])
+    q = np.array([0.0, 0.0, 0.6, 0.8])
+    statuses = []
+    for k in range(12):
+        t = 0.01 * k
+        pos = np.array([[0.1 * b + 0.01 * k, 0.0, 0.0] for b in range(3)])
+        cov = np.stack([C_POSE] * 3)
+        if k == 6:
+            cov[1] = -np.eye(6)  # trusted as given: the step diverges
+        ok_alone = []
+        for b, f in enumerate(alone):
+            try:
+                ok_alone.append(f.update_pose(t, UncertainPose._trusted(pos[b], q, cov[b])))
+            except ValueError:
+                ok_alone.append(False)
+        ok, ahead = bank.update_block(
+            [0, 1, 2], [t] * 3, pos, np.stack([q] * 3), cov, defer=True, predict_at=t + 3e-3
+        )
+        assert ok == ok_alone, k
+        for b, f in enumerate(alone):
+            if ahead.ok[b]:
+                want = f.predict(t + 3e-3)
+                assert ahead.position[b].tobytes() == want.position.tobytes(), (k, b)
+                assert ahead.covariance[b].tobytes() == want.covariance.tobytes(), (k, b)
+        bank.settle()
+        statuses.append([e.status for e in bank.filters[1]._log][-1:])
+    assert (0, 1, 2) in bank._lanes  # the lane was taken
+    assert statuses[6] == [FilterStatus.DIVERGED] and statuses[-1] == [FilterStatus.ACCEPTED]
+    for fa, fb in zip(alone, bank.filters):
+        assert fa.stats == fb.stats
+        assert _log(fa) == _log(fb)
+        xa, pa = fa.state
+        xb, pb = fb.state
+        assert xa.tobytes() == xb.tobytes() and pa.tobytes() == pb.tobytes()

@@ -148,3 +148,62 @@ def test_answers_need_sources_that_feed_one_filter():
     with pytest.raises(ValueError, match="s2: answers need a source that feeds one filter"):
         blocks.deliver_block(["s1", "s2"], block, block.arrival_ns, answer=(0, print))
     assert blocks.sources["s1"].stats.events_in == 0  # nothing delivered
+
+
+def test_a_packet_layout_taken_again_falls_back_where_anything_changed():
+    """The layout a tracker sends again and again is looked up once (its lane), and each
+    packet checks what may have changed since: a sample not after its source's last one, a
+    source given another consumer, a filter reset from outside, a reset due after gated
+    measurements, a refused answer ("stale"). Every packet's answers, and every source,
+    component and filter afterwards, equal the one-by-one path's to the bit."""
+    (blocks, kf_b, sink_b), (samples, kf_s, _) = _sources(False), _sources(False)
+    rng = np.random.default_rng(5)
+    t0 = 1_700_000_000_000_000_000
+    period = 4_166_667
+    refused = 0
+    script = [((0, 1, 2, 3), t0 + k * period) for k in range(60)]
+    script.insert(20, ((0,), t0 + 20 * period + period // 2))  # s0 ahead: rejects the next
+    for k, (index, t) in enumerate(script):
+        block = _block(index, t, rng)
+        if 8 <= k < 8 + 12:  # s2 far away, again and again: gated, then a reset is due
+            block.position[2] += 5.0
+        for kfs in (kf_b, kf_s):
+            if k == 30:  # from outside: new state arrays, not the bank's rows
+                kfs[3].filter.reset()
+            if k == 36:  # answers 3 ms after a sample are stale from now on for kf1
+                kfs[1].max_extrapolation_ns = 1_000_000
+            if k == 44:
+                kfs[1].max_extrapolation_ns = 500_000_000
+        if k == 50:  # another consumer on s2: its samples leave the lane
+            for srcs in (blocks, samples):
+                srcs.sources["s2"].consumers.append((sink_b, 0))
+        names = [f"s{i}" for i in index]
+        a = block.arrival_ns
+        delivered = []
+        ok_b = blocks.deliver_block(names, block, a, answer=(a, delivered.append))
+        items = [(n, s._replace(arrival_ns=a + j)) for j, (n, (_, s)) in
+                 enumerate(zip(names, block))]  # fmt: skip
+        ok_s = [p is not None for p in samples.deliver(items)]
+        assert ok_b == ok_s, k
+        (early,) = delivered
+        want = samples.filters.pull_block([samples.row[n] for n in names], [a] * len(names))
+        assert early.ok == want.ok, k
+        refused += not all(want.ok)
+        assert early.position.tobytes() == want.position.tobytes(), k
+        assert early.quaternion.tobytes() == want.quaternion.tobytes(), k
+        assert early.covariance.tobytes() == want.covariance.tobytes(), k
+    assert refused == 8  # the answers of kf1 between packets 36 and 44
+    for a, b in zip(kf_b, kf_s):
+        assert a.stats.summary() == b.stats.summary()
+        assert (a.first_t, a.last_t, a.last_origin) == (b.first_t, b.last_t, b.last_origin)
+        assert a.filter.stats == b.filter.stats
+        xa, pa = a.filter.state
+        xb, pb = b.filter.state
+        assert xa.tobytes() == xb.tobytes() and pa.tobytes() == pb.tobytes()
+        assert [e.buf.tobytes() for e in a.filter._log] == [e.buf.tobytes() for e in b.filter._log]
+    for name in blocks.sources:
+        assert blocks.sources[name].stats.summary() == samples.sources[name].stats.summary()
+    assert kf_b[2].filter.stats["resets"] >= 1 and kf_b[2].filter.stats["rejected_gate"] > 0
+    assert blocks.sources["s0"].stats.rejections == {"timestamp backwards": 1}
+    # the lanes were taken (by the layouts the test sends)
+    assert ("s0", "s1", "s2", "s3") in blocks._lanes and (0, 1, 2, 3) in blocks.filters._lanes

@@ -28,6 +28,17 @@ def _same(a: list, b: list) -> bool:
     return len(a) == len(b) and all(map(operator.is_, a, b))
 
 
+def _timestamps(c: KalmanFilter, t: int, origin: int) -> None:
+    """A component's first and last measurement times and newest origin [ns] after an
+    accepted measurement at ``t`` (corrected by its stamp offset) of origin ``origin``."""
+    if c.first_t is None or t < c.first_t:
+        c.first_t = t
+    if c.last_t is None or t > c.last_t:
+        c.last_t = t
+    if origin > c.last_origin:
+        c.last_origin = origin
+
+
 class KalmanBank:
     """Several :class:`KalmanFilter` components driven together (module docstring).
 
@@ -43,6 +54,7 @@ class KalmanBank:
     def __init__(self, components: Sequence[KalmanFilter]):
         self.components = list(components)
         self._bank: PoseFilterBank | None = None
+        self._lanes: dict[tuple, list | None] = {}  # per index list (_lane)
 
     def _filters(self) -> PoseFilterBank:
         """The filter bank over the components' current filters (rebuilt after a reset)."""
@@ -103,6 +115,98 @@ class KalmanBank:
         ``deliver`` gets :meth:`pull_block` of the same components at ``at_ns`` [ns], before
         the filters' log entries are written (:meth:`PoseFilterBank.settle`, right after
         ``deliver`` returns). ``deliver`` must not call into the components."""
+        cs = self._lane(index)
+        times = None if cs is None else self._lane_times(cs, index, t_ns)
+        if times is None:
+            self._push_block(index, t_ns, position, quaternion, covariance, answer)
+            return
+        bank = self._bank
+        if answer is None:
+            accepted = bank.update_block(index, times, position, quaternion, covariance)
+            self._account(index, [(t_ns, t_ns)] * len(index), accepted)
+            return
+        at_ns, deliver = answer
+        accepted, ahead = bank.update_block(
+            index, times, position, quaternion, covariance, defer=True, predict_at=at_ns * 1e-9
+        )
+        answered = None
+        try:  # answers first; the counts, the answers' and the filters' bookkeeping after
+            if self._timed(cs, t_ns, accepted, at_ns):
+                answered = ahead.ok
+                deliver(ahead)
+            else:  # a refusal: counted as pull_block counts it
+                self._counted(cs, accepted)
+                accepted = None
+                deliver(self._pulled(index, [at_ns] * len(index), None))
+        finally:
+            if accepted is not None:
+                self._counted(cs, accepted)
+            if answered is not None:
+                self._answers_counted(cs, answered)
+            bank.settle()
+
+    def _lane(self, index: Sequence[int]) -> list | None:
+        """The components ``index`` of a list pushed again and again (a tracker's packet),
+        looked up once per list; ``None`` unless each is a :class:`KalmanFilter` (not a
+        subclass) and comes once."""
+        key = tuple(index)
+        lane = self._lanes.get(key, False)
+        if lane is False:
+            if len(self._lanes) >= 64:
+                self._lanes.clear()
+            cs = [self.components[i] for i in key]
+            once = len(set(key)) == len(key)
+            lane = self._lanes[key] = (
+                cs if once and all(type(c) is KalmanFilter for c in cs) else None
+            )
+        return lane
+
+    def _lane_times(self, cs: list, index: Sequence[int], t_ns: int) -> list[float] | None:
+        """The filter times [s] of a block at ``t_ns`` for the components ``cs`` (at
+        ``index``) when each only keeps its state (:meth:`_plain`) and the bank holds its
+        current filter, else ``None`` (the general path)."""
+        bank = self._bank
+        if bank is None:
+            return None
+        filters = bank.filters
+        times = []
+        for c, i in zip(cs, index):
+            if c.consumers or c.prior is not None or c.filter is not filters[i]:
+                return None
+            times.append((t_ns - c.stamp_offset_ns) * 1e-9)
+        return times
+
+    def _timed(self, cs: list, t_ns: int, accepted: list, at_ns: int) -> bool:
+        """The components' first/last times and origin after their updates at ``t_ns``
+        (:meth:`_account`'s), then whether each answers at ``at_ns`` (no refusal)."""
+        for c, ok in zip(cs, accepted):
+            if ok:
+                _timestamps(c, t_ns - c.stamp_offset_ns, t_ns)
+        return all(c.refusal(at_ns) is None for c in cs)
+
+    @staticmethod
+    def _counted(cs: list, accepted: list) -> None:
+        """The components' counts after their updates (:meth:`_account`'s)."""
+        for c, ok in zip(cs, accepted):
+            stats = c.stats
+            stats.events_in += 1
+            if ok:
+                stats.events_out += 1  # emitted, to no consumer
+            else:
+                stats.reject("filter rejected update")
+
+    @staticmethod
+    def _answers_counted(cs: list, ok: list) -> None:
+        """The components' counts after answering (``ok[k]``) or failing to predict."""
+        for c, good in zip(cs, ok):
+            if good:
+                c.stats.events_out += 1
+            else:
+                c.stats.reject("prediction failed")
+
+    def _push_block(self, index, t_ns, position, quaternion, covariance, answer) -> None:
+        """:meth:`push_block` of components not all plain (or not all once, or not yet
+        banked)."""
         comps = self.components
         if not all(map(self._plain, map(comps.__getitem__, index))):
             trusted = UncertainPose._trusted
@@ -150,18 +254,9 @@ class KalmanBank:
         comps = self.components
         for i, (t_ns, origin), ok in zip(index, stamps, accepted):
             c = comps[i]
-            c.stats.events_in += 1
-            if not ok:
-                c.stats.reject("filter rejected update")
-                continue
-            t = t_ns - c.stamp_offset_ns
-            if c.first_t is None or t < c.first_t:
-                c.first_t = t
-            if c.last_t is None or t > c.last_t:
-                c.last_t = t
-            if origin > c.last_origin:
-                c.last_origin = origin
-            c.stats.events_out += 1  # emitted, to no consumer
+            if ok:
+                _timestamps(c, t_ns - c.stamp_offset_ns, origin)
+        self._counted([comps[i] for i in index], accepted)
 
     def pull(self, items: Sequence[tuple[int, int]]) -> list[Measurement | None]:
         """``components[i].pull(t_ns)`` for every ``(i, t_ns)``: the answers (or ``None``,
@@ -213,12 +308,7 @@ class KalmanBank:
             res = ahead
         else:
             res = self._filters().predict_block(index_ok, times)
-        for i, ok in zip(index_ok, res.ok):
-            c = comps[i]
-            if ok:
-                c.stats.events_out += 1
-            else:
-                c.stats.reject("prediction failed")
+        self._answers_counted([comps[i] for i in index_ok], res.ok)
         if len(where) == len(index):
             return res
         m = len(index)

@@ -67,7 +67,7 @@ class _Batch:
     ``(index, filter, time)``, the filter's row, the time step and (:meth:`update_poses`)
     the measurement, or (:meth:`update_block`) its index in the block's arrays."""
 
-    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array")
+    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array", "out")
 
     def __init__(self, kind: _Kind):
         self.kind = kind
@@ -79,6 +79,23 @@ class _Batch:
         self.r: list = []
         self.at: list = []
         self.sel_array = None  # sel as the kernel took it
+        self.out = None  # the kernel's status (m,) int, NIS (m,) and (m, 0) (no records)
+
+
+class _Lane:
+    """A list of filters updated together again and again (a tracker's packet): all
+    banked, of one kind, each once. Their rows and state arrays are looked up once, so a
+    call checks only what changes between calls (:meth:`PoseFilterBank._lane_batch`)."""
+
+    __slots__ = ("kind", "filters", "xv", "pv", "sel", "ks", "out")
+
+    def __init__(self, kind: _Kind, filters: list, rows: list):
+        self.kind, self.filters = kind, filters
+        self.xv = [kind.xv[r] for r in rows]
+        self.pv = [kind.pv[r] for r in rows]
+        self.sel = frozen(rows, np.int64)
+        self.ks = range(len(rows))
+        self.out = _kernel_out(len(rows))  # rewritten by every call (a call settles first)
 
 
 class PredictedPoses(NamedTuple):
@@ -91,6 +108,28 @@ class PredictedPoses(NamedTuple):
     quaternion: np.ndarray
     covariance: np.ndarray
     ok: list
+
+
+def _kernel_out(m: int) -> tuple:
+    """The outputs of :func:`kernels.step_bank` for ``m`` steps: status, NIS and the
+    records, of length 0 (:func:`_records` writes them)."""
+    return np.empty(m, np.int64), np.empty(m), np.empty((m, 0))
+
+
+def _records(b: _Batch, zp, zo, r) -> np.ndarray:
+    """The log records (m, size) of the kernel steps of batch ``b`` with the measurements
+    ``zp`` (m, 3), ``zo`` (m, 4), ``r`` (m, 6, 6), as :func:`kernels.step_into` writes them
+    (``x``, ``P`` row by row, ``zp``, ``zo``, ``r`` row by row), copied from the rows the
+    kernel left: it writes none itself, so that the copies come after an answer."""
+    kind, m = b.kind, len(b.rows)
+    nx, o = kind.nx, kind.nx + kind.nc * kind.nc
+    logs = np.empty((m, kind.size))
+    logs[:, :nx] = kind.xs[b.sel_array]
+    logs[:, nx:o] = kind.ps[b.sel_array].reshape(m, -1)
+    logs[:, o : o + 3] = zp
+    logs[:, o + 3 : o + 7] = zo
+    logs[:, o + 7 :] = r.reshape(m, -1)
+    return logs
 
 
 def _bankable(f) -> bool:
@@ -113,7 +152,8 @@ class PoseFilterBank:
         self.filters = list(filters)
         self._kinds: list[_Kind] = []
         self._slot: list[tuple[_Kind, int] | None] = []
-        self._unlogged: list = []  # kernel steps whose log entries are not written yet
+        self._unlogged: list = []  # kernel steps whose bookkeeping waits (settle)
+        self._lanes: dict[tuple, _Lane | None] = {}  # per index list of update_block
         members: list[list[int]] = []
         for i, f in enumerate(self.filters):
             k = None
@@ -237,19 +277,31 @@ class PoseFilterBank:
         measurement ``k`` is ``position[k]`` (m, 3) [m], ``quaternion[k]`` (m, 4) unit
         ``(x, y, z, w)`` and ``covariance[k]`` (m, 6, 6), as :class:`UncertainPose` takes
         them without checks (finite, unit, valid). No object is made per measurement on the
-        kernel's path: the arrays go to it as they are. With ``defer``, the kernel's log
-        entries wait for :meth:`settle` (an answer first, the bookkeeping after it).
+        kernel's path: the arrays go to it as they are. With ``defer``, the filters'
+        bookkeeping after the kernel (times, gate runs, log entries) waits for :meth:`settle`
+        (an answer first, the bookkeeping after it): call nothing on the filters themselves
+        until then. A list of filters updated together again (a tracker's packet) is looked
+        up once (:meth:`_lane_batch`).
 
         Returns the list of :meth:`update_poses`; with ``predict_at`` [s], the pair of it and
         ``predict_block(index, [predict_at] * m)``, made right after the update (when the
         kernel stepped every filter, from the rows it just wrote: no loop over them)."""
         if self._unlogged:
             self.settle()
+        b = self._lane_batch(index, t)
+        if b is not None:  # every filter in the kernel, in order: the arrays as they are
+            out: list = [False] * len(index)
+            plain = self._step(b, position, quaternion, covariance, out, defer)
+            if predict_at is None:
+                return out
+            if plain:  # their rows, at one time
+                return out, self._predict_rows(b, index, predict_at)
+            return out, self._ahead(index, predict_at)
         filters, slots = self.filters, self._slot
         if len(set(index)) != len(index):  # a filter twice: in order, through update_poses
             out = self._update_trusted(index, t, position, quaternion, covariance)
             return out if predict_at is None else (out, self._ahead(index, predict_at))
-        out: list = [False] * len(index)
+        out = [False] * len(index)
         batch: dict[int, _Batch] = {}
         for k, i in enumerate(index):
             f = filters[i]
@@ -260,14 +312,50 @@ class PoseFilterBank:
                 trusted = UncertainPose._trusted(position[k], quaternion[k], covariance[k])
                 out[k] = self._one(f, tk, trusted)
         for b in batch.values():
-            if len(b.at) == len(index):  # all of them, in order: the arrays as they are
-                plain = self._step(b, position, quaternion, covariance, out, defer)
-                if predict_at is not None and plain:  # their rows, at one time
-                    return out, self._predict_rows(b, index, predict_at)
-            else:
-                at = np.asarray(b.at)
-                self._step(b, position[at], quaternion[at], covariance[at], out, defer)
+            at = np.asarray(b.at)
+            self._step(b, position[at], quaternion[at], covariance[at], out, defer)
         return out if predict_at is None else (out, self._ahead(index, predict_at))
+
+    def _lane_batch(self, index: Sequence[int], t: Sequence[float]) -> _Batch | None:
+        """The kernel's batch for :meth:`update_block` when the filters ``index`` form a lane
+        (:class:`_Lane`) and each is ready at its time ``t[k]`` [s] as :meth:`_ready` has
+        it (a state not after it, no reset due, the bank's row as its state), else ``None``:
+        the general path then takes the call."""
+        key = tuple(index)
+        lane = self._lanes.get(key, False)
+        if lane is False:
+            if len(self._lanes) >= 64:  # index lists come from a few packet layouts
+                self._lanes.clear()
+            lane = self._lanes[key] = self._make_lane(key)
+        if lane is None:
+            return None
+        reset = lane.kind.reset_after
+        ts = list(map(float, t))
+        b = _Batch(lane.kind)
+        dts = b.dts
+        for f, x, p, tk in zip(lane.filters, lane.xv, lane.pv, ts):
+            t0 = f._t
+            if (
+                t0 is None
+                or not t0 <= tk < math.inf
+                or f._gated_run >= reset
+                or f._x is not x
+                or f._p is not p
+            ):
+                return None
+            dts.append(tk - t0)
+        b.rows = list(zip(lane.ks, lane.filters, ts))
+        b.sel_array, b.out = lane.sel, lane.out
+        return b
+
+    def _make_lane(self, key: tuple) -> _Lane | None:
+        """The lane of the filters ``key``, or ``None`` if they do not form one."""
+        if not key or len(set(key)) != len(key):
+            return None
+        slots = [self._slot[i] for i in key]
+        if any(s is None for s in slots) or any(s[0] is not slots[0][0] for s in slots):
+            return None
+        return _Lane(slots[0][0], [self.filters[i] for i in key], [s[1] for s in slots])
 
     def _ahead(self, index: Sequence[int], t: float) -> PredictedPoses:
         return self.predict_block(index, [t] * len(index))
@@ -277,10 +365,11 @@ class PoseFilterBank:
         stepped, in order, in batch ``b``, none diverged: their states are its rows and each
         filter's time is its step's."""
         m = len(b.rows)
-        if not (math.isfinite(t) and all(t >= tk for _, _, tk in b.rows)):
+        ts = [tk for _, _, tk in b.rows]
+        if not (math.isfinite(t) and t >= max(ts)):
             return self._ahead(index, t)  # a past time: the filters' own smoothing
         res = np.empty((m, _source.POSE_OUT))
-        dts = frozen([t - tk for _, _, tk in b.rows])
+        dts = frozen([t - tk for tk in ts])
         kernels().predict_pose_bank(b.kind.xs, b.kind.ps, b.sel_array, dts, b.kind.const, res)
         return PredictedPoses(res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), [True] * m)
 
@@ -299,50 +388,62 @@ class PoseFilterBank:
     def _step(self, b: _Batch, zp, zo, r, out: list, defer: bool = False) -> bool:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
-        rows), then each filter's time and gate run (:meth:`PoseKalmanFilter._advance`) and
-        its log entry (:meth:`settle`; at once unless ``defer``). A diverged step takes the
-        filter's own ``_stepped`` (it re-initialises the filter), at once. Returns whether
-        none diverged (every filter's state is still its row)."""
-        kind, m = b.kind, len(b.rows)
-        logs = np.empty((m, kind.size))
-        status = np.empty(m, np.int64)
-        nis = np.empty(m)
-        b.sel_array = frozen(b.sel, np.int64)
+        rows), then the filters' bookkeeping (:meth:`settle`; at once unless ``defer``). A
+        diverged step takes the filter's own ``_stepped`` (it re-initialises the filter), at
+        once, for every filter of the call. Returns whether none diverged (every filter's
+        state is still its row)."""
+        kind = b.kind
+        if b.sel_array is None:
+            b.sel_array = frozen(b.sel, np.int64)
+        status, nis, no_records = b.out or _kernel_out(len(b.rows))
+        zp, zo, r = frozen(zp), frozen(zo), frozen(r)
         kernels().step_bank(
-            kind.xs, kind.ps, b.sel_array, frozen(b.dts), kind.const,
-            frozen(zp), frozen(zo), frozen(r), kind.gate, logs, status, nis,
-        )  # fmt: skip
+            kind.xs,
+            kind.ps,
+            b.sel_array,
+            frozen(b.dts),
+            kind.const,
+            zp,
+            zo,
+            r,
+            kind.gate,
+            no_records,
+            status,
+            nis,
+        )  # fmt: skip  (no records: _records writes them from the rows)
         gated = gating.GATED
         codes = status.tolist()
         if gating.DIVERGED in codes:
             nx, nc = kind.nx, kind.nc
+            logs = _records(b, zp, zo, r)
             for (k, f, tk), buf, st, v in zip(b.rows, logs, codes, nis.tolist()):
                 e = _Entry(tk, 0, 0, buf, nx, nc, 6)
                 f._stepped(e, st, v)
                 f._append(e)
                 out[k] = st != gated
             return False
-        runs = []
-        for (k, f, tk), st in zip(b.rows, codes):
-            runs.append(f._advance(st, tk))
+        for (k, _, _), st in zip(b.rows, codes):
             out[k] = st != gated
-        self._unlogged.append((b, logs, codes, nis, runs))
+        self._unlogged.append((b, zp, zo, r, codes, nis.tolist()))
         if not defer:
             self.settle()
         return True
 
     def settle(self) -> None:
-        """Write the log entries of the kernel steps an update left unlogged
-        (``update_block(..., defer=True)``): each filter's history, gate decision and NIS,
-        as its own update would have recorded them. The filters' states and times are
-        current without it; anything that reads a filter's history (a smoothed or past
-        answer, its statistics, another update) comes after it."""
+        """The bookkeeping of the kernel steps an update left pending
+        (``update_block(..., defer=True)``): each filter's time and run of gated
+        measurements (:meth:`PoseKalmanFilter._advance`) and its log entry (the record of
+        the measurement and the state after it (:func:`_records`), gate decision and NIS),
+        as its own update would have recorded them. Until then only the filters' states
+        (the bank's rows) are current: the bank's own calls settle first, and nothing else
+        may call into the filters."""
         pending, self._unlogged = self._unlogged, []
-        for b, logs, codes, nis, runs in pending:
+        for b, zp, zo, r, codes, nis in pending:
             nx, nc = b.kind.nx, b.kind.nc
-            for (_, f, tk), buf, st, v, run in zip(b.rows, logs, codes, nis.tolist(), runs):
+            logs = _records(b, zp, zo, r)
+            for (_, f, tk), buf, st, v in zip(b.rows, logs, codes, nis):
                 e = _Entry(tk, 0, 0, buf, nx, nc, 6)
-                e.status, e.nis, e.gated_run = st, v, run
+                e.status, e.nis, e.gated_run = st, v, f._advance(st, tk)
                 f._append(e)
 
     # -- predictions -------------------------------------------------------------------------
@@ -366,6 +467,8 @@ class PoseFilterBank:
 
     def predict_block(self, index: Sequence[int], t: Sequence[float]) -> PredictedPoses:
         """:meth:`predict_poses` with the poses as arrays (:class:`PredictedPoses`)."""
+        if self._unlogged:  # the filters' times
+            self.settle()
         m = len(index)
         res = np.empty((m, _source.POSE_OUT))
         ok = [False] * m
@@ -376,8 +479,6 @@ class PoseFilterBank:
             slot = slots[i]
             tk = float(t[k])
             if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
-                if self._unlogged:  # the filter's own answer may read its history
-                    self.settle()
                 try:
                     pose = f.predict(tk)
                 except ValueError:
