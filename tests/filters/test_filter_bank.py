@@ -194,11 +194,17 @@ def test_a_filter_reset_outside_the_bank_is_taken_back(shared_data):
     assert np.array_equal(f.state[1], g.state[1])
 
 
-def test_a_step_that_diverges_in_a_packet_layout_is_the_filters_own():
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_a_step_that_diverges_in_a_packet_layout_is_the_filters_own(backend):
     """Filters updated together packet after packet (a lane: looked up once): a step the
     kernel finds diverged (an innovation covariance that is not positive definite) is
     handled for every filter of the call as their own updates handle it, the next packets
     go on from there, and the answers ahead, logs and states stay equal to the bit."""
+    with use_backend(backend):
+        _diverge_in_a_lane()
+
+
+def _diverge_in_a_lane():
     m = MotionModel(1, 1, noise=NOISE)
     alone = [PoseKalmanFilter(m) for _ in range(3)]
     bank = PoseFilterBank([PoseKalmanFilter(m) for _ in range(3)])

@@ -84,6 +84,9 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     for k in range(3):
         bank.update_poses([0, 1], [float(t[k])] * 2, [meas[k], meas[k]])
     bank.predict_poses([0, 1], [float(t[2]) + 1e-3] * 2)
+    z = [np.stack([a, a]) for a in (meas[3].position, meas[3].quaternion, meas[3].covariance)]
+    bank.update_block([0, 1], [float(t[3])] * 2, *z, defer=True, predict_at=float(t[3]) + 1e-3)
+    bank.settle()  # a packet with its answers (LiveSources.deliver_block)
     steps.append("live")
 
     say("uncertain composition")

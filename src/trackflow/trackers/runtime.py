@@ -332,6 +332,9 @@ def warm_up(net) -> None:
             for t in (0.0, 0.01):
                 bank.update_poses([0, 1], [t, t], [u, u])
             bank.predict_poses([0, 1], [0.02, 0.02])
+            z = [np.stack([a, a]) for a in (u.position, u.quaternion, u.covariance)]
+            bank.update_block([0, 1], [0.02, 0.02], *z, defer=True, predict_at=0.025)
+            bank.settle()  # a packet with its answers (LiveSources.deliver_block)
     warm_up_inputs()  # and the inputs' kernels
 
 

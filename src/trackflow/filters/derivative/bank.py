@@ -67,7 +67,9 @@ class _Batch:
     ``(index, filter, time)``, the filter's row, the time step and (:meth:`update_poses`)
     the measurement, or (:meth:`update_block`) its index in the block's arrays."""
 
-    __slots__ = ("kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array", "out")
+    __slots__ = (
+        "kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array", "out", "ts", "ahead"
+    )  # fmt: skip
 
     def __init__(self, kind: _Kind):
         self.kind = kind
@@ -80,6 +82,8 @@ class _Batch:
         self.at: list = []
         self.sel_array = None  # sel as the kernel took it
         self.out = None  # the kernel's status (m,) int, NIS (m,) and (m, 0) (no records)
+        self.ts = None  # the steps' times (a lane's), [s]
+        self.ahead = None  # PredictedPoses made with the steps (_step's ``at``)
 
 
 class _Lane:
@@ -291,12 +295,15 @@ class PoseFilterBank:
         b = self._lane_batch(index, t)
         if b is not None:  # every filter in the kernel, in order: the arrays as they are
             out: list = [False] * len(index)
-            plain = self._step(b, position, quaternion, covariance, out, defer)
+            at = None  # answers from the rows just stepped, in the same kernel call
+            if predict_at is not None and math.isfinite(predict_at) and predict_at >= max(b.ts):
+                at = predict_at
+            plain = self._step(b, position, quaternion, covariance, out, defer, at)
             if predict_at is None:
                 return out
-            if plain:  # their rows, at one time
-                return out, self._predict_rows(b, index, predict_at)
-            return out, self._ahead(index, predict_at)
+            if plain and at is not None:
+                return out, b.ahead
+            return out, self._ahead(index, predict_at)  # a past time: the filters' own
         filters, slots = self.filters, self._slot
         if len(set(index)) != len(index):  # a filter twice: in order, through update_poses
             out = self._update_trusted(index, t, position, quaternion, covariance)
@@ -345,7 +352,7 @@ class PoseFilterBank:
                 return None
             dts.append(tk - t0)
         b.rows = list(zip(lane.ks, lane.filters, ts))
-        b.sel_array, b.out = lane.sel, lane.out
+        b.sel_array, b.out, b.ts = lane.sel, lane.out, ts
         return b
 
     def _make_lane(self, key: tuple) -> _Lane | None:
@@ -360,19 +367,6 @@ class PoseFilterBank:
     def _ahead(self, index: Sequence[int], t: float) -> PredictedPoses:
         return self.predict_block(index, [t] * len(index))
 
-    def _predict_rows(self, b: _Batch, index: Sequence[int], t: float) -> PredictedPoses:
-        """``predict_block(index, [t] * m)`` [s] for the filters ``index`` the kernel has just
-        stepped, in order, in batch ``b``, none diverged: their states are its rows and each
-        filter's time is its step's."""
-        m = len(b.rows)
-        ts = [tk for _, _, tk in b.rows]
-        if not (math.isfinite(t) and t >= max(ts)):
-            return self._ahead(index, t)  # a past time: the filters' own smoothing
-        res = np.empty((m, _source.POSE_OUT))
-        dts = frozen([t - tk for tk in ts])
-        kernels().predict_pose_bank(b.kind.xs, b.kind.ps, b.sel_array, dts, b.kind.const, res)
-        return PredictedPoses(res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), [True] * m)
-
     def _update_trusted(self, index, t, position, quaternion, covariance) -> list:
         trusted = UncertainPose._trusted
         poses = [trusted(position[k], quaternion[k], covariance[k]) for k in range(len(index))]
@@ -385,32 +379,35 @@ class PoseFilterBank:
         except ValueError:
             return False
 
-    def _step(self, b: _Batch, zp, zo, r, out: list, defer: bool = False) -> bool:
+    def _step(
+        self, b: _Batch, zp, zo, r, out: list, defer: bool = False, at: float | None = None
+    ) -> bool:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
         rows), then the filters' bookkeeping (:meth:`settle`; at once unless ``defer``). A
         diverged step takes the filter's own ``_stepped`` (it re-initialises the filter), at
         once, for every filter of the call. Returns whether none diverged (every filter's
-        state is still its row)."""
+        state is still its row).
+
+        With ``at`` [s] (finite, not before any step's time ``b.ts``), the same call also
+        predicts the filters' poses at ``at`` from the rows it has just written
+        (:func:`kernels.step_predict_bank`) into ``b.ahead``: ``predict_block(index, [at] *
+        m)``'s answers, to the bit, used when none diverged."""
         kind = b.kind
         if b.sel_array is None:
             b.sel_array = frozen(b.sel, np.int64)
         status, nis, no_records = b.out or _kernel_out(len(b.rows))
         zp, zo, r = frozen(zp), frozen(zo), frozen(r)
-        kernels().step_bank(
-            kind.xs,
-            kind.ps,
-            b.sel_array,
-            frozen(b.dts),
-            kind.const,
-            zp,
-            zo,
-            r,
-            kind.gate,
-            no_records,
-            status,
-            nis,
-        )  # fmt: skip  (no records: _records writes them from the rows)
+        args = (kind.xs, kind.ps, b.sel_array, frozen(b.dts), kind.const, zp, zo, r, kind.gate)
+        if at is None:  # no records: _records writes them from the rows, later
+            kernels().step_bank(*args, no_records, status, nis)
+        else:
+            m = len(b.rows)
+            res = np.empty((m, _source.POSE_OUT))
+            kernels().step_predict_bank(*args, no_records, status, nis, at, frozen(b.ts), res)
+            b.ahead = PredictedPoses(
+                res[:, :3], res[:, 3:7], res[:, 7:].reshape(m, 6, 6), [True] * m
+            )
         gated = gating.GATED
         codes = status.tolist()
         if gating.DIVERGED in codes:

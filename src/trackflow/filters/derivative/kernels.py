@@ -100,6 +100,7 @@ KERNELS = (
     "predict_pose_packed",
     "step_bank",
     "predict_pose_bank",
+    "step_predict_bank",
     "measurement_cov",
     "row_is_finite",
     "run",
@@ -1027,6 +1028,18 @@ def predict_pose_bank(xs, ps, rows, dts, c, out):
     for k in range(rows.shape[0]):
         i = rows[k]
         predict_pose_with(xs[i], ps[i], dts[k], n_dp, n_do, 0, kind, sp, so, out[k], pws, t, sel)
+
+
+def step_predict_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis, at, ts, out):
+    """:func:`step_bank`, then :func:`predict_pose_bank` of the same rows at the time
+    ``at`` [s] from their step times ``ts`` (row ``k`` ahead by ``at - ts[k]``) into
+    ``out``: a packet's updates and its answers in one call from Python. A row whose step
+    diverged is predicted too; the caller does not use its answer."""
+    step_bank(xs, ps, rows, dts, c, zp, zo, r, gate, logs, status, nis)
+    ahead = np.empty(rows.shape[0])
+    for k in range(rows.shape[0]):
+        ahead[k] = at - ts[k]
+    predict_pose_bank(xs, ps, rows, ahead, c, out)
 
 
 def measurement_cov(r, x, n_dp, lp, lo, additive):
