@@ -124,9 +124,11 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             thin_msgs[n].clear()
         time.sleep(4.0)
 
-        # each consumer's stream: ticks of its own grid, in order, one state per tick at most
-        # (a state made before a tick that was already completed is sent late, counted). The
-        # messages are taken before the status: its late counters then cover every one of them.
+        # each consumer's stream: ticks of its own grid, in order, one state per tick at most:
+        # the sensor's agent completes no tick before its player has played every sample
+        # arriving by it, so no state is sent late, after its tick, even when the player runs
+        # late on a loaded host. The messages are taken before the status: its late counters
+        # then cover every one of them.
         got = {n: list(m) for n, m in thin_msgs.items()}
         st = status(session, realm, "s")
         for n, period in (("c30", P30), ("c60", P60)):
@@ -142,23 +144,19 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             states = [(t, decode_state(p)) for t, p in msgs if p]
             late = st["thin_streams"]["s1"][n]["late"]
             per_tick = collections.Counter(t for t, _ in states)
-            assert sum(c - 1 for c in per_tick.values()) <= late, (n, per_tick.most_common(3))
+            assert late == 0 and max(per_tick.values()) == 1, (n, late, per_tick.most_common(3))
             n_ticks = (ticks[-1] - ticks[0]) // period + 1
             assert len(per_tick) >= 0.5 * n_ticks, (n, len(per_tick), n_ticks)  # 240 Hz sensor
             seqs = [s.seq for _, s in states]
             assert seqs == sorted(seqs)  # the newest state for each tick, in the filter's order
         # the unthinned consumer gets every state (240 Hz) and answers each tick once its
-        # 60 ms jitter buffer has passed: the thinned one, answering as soon as its stream
-        # completes the tick, must give the same answers, to the bit (one clock, the same
-        # newest state, the same prediction), at every tick whose state came on time
-        on_time = _on_time_ticks(got["c30"], st["thin_streams"]["s1"]["c30"]["grids"])
-        answered = sorted(set(results["r30"]) & set(results["c30"]))
-        common = [t for t in answered if t in on_time]
-        assert len(common) > 30 and len(common) >= 0.5 * len(answered), (
-            len(common),
-            len(answered),
-            {n: len(r) for n, r in results.items()},
-        )
+        # 60 ms jitter buffer has passed; the thinned one answers as soon as its stream
+        # completes the tick. Both must give the same answers, to the bit (one clock, the
+        # same newest state, the same prediction). The 10 % left allows for a host stalled
+        # for longer than the jitter buffer in one consumer and not the other (measured
+        # under two busy loops on 2 cores: 100 % in every run)
+        common = sorted(set(results["r30"]) & set(results["c30"]))
+        assert len(common) > 30, (len(common), {n: len(r) for n, r in results.items()})
         d = np.array(
             [
                 np.linalg.norm(results["r30"][t].pose.position - results["c30"][t].pose.position)
@@ -219,22 +217,6 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             session.close()
         for p in procs:
             p.stop()
-
-
-def _on_time_ticks(messages, grids) -> set:
-    """The ticks [ns, consumer clock] of a thinned stream whose state came on time: one
-    message for the tick, and a later tick's message seen (so no late state can follow).
-
-    A second message for a tick is a state the sensor's agent made before the tick but
-    offered after it had completed the tick (its recording player ran more than
-    ``thin_grace_ms`` late); the consumer answered that tick without it. ``messages`` are
-    ``(attachment, payload, ...)`` in arrival order; the grid's phase must be 0 (the
-    consumer reads the sensor agent's clock as it is).
-    """
-    assert [g[1] for g in grids] == [0], grids
-    ticks = collections.Counter(int.from_bytes(m[0], "little", signed=True) for m in messages)
-    last = max(ticks, default=0)
-    return {t for t, n in ticks.items() if n == 1 and t < last}
 
 
 def _without(session, realm):
