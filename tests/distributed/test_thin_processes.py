@@ -74,10 +74,10 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
     )
     # c30 and r30 answer at the same ticks and are compared: they read the host's one clock
     # as it is (clock_sync none). With an estimated offset each, the two estimates differ by
-    # up to their round trips (0.1-0.5 ms under load): a state made that close to a tick is
+    # up to their round trips (0.01-1 ms under load): a state made that close to a tick is
     # before it for one consumer and after it for the other, at every tick alike (the 240 Hz
-    # samples keep one phase to the 30 Hz grid), and every answer moves by v * that
-    # difference. c60 keeps the estimate: its grid follows it (checked below).
+    # samples keep one phase to the 30 Hz grid), and each answer is the filter at the tick
+    # plus its own estimate. c60 keeps the estimate: its grid follows it (checked below).
     files = {
         "c30": _consumer(tmp_path, "c30", realm, ports["c30"], [ports["s"]], 30, True, "none"),
         "c60": _consumer(tmp_path, "c60", realm, ports["c60"], [ports["s"]], 60, True),
@@ -144,7 +144,7 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             states = [(t, decode_state(p)) for t, p in msgs if p]
             late = st["thin_streams"]["s1"][n]["late"]
             per_tick = collections.Counter(t for t, _ in states)
-            assert late == 0 and max(per_tick.values()) == 1, (n, late, per_tick.most_common(3))
+            assert late == 0 and max(per_tick.values(), default=0) <= 1, (n, late, per_tick)
             n_ticks = (ticks[-1] - ticks[0]) // period + 1
             assert len(per_tick) >= 0.5 * n_ticks, (n, len(per_tick), n_ticks)  # 240 Hz sensor
             seqs = [s.seq for _, s in states]
