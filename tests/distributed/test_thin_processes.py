@@ -32,7 +32,7 @@ pytestmark = pytest.mark.slow
 P30, P60 = int(round(1e9 / 30)), int(round(1e9 / 60))
 
 
-def _consumer(tmp_path, name, realm, port, sensor_ports, rate, thin):
+def _consumer(tmp_path, name, realm, port, sensor_ports, rate, thin, clock_sync="estimate"):
     return write_agent(
         tmp_path / f"{name}.yaml",
         name,
@@ -41,7 +41,7 @@ def _consumer(tmp_path, name, realm, port, sensor_ports, rate, thin):
             "listen": {"endpoints": [endpoint(port)]},
             "connect": {"endpoints": [endpoint(p) for p in sensor_ports]},
         },
-        extra={"reorder_ms": 60, "thin": thin},
+        extra={"reorder_ms": 60, "thin": thin, "clock_sync": clock_sync},
         frames=["W", "X"],
         queries=[dict(name=f"q_{name}", source="W", target="X", mode="push", rate_hz=rate)],
     )
@@ -72,10 +72,16 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             )
         ],
     )
+    # c30 and r30 answer at the same ticks and are compared: they read the host's one clock
+    # as it is (clock_sync none). With an estimated offset each, the two estimates differ by
+    # up to their round trips (0.01-1 ms under load): a state made that close to a tick is
+    # before it for one consumer and after it for the other, at every tick alike (the 240 Hz
+    # samples keep one phase to the 30 Hz grid), and each answer is the filter at the tick
+    # plus its own estimate. c60 keeps the estimate: its grid follows it (checked below).
     files = {
-        "c30": _consumer(tmp_path, "c30", realm, ports["c30"], [ports["s"]], 30, True),
+        "c30": _consumer(tmp_path, "c30", realm, ports["c30"], [ports["s"]], 30, True, "none"),
         "c60": _consumer(tmp_path, "c60", realm, ports["c60"], [ports["s"]], 60, True),
-        "r30": _consumer(tmp_path, "r30", realm, ports["r30"], [ports["s"]], 30, False),
+        "r30": _consumer(tmp_path, "r30", realm, ports["r30"], [ports["s"]], 30, False, "none"),
     }
     procs = [AgentProcess(sensor, "--duration", "80", log_dir=tmp_path)]
     procs += [AgentProcess(f, "--duration", "80", log_dir=tmp_path) for f in files.values()]
@@ -118,9 +124,11 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             thin_msgs[n].clear()
         time.sleep(4.0)
 
-        # each consumer's stream: ticks of its own grid, in order, one state per tick at most
-        # (a state made before a tick that was already completed is sent late, counted). The
-        # messages are taken before the status: its late counters then cover every one of them.
+        # each consumer's stream: ticks of its own grid, in order, one state per tick at most:
+        # the sensor's agent completes no tick before its player has played every sample
+        # arriving by it, so no state is sent late, after its tick, even when the player runs
+        # late on a loaded host. The messages are taken before the status: its late counters
+        # then cover every one of them.
         got = {n: list(m) for n, m in thin_msgs.items()}
         st = status(session, realm, "s")
         for n, period in (("c30", P30), ("c60", P60)):
@@ -136,12 +144,17 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             states = [(t, decode_state(p)) for t, p in msgs if p]
             late = st["thin_streams"]["s1"][n]["late"]
             per_tick = collections.Counter(t for t, _ in states)
-            assert sum(c - 1 for c in per_tick.values()) <= late, (n, per_tick.most_common(3))
+            assert late == 0 and max(per_tick.values(), default=0) <= 1, (n, late, per_tick)
             n_ticks = (ticks[-1] - ticks[0]) // period + 1
             assert len(per_tick) >= 0.5 * n_ticks, (n, len(per_tick), n_ticks)  # 240 Hz sensor
             seqs = [s.seq for _, s in states]
             assert seqs == sorted(seqs)  # the newest state for each tick, in the filter's order
-        # the unthinned consumer gets every state (240 Hz): compare its answers
+        # the unthinned consumer gets every state (240 Hz) and answers each tick once its
+        # 60 ms jitter buffer has passed; the thinned one answers as soon as its stream
+        # completes the tick. Both must give the same answers, to the bit (one clock, the
+        # same newest state, the same prediction). The 10 % left allows for a host stalled
+        # for longer than the jitter buffer in one consumer and not the other (measured
+        # under two busy loops on 2 cores: 100 % in every run)
         common = sorted(set(results["r30"]) & set(results["c30"]))
         assert len(common) > 30, (len(common), {n: len(r) for n, r in results.items()})
         d = np.array(
@@ -150,7 +163,7 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
                 for t in common
             ]
         )
-        assert np.mean(d <= 1e-4) >= 0.9, (np.mean(d <= 1e-4), d.max())
+        assert np.mean(d <= 1e-9) >= 0.9, (np.mean(d <= 1e-9), d.max())
 
         # garbage demands are counted rejections; the agent keeps serving
         bad = [

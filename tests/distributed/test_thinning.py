@@ -234,3 +234,46 @@ def test_stream_table_limits_consumers_per_sensor():
         assert table.declare(k, "s1", f"c{i}", g, 0) == ""
     k = demand_key("r", "s1", "one_more", g)
     assert table.declare(k, "s1", "one_more", g, 0) == "too many thinned streams"
+
+
+def test_stream_table_holds_ticks_back_for_a_late_player():
+    """A recording's player 5 ms late at a tick: the clock passing tick + grace does not
+    complete the tick before the player has played what arrives by it; the state it then
+    plays (made before the tick) is the tick's answer, not a late one."""
+    progress = {"s1": None}
+    table = ThinStreams("r", _Pub, lambda edge: GRACE, progress.get)
+    g = Grid(10 * MS, 0)
+    k = demand_key("r", "s1", "a", g)
+    table.declare(k, "s1", "a", g, now_ns=0)
+    (pub,) = [st.publisher for st in table.streams["s1"].values()]
+    table.offer("s1", 4 * MS, b"x4", now_ns=4 * MS)  # on time
+    progress["s1"] = 8 * MS - 1  # the sample arriving at 8 ms is not played yet
+    table.flush(15 * MS)  # the clock is 5 ms past the tick at 10 ms
+    assert pub.sent == []
+    assert table.next_due == 16 * MS  # held: looked at again in 1 ms
+    table.offer("s1", 8 * MS, b"x8", now_ns=15 * MS)  # played 7 ms late
+    progress["s1"] = 12 * MS - 1
+    table.flush(16 * MS)
+    assert pub.sent == [(10 * MS, b"x8")]
+    assert table.status()["s1"]["a"]["late"] == 0
+    progress["s1"] = None  # the clock alone again (a live sensor): a heartbeat at 20 ms
+    table.flush(21 * MS)
+    assert pub.sent == [(10 * MS, b"x8"), (20 * MS, b"")]
+
+
+def test_a_stream_opened_while_the_player_is_late_sends_nothing_late():
+    """A demand that comes while the player is 200 ms behind: the states it still plays
+    answer the ticks they were made before, none is late."""
+    progress = {"s1": 100 * MS - 1}
+    table = ThinStreams("r", _Pub, lambda edge: GRACE, progress.get)
+    g = Grid(10 * MS, 0)
+    table.declare(demand_key("r", "s1", "a", g), "s1", "a", g, now_ns=300 * MS)
+    (pub,) = [st.publisher for st in table.streams["s1"].values()]
+    made = range(100 * MS, 300 * MS, 4 * MS)
+    for h in made:  # the player catches up
+        table.offer("s1", h, str(h).encode(), now_ns=300 * MS)
+        progress["s1"] = h + 4 * MS - 1
+    assert table.status()["s1"]["a"]["late"] == 0
+    assert [t for t, _ in pub.sent] == [k * 10 * MS for k in range(10, 30)]
+    for t, p in pub.sent:  # the newest state at or before each tick
+        assert int(p) == max(h for h in made if h <= t)

@@ -36,6 +36,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..dataflow import (
     Component,
     KalmanFilter,
@@ -60,6 +62,7 @@ __all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_
 _SENSOR, _TICK = 0, 1
 _GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
 _REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
+_FOREVER_NS = 2**62  # (progress of a recording played to its end)
 
 
 def _key(realm: str, *parts: str) -> str:
@@ -163,11 +166,13 @@ class Agent:
         self._thin_in: dict[str, _ThinInput] = {}  # remote edge -> its thinned subscription
         self._covered: dict[str, int] = {}  # thin mode: raw remote edge -> covered up to [ns]
         self._thin_cv = threading.Condition(self._lock)
+        self._played: dict[str, int] = {}  # own recording -> every sample arriving by it played
         self._grace_ns = int(round(config.thin_grace_ms * 1e6))
         self._thin = ThinStreams(  # (sensor side) consumers' thinned streams of own sensors
             config.realm,
             lambda key: self.session.declare_publisher(key, express=False),  # batched
             self._grace,
+            self._played.get,
         )
         self._players: list[tuple[RecordingPlayer, threading.Thread]] = []
         self._threads: list[threading.Thread] = []
@@ -290,6 +295,7 @@ class Agent:
                 )
                 th = threading.Thread(target=self._play, args=(src,), daemon=True)
                 self._players.append((src, th))
+                self._played[edge.name] = _played_before(src.arrivals(), 0)
             else:
                 src = RemoteSource(edge.name)
                 src.kind = "live source"
@@ -361,8 +367,16 @@ class Agent:
 
     def _play(self, player: RecordingPlayer) -> None:
         """Deliver each sample at its arrival time on this agent's clock; samples more than
-        0.1 s in the past when the agent starts (a restarted agent) are skipped, counted."""
+        0.1 s in the past when the agent starts (a restarted agent) are skipped, counted.
+        ``_played`` follows (under the lock, with each sample) how far the recording has
+        been played: the thinned streams complete no tick after it (a player that runs
+        late holds its ticks back instead of sending states late)."""
         first = self.now_ns() - 100_000_000
+        arrivals = player.arrivals()
+        with self._lock:
+            self._played[player.name] = _played_before(
+                arrivals, int(np.searchsorted(arrivals, first))
+            )
         for arrival, idx in player.events():
             if arrival < first:
                 self.skipped_samples += 1
@@ -377,6 +391,7 @@ class Agent:
             with self._lock:
                 self.net.clock.now_ns = arrival
                 player.deliver(idx)
+                self._played[player.name] = _played_before(arrivals, idx + 1)
 
     # -- thinned streams of own sensors (sensor side) ------------------------------------------
     def _on_demand(self, sample) -> None:
@@ -1028,6 +1043,12 @@ class Agent:
                     "events": st.events[-20:],
                 }
             return out
+
+
+def _played_before(arrivals, k: int) -> int:
+    """(Recordings) With samples ``0 .. k-1`` played: every sample arriving at or before the
+    returned time [ns] has been played (the last sample played: forever)."""
+    return int(arrivals[k]) - 1 if k < len(arrivals) else _FOREVER_NS
 
 
 def _percentiles(values) -> dict:

@@ -21,6 +21,7 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
                                 # ticks need only (needs reorder_ms > 0: the deadline of a tick)
       thin_grace_ms: 1.0        # (sensor side, recordings) a played state is the newest
                                 # before a tick once the clock is this far past the tick
+                                # (and the player has played every sample due by the tick)
 
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
 ``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts

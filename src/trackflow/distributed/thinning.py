@@ -29,7 +29,9 @@ stamp ``h`` (the sensor agent's clock when the state was made; the consumer orde
 ticks by it); ask it what is due when the clock passes a tick plus ``grace_ns``. A state is
 the newest before tick ``T`` once a later state (``h > T``) comes or the clock passes
 ``T + grace``; states offered after their tick was completed (the sensor's own thread was
-late) are sent at once, counted as late.
+late) are sent at once, counted as late. :class:`ThinStreams` moves the clock it hands
+:meth:`Thinner.due` no further than the sensor's progress (a recording's player that runs
+late holds its ticks back), so an agent's own streams have no late states.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ __all__ = [
 DEMAND_LIMITS_NS = (1_000_000, 60_000_000_000)  # accepted tick periods: 1 ms .. 60 s
 MAX_STREAMS_PER_EDGE = 64  # consumers with a thinned stream of one sensor (more: rejected)
 _IDLE_NS = 50_000_000  # without streams, look again after 50 ms
+_HELD_NS = 1_000_000  # ticks held back by a late sensor: look again after 1 ms
 
 
 class Grid(NamedTuple):
@@ -206,24 +209,35 @@ class ThinStreams:
     grace_of : callable
         ``grace_of(edge)``: how long after a tick a state made before it may still be offered
         for that sensor [ns].
+    progress_of : callable, optional
+        ``progress_of(edge)``: the sensor clock time [ns] up to which every state of that
+        sensor has been offered, or ``None`` (the clock itself: states are stamped when
+        they are made). A tick after it is not completed, whatever the clock reads (a
+        recording's player that runs late: its states come, stamped before the tick,
+        after ``grace``).
     """
 
-    def __init__(self, realm: str, open_publisher, grace_of):
+    def __init__(self, realm: str, open_publisher, grace_of, progress_of=None):
         self.realm = realm
         self._open = open_publisher
         self._grace_of = grace_of
+        self._progress_of = progress_of or (lambda edge: None)
         self.streams: dict[str, dict[str, _Stream]] = {}
         self.next_due = 0  # no stream has a tick due before this [ns]
 
     def declare(self, key: str, edge: str, consumer: str, grid: Grid, now_ns: int) -> str:
-        """A demand token appeared; returns ``""`` or the reason it was refused."""
+        """A demand token appeared; returns ``""`` or the reason it was refused. A new
+        stream's first tick is the first after the sensor's progress (the states a late
+        player has still to offer answer the ticks they were made before)."""
         streams = self.streams.setdefault(edge, {})
         st = streams.get(consumer)
         if st is None:
             if len(streams) >= MAX_STREAMS_PER_EDGE:
                 return "too many thinned streams"
             publisher = self._open(thin_key(self.realm, edge, consumer))
-            st = streams[consumer] = _Stream(Thinner({grid: 0}, now_ns), publisher)
+            done = self._progress_of(edge)
+            start = now_ns if done is None else min(now_ns, done)
+            st = streams[consumer] = _Stream(Thinner({grid: 0}, start), publisher)
         if key not in st.tokens:
             st.tokens.add(key)
             grids = dict(st.thinner.grids)
@@ -265,14 +279,21 @@ class ThinStreams:
             self.flush(now_ns)
 
     def flush(self, now_ns: int) -> None:
-        """Complete every stream's ticks that are due; remember the soonest next deadline
-        (offers only move deadlines later, so it stays a lower bound)."""
+        """Complete every stream's ticks that are due, but none after its sensor's progress;
+        remember the soonest next deadline (offers only move deadlines later, so it stays a
+        lower bound; a tick held back by a late sensor is looked at again in 1 ms, unless
+        the sensor's next state completes it first)."""
         soonest = now_ns + _IDLE_NS
         for edge, streams in self.streams.items():
             grace = self._grace_of(edge)
+            clock = now_ns
+            done = self._progress_of(edge)
+            if done is not None:
+                clock = min(now_ns, done + grace)
             for st in streams.values():
-                _send(st, st.thinner.due(now_ns, grace))
-                soonest = min(soonest, st.thinner.deadline(grace))
+                _send(st, st.thinner.due(clock, grace))
+                deadline = st.thinner.deadline(grace)
+                soonest = min(soonest, deadline if deadline > now_ns else now_ns + _HELD_NS)
         self.next_due = soonest
 
     def status(self) -> dict:
