@@ -883,37 +883,23 @@ def predict_pose_with(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, out, p
     for k in range(3):
         sel[k] = k if npl > 0 else 0
         sel[3 + k] = qo + k if nol > 0 else 0
-    for r in range(6):  # each t[r, j] = 0 + the nonzero terms in ascending order
-        first = True
+    for r in range(6):
+        for k in range(nc):
+            t[r, k] = 0.0
+    for r in range(6):
         for k in range(nc):
             v = a[sel[r], k]
             if v != 0.0:
-                if first:
-                    for j in range(nc):
-                        t[r, j] = 0.0 + v * p[k, j]
-                    first = False
-                else:
-                    for j in range(nc):
-                        t[r, j] += v * p[k, j]
-        if first:
-            for j in range(nc):
-                t[r, j] = 0.0
+                for j in range(nc):
+                    t[r, j] += v * p[k, j]
     co = 7  # the covariance in out, row by row: c[r, col] = out[co + 6 r + col]
     for r in range(6):
-        for col in range(r, 6, 2):  # two entries at once (the second again if col = 5)
-            c1 = sel[col]
-            c2 = sel[col + 1] if col < 5 else c1
-            w = qm[sel[r], c1]
-            w2 = qm[sel[r], c2]
+        for col in range(r, 6):
+            w = qm[sel[r], sel[col]]
             for k in range(nc):
-                tk = t[r, k]
-                w += tk * a[c1, k]
-                w2 += tk * a[c2, k]
+                w += t[r, k] * a[sel[col], k]
             out[co + 6 * r + col] = w
             out[co + 6 * col + r] = w
-            if col < 5:
-                out[co + 6 * r + col + 1] = w2
-                out[co + 6 * (col + 1) + r] = w2
     for k in range(3):
         out[k] = xn[k] if npl > 0 else 0.0
         out[3 + k] = xn[qo + k] if nol > 0 else 0.0
