@@ -91,9 +91,9 @@ def _loops(k):
             update_with(x, p, y, h, r, GATE, N_DP, N_DO, ADD, WMAX, uws, idx)
 
     @jit
-    def t_gain(n, hp, s, y, r, lo, sy, kt, kr, delta):
+    def t_gain(n, hp, s, y, r, lo, sy, kt, kr, delta, mp):
         for _ in range(n):
-            gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta)
+            gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta, mp)
 
     @jit
     def t_joseph(n, p0, p, kt, kr, hp, idx, mp, g, acc):
@@ -155,8 +155,8 @@ def measure(repeat: int = 7, n: int = 20000) -> dict:
         hp[a] = pq[idx[a]]
         for b in range(6):
             s[a, b] = 0.5 * (hp[a, idx[b]] + hp[b, idx[a]]) + 0.5 * (R[a, b] + R[b, a])
-    res["gain_into"] = _best(lambda m: t_gain(m, hp, s, y, r, lo, sy, kt, kr, delta), n, repeat)
-    k.gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta)
+    res["gain_into"] = _best(lambda m: t_gain(m, hp, s, y, r, lo, sy, kt, kr, delta, mp), n, repeat)
+    k.gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta, mp)
     res["joseph_selection"] = _best(
         lambda m: t_joseph(m, pp, pq, kt, kr, hp, idx, mp, g, acc), n, repeat
     ) - (base * 0.9)  # p only (x is 1/13 of the restore)

@@ -95,6 +95,136 @@ def test_one_column_solve_is_a_column_of_the_many_column_solve(rng, backend):
                     assert _same_bits(one[:, 0], many[:, c]), (n, c)
 
 
+def _joseph_definition(p, kt, kr, hp, idx):
+    """``MP = P - K (H P)`` summed term by term from ``P``, then each upper entry
+    ``MP[i, j] + sum_a (KR[i, a] - MP[i, idx[a]]) K^T[a, j]`` in order, flushed, mirrored."""
+    nc, m = p.shape[0], kt.shape[0]
+    mp = np.empty((nc, nc))
+    for i in range(nc):
+        for j in range(nc):
+            w = float(p[i, j])
+            for a in range(m):
+                w -= float(kt[a, i]) * float(hp[a, j])
+            mp[i, j] = w
+    out = np.empty((nc, nc))
+    for i in range(nc):
+        g = [float(kr[i, a]) - float(mp[i, idx[a]]) for a in range(m)]
+        for j in range(i, nc):
+            w = float(mp[i, j])
+            for a in range(m):
+                w += g[a] * float(kt[a, j])
+            w = 0.0 if abs(w) < _scalar.TINY else w
+            out[i, j] = out[j, i] = w
+    return out
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_joseph_selection_is_its_definition(rng, backend):
+    nc, m = 12, 6
+    with use_backend(backend):
+        sc = kernels_for(_scalar)
+        for trial in range(12):
+            p = rng.normal(size=(nc, nc))  # not symmetric: the definition holds for any P
+            kt, kr, hp = (
+                rng.normal(size=(m, nc)),
+                rng.normal(size=(nc, m)),
+                rng.normal(size=(m, nc)),
+            )
+            idx = rng.permutation(nc)[:m] if trial % 2 else np.array([0, 1, 2, 6, 7, 8])
+            kt[1, 4] = -0.0
+            if trial % 3 == 1:
+                p[rng.integers(nc), rng.integers(nc)] = math.inf
+                hp[2, 5] = math.nan
+            if trial % 3 == 2:
+                kr[3] = 1e-160  # below the flush threshold
+            got = p.copy()
+            with np.errstate(all="ignore"):
+                want = _joseph_definition(p, kt, kr, hp, idx)
+                sc.joseph_selection(
+                    got, kt, kr, hp, idx, np.empty((nc, nc)), np.empty(m), np.empty(nc)
+                )
+            assert _same_bits(got, want), trial
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gain_is_its_definition(rng, backend):
+    """``K^T = S^-1 H P`` by the row solve, ``K y`` and ``K R`` each summed from zero in
+    order of the measurement rows."""
+    nc, m = 12, 6
+    with use_backend(backend):
+        k = kernels_for(source)
+        sc = kernels_for(_scalar)
+        for trial in range(8):
+            a = rng.normal(size=(m, m))
+            s, r = a @ a.T + m * np.eye(m), rng.normal(size=(m, m))
+            r[2, 3] = -0.0
+            hp, y = rng.normal(size=(m, nc)), rng.normal(size=m) * 0.1
+            hp[:, 5] = 0.0  # products of signed zeros
+            if trial % 2:
+                r[4, 4] = math.inf
+            lo, kt, kr, delta = np.empty((m, m)), np.empty((m, nc)), np.empty((nc, m)), np.empty(nc)
+            with np.errstate(all="ignore"):
+                st, nis = k.gain_into(hp, s, y, r, 1e9, lo, np.empty((m, 1)), kt, kr, delta,
+                                      np.empty((m, nc)))  # fmt: skip
+                low, ok = sc.chol(s)
+                want_kt = sc.chol_solve(low, hp)
+                want_kr, want_delta = np.empty((nc, m)), np.empty(nc)
+                for i in range(nc):
+                    w = 0.0
+                    for b in range(m):
+                        w += float(want_kt[b, i]) * float(y[b])
+                    want_delta[i] = w
+                    for c in range(m):
+                        w = 0.0
+                        for b in range(m):
+                            w += float(want_kt[b, i]) * float(r[b, c])
+                        want_kr[i, c] = w
+            assert ok and st == source.ACCEPTED, trial
+            assert _same_bits(kt, want_kt) and _same_bits(delta, want_delta), trial
+            assert _same_bits(kr, want_kr), trial
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_selection_of_is_the_selection_of_the_jacobian(rng, backend):
+    """``selection_of`` (the levels alone) says what ``selection_rows`` finds in the
+    ``H`` of ``jacobian_into``, and ``residual_into`` writes ``innovation_into``'s ``y``."""
+    quats = [rng.normal(size=4) for _ in range(3)]
+    quats += [np.array([0.0, 0.0, 0.0, 1.0]), np.array([1e-200, 1e-200, 0.0, 1.0])]
+    quats += [np.array([0.0, 0.0, 0.0, 0.0]), np.array([math.inf, 0.0, 0.0, 0.0])]
+    with use_backend(backend):
+        k = kernels_for(source)
+        for n_dp in range(-1, 3):
+            for n_do in range(-1, 3):
+                for additive in (0, 1):
+                    npl, nol, nx, nc = source.dims(n_dp, n_do, additive)
+                    for lp in range(-1, n_dp + 1):
+                        for lo in range(-1, n_do + 1):
+                            if lp < 0 and lo < 0:
+                                continue
+                            m = k.residual_size(additive, lp, lo)
+                            for q in quats:
+                                x = rng.normal(size=nx)
+                                if nol:
+                                    x[3 * npl : 3 * npl + 4] = q
+                                zp, zo = rng.normal(size=3), rng.normal(size=4)
+                                y, h = np.empty(m), np.empty((m, nc))
+                                y2 = np.empty(m)
+                                idx, idx2 = np.empty(m, np.int64), np.empty(m, np.int64)
+                                qa, qb = np.empty(4), np.empty(4)
+                                case = (n_dp, n_do, additive, lp, lo, q)
+                                with np.errstate(all="ignore"):
+                                    k.residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo,
+                                                    y, h, qa, qb)  # fmt: skip
+                                    k.innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo,
+                                                      y2, qa, qb)  # fmt: skip
+                                    found = k.selection_rows(h, idx)
+                                known = k.selection_of(n_dp, n_do, additive, lp, lo, idx2)
+                                assert found == known, case
+                                assert _same_bits(y, y2), case
+                                if known:
+                                    assert list(idx) == list(idx2), case
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("additive", [0, 1])
 def test_kept_process_noise_is_the_fresh_one(backend, additive):

@@ -238,15 +238,22 @@ def sandwich_into(a, p, q, tmp, vals, cols):
         c = 0
         for k in range(n):
             v = a[i, k]
-            cols[i, 1 + c] = k
-            vals[i, c] = v
-            if v != 0.0:
+            if v != 0.0:  # the same zeros in every call of a filter: a predictable branch
+                cols[i, 1 + c] = k
+                vals[i, c] = v
                 c += 1
         cols[i, 0] = c
     for i in range(n):
-        for j in range(n):
-            tmp[i, j] = 0.0
-        for t in range(cols[i, 0]):
+        nz = cols[i, 0]
+        if nz == 0:
+            for j in range(n):
+                tmp[i, j] = 0.0
+            continue
+        k = cols[i, 1]
+        v = vals[i, 0]
+        for j in range(n):  # the first term added to zero, as the sum's definition says
+            tmp[i, j] = 0.0 + v * p[k, j]
+        for t in range(1, nz):
             k = cols[i, 1 + t]
             v = vals[i, t]
             for j in range(n):
@@ -352,11 +359,13 @@ def joseph_selection(p, kt, kr, hp, idx, mp, g, acc):
     for i in range(nc):
         for a in range(m):
             g[a] = kr[i, a] - mp[i, idx[a]]
-        for j in range(i, nc):  # the upper triangle only: the lower one is its mirror
+        # The whole row is summed (loops of one fixed length run faster than ones from i),
+        # its upper triangle kept: the lower one is its mirror.
+        for j in range(nc):
             acc[j] = mp[i, j]
         for a in range(m):
             ga = g[a]
-            for j in range(i, nc):
+            for j in range(nc):
                 acc[j] += ga * kt[a, j]
         for j in range(i, nc):
             w = acc[j]

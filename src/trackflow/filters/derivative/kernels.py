@@ -72,6 +72,9 @@ KERNELS = (
     "predict_into",
     "predict",
     "residual_into",
+    "innovation_into",
+    "jacobian_into",
+    "selection_of",
     "residual_size",
     "residual",
     "meas_cov",
@@ -83,6 +86,7 @@ KERNELS = (
     "update_into",
     "update",
     "update_with",
+    "update_dense",
     "local",
     "initialize",
     "pose_of",
@@ -380,17 +384,56 @@ def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, qa, qb):
     ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
     not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
     ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
-    ``qa`` and ``qb`` (4) are scratch.
+    ``qa`` and ``qb`` (4) are scratch. :func:`innovation_into` and :func:`jacobian_into`.
     """
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb)
+    jacobian_into(x, n_dp, n_do, additive, lp, lo, h)
+
+
+def innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb):
+    """The innovation ``y`` of :func:`residual_into` alone; ``qa`` and ``qb`` (4) scratch."""
+    npl = n_dp + 1 if n_dp >= 0 else 0
     for i in range(y.shape[0]):
         y[i] = 0.0
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            y[k] = zp[k] - x[3 * lp + k]
+        r = 3
+    if lo < 0:
+        return
+    qo = 3 * npl
+    if lo >= 1:
+        xo = qo + 4 + 3 * (lo - 1)
+        for k in range(3):
+            y[r + k] = zo[k] - x[xo + k]
+        return
+    if not additive:
+        qa[0], qa[1], qa[2], qa[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
+        qmul_into(qa, zo, qb)
+        qlog_into(qb, qa)
+        for k in range(3):
+            y[r + k] = qa[k]
+        return
+    q = x[qo : qo + 4]
+    ll = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    s = 1.0
+    if zo[0] * q[0] + zo[1] * q[1] + zo[2] * q[2] + zo[3] * q[3] < 0.0:
+        s = -1.0
+    for i in range(4):
+        y[r + i] = s * zo[i] - q[i] / ll
+
+
+def jacobian_into(x, n_dp, n_do, additive, lp, lo, h):
+    """The Jacobian ``H`` of :func:`residual_into` alone (``x`` is read by the additive
+    orientation only): a selection of state rows (:func:`selection_of`) but for that one."""
+    npl, nol, nx, nc = dims(n_dp, n_do, additive)
+    for i in range(h.shape[0]):
         for j in range(nc):
             h[i, j] = 0.0
     r = 0
     if lp >= 0:
         for k in range(3):
-            y[k] = zp[k] - x[3 * lp + k]
             h[k, 3 * lp + k] = 1.0
         r = 3
     if lo < 0:
@@ -400,27 +443,42 @@ def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, qa, qb):
         xo = qo + 4 + 3 * (lo - 1)
         co = xo if additive else qo + 3 * lo
         for k in range(3):
-            y[r + k] = zo[k] - x[xo + k]
             h[r + k, co + k] = 1.0
         return
     if not additive:
-        qa[0], qa[1], qa[2], qa[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
-        qmul_into(qa, zo, qb)
-        qlog_into(qb, qa)
         for k in range(3):
-            y[r + k] = qa[k]
             h[r + k, qo + k] = 1.0
         return
     q = x[qo : qo + 4]
     dd = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
     ll = math.sqrt(dd)
-    s = 1.0
-    if zo[0] * q[0] + zo[1] * q[1] + zo[2] * q[2] + zo[3] * q[3] < 0.0:
-        s = -1.0
     for i in range(4):
-        y[r + i] = s * zo[i] - q[i] / ll
         for j in range(4):
             h[r + i, qo + j] = ((dd if i == j else 0.0) - q[i] * q[j]) / (ll * dd)
+
+
+def selection_of(n_dp, n_do, additive, lp, lo, idx):
+    """Whether :func:`jacobian_into` writes a selection (one ``1`` per row, zeros elsewhere),
+    with its columns written to ``idx``: :func:`selection_rows` of that ``H``, known without
+    writing it. Every measurement but the additive orientation is one; that one never is
+    (the row of its largest ``|q_i|``, or a NaN row, holds no single ``1``)."""
+    if additive and lo == 0:
+        return False
+    npl = n_dp + 1 if n_dp >= 0 else 0
+    qo = 3 * npl
+    r = 0
+    if lp >= 0:
+        for k in range(3):
+            idx[k] = 3 * lp + k
+        r = 3
+    if lo >= 1:
+        co = qo + 4 + 3 * (lo - 1) if additive else qo + 3 * lo
+        for k in range(3):
+            idx[r + k] = co + k
+    elif lo == 0:
+        for k in range(3):
+            idx[r + k] = qo + k
+    return True
 
 
 def residual_size(additive, lp, lo):
@@ -468,12 +526,13 @@ def meas_cov(c, q, lp, lo, additive):
     return sym(v @ ce @ v.T)
 
 
-def gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta):
+def gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, krt):
     """Kalman gain from ``H P`` and ``S = H P H^T + R``: returns ``(status, nis)``.
 
     On ACCEPTED ``kt`` holds ``K^T = S^-1 H P``, ``kr`` holds ``K R`` and ``delta`` the
     correction ``K y``; GATED (``nis > gate``) and DIVERGED (``S`` not positive definite or a
-    non-finite NIS) leave them undefined. ``lo`` and ``sy`` are scratch.
+    non-finite NIS) leave them undefined. ``lo``, ``sy`` and ``krt`` (at least m x nc) are
+    scratch.
     """
     nc = hp.shape[1]
     m = y.shape[0]
@@ -498,13 +557,18 @@ def gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta):
     for a_ in range(m):
         for i in range(nc):
             delta[i] += kt[a_, i] * y[a_]
+    # K R summed as (K R)^T along the rows of K^T (contiguous, of length nc), then
+    # transposed: each entry the same terms in the same order as kr[i, b] += kt[a, i] r[a, b]
+    for b_ in range(m):
+        for i in range(nc):
+            krt[b_, i] = 0.0
+        for a_ in range(m):
+            rv = r[a_, b_]
+            for i in range(nc):
+                krt[b_, i] += kt[a_, i] * rv
     for i in range(nc):
         for b_ in range(m):
-            kr[i, b_] = 0.0
-    for i in range(nc):
-        for a_ in range(m):
-            for b_ in range(m):
-                kr[i, b_] += kt[a_, i] * r[a_, b_]
+            kr[i, b_] = krt[b_, i]
     return ACCEPTED, nis
 
 
@@ -593,7 +657,7 @@ def update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws):
     for a_ in range(m):
         for b_ in range(m):
             s[a_, b_] = 0.5 * (hp[a_, idx[b_]] + hp[b_, idx[a_]]) + 0.5 * (r[a_, b_] + r[b_, a_])
-    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta)
+    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, mp)
     if status != ACCEPTED:
         return status, nis
     joseph_selection(p, kt, kr, hp, idx, mp, g, acc)
@@ -620,14 +684,19 @@ def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
 def update_with(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws, idx):
     """:func:`update` with its scratch arrays given (:func:`update_scratch` and ``idx``
     (m,) int), so that a loop over many filters allocates them once."""
-    nc = p.shape[0]
-    m = y.shape[0]
     if selection_rows(h, idx):
         return update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws)
+    return update_dense(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws)
+
+
+def update_dense(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws):
+    """:func:`update_with` of an ``H`` that is not a selection: dense products."""
+    nc = p.shape[0]
+    m = y.shape[0]
     hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
     hp[:, :] = h @ p
     s[:, :] = sym(hp @ h.T + r)
-    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta)
+    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, mp)
     if status != ACCEPTED:
         return status, nis
     # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
@@ -934,11 +1003,19 @@ def step_with(
             for j in range(rows):
                 log[o + 7 + i * rows + j] = r[i, j]
     predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
-    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, uws[10], uws[11])
-    status, nis = update_with(
-        x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do, additive,
-        wmax, uws, idx,
-    )  # fmt: skip
+    # update_with, without writing H and searching it for a selection (known from the levels)
+    if selection_of(n_dp, n_do, additive, lp, lo, idx):
+        innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, uws[10], uws[11])
+        status, nis = update_into(
+            x, p, y, measurement_cov(r, x, n_dp, lp, lo, additive), idx, gate, n_dp, n_do,
+            additive, wmax, uws,
+        )  # fmt: skip
+    else:
+        residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, uws[10], uws[11])
+        status, nis = update_dense(
+            x, p, y, h, measurement_cov(r, x, n_dp, lp, lo, additive), gate, n_dp, n_do,
+            additive, wmax, uws,
+        )  # fmt: skip
     if log.shape[0] > 0:
         for i in range(nx):
             log[i] = x[i]
