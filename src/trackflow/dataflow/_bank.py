@@ -113,8 +113,10 @@ class KalmanBank:
 
         ``answer = (at_ns, deliver)`` answers the packet as soon as the filters are updated:
         ``deliver`` gets :meth:`pull_block` of the same components at ``at_ns`` [ns], before
-        the filters' log entries are written (:meth:`PoseFilterBank.settle`, right after
-        ``deliver`` returns). ``deliver`` must not call into the components."""
+        the bookkeeping (the filters', :meth:`PoseFilterBank.settle`, and the components'
+        counts, right after ``deliver`` returns). ``deliver`` must not call into the
+        components. A list of components pushed again and again (a tracker's packet) is
+        looked up once (:meth:`_lane`) and checked per call for what may have changed."""
         cs = self._lane(index)
         times = None if cs is None else self._lane_times(cs, index, t_ns)
         if times is None:
