@@ -7,18 +7,19 @@
 * ``natnet_pkg_frames_per_s``: the same NatNet 3.1 frames with the ``natnet`` package 0.3.0
   (``DataFrame.read_from_buffer``), the peer, measured in the same run.
 * ``e2e_latency_us``: a ``trackflow simulate natnet`` process sends 20 bodies at 240 Hz
-  (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one core,
-  receives each packet, decodes it, maps the exposure time and, in the receiving thread as
-  ``trackflow run`` does, pushes the packet's 20 measurements as arrays (a ``SampleBlock``)
-  into 20 pose Kalman filters (``LiveSources.deliver_block``: the filters' updates in one
-  batched call) with an answer: the 20 filtered poses at the packet's arrival time, as
-  arrays (one batched prediction), handed to a callback as soon as the filters are
-  updated; the filters' log entries are written after it. The latency is from the packet's
-  receipt (the kernel's receive stamp, so time in the socket buffer counts) to the answers'
-  delivery (``time.time_ns`` on entering the callback, same clock). The input sleeps in its
-  selector until a packet comes (its default). ``polling`` repeats the run with the input's
-  ``spin_us`` (``--spin-us``, default 300): it polls from that long before each frame is due
-  instead of sleeping, which saves the wake-up at the price of ``cpu_share`` of a core.
+  (TUM-VI room1 replayed at twice its speed) over loopback; this process, pinned to one
+  core, receives each packet, decodes it, maps the exposure time and, in the receiving
+  thread as ``trackflow run`` does, pushes the packet's 20 measurements as arrays (a
+  ``SampleBlock``) into 20 pose Kalman filters (``LiveSources.deliver_block``: the filters'
+  updates and their answers, the 20 filtered poses at the packet's arrival time as arrays,
+  in one compiled call), handed to a callback as soon as the filters are updated; the
+  bookkeeping (the filters' times and log records, the counts) follows it. The latency is
+  from the packet's receipt (the kernel's receive stamp, so time in the socket buffer
+  counts) to the answers' delivery (``time.time_ns`` on entering the callback, same clock).
+  The input sleeps in its selector until a packet comes (its default). ``polling`` repeats
+  the run with the input's ``spin_us`` (``--spin-us``, default 300): it polls from that long
+  before each frame is due instead of sleeping, which saves the wake-up at the price of
+  ``cpu_share`` of a core.
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
 shared: take the figures as the best of a few runs.

@@ -5,12 +5,13 @@ bodies at 240 Hz goes through ``LiveInput.handle`` (decode, clock mapping, 20 ch
 samples as arrays, a ``SampleBlock``). They go through ``LiveSources.deliver_block`` (each
 source's checks, then the 20 pose Kalman filters' updates in one batched call, as
 ``trackflow run`` delivers a packet) with an answer: the 20 filtered poses at the packet's
-arrival, as arrays (one batched prediction), delivered before the filters' bookkeeping
-(their log entries), which follows. Per packet: ``handle_us`` (decoding to samples),
-``answer_us`` (samples to answers delivered), ``settle_us`` (the bookkeeping after),
-``packet_us`` (handle + answer: the packet's latency in CPU) and ``total_us`` (all of it).
-Thread CPU times are less sensitive to other jobs than wall-clock latencies. The script
-prints the p10, p50 and p99 per packet over ``--packets`` packets, after 200 warm-up packets.
+arrival, as arrays (predicted in the same compiled call), delivered before the bookkeeping
+(the filters' times and log records, the counts), which follows. Per packet: ``handle_us``
+(decoding to samples), ``answer_us`` (samples to answers delivered), ``settle_us`` (the
+bookkeeping after), ``packet_us`` (handle + answer: the packet's latency in CPU) and
+``total_us`` (all of it). Thread CPU times are less sensitive to other jobs than wall-clock
+latencies. The script prints the p10, p50 and p99 per packet over ``--packets`` packets,
+after 200 warm-up packets.
 
 Usage: ``python bench/trackers_cpu.py [--json] [--packets N]``.
 """
