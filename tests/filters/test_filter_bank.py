@@ -241,3 +241,22 @@ def _diverge_in_a_lane():
         xa, pa = fa.state
         xb, pb = fb.state
         assert xa.tobytes() == xb.tobytes() and pa.tobytes() == pb.tobytes()
+
+
+def test_layouts_are_made_once_each_and_bounded():
+    """A layout's value (``None`` too) is made on its first call only; past ``limit``
+    layouts the collection starts afresh."""
+    from trackflow.filters import Layouts
+
+    made = []
+
+    def make(key):
+        made.append(key)
+        return None if key == (9,) else sum(key)
+
+    lay = Layouts(make, limit=3)
+    assert [lay((1, 2)), lay((9,)), lay((1, 2)), lay((9,))] == [3, None, 3, None]
+    assert made == [(1, 2), (9,)] and (9,) in lay
+    lay((4,))
+    assert lay((5,)) == 5 and made[-1] == (5,) and (1, 2) not in lay  # the fourth: afresh
+    assert lay((1, 2)) == 3 and made[-1] == (1, 2)

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..filters import PoseFilterBank, PredictedPoses
+from ..filters import Layouts, PoseFilterBank, PredictedPoses
 from ..math import UncertainPose
 from ._events import Measurement
 from ._processing import KalmanFilter
@@ -54,7 +54,7 @@ class KalmanBank:
     def __init__(self, components: Sequence[KalmanFilter]):
         self.components = list(components)
         self._bank: PoseFilterBank | None = None
-        self._lanes: dict[tuple, list | None] = {}  # per index list (_lane)
+        self._lanes = Layouts(self._make_lane)  # per index list of push_block
 
     def _filters(self) -> PoseFilterBank:
         """The filter bank over the components' current filters (rebuilt after a reset)."""
@@ -116,12 +116,17 @@ class KalmanBank:
         the bookkeeping (the filters', :meth:`PoseFilterBank.settle`, and the components'
         counts, right after ``deliver`` returns). ``deliver`` must not call into the
         components. A list of components pushed again and again (a tracker's packet) is
-        looked up once (:meth:`_lane`) and checked per call for what may have changed."""
-        cs = self._lane(index)
+        looked up once (:class:`Layouts`) and checked per call for what may have changed."""
+        cs = self._lanes(tuple(index))
         times = None if cs is None else self._lane_times(cs, index, t_ns)
-        if times is None:
-            self._push_block(index, t_ns, position, quaternion, covariance, answer)
-            return
+        if times is None:  # not a lane, or a component changed since: the general checks
+            comps = self.components
+            cs = [comps[i] for i in index]
+            if not all(map(self._plain, cs)):
+                self._push_objects(index, t_ns, position, quaternion, covariance, answer)
+                return
+            times = self._times(index, [t_ns] * len(index))
+            self._filters()
         bank = self._bank
         if answer is None:
             accepted = bank.update_block(index, times, position, quaternion, covariance)
@@ -147,21 +152,13 @@ class KalmanBank:
                 self._answers_counted(cs, answered)
             bank.settle()
 
-    def _lane(self, index: Sequence[int]) -> list | None:
-        """The components ``index`` of a list pushed again and again (a tracker's packet),
-        looked up once per list; ``None`` unless each is a :class:`KalmanFilter` (not a
-        subclass) and comes once."""
-        key = tuple(index)
-        lane = self._lanes.get(key, False)
-        if lane is False:
-            if len(self._lanes) >= 64:
-                self._lanes.clear()
-            cs = [self.components[i] for i in key]
-            once = len(set(key)) == len(key)
-            lane = self._lanes[key] = (
-                cs if once and all(type(c) is KalmanFilter for c in cs) else None
-            )
-        return lane
+    def _make_lane(self, key: tuple) -> list | None:
+        """The components of an index list pushed again and again (a tracker's packet),
+        looked up once (:class:`Layouts`); ``None`` unless each is a :class:`KalmanFilter`
+        (not a subclass) and comes once."""
+        cs = [self.components[i] for i in key]
+        once = len(set(key)) == len(key)
+        return cs if once and all(type(c) is KalmanFilter for c in cs) else None
 
     def _lane_times(self, cs: list, index: Sequence[int], t_ns: int) -> list[float] | None:
         """The filter times [s] of a block at ``t_ns`` for the components ``cs`` (at
@@ -206,37 +203,18 @@ class KalmanBank:
             else:
                 c.stats.reject("prediction failed")
 
-    def _push_block(self, index, t_ns, position, quaternion, covariance, answer) -> None:
-        """:meth:`push_block` of components not all plain (or not all once, or not yet
-        banked)."""
-        comps = self.components
-        if not all(map(self._plain, map(comps.__getitem__, index))):
-            trusted = UncertainPose._trusted
-            self.push(
-                [
-                    (i, Measurement(t_ns, trusted(position[k], quaternion[k], covariance[k]), t_ns))
-                    for k, i in enumerate(index)
-                ]
-            )
-            if answer is not None:
-                self.answer(index, answer)
-            return
-        times = self._times(index, [t_ns] * len(index))
-        bank = self._filters()
-        stamps = [(t_ns, t_ns)] * len(index)
-        if answer is None:
-            accepted = bank.update_block(index, times, position, quaternion, covariance)
-            self._account(index, stamps, accepted)
-            return
-        at_ns, deliver = answer
-        accepted, ahead = bank.update_block(
-            index, times, position, quaternion, covariance, defer=True, predict_at=at_ns * 1e-9
+    def _push_objects(self, index, t_ns, position, quaternion, covariance, answer) -> None:
+        """:meth:`push_block` of components not all plain: their measurements as objects,
+        in order (:meth:`push`), then the answers."""
+        trusted = UncertainPose._trusted
+        self.push(
+            [
+                (i, Measurement(t_ns, trusted(position[k], quaternion[k], covariance[k]), t_ns))
+                for k, i in enumerate(index)
+            ]
         )
-        self._account(index, stamps, accepted)
-        try:
-            deliver(self._pulled(index, [at_ns] * len(index), ahead))
-        finally:
-            bank.settle()
+        if answer is not None:
+            self.answer(index, answer)
 
     def answer(self, index: Sequence[int], answer: tuple[int, Callable]) -> None:
         """``deliver(pull_block(index, [at_ns] * len(index)))`` for ``answer = (at_ns,

@@ -41,7 +41,7 @@ from ..dataflow import (
     Sampler,
     Setup,
 )
-from ..filters import PoseFilterBank
+from ..filters import Layouts, PoseFilterBank
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
 from .inputs import (
@@ -178,7 +178,7 @@ class LiveSources:
         #: the filters fed directly by a source, in one bank (pull answers through it)
         self.filters = KalmanBank(kfs)
         self.row = {name: r[0] for name, r in self._row.items()}
-        self._lanes: dict[tuple, tuple | None] = {}  # per list of names (_lane)
+        self._lanes = Layouts(self._make_lane)  # per list of names of deliver_block
 
     def deliver(self, items, clock=None) -> list[UncertainPose | None]:
         """Deliver ``(name, sample)`` pairs in order; the accepted poses (``None`` for a
@@ -221,7 +221,7 @@ class LiveSources:
         filters at ``at_ns`` [ns] as :class:`~trackflow.filters.PredictedPoses` in the order
         of ``names``, go to ``deliver`` as soon as the filters are updated, before their
         bookkeeping (:meth:`KalmanBank.push_block`); every source must feed one filter."""
-        lane = self._lane(names)
+        lane = self._lanes(tuple(names))
         if lane is not None and self._fresh_lane(lane, block.t_ns):
             srcs, index = lane
             try:  # the sources' counts after the answer: a sample in and out each
@@ -240,20 +240,14 @@ class LiveSources:
             return [True] * len(names)
         return self._deliver_block(names, block, arrival_ns, clock, answer)
 
-    def _lane(self, names) -> tuple | None:
+    def _make_lane(self, key: tuple) -> tuple | None:
         """``(sources and their consumer lists, filter rows)`` of a list of names that feed
-        one filter each, looked up once per list (a tracker's packet layout), else ``None``."""
-        key = tuple(names)
-        lane = self._lanes.get(key, False)
-        if lane is False:
-            if len(self._lanes) >= 64:
-                self._lanes.clear()
-            rows = [self._row.get(n) for n in key]
-            lane = None
-            if key and None not in rows and len(set(key)) == len(key):
-                lane = ([(self.sources[n], r[1]) for n, r in zip(key, rows)], [r[0] for r in rows])
-            self._lanes[key] = lane
-        return lane
+        one filter each (a tracker's packet layout, looked up once: :class:`Layouts`), else
+        ``None``."""
+        rows = [self._row.get(n) for n in key]
+        if not key or None in rows or len(set(key)) != len(key):
+            return None
+        return [(self.sources[n], r[1]) for n, r in zip(key, rows)], [r[0] for r in rows]
 
     @staticmethod
     def _fresh_lane(lane: tuple, t_ns: int) -> bool:

@@ -7,7 +7,7 @@ one packet in one compiled call) and ``offline`` (:func:`run_filter` and the smo
 :func:`smooth_filter` over whole recordings). See ``docs/filters.md``.
 """
 
-from .bank import PoseFilterBank, PredictedPoses
+from .bank import Layouts, PoseFilterBank, PredictedPoses
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter, smooth_filter
 from .streaming import FilterSnapshot, PoseKalmanFilter
@@ -16,6 +16,7 @@ __all__ = [
     "FORMULATIONS",
     "FilterResult",
     "FilterSnapshot",
+    "Layouts",
     "MotionModel",
     "PoseFilterBank",
     "PoseKalmanFilter",

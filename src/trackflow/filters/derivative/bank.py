@@ -34,7 +34,7 @@ from .. import gating
 from . import kernels as _source
 from .streaming import PoseKalmanFilter, _Entry, kernels
 
-__all__ = ["PoseFilterBank", "PredictedPoses"]
+__all__ = ["Layouts", "PoseFilterBank", "PredictedPoses"]
 
 
 class _Kind:
@@ -84,6 +84,32 @@ class _Batch:
         self.out = None  # the kernel's status (m,) int, NIS (m,) and (m, 0) (no records)
         self.ts = None  # the steps' times (a lane's), [s]
         self.ahead = None  # PredictedPoses made with the steps (_step's ``at``)
+
+
+class Layouts:
+    """What a caller works out once per layout of a packet (the tuple of bodies, sensors or
+    filter indices a tracker sends again and again): ``layouts(key)`` is ``make(key)``, made
+    on the first call with that key and kept (``None`` too: a layout the caller's fast path
+    does not take). At most ``limit`` layouts are kept; more (a stream of changing
+    layouts) start the collection afresh."""
+
+    __slots__ = ("_make", "_limit", "_made")
+
+    def __init__(self, make, limit: int = 64):
+        self._make, self._limit = make, limit
+        self._made: dict = {}
+
+    def __call__(self, key: tuple):
+        made = self._made
+        value = made.get(key, made)
+        if value is made:
+            if len(made) >= self._limit:
+                made.clear()
+            value = made[key] = self._make(key)
+        return value
+
+    def __contains__(self, key: tuple) -> bool:
+        return key in self._made
 
 
 class _Lane:
@@ -157,7 +183,7 @@ class PoseFilterBank:
         self._kinds: list[_Kind] = []
         self._slot: list[tuple[_Kind, int] | None] = []
         self._unlogged: list = []  # kernel steps whose bookkeeping waits (settle)
-        self._lanes: dict[tuple, _Lane | None] = {}  # per index list of update_block
+        self._lanes = Layouts(self._make_lane)  # per index list of update_block
         members: list[list[int]] = []
         for i, f in enumerate(self.filters):
             k = None
@@ -288,8 +314,9 @@ class PoseFilterBank:
         up once (:meth:`_lane_batch`).
 
         Returns the list of :meth:`update_poses`; with ``predict_at`` [s], the pair of it and
-        ``predict_block(index, [predict_at] * m)``, made right after the update (when the
-        kernel stepped every filter, from the rows it just wrote: no loop over them)."""
+        ``predict_block(index, [predict_at] * m)``, made right after the update (for a lane
+        not answered in the past, in the kernel call of the update, from the rows it has
+        just written)."""
         if self._unlogged:
             self.settle()
         b = self._lane_batch(index, t)
@@ -328,12 +355,7 @@ class PoseFilterBank:
         (:class:`_Lane`) and each is ready at its time ``t[k]`` [s] as :meth:`_ready` has
         it (a state not after it, no reset due, the bank's row as its state), else ``None``:
         the general path then takes the call."""
-        key = tuple(index)
-        lane = self._lanes.get(key, False)
-        if lane is False:
-            if len(self._lanes) >= 64:  # index lists come from a few packet layouts
-                self._lanes.clear()
-            lane = self._lanes[key] = self._make_lane(key)
+        lane = self._lanes(tuple(index))
         if lane is None:
             return None
         reset = lane.kind.reset_after
