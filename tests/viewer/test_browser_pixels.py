@@ -77,7 +77,12 @@ def test_four_times_the_covariance_covers_four_times_the_area(browser):
                 page = browser.open(view.url, f"covariance step {k}")
             else:
                 browser.wait_text(page, f"covariance step {k}")
-            areas.append(int(_magenta(_scene_part(browser.capture(page))).sum()))
+            # wait until the new ellipsoid is drawn (software WebGL under load lags the
+            # status text), then until two screenshots agree
+            least = 500 if k == 0 else 1.5 * areas[0]
+            browser.capture_until(page, lambda im, n=least: _magenta(_scene_part(im)).sum() > n)
+            img = browser.capture(page, stable_s=10.0)
+            areas.append(int(_magenta(_scene_part(img)).sum()))
         assert areas[0] > 500, f"the ellipsoid is hardly visible ({areas[0]} px)"
         # radii double -> the projected area is four times as large (perspective: about)
         assert 3.3 < areas[1] / areas[0] < 4.7, areas
@@ -105,6 +110,14 @@ def _sensor(name, rate, end_s, k, rng, sigma):
     )  # fmt: skip
 
 
+PANEL = slice(int(W * 0.55), W)  # the graph panel, docked on the right
+
+
+def _red(img: np.ndarray) -> int:
+    """Pixels of the stale colour in the panel."""
+    return int(_mask(img[:, PANEL], (214, 39, 40)).sum())
+
+
 def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
     setup = parse_setup(SETUP)
     rng = np.random.default_rng(0)
@@ -129,14 +142,15 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
                 browser.wait_text(page, text)
             browser.settle(page, 700)  # the panel redraws at 5 Hz
             states = {s.name: s.state for s in live.edge_statuses()}
-            shots.append((browser.capture(page), states))
+            if until_s < 1.0:
+                img = browser.capture(page)
+            else:  # the panel's redraw may lag under load: wait (bounded) for the red arrow
+                img = browser.capture_until(page, lambda im: _red(im) > 150)
+            shots.append((img, states))
         (img0, st0), (img1, st1) = shots
         assert st0["art"] == "live" and st1["art"] == "stale" and st1["cam"] == "live"
-        panel = slice(int(W * 0.55), W)
-        green0 = _mask(img0[:, panel], (26, 158, 58)).sum()
-        red0 = _mask(img0[:, panel], (214, 39, 40)).sum()
-        green1 = _mask(img1[:, panel], (26, 158, 58)).sum()
-        red1 = _mask(img1[:, panel], (214, 39, 40)).sum()
+        green0, red0 = _mask(img0[:, PANEL], (26, 158, 58)).sum(), _red(img0)
+        green1, red1 = _mask(img1[:, PANEL], (26, 158, 58)).sum(), _red(img1)
         assert COLOURS["stale"] == "#d62728" and COLOURS["live"] == "#1a9e3a"
         assert red0 < 0.2 * red1, (red0, red1)  # the red arrow appeared
         assert red1 > 150, red1
@@ -155,6 +169,20 @@ def _circle_stream(duration_s=6.0, rate=100.0) -> PoseStream:
     return PoseStream("world", "body", np.round(t * 1e9).astype(np.int64), pos, q)
 
 
+def _centroid(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean(), ys.mean()])
+
+
+def _shows_body_apart(img: np.ndarray, earlier: list, px: float = 40.0) -> bool:
+    """The body is drawn, and more than ``px`` from every centroid in ``earlier``."""
+    m = _magenta(_scene_part(img))
+    if m.sum() <= 30:
+        return False
+    c = _centroid(m)
+    return all(np.linalg.norm(c - e) > px for e in earlier)
+
+
 def test_scrubbing_a_recording_moves_the_body(browser):
     track = RecordingTrack.from_stream(_circle_stream())
     # a big body marker so the centroid is well defined
@@ -169,10 +197,11 @@ def test_scrubbing_a_recording_moves_the_body(browser):
                 page = browser.open(view.url, text)
             else:
                 browser.wait_text(page, text)
-            m = _magenta(_scene_part(browser.capture(page)))
+            # the body is drawn some frames after the status text (software WebGL under load)
+            img = browser.capture_until(page, lambda im: _shows_body_apart(im, centroids))
+            m = _magenta(_scene_part(img))
             assert m.sum() > 30, "the body is not visible"
-            ys, xs = np.nonzero(m)
-            centroids.append(np.array([xs.mean(), ys.mean()]))
+            centroids.append(_centroid(m))
         moved = float(np.linalg.norm(centroids[1] - centroids[0]))
         assert moved > 40.0, f"the body moved only {moved:.1f} px"
     finally:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -144,6 +145,23 @@ class Browser:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             Path(path).write_bytes(png)
         return np.asarray(Image.open(BytesIO(png)).convert("RGB"))
+
+    def capture_until(
+        self, page, accept: Callable[[np.ndarray], bool], within_s: float | None = None
+    ) -> np.ndarray:
+        """The first screenshot for which ``accept(image)`` holds, taken about 0.5 s apart.
+
+        For a scene update that arrived with the status text but is drawn some frames later
+        (software WebGL under load can take seconds per frame). Bounded by ``within_s``
+        (default: the browser's timeout); then the last screenshot is returned as it is, so
+        the caller's assertion reports what was shown.
+        """
+        limit = self.timeout_ms / 1e3 if within_s is None else within_s
+        deadline = time.monotonic() + limit
+        img = self.capture(page)
+        while not accept(img) and time.monotonic() < deadline:
+            img = self.capture(page)  # each capture first lets the page draw for 0.5 s
+        return img
 
 
 def snapshot(
