@@ -126,9 +126,12 @@ def test_atomic_output_refuses_directory_to_stdout():
 
 _SLOW_CONVERT = textwrap.dedent(
     """
-    import sys, time
+    import signal, sys, time
     from pathlib import Path
     from trackflow.cli.main import main
+
+    # Ctrl-C raises KeyboardInterrupt even if the test runs with SIGINT ignored (inherited)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     real = Path.write_text
 

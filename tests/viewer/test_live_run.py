@@ -61,10 +61,18 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+# The command line with Ctrl-C raising KeyboardInterrupt even where this test was started with
+# SIGINT ignored (a background job of a script inherits that, and so would the child).
+_CLI = (
+    "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "from trackflow.cli.main import main; sys.exit(main(sys.argv[1:]))"
+)
+
+
 def _trackflow(*args) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     return subprocess.Popen(
-        [sys.executable, "-m", "trackflow.cli.main", *map(str, args)],
+        [sys.executable, "-c", _CLI, *map(str, args)],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
 
