@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import os
+import queue
+import signal
 import socket
 import subprocess
 import sys
@@ -311,23 +313,60 @@ queries:
 """
 
 
+def _stderr_lines(p: subprocess.Popen) -> queue.Queue:
+    lines: queue.Queue = queue.Queue()
+
+    def read() -> None:
+        for line in p.stderr:
+            lines.put(line)
+
+    threading.Thread(target=read, daemon=True).start()
+    return lines
+
+
+def _wait_for(lines: queue.Queue, accept, timeout_s: float) -> str:
+    """The first line of ``lines`` that ``accept`` takes, within ``timeout_s``."""
+    end, seen = time.monotonic() + timeout_s, []
+    while time.monotonic() < end:
+        try:
+            line = lines.get(timeout=max(end - time.monotonic(), 0.01))
+        except queue.Empty:
+            break
+        if accept(line):
+            return line
+        seen.append(line)
+    raise AssertionError(f"no such line within {timeout_s} s; the last: {seen[-3:]}")
+
+
 @pytest.mark.slow
 def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
+    """Two simulated trackers feed ``trackflow run``, which a service manager's SIGTERM stops
+    once both are stale: the summary still counts every packet, and the recording replays to
+    the same answers bit for bit."""
     nn, dt = _free_port(), _free_port()
     setup = tmp_path / "live.yaml"
     setup.write_text(LIVE_SETUP.format(nn=nn, dt=dt))
     rec = tmp_path / "out.tfrec"
-    run = _trackflow("run", setup, "--duration", 15, "--record", rec, "--json")
-    first: list[str] = []
-    reader = threading.Thread(target=lambda: first.append(run.stderr.readline()), daemon=True)
-    reader.start()
-    reader.join(180)  # the run compiles (or loads) its filters, then says it is listening
-    assert first and first[0].startswith("listening"), first
-    common = ("--duration", 3, "--jitter-ms", 1, "--wait", 20)
-    s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
-    s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, "--start", 0.5, *common)
-    sent = [json.loads(_finish(s, 90))["sent"] for s in (s1, s2)]
-    out = json.loads(_finish(run, 90))
+    run = _trackflow("run", setup, "--duration", 120, "--record", rec, "--json")
+    try:
+        lines = _stderr_lines(run)
+        # the run compiles (or loads) its filters, then says it is listening
+        _wait_for(lines, lambda line: line.startswith("listening"), 180)
+        common = ("--duration", 3, "--jitter-ms", 1, "--wait", 20)
+        s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
+        s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, "--start", 0.5, *common)
+        sent = [json.loads(_finish(s, 90))["sent"] for s in (s1, s2)]
+        # both stale: every packet sent has been received (a status line a second)
+        _wait_for(lines, lambda line: line.count("STALE") == 2, 60)
+        run.send_signal(signal.SIGTERM)
+        out, _ = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0
+    out = json.loads(out)
+    assert out["interrupted"] and out["signal"] == "SIGTERM", out
     assert out["sensors"]["hand"]["measurements"] == sent[1], out
     assert out["sensors"]["head"]["measurements"] > 0.9 * sent[0], out
     assert out["answers"] > 50, out

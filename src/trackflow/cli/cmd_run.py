@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import sys
+import threading
 from pathlib import Path
 
 
@@ -13,9 +16,10 @@ def register(subparsers) -> argparse.ArgumentParser:
         "run",
         help="run a setup live on its trackers (DTrack, NatNet, VRPN, optical) or replay a run",
         description="Connect to the trackers named in the setup's 'input:' keys, run the "
-        "query's dataflow until Ctrl-C (or --duration) with a status line per sensor, record "
-        "every input and answer (--record), serve the answers over VRPN (--vrpn-port); or "
-        "replay a recorded run offline and check that it gives the same answers bit for bit.",
+        "query's dataflow until Ctrl-C, SIGTERM or SIGHUP (or --duration) with a status line "
+        "per sensor, record every input and answer (--record), serve the answers over VRPN "
+        "(--vrpn-port); or replay a recorded run offline and check that it gives the same "
+        "answers bit for bit.",
     )
     p.add_argument("setup", type=Path, help="YAML setup file")
     p.add_argument("--query", help="name of a push query in the setup (default: the first)")
@@ -69,16 +73,19 @@ def run(args) -> int:
         from ..trackers.vrpn_server import VrpnTrackerServer
 
         server = VrpnTrackerServer("Tracker0", args.vrpn_host, args.vrpn_port)
+    stop, stopped_by = threading.Event(), []
     try:
-        res = run_live(
-            setup,
-            query=args.query,
-            duration_s=args.duration,
-            record=args.record,
-            vrpn_out=server,
-            on_status=None if args.quiet else _status,
-            on_network=on_network,
-        )
+        with _stop_on_signals(stop, stopped_by):
+            res = run_live(
+                setup,
+                query=args.query,
+                duration_s=args.duration,
+                record=args.record,
+                vrpn_out=server,
+                on_status=None if args.quiet else _status,
+                on_network=on_network,
+                stop=stop,
+            )
     finally:
         for view in views:
             view.close()
@@ -88,12 +95,38 @@ def run(args) -> int:
         "answers": res.answers,
         "ticks": res.ticks,
         "duration_s": round(res.duration_s, 3),
-        "interrupted": res.interrupted,
+        "interrupted": res.interrupted or bool(stopped_by),
         "sensors": res.statuses,
         "record": None if res.record is None else str(res.record),
     }
+    if stopped_by:
+        out["signal"] = stopped_by[0]
     print(json.dumps(out) if args.json else _lines(out))
     return 0
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):
+    """SIGTERM and SIGHUP (a service manager's stop, a closed terminal) end the run as Ctrl-C
+    does: the loop stops, the recording is closed and the summary printed (exit code 0),
+    rather than the command line's default of unwinding with exit code 128 + signal. The
+    signal's name goes to ``stopped_by``. Outside the main thread signals are left alone."""
+
+    def handler(signum, frame) -> None:
+        stopped_by.append(signal.Signals(signum).name)
+        stop.set()
+
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            old[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread (embedded use)
+            pass
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
 
 
 def _sensor_info(inputs):
