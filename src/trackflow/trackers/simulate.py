@@ -308,9 +308,10 @@ class Simulator:
 
     def truth(self) -> PoseStream:
         """Exposure host times and poses of the sent samples, in time order."""
-        order = np.argsort(self.truth_t, kind="stable")
-        idx = np.asarray(self.truth_i, dtype=np.int64)[order]
-        t = np.asarray(self.truth_t, dtype=np.int64)[order]
+        n = min(len(self.truth_t), len(self.truth_i))  # a stop may fall between the appends
+        order = np.argsort(self.truth_t[:n], kind="stable")
+        idx = np.asarray(self.truth_i[:n], dtype=np.int64)[order]
+        t = np.asarray(self.truth_t[:n], dtype=np.int64)[order]
         return PoseStream("world", "body", t, self.position[idx], self.quaternion[idx])
 
     def close(self) -> None:
@@ -339,7 +340,8 @@ def simulate(recording, cfg: SimConfig, truth_path=None, wait_for_client_s: floa
     optionally write the truth (exposure host times, poses) to ``truth_path``."""
     stream, _ = read_stream(recording)
     sim = Simulator(stream, cfg)
-    out = sim.run(wait_for_client_s)
-    if truth_path is not None and sim.sent:
-        write_stream(truth_path, sim.truth())
-    return out
+    try:
+        return sim.run(wait_for_client_s)
+    finally:  # also when stopped (Ctrl-C, SIGTERM): the truth of what was sent
+        if truth_path is not None and sim.sent:
+            write_stream(truth_path, sim.truth())
