@@ -343,5 +343,5 @@ def simulate(recording, cfg: SimConfig, truth_path=None, wait_for_client_s: floa
     try:
         return sim.run(wait_for_client_s)
     finally:  # also when stopped (Ctrl-C, SIGTERM): the truth of what was sent
-        if truth_path is not None and sim.sent:
+        if truth_path is not None and sim.truth_i:  # (appended last of a sample's records)
             write_stream(truth_path, sim.truth())
