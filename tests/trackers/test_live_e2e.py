@@ -349,8 +349,9 @@ def test_a_stopped_sender_writes_the_truth_of_what_it_sent(room1, tmp_path):
         sender = _trackflow("simulate", "dtrack", room1, "--port", port, "--duration", 60,
                             "--truth", truth)  # fmt: skip
         try:
-            rx.recv(65536)  # sending
-            got = 1
+            for _ in range(5):  # sending (five, so that the truth has samples to hold)
+                rx.recv(65536)
+            got = 5
             sender.send_signal(signal.SIGTERM)
             sender.communicate(timeout=60)
             rx.settimeout(0.5)
