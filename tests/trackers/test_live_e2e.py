@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -24,6 +22,8 @@ from trackflow.dataflow import parse_input
 from trackflow.io import read_stream
 from trackflow.trackers.inputs import host_ns, make_input
 from trackflow.trackers.vrpn_server import VrpnTrackerServer
+
+from ._lines import read_lines, wait_line
 
 ROOT = Path(__file__).resolve().parents[2]
 COV = np.diag([1e-7] * 3 + [1e-5] * 3)
@@ -313,64 +313,6 @@ queries:
 """
 
 
-def _stderr_lines(p: subprocess.Popen) -> queue.Queue:
-    lines: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for line in p.stderr:
-            lines.put(line)
-
-    threading.Thread(target=read, daemon=True).start()
-    return lines
-
-
-def _wait_for(lines: queue.Queue, accept, timeout_s: float) -> str:
-    """The first line of ``lines`` that ``accept`` takes, within ``timeout_s``."""
-    end, seen = time.monotonic() + timeout_s, []
-    while time.monotonic() < end:
-        try:
-            line = lines.get(timeout=max(end - time.monotonic(), 0.01))
-        except queue.Empty:
-            break
-        if accept(line):
-            return line
-        seen.append(line)
-    raise AssertionError(f"no such line within {timeout_s} s; the last: {seen[-3:]}")
-
-
-def test_a_stopped_sender_writes_the_truth_of_what_it_sent(room1, tmp_path):
-    """SIGTERM in the middle of a replay: the sender exits 143 and its --truth recording holds
-    every datagram that arrived (one fewer if the stop fell between a send and its record)."""
-    truth = tmp_path / "truth.tfrec"
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
-        rx.bind(("127.0.0.1", 0))
-        rx.settimeout(60)
-        port = rx.getsockname()[1]
-        sender = _trackflow("simulate", "dtrack", room1, "--port", port, "--duration", 60,
-                            "--truth", truth)  # fmt: skip
-        try:
-            for _ in range(5):  # sending (five, so that the truth has samples to hold)
-                rx.recv(65536)
-            got = 5
-            sender.send_signal(signal.SIGTERM)
-            sender.communicate(timeout=60)
-            rx.settimeout(0.5)
-            while True:
-                try:
-                    rx.recv(65536)
-                except TimeoutError:
-                    break
-                got += 1
-        finally:
-            if sender.poll() is None:
-                sender.kill()
-                sender.communicate()
-    assert sender.returncode == 128 + signal.SIGTERM
-    stream, _ = read_stream(truth)
-    assert got - 1 <= len(stream.t_ns) <= got, (len(stream.t_ns), got)
-    assert np.all(np.diff(stream.t_ns) > 0)
-
-
 @pytest.mark.slow
 def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
     """Two simulated trackers feed ``trackflow run``, which a service manager's SIGTERM stops
@@ -382,15 +324,15 @@ def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
     rec = tmp_path / "out.tfrec"
     run = _trackflow("run", setup, "--duration", 120, "--record", rec, "--json")
     try:
-        lines = _stderr_lines(run)
+        lines = read_lines(run.stderr)
         # the run compiles (or loads) its filters, then says it is listening
-        _wait_for(lines, lambda line: line.startswith("listening"), 180)
+        wait_line(lines, "listening", 180)
         common = ("--duration", 3, "--jitter-ms", 1, "--wait", 20)
         s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
         s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, "--start", 0.5, *common)
         sent = [json.loads(_finish(s, 90))["sent"] for s in (s1, s2)]
         # both stale: every packet sent has been received (a status line a second)
-        _wait_for(lines, lambda line: line.count("STALE") == 2, 60)
+        wait_line(lines, lambda line: line.count("STALE") == 2, 60)
         run.send_signal(signal.SIGTERM)
         out, _ = run.communicate(timeout=60)
     finally:

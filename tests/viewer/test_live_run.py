@@ -10,12 +10,10 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -25,6 +23,7 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
+from trackers._lines import read_lines, wait_line  # tests/trackers
 from trackflow.viewer import COLOURS, Browser, find_chromium
 
 pytestmark = pytest.mark.slow
@@ -77,31 +76,6 @@ def _trackflow(*args) -> subprocess.Popen:
     )  # fmt: skip
 
 
-def _lines(stream) -> queue.Queue:
-    q: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for line in stream:
-            q.put(line)
-
-    threading.Thread(target=read, daemon=True).start()
-    return q
-
-
-def _wait_line(q: queue.Queue, prefix: str, timeout_s: float) -> str:
-    end = time.monotonic() + timeout_s
-    seen = []
-    while time.monotonic() < end:
-        try:
-            line = q.get(timeout=max(end - time.monotonic(), 0.01))
-        except queue.Empty:
-            break
-        seen.append(line)
-        if line.startswith(prefix):
-            return line.strip()
-    raise AssertionError(f"no {prefix!r} line within {timeout_s} s: {seen[-5:]}")
-
-
 def _magenta(img: np.ndarray) -> np.ndarray:
     """The first body's colour (magenta), shaded."""
     r, g, b = (img[..., i].astype(int) for i in range(3))
@@ -124,9 +98,9 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
     run = _trackflow("run", setup, "--view", "--view-port", 0, "--duration", 120, "--json")
     sender = None
     try:
-        err = _lines(run.stderr)
-        url = _wait_line(err, "view: ", 120).split(" ", 1)[1]
-        _wait_line(err, "listening", 60)
+        err = read_lines(run.stderr)
+        url = wait_line(err, "view: ", 120).split(" ", 1)[1]
+        wait_line(err, "listening", 60)
         sender = _trackflow(
             "simulate", "dtrack", euroc, "--port", port, "--start", 10, "--duration", 100,
             "--latency-ms", 5, "--clock-offset-s", -100.25,
