@@ -313,6 +313,39 @@ queries:
 """
 
 
+def test_a_stopped_sender_writes_the_truth_of_what_it_sent(room1, tmp_path):
+    """SIGTERM in the middle of a replay: the sender exits 143 and its --truth recording holds
+    every datagram that arrived (one fewer if the stop fell between a send and its record)."""
+    truth = tmp_path / "truth.tfrec"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(60)
+        port = rx.getsockname()[1]
+        sender = _trackflow("simulate", "dtrack", room1, "--port", port, "--duration", 60,
+                            "--truth", truth)  # fmt: skip
+        try:
+            for _ in range(5):  # sending (five, so that the truth has samples to hold)
+                rx.recv(65536)
+            got = 5
+            sender.send_signal(signal.SIGTERM)
+            sender.communicate(timeout=60)
+            rx.settimeout(0.5)
+            while True:
+                try:
+                    rx.recv(65536)
+                except TimeoutError:
+                    break
+                got += 1
+        finally:
+            if sender.poll() is None:
+                sender.kill()
+                sender.communicate()
+    assert sender.returncode == 128 + signal.SIGTERM
+    stream, _ = read_stream(truth)
+    assert got - 1 <= len(stream.t_ns) <= got, (len(stream.t_ns), got)
+    assert np.all(np.diff(stream.t_ns) > 0)
+
+
 @pytest.mark.slow
 def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
     """Two simulated trackers feed ``trackflow run``, which a service manager's SIGTERM stops
