@@ -16,12 +16,15 @@
   bookkeeping (the filters' times and log records, the counts) follows it. The latency is
   from the packet's receipt (the kernel's receive stamp, so time in the socket buffer
   counts) to the answers' delivery (``time.time_ns`` on entering the callback, same clock).
-  The input sleeps in its selector until a packet comes (its default). ``polling`` repeats
-  the run with the input's ``spin_us`` (``--spin-us``, default 300): it polls from that long
-  before each frame is due instead of sleeping, which saves the wake-up at the price of
-  ``cpu_share`` of a core.
+  The input is set for latency: ``spin_us`` 200 (it sleeps until 0.2 ms before each frame
+  is due, then polls) and ``rehearse_us`` 1500 (1.5 ms before each frame is due it runs the
+  packet path on twins with the last frame, :mod:`trackflow.trackers.rehearsal`, so the code
+  is warm when the frame comes). ``options`` names them, ``cpu_share`` is this process's CPU
+  (of a core) while the sender ran. ``plain`` repeats the run with the input's defaults
+  (asleep until a packet, no rehearsal): the same keys, for comparison.
 
-Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R]``. The machine is
+Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R] [--spin-us U]
+[--rehearse-us U] [--no-plain]``. The machine is
 shared: take the figures as the best of a few runs.
 """
 
@@ -44,6 +47,7 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import SampleBlock, make_inputs
+from trackflow.trackers.rehearsal import Rehearsal
 from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, collect_due, warm_up
 
 BODIES, RATE = 20, 240
@@ -133,9 +137,12 @@ def decode_rates(repeat: int) -> dict:
     return {"decode": out, "pkg": pkg}
 
 
-def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
+def e2e_latency(
+    seconds: float, recording: Path, spin_us: float = 0.0, rehearse_us: float = 0.0
+) -> dict:
     """Packet receipt -> 20 filtered answers delivered [us] (module docstring); ``spin_us``
-    is the input's polling window around a frame's due time (0: it sleeps until a packet)."""
+    is the input's polling window around a frame's due time (0: it sleeps until a packet),
+    ``rehearse_us`` how long before it the input rehearses the packet path (0: never)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -144,7 +151,16 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
     os.sched_setaffinity(0, {me})
     specs = {
         f"b{k}": (
-            parse_input({"natnet": {"command_port": port, "body": k, "spin_us": spin_us}}),
+            parse_input(
+                {
+                    "natnet": {
+                        "command_port": port,
+                        "body": k,
+                        "spin_us": spin_us,
+                        "rehearse_us": rehearse_us,
+                    }
+                }
+            ),  # fmt: skip
             np.eye(6) * 1e-6,
         )
         for k in range(1, BODIES + 1)
@@ -173,6 +189,8 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
 
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
+    if rehearse_us:
+        inp.rehearsal = Rehearsal(inp, sources, answer=True)
 
     def answer(samples, t0, entered):
         taken, cpu = time.time_ns(), time.thread_time_ns()
@@ -200,6 +218,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
                 answer(samples, t0, entered)
         collect_due()  # as trackflow run does once a packet is answered
 
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     with calm_gc():  # as trackflow run does once the network is warm
         inp.start(sink)
         inp.ready.wait(5)
@@ -220,6 +239,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
         finally:
             if sender.poll() is None:
                 sender.kill()
+            cpu_share = (time.process_time() - cpu0) / (time.perf_counter() - wall0)
             time.sleep(0.2)
             inp.stop()
             os.sched_setaffinity(0, cores)  # for a next run: both cores again
@@ -239,6 +259,8 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
         "service_p50": float(np.percentile(svc, 50)),
         "service_p99": float(np.percentile(svc, 99)),
         "service_cpu_p50": float(np.percentile(cpu, 50)),
+        "rehearsals": inp.waiting.rehearsed,
+        "cpu_share": cpu_share,  # of a core: this process while the sender ran
         "polled_share": inp.waiting.polled_s / seconds,  # of a core
         "caught_share": inp.waiting.caught / max(len(latencies), 1),
     }
@@ -261,6 +283,10 @@ def _report(name: str, lat: dict) -> None:
             f"  polling: {100 * lat['polled_share']:.1f} % of a core, "
             f"{100 * lat['caught_share']:.0f} % of the packets caught while polling"
         )
+    print(
+        f"  rehearsals: {lat['rehearsals']}; this process's CPU: "
+        f"{100 * lat['cpu_share']:.1f} % of a core"
+    )
 
 
 def main(argv=None) -> int:
@@ -271,9 +297,21 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--spin-us",
         type=float,
-        default=300.0,
-        help="a second latency run with the NatNet input's spin_us (poll around each "
-        "frame's due time); 0: no second run",
+        default=200.0,
+        help="the NatNet input's spin_us: it polls from that long before each frame is due",
+    )
+    ap.add_argument(
+        "--rehearse-us",
+        type=float,
+        default=1500.0,
+        help="the NatNet input's rehearse_us: it rehearses the packet path that long before "
+        "each frame is due (trackflow.trackers.rehearsal)",
+    )
+    ap.add_argument(
+        "--no-plain",
+        dest="plain",
+        action="store_false",
+        help="skip the second run with the input's defaults (no polling, no rehearsal)",
     )
     ap.add_argument(
         "--recording",
@@ -284,7 +322,7 @@ def main(argv=None) -> int:
     if not args.recording.exists():
         args.recording = Path("/work/shared/data/tumvi/dataset-room1_512_16.txt")
     d = decode_rates(args.repeat)
-    lat = e2e_latency(args.seconds, args.recording)
+    lat = e2e_latency(args.seconds, args.recording, args.spin_us, args.rehearse_us)
     out = {
         "decode_frames_per_s": {k: round(v) for k, v in d["decode"].items()},
         "natnet_pkg_frames_per_s": None if d["pkg"] is None else round(d["pkg"]),
@@ -292,13 +330,14 @@ def main(argv=None) -> int:
         "bodies": BODIES,
         "rate_hz": RATE,
     }
-    polled = None
-    if args.spin_us:
-        polled = e2e_latency(args.seconds, args.recording, args.spin_us)
-        out["polling"] = {
-            "spin_us": args.spin_us,
-            "e2e_latency_us": {k: round(polled[k], 1) for k in ("p50", "p99")},
-            "cpu_share": round(polled["polled_share"], 4),
+    out["options"] = {"spin_us": args.spin_us, "rehearse_us": args.rehearse_us}
+    out["cpu_share"] = round(lat["cpu_share"], 4)
+    plain = None
+    if args.plain:
+        plain = e2e_latency(args.seconds, args.recording)
+        out["plain"] = {
+            "e2e_latency_us": {k: round(plain[k], 1) for k in ("p50", "p99")},
+            "cpu_share": round(plain["cpu_share"], 4),
         }
     if args.json:
         print(json.dumps(out))
@@ -307,9 +346,9 @@ def main(argv=None) -> int:
         print(f"{k}: {v}")
     if d["pkg"]:
         print(f"natnet decode vs the natnet package: {d['decode']['natnet'] / d['pkg']:.1f}x")
-    _report("sleeping until a packet (spin_us 0)", lat)
-    if polled is not None:
-        _report(f"polling around each frame's due time (spin_us {args.spin_us:g})", polled)
+    _report(f"spin_us {args.spin_us:g}, rehearse_us {args.rehearse_us:g}", lat)
+    if plain is not None:
+        _report("the input's defaults (sleeping until a packet, no rehearsal)", plain)
     return 0
 
 

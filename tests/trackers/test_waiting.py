@@ -178,3 +178,70 @@ def test_a_descriptor_beyond_select_naps_in_the_selector_to_the_millisecond_belo
     select_nap(sel, 3.7e-3)
     select_nap(sel, 0.4e-3)  # under a millisecond: no nap, the window opens now
     assert sel.calls == [pytest.approx(3e-3)]
+
+
+def _rehearsing(clock, lead_s=1.5e-3, spin_s=0.0):
+    w = DueWait(spin_s, clock=clock, nap=_nap, lead_s=lead_s)
+    for k in range(6):
+        w.arrived(clock.t + k * PERIOD)
+    clock.t += 5 * PERIOD
+    calls = []
+    w.rehearse = lambda: calls.append(clock.t)
+    return w, calls
+
+
+def test_it_rehearses_once_per_datagram_lead_s_before_it_is_due():
+    clock = _Clock()
+    w, calls = _rehearsing(clock)
+    due = w.due()
+    sel = _Selector(clock, ready_at=due + 1e-4)
+    assert w.period_s == pytest.approx(PERIOD)  # learned without polling
+    assert w.select(sel, 0.1) == ["datagram"]
+    assert calls == [pytest.approx(due - 1.5e-3)]  # woken lead_s before the due time
+    assert sel.calls[0] == ("nap", pytest.approx(PERIOD - 1.5e-3))
+    assert sel.calls[-1] == 0.1  # then the plain wait (no polling)
+    assert w.rehearsed == 1
+    sel.ready_at = due + 2e-4  # the same datagram expected again: no second rehearsal
+    assert w.select(sel, 0.1) == ["datagram"] and w.rehearsed == 1
+
+
+def test_a_datagram_before_the_rehearsal_or_a_late_wait_skips_it():
+    clock = _Clock()
+    w, calls = _rehearsing(clock)
+    due = w.due()
+    sel = _Selector(clock, ready_at=due - 3e-3)  # early: it wakes the nap
+    assert w.select(sel, 0.1) == ["datagram"] and calls == []
+    clock.t = due + 1e-4  # the loop comes back after the due time: no rehearsal now
+    assert w.select(_Selector(clock, ready_at=due + 2e-4), 0.1) == ["datagram"]
+    assert calls == [] and w.rehearsed == 0
+
+
+def test_a_short_timeout_returns_before_the_rehearsal():
+    clock = _Clock()
+    w, calls = _rehearsing(clock)
+    sel = _Selector(clock, ready_at=w.due() + 1e-4)
+    assert w.select(sel, 1e-3) == []  # the caller's loop comes back (its stop flag)
+    assert calls == []
+    assert w.select(sel, 0.1) == ["datagram"] and len(calls) == 1
+
+
+def test_rehearsing_needs_a_callable_and_a_lead():
+    clock = _Clock()
+    for w in (DueWait(0.0, clock=clock, nap=_nap, lead_s=1e-3), DueWait(0.0, clock=clock)):
+        for k in range(6):
+            w.arrived(clock.t + k * PERIOD)
+        clock.t += 5 * PERIOD
+        sel = _Selector(clock, ready_at=w.due() if w.period_s else clock.t + 1e-3)
+        assert w.select(sel, 0.1) == ["datagram"]
+        assert sel.calls == [0.1] and w.rehearsed == 0  # no rehearse callable / no lead
+    with pytest.raises(ValueError, match="lead_s must be >= 0"):
+        DueWait(0.0, lead_s=-1.0)
+
+
+def test_the_rehearsal_option_is_checked():
+    from trackflow.dataflow import parse_input
+
+    assert parse_input({"dtrack": {"body": 1, "rehearse_us": 1500}}).options["rehearse_us"] == 1500
+    assert parse_input({"natnet": {"body": 1}}).options["rehearse_us"] == 0  # off by default
+    with pytest.raises(ValueError, match=r"input.natnet.rehearse_us: 1000000.0 out of range"):
+        parse_input({"natnet": {"body": 1, "rehearse_us": 1e6}})

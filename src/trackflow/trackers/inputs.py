@@ -197,6 +197,8 @@ class LiveInput:
     """
 
     protocol = ""
+    #: attributes the input learns from its server (a handshake), mirrored by a rehearsal
+    handshake: tuple[str, ...] = ()
 
     def __init__(self, spec: InputSpec):
         self.spec = spec
@@ -211,6 +213,10 @@ class LiveInput:
         self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
+        #: ``rehearsal(data, arrival_ns)`` (:class:`trackflow.trackers.rehearsal.Rehearsal`),
+        #: run on the last frame ``rehearse_us`` before the next is due; set before start
+        self.rehearsal: Callable[[bytes, int], object] | None = None
+        self._last_frame: tuple[bytes, int] | None = None
 
     @staticmethod
     def connection_key(spec: InputSpec) -> tuple:
@@ -349,6 +355,33 @@ class LiveInput:
     def _run(self, sink: Sink) -> None:
         raise NotImplementedError  # pragma: no cover
 
+    def _due_wait(self) -> DueWait:
+        """The receiving thread's wait for a periodic stream (options ``spin_us`` and
+        ``rehearse_us``), rehearsing the last frame before the next is due when the input
+        has a :attr:`rehearsal`."""
+        o = self.options
+        wait = self.waiting = DueWait(o["spin_us"] * 1e-6, lead_s=o["rehearse_us"] * 1e-6)
+        if self.rehearsal is not None and wait.lead_s:
+            wait.rehearse = self._rehearse
+        return wait
+
+    def _frame_arrived(self, wait: DueWait, data: bytes, arrival_ns: int) -> None:
+        """A frame of the stream was received (and handled): its time for the wait, and
+        the frame for the next rehearsal."""
+        wait.arrived(arrival_ns * 1e-9)
+        self._last_frame = (data, arrival_ns)
+
+    def _rehearse(self) -> None:
+        """The rehearsal of the last frame; one that fails is turned off and reported on
+        every body (it never touches the live path, which goes on)."""
+        if self._last_frame is None:
+            return
+        try:
+            self.rehearsal(*self._last_frame)
+        except Exception as exc:  # a bug in the twins must not stop the live input
+            self.waiting.rehearse = None
+            self._event_all(f"rehearsal off: {type(exc).__name__}: {exc}")
+
     def _reject_all(self, reason: str) -> None:
         for b in self.bodies:
             b.status.reject(reason)
@@ -449,7 +482,7 @@ class DTrackInput(LiveInput):
         s.setblocking(False)  # the selector waits (DueWait: or polls around a frame's time)
         sel = selectors.DefaultSelector()
         sel.register(s, selectors.EVENT_READ)
-        wait = self.waiting = DueWait(o["spin_us"] * 1e-6)
+        wait = self._due_wait()
         try:
             while not self._stop.is_set():
                 for _ in wait.select(sel, 0.2):
@@ -460,7 +493,7 @@ class DTrackInput(LiveInput):
                     except OSError:
                         return
                     sink(self, data, arrival)
-                    wait.arrived(arrival * 1e-9)  # one datagram per frame
+                    self._frame_arrived(wait, data, arrival)  # one datagram per frame
         finally:
             sel.close()
 
@@ -493,6 +526,8 @@ class NatNetInput(LiveInput):
     protocol = "natnet"
     #: round trips at the start, then the period between them [s]
     ECHO_FIRST, ECHO_PERIOD_S = 8, 1.0
+
+    handshake = ("server", "models")
 
     def __init__(self, spec):
         super().__init__(spec)
@@ -828,7 +863,7 @@ class NatNetInput(LiveInput):
         next_cmd = next_keepalive = last_echo = 0.0
         connected = None
         need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
-        wait = self.waiting = DueWait(o["spin_us"] * 1e-6)
+        wait = self._due_wait()
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -858,7 +893,7 @@ class NatNetInput(LiveInput):
                     had_server = self.server is not None
                     sink(self, raw, arrival)
                     if raw[:2] == _FRAME_ID:  # the stream's period is the frames'
-                        wait.arrived(arrival * 1e-9)
+                        self._frame_arrived(wait, raw, arrival)
                     if connected is not (self.server is not None):
                         connected = self.server is not None
                         self._connected(connected)

@@ -53,6 +53,7 @@ from .inputs import (
     make_inputs,
     warm_up_inputs,
 )
+from .rehearsal import Rehearsal
 
 __all__ = [
     "LiveSource",
@@ -613,6 +614,7 @@ def run_live(
     next_status[0] = t_start + int(status_period_s * 1e9)
     interrupted = False
     for inp in inputs:
+        _rehearse(inp, sources)
         inp.start(sched.packet)
     try:
         for inp in inputs:
@@ -644,6 +646,17 @@ def run_live(
         interrupted=interrupted,
         inputs=inputs,
     )
+
+
+def _rehearse(inp: LiveInput, sources: dict) -> None:
+    """Give an input with ``rehearse_us`` its :class:`Rehearsal`, or report on its sensors
+    why it has none."""
+    if not inp.options.get("rehearse_us"):
+        return
+    try:
+        inp.rehearsal = Rehearsal(inp, sources)
+    except ValueError as exc:
+        inp._event_all(f"rehearsal off: {exc}")
 
 
 class _ArrivalPlayer(RecordingPlayer):

@@ -12,6 +12,10 @@ the sockets without blocking until the datagram comes, or until ``spin_s`` after
 when it sleeps again. The price is CPU: about ``spin_s`` of polling per frame (7 % of a core
 for 0.3 ms at 240 Hz), counted in :attr:`DueWait.polled_s`. Off (``spin_s = 0``) it is the
 selector's plain wait.
+
+With ``lead_s`` and a :attr:`DueWait.rehearse` callable, the wait also wakes ``lead_s`` before
+the datagram is due, once per datagram, and calls it (a :class:`~trackflow.trackers.rehearsal.
+Rehearsal` of the packet's path, which warms the code the datagram will run) before waiting on.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import select
 import statistics
 import time
 from collections import deque
+from collections.abc import Callable
 
 __all__ = ["DueWait", "select_nap"]
 
@@ -56,14 +61,25 @@ class DueWait:
     nap : callable
         ``nap(selector, seconds)`` waits up to ``seconds`` for one of the selector's files to
         be readable (:func:`select_nap`).
+    lead_s : float
+        How long before the due time :attr:`rehearse` is called [s]; 0: never.
     """
 
     MIN_INTERVALS = 3  # intervals seen before a period is trusted
 
-    def __init__(self, spin_s: float, history: int = 15, clock=time.time, nap=None):
+    def __init__(
+        self, spin_s: float, history: int = 15, clock=time.time, nap=None, lead_s: float = 0.0
+    ):
         if not spin_s >= 0:
             raise ValueError(f"spin_s must be >= 0, got {spin_s}")
+        if not lead_s >= 0:
+            raise ValueError(f"lead_s must be >= 0, got {lead_s}")
         self.spin_s = float(spin_s)
+        self.lead_s = float(lead_s)
+        #: called once per datagram, ``lead_s`` before it is due (when both are set)
+        self.rehearse: Callable[[], object] | None = None
+        self.rehearsed = 0  # calls of rehearse
+        self._rehearsed_due: float | None = None
         self.period_s: float | None = None  # the stream's period, once known
         self.polled_s = 0.0  # time spent polling [s]
         self.caught = 0  # datagrams that arrived while polling
@@ -84,6 +100,22 @@ class DueWait:
         caller's loop comes back)."""
         due, clock = self.due(), self._clock
         now = clock()
+        if self.lead_s and self.rehearse is not None and due is not None:
+            if due != self._rehearsed_due:  # once per datagram, and not when it is late
+                start = due - self.lead_s
+                if now < start:  # asleep until the rehearsal
+                    self._nap(sel, min(timeout, start - now))
+                    ready = sel.select(0)
+                    if ready:
+                        return ready
+                    now = clock()
+                    if now < start:  # the timeout first: the caller's loop comes back
+                        return []
+                if now < due:
+                    self._rehearsed_due = due
+                    self.rehearse()
+                    self.rehearsed += 1
+                    now = clock()
         if not self.spin_s or due is None or now > due + self.spin_s:
             return sel.select(timeout)
         start = due - self.spin_s
@@ -105,8 +137,8 @@ class DueWait:
 
     def arrived(self, t: float) -> None:
         """A datagram of the stream arrived at ``t`` [s] (the ``clock``'s time); nothing
-        to learn when polling is off."""
-        if not self.spin_s:
+        to learn when neither polling nor rehearsing."""
+        if not (self.spin_s or self.lead_s):
             return
         if self._last is not None:
             gap = t - self._last
