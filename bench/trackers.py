@@ -17,9 +17,9 @@
   from the packet's receipt (the kernel's receive stamp, so time in the socket buffer
   counts) to the answers' delivery (``time.time_ns`` on entering the callback, same clock).
   The input is set for latency: ``spin_us`` 200 (it sleeps until 0.2 ms before each frame
-  is due, then polls) and ``rehearse_us`` 1500 (1.5 ms before each frame is due it runs the
-  packet path on twins with the last frame, :mod:`trackflow.trackers.rehearsal`, so the code
-  is warm when the frame comes). ``options`` names them, ``cpu_share`` is this process's CPU
+  is due, then polls) and ``rehearse_us`` 400 (before each frame it runs the packet path on
+  twins with the last frame, :mod:`trackflow.trackers.rehearsal`, timed to be over 0.4 ms
+  before the frame is due, so the code is warm when it comes). ``options`` names them, ``cpu_share`` is this process's CPU
   (of a core) while the sender ran. ``plain`` repeats the run with the input's defaults
   (asleep until a packet, no rehearsal): the same keys, for comparison.
 
@@ -303,9 +303,9 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--rehearse-us",
         type=float,
-        default=1500.0,
-        help="the NatNet input's rehearse_us: it rehearses the packet path that long before "
-        "each frame is due (trackflow.trackers.rehearsal)",
+        default=400.0,
+        help="the NatNet input's rehearse_us: it rehearses the packet path to be over that "
+        "long before each frame is due (trackflow.trackers.rehearsal)",
     )
     ap.add_argument(
         "--no-plain",

@@ -67,7 +67,7 @@ def _network(rehearse_us: float = 0.0):
 
 def _run(frames, rehearse: bool):
     """The live answers of every frame (arrays), with or without rehearsals between."""
-    inp, sources = _network(1500 if rehearse else 0)
+    inp, sources = _network(400 if rehearse else 0)
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
     rehearsal = Rehearsal(inp, sources, answer=True) if rehearse else None
@@ -124,7 +124,7 @@ def test_a_sensor_the_twins_cannot_copy_is_named():
 
 
 def test_a_failing_rehearsal_is_turned_off_and_reported():
-    inp, sources = _network(1500)
+    inp, sources = _network(400)
     calls = []
 
     def broken(data, arrival):
@@ -133,7 +133,7 @@ def test_a_failing_rehearsal_is_turned_off_and_reported():
 
     inp.rehearsal = broken
     wait = inp._due_wait()
-    assert wait.rehearse is not None and wait.lead_s == pytest.approx(1.5e-3)
+    assert wait.rehearse is not None and wait.rehearse_s == pytest.approx(4e-4)
     inp._rehearse()  # no frame yet: nothing to rehearse
     assert calls == []
     data, arrival = _frames(1)[0]
@@ -148,13 +148,13 @@ def test_a_failing_rehearsal_is_turned_off_and_reported():
 def test_trackflow_run_gives_an_input_with_rehearse_us_its_rehearsal_or_says_why_not():
     from trackflow.trackers.runtime import _rehearse
 
-    inp, sources = _network(1500)
+    inp, sources = _network(400)
     _rehearse(inp, sources)
     assert isinstance(inp.rehearsal, Rehearsal) and inp.rehearsal.input is inp
     off, _ = _network(0)
     _rehearse(off, sources)
     assert off.rehearsal is None  # not asked for
-    other, sources = _network(1500)
+    other, sources = _network(400)
     sources["b1"].consumers.clear()
     _rehearse(other, sources)
     assert other.rehearsal is None

@@ -180,29 +180,51 @@ def test_a_descriptor_beyond_select_naps_in_the_selector_to_the_millisecond_belo
     assert sel.calls == [pytest.approx(3e-3)]
 
 
-def _rehearsing(clock, lead_s=1.5e-3, spin_s=0.0):
-    w = DueWait(spin_s, clock=clock, nap=_nap, lead_s=lead_s)
+def _rehearsing(clock, rehearse_s=4e-4, spin_s=0.0, takes=0.0):
+    w = DueWait(spin_s, clock=clock, nap=_nap, rehearse_s=rehearse_s)
     for k in range(6):
         w.arrived(clock.t + k * PERIOD)
     clock.t += 5 * PERIOD
     calls = []
-    w.rehearse = lambda: calls.append(clock.t)
+
+    def rehearse():  # takes ``takes`` seconds of the fake clock
+        calls.append(clock.t)
+        clock.t += takes
+
+    w.rehearse = rehearse
     return w, calls
 
 
-def test_it_rehearses_once_per_datagram_lead_s_before_it_is_due():
+def test_it_rehearses_once_per_datagram_to_be_over_rehearse_s_before_it_is_due():
     clock = _Clock()
-    w, calls = _rehearsing(clock)
+    w, calls = _rehearsing(clock, takes=3e-4)
     due = w.due()
     sel = _Selector(clock, ready_at=due + 1e-4)
     assert w.period_s == pytest.approx(PERIOD)  # learned without polling
     assert w.select(sel, 0.1) == ["datagram"]
-    assert calls == [pytest.approx(due - 1.5e-3)]  # woken lead_s before the due time
-    assert sel.calls[0] == ("nap", pytest.approx(PERIOD - 1.5e-3))
+    # before a rehearsal was measured, it is assumed to take FIRST_REHEARSAL_S
+    assert calls == [pytest.approx(due - 4e-4 - DueWait.FIRST_REHEARSAL_S)]
+    assert sel.calls[0] == ("nap", pytest.approx(PERIOD - 4e-4 - DueWait.FIRST_REHEARSAL_S))
     assert sel.calls[-1] == 0.1  # then the plain wait (no polling)
-    assert w.rehearsed == 1
+    assert w.rehearsed == 1 and w.rehearsal_s() == pytest.approx(3e-4)
     sel.ready_at = due + 2e-4  # the same datagram expected again: no second rehearsal
     assert w.select(sel, 0.1) == ["datagram"] and w.rehearsed == 1
+    w.arrived(due + 2e-4)  # the next datagram: timed by the measured duration now
+    due = w.due()
+    assert w.select(_Selector(clock, ready_at=due), 0.1) == ["datagram"]
+    assert calls[1] == pytest.approx(due - 4e-4 - 3e-4)
+    assert clock.t == pytest.approx(due)
+
+
+def test_a_slow_rehearsal_moves_the_next_one_earlier():
+    clock = _Clock()
+    w, calls = _rehearsing(clock, takes=2e-3)
+    for _ in range(3):
+        due = w.due()
+        assert w.select(_Selector(clock, ready_at=due + 1e-5), 0.1) == ["datagram"]
+        w.arrived(clock.t)
+    assert calls[-1] == pytest.approx(due - 4e-4 - 2e-3)  # over 0.4 ms before the due time
+    assert w.rehearsal_s() == pytest.approx(2e-3)
 
 
 def test_a_datagram_before_the_rehearsal_or_a_late_wait_skips_it():
@@ -225,17 +247,17 @@ def test_a_short_timeout_returns_before_the_rehearsal():
     assert w.select(sel, 0.1) == ["datagram"] and len(calls) == 1
 
 
-def test_rehearsing_needs_a_callable_and_a_lead():
+def test_rehearsing_needs_a_callable_and_a_time():
     clock = _Clock()
-    for w in (DueWait(0.0, clock=clock, nap=_nap, lead_s=1e-3), DueWait(0.0, clock=clock)):
+    for w in (DueWait(0.0, clock=clock, nap=_nap, rehearse_s=1e-3), DueWait(0.0, clock=clock)):
         for k in range(6):
             w.arrived(clock.t + k * PERIOD)
         clock.t += 5 * PERIOD
         sel = _Selector(clock, ready_at=w.due() if w.period_s else clock.t + 1e-3)
         assert w.select(sel, 0.1) == ["datagram"]
-        assert sel.calls == [0.1] and w.rehearsed == 0  # no rehearse callable / no lead
-    with pytest.raises(ValueError, match="lead_s must be >= 0"):
-        DueWait(0.0, lead_s=-1.0)
+        assert sel.calls == [0.1] and w.rehearsed == 0  # no rehearse callable / no time
+    with pytest.raises(ValueError, match="rehearse_s must be >= 0"):
+        DueWait(0.0, rehearse_s=-1.0)
 
 
 def test_the_rehearsal_option_is_checked():

@@ -360,8 +360,8 @@ class LiveInput:
         ``rehearse_us``), rehearsing the last frame before the next is due when the input
         has a :attr:`rehearsal`."""
         o = self.options
-        wait = self.waiting = DueWait(o["spin_us"] * 1e-6, lead_s=o["rehearse_us"] * 1e-6)
-        if self.rehearsal is not None and wait.lead_s:
+        wait = self.waiting = DueWait(o["spin_us"] * 1e-6, rehearse_s=o["rehearse_us"] * 1e-6)
+        if self.rehearsal is not None and wait.rehearse_s:
             wait.rehearse = self._rehearse
         return wait
 

@@ -11,9 +11,9 @@ before the packet takes most of it away.
 class and bodies, and per body a source feeding a copy of its one Kalman filter) and, when
 called, decodes the input's last frame again and delivers it through them, as the live path
 does. Nothing of the live network is touched: the twins' counts, filters and answers are
-their own and are dropped. :class:`~trackflow.trackers.waiting.DueWait` calls it ``lead_s``
-before the next frame is due (the input option ``rehearse_us``); the price is CPU, about as
-much as the packets' own path again.
+their own and are dropped. :class:`~trackflow.trackers.waiting.DueWait` calls it once per
+frame, timed to be over ``rehearse_us`` (the input option) before the frame is due; the price
+is CPU, about as much as the packets' own path again.
 """
 
 from __future__ import annotations

@@ -13,9 +13,12 @@ when it sleeps again. The price is CPU: about ``spin_s`` of polling per frame (7
 for 0.3 ms at 240 Hz), counted in :attr:`DueWait.polled_s`. Off (``spin_s = 0``) it is the
 selector's plain wait.
 
-With ``lead_s`` and a :attr:`DueWait.rehearse` callable, the wait also wakes ``lead_s`` before
-the datagram is due, once per datagram, and calls it (a :class:`~trackflow.trackers.rehearsal.
-Rehearsal` of the packet's path, which warms the code the datagram will run) before waiting on.
+With ``rehearse_s`` and a :attr:`DueWait.rehearse` callable, the wait also wakes once per
+datagram to call it (a :class:`~trackflow.trackers.rehearsal.Rehearsal` of the packet's path,
+which warms the code the datagram will run), timed to be over ``rehearse_s`` before the
+datagram is due: it starts that long plus its own recent duration (the longest of the last
+few calls, measured) before. The code cools again while the thread sleeps, so the closer the
+better, as long as the rehearsal is over when the datagram comes.
 """
 
 from __future__ import annotations
@@ -61,24 +64,33 @@ class DueWait:
     nap : callable
         ``nap(selector, seconds)`` waits up to ``seconds`` for one of the selector's files to
         be readable (:func:`select_nap`).
-    lead_s : float
-        How long before the due time :attr:`rehearse` is called [s]; 0: never.
+    rehearse_s : float
+        How long before the due time :attr:`rehearse` should be over [s]; 0: never called.
     """
+
+    #: the assumed duration of a rehearsal before one was measured [s]
+    FIRST_REHEARSAL_S = 1e-3
 
     MIN_INTERVALS = 3  # intervals seen before a period is trusted
 
     def __init__(
-        self, spin_s: float, history: int = 15, clock=time.time, nap=None, lead_s: float = 0.0
+        self,
+        spin_s: float,
+        history: int = 15,
+        clock=time.time,
+        nap=None,
+        rehearse_s: float = 0.0,
     ):
         if not spin_s >= 0:
             raise ValueError(f"spin_s must be >= 0, got {spin_s}")
-        if not lead_s >= 0:
-            raise ValueError(f"lead_s must be >= 0, got {lead_s}")
+        if not rehearse_s >= 0:
+            raise ValueError(f"rehearse_s must be >= 0, got {rehearse_s}")
         self.spin_s = float(spin_s)
-        self.lead_s = float(lead_s)
-        #: called once per datagram, ``lead_s`` before it is due (when both are set)
+        self.rehearse_s = float(rehearse_s)
+        #: called once per datagram, to be over ``rehearse_s`` before it is due
         self.rehearse: Callable[[], object] | None = None
         self.rehearsed = 0  # calls of rehearse
+        self.rehearsals_s: deque[float] = deque(maxlen=8)  # their recent durations [s]
         self._rehearsed_due: float | None = None
         self.period_s: float | None = None  # the stream's period, once known
         self.polled_s = 0.0  # time spent polling [s]
@@ -100,9 +112,9 @@ class DueWait:
         caller's loop comes back)."""
         due, clock = self.due(), self._clock
         now = clock()
-        if self.lead_s and self.rehearse is not None and due is not None:
+        if self.rehearse_s and self.rehearse is not None and due is not None:
             if due != self._rehearsed_due:  # once per datagram, and not when it is late
-                start = due - self.lead_s
+                start = due - self.rehearse_s - self.rehearsal_s()
                 if now < start:  # asleep until the rehearsal
                     self._nap(sel, min(timeout, start - now))
                     ready = sel.select(0)
@@ -115,7 +127,8 @@ class DueWait:
                     self._rehearsed_due = due
                     self.rehearse()
                     self.rehearsed += 1
-                    now = clock()
+                    took, now = clock() - now, clock()
+                    self.rehearsals_s.append(took)
         if not self.spin_s or due is None or now > due + self.spin_s:
             return sel.select(timeout)
         start = due - self.spin_s
@@ -135,10 +148,14 @@ class DueWait:
         self.caught += bool(ready)
         return ready
 
+    def rehearsal_s(self) -> float:
+        """How long a rehearsal is expected to take [s]: the longest of the recent ones."""
+        return max(self.rehearsals_s, default=self.FIRST_REHEARSAL_S)
+
     def arrived(self, t: float) -> None:
         """A datagram of the stream arrived at ``t`` [s] (the ``clock``'s time); nothing
         to learn when neither polling nor rehearsing."""
-        if not (self.spin_s or self.lead_s):
+        if not (self.spin_s or self.rehearse_s):
             return
         if self._last is not None:
             gap = t - self._last
