@@ -20,12 +20,13 @@
   is due, then polls) and ``rehearse_us`` 400 (before each frame it runs the packet path on
   twins with the last frame, :mod:`trackflow.trackers.rehearsal`, timed to be over 0.4 ms
   before the frame is due, so the code is warm when it comes). ``options`` names them,
-  ``cpu_share`` is this process's CPU (of a core) while the sender ran. ``plain`` repeats the run with the input's defaults
-  (asleep until a packet, no rehearsal): the same keys, for comparison.
+  ``cpu_share`` is this process's CPU (of a core) while the sender ran. ``plain`` repeats
+  the run with the input's defaults (asleep until a packet, no rehearsal): the same keys,
+  for comparison.
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R] [--spin-us U]
-[--rehearse-us U] [--no-plain]``. The machine is
-shared: take the figures as the best of a few runs.
+[--rehearse-us U] [--no-plain]``. The machine is shared: take the figures as the best of a
+few runs.
 """
 
 from __future__ import annotations
