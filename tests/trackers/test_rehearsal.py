@@ -161,3 +161,64 @@ def test_trackflow_run_gives_an_input_with_rehearse_us_its_rehearsal_or_says_why
     assert other.bodies[0].status.connection == {
         "rehearsal off: sensor 'b1': a rehearsal needs a source feeding one Kalman filter": 1
     }
+
+
+def _dtrack_frames(n: int) -> list[tuple[bytes, int]]:
+    """DTrack frames (``fr``, ``ts2``, ``6d``) of two moving bodies at 240 Hz [mm]."""
+    from trackflow.math import quat_to_matrix
+    from trackflow.trackers import dtrack
+
+    out = []
+    for i in range(n):
+        t_us = 1_700_000_000_000_000 + i * 1_000_000 // 240
+        bodies = tuple(
+            dtrack.DTrackBody(
+                k,
+                1.0,
+                (100.0 * k + 10 * np.sin(0.05 * i), 200.0, 500.0 + i),
+                tuple(quat_to_matrix(quat_exp(np.array([0.1, 0.002 * i, 0.03 * k]))).ravel()),
+            )
+            for k in (1, 2)
+        )
+        ts2 = (t_us // 1_000_000, t_us % 1_000_000, 4_000)
+        frame = dtrack.DTrackFrame(i + 1, None, ts2, 2, bodies)
+        out.append((dtrack.encode_dtrack(frame), t_us * 1000 + 5_000_000))
+    return out
+
+
+@pytest.mark.parametrize("rehearse", [False, True])
+def test_a_dtrack_path_of_sample_pairs_is_rehearsed_and_untouched(rehearse):
+    from trackflow.trackers.runtime import _dispatched
+
+    frames = _dtrack_frames(60)
+    specs = {
+        f"d{k}": (
+            parse_input({"dtrack": {"port": 1, "body": k, "rehearse_us": 400}}),
+            np.eye(6) * 1e-6,
+        )
+        for k in (1, 2)
+    }
+    runs = []
+    for with_rehearsal in (False, rehearse):
+        (inp,) = make_inputs(specs)
+        sources = {name: LiveSource(name) for name in specs}
+        for name, src in sources.items():
+            src.consumers.append((KalmanFilter(f"kf_{name}", MOTION), 0))
+        delivery = LiveSources(sources)
+        rehearsal = Rehearsal(inp, sources, answer=True) if with_rehearsal else None
+        for k, (data, arrival) in enumerate(frames):
+            if rehearsal is not None and k:
+                rehearsal(*frames[k - 1])
+            pairs = inp.handle(data, arrival)
+            assert len(pairs) == 2 and type(pairs) is not SampleBlock
+            names = [inp.bodies[i].name for i, _ in pairs]
+            delivery.deliver(_dispatched(names, pairs, arrival))
+        filters = [sources[n].consumers[0][0] for n in specs]
+        runs.append(([f.filter._x.copy() for f in filters], [f.stats.events_in for f in filters]))
+        if rehearsal is not None:
+            assert rehearsal.runs == len(frames) - 1
+            twin = rehearsal.sources.sources["d1"].consumers[0][0]
+            assert twin.stats.events_in == len(frames) - 1
+    (x0, n0), (x1, n1) = runs
+    assert n0 == n1 == [len(frames)] * 2
+    assert all(np.array_equal(a, b) for a, b in zip(x0, x1))

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 
 from ..dataflow import KalmanFilter
 from .inputs import LiveInput, SampleBlock
+from .runtime import LiveSource, LiveSources, _dispatched
 
 __all__ = ["Rehearsal"]
 
@@ -63,8 +64,6 @@ class Rehearsal:
     """
 
     def __init__(self, inp: LiveInput, sources: Mapping, answer: bool = False):
-        from .runtime import LiveSource, LiveSources  # the runtime builds rehearsals
-
         self.input = inp
         twin = self.twin = type(inp)(inp.spec)
         twins = {}
@@ -94,11 +93,17 @@ class Rehearsal:
         for attr in inp.handshake:  # what the live input learnt from its server
             setattr(twin, attr, getattr(inp, attr))
         samples = twin.handle(data, arrival_ns)
-        if type(samples) is not SampleBlock:  # not a frame of every body: nothing to warm
+        if not samples:  # a frame of no body (or another message): nothing to warm
             return
-        names = list(map(self.names.__getitem__, samples.index))
         answer = (arrival_ns, _drop) if self.answer else None
-        self.sources.deliver_block(names, samples, arrival_ns, answer=answer)
+        if type(samples) is SampleBlock:  # NatNet, every body plainly valid: arrays
+            names = list(map(self.names.__getitem__, samples.index))
+            self.sources.deliver_block(names, samples, arrival_ns, answer=answer)
+        else:  # (body index, sample) pairs, delivered in order as trackflow run does
+            names = [self.names[i] for i, _ in samples]
+            self.sources.deliver(_dispatched(names, samples, arrival_ns))
+            if answer is not None:
+                self.sources.filters.answer([self.sources.row[n] for n in names], answer)
         self.runs += 1
 
 

@@ -53,7 +53,6 @@ from .inputs import (
     make_inputs,
     warm_up_inputs,
 )
-from .rehearsal import Rehearsal
 
 __all__ = [
     "LiveSource",
@@ -649,10 +648,12 @@ def run_live(
 
 
 def _rehearse(inp: LiveInput, sources: dict) -> None:
-    """Give an input with ``rehearse_us`` its :class:`Rehearsal`, or report on its sensors
-    why it has none."""
+    """Give an input with ``rehearse_us`` its :class:`~trackflow.trackers.rehearsal.Rehearsal`,
+    or report on its sensors why it has none."""
     if not inp.options.get("rehearse_us"):
         return
+    from .rehearsal import Rehearsal  # built on this module's sources
+
     try:
         inp.rehearsal = Rehearsal(inp, sources)
     except ValueError as exc:
