@@ -261,6 +261,7 @@ def e2e_latency(
         "service_p99": float(np.percentile(svc, 99)),
         "service_cpu_p50": float(np.percentile(cpu, 50)),
         "rehearsals": inp.waiting.rehearsed,
+        "rehearsals_cut": 0 if inp.rehearsal is None else inp.rehearsal.cut,
         "cpu_share": cpu_share,  # of a core: this process while the sender ran
         "polled_share": inp.waiting.polled_s / seconds,  # of a core
         "caught_share": inp.waiting.caught / max(len(latencies), 1),
@@ -285,7 +286,8 @@ def _report(name: str, lat: dict) -> None:
             f"{100 * lat['caught_share']:.0f} % of the packets caught while polling"
         )
     print(
-        f"  rehearsals: {lat['rehearsals']}; this process's CPU: "
+        f"  rehearsals: {lat['rehearsals']} ({lat['rehearsals_cut']} cut short: a packet "
+        f"came); this process's CPU: "
         f"{100 * lat['cpu_share']:.1f} % of a core"
     )
 

@@ -14,9 +14,10 @@ frame period (240 Hz), in one thread, without sockets:
   packet, as ``rehearse_us: 400`` times it.
 
 The thread's wall-clock time per packet, p50 and p99 over ``--packets`` after 200 warm-up
-packets. On the shared virtual machines of 2026-11-25 (one run): hot 157 us, after a sleep
-722-746 us, the packet right after 363-377 us, rehearsed 383-412 us: the cost after a sleep
-follows the code (twins, other objects, take most of it away), not the data.
+packets. On the shared virtual machine of 2026-11-25 03:51 UTC (800 packets): hot p50 214 us,
+after a sleep 810 us, the packet right after it 336 us, rehearsed 360 us (p99 427, 1152, 515,
+524 us): the cost after a sleep follows the code (twins, other objects, take most of it
+away), not the data.
 
 Usage: ``PYTHONPATH=src python experiments/trackers_rehearsal.py [--packets N]`` (prints one
 JSON object).

@@ -110,6 +110,11 @@ def test_the_live_path_is_the_same_to_the_bit_with_rehearsals():
     assert rehearsal.twin.server is inp1.server  # the handshake mirrored
     rehearsal(*frames[-2])  # the same frame again: skipped
     assert rehearsal.runs == len(frames) - 1
+    twin = rehearsal.sources.sources["b1"].consumers[0][0]
+    rehearsal(*frames[-1], lambda: True)  # a datagram waits: decoded, not delivered
+    assert rehearsal.runs == len(frames) - 1 and rehearsal.cut == 1
+    assert twin.stats.events_in == len(frames) - 1
+    assert rehearsal.twin.packets == len(frames)
 
 
 def test_a_sensor_the_twins_cannot_copy_is_named():
@@ -127,18 +132,18 @@ def test_a_failing_rehearsal_is_turned_off_and_reported():
     inp, sources = _network(400)
     calls = []
 
-    def broken(data, arrival):
+    def broken(data, arrival, waiting):
         calls.append(arrival)
         raise RuntimeError("twin exploded")
 
     inp.rehearsal = broken
     wait = inp._due_wait()
     assert wait.rehearse is not None and wait.rehearse_s == pytest.approx(4e-4)
-    inp._rehearse()  # no frame yet: nothing to rehearse
+    inp._rehearse(lambda: False)  # no frame yet: nothing to rehearse
     assert calls == []
     data, arrival = _frames(1)[0]
     inp._frame_arrived(wait, data, arrival)
-    inp._rehearse()
+    inp._rehearse(lambda: False)
     assert calls == [arrival]
     assert wait.rehearse is None  # off for the rest of the run
     for b in inp.bodies:

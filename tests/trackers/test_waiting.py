@@ -187,7 +187,8 @@ def _rehearsing(clock, rehearse_s=4e-4, spin_s=0.0, takes=0.0):
     clock.t += 5 * PERIOD
     calls = []
 
-    def rehearse():  # takes ``takes`` seconds of the fake clock
+    def rehearse(waiting):  # takes ``takes`` seconds of the fake clock
+        assert waiting() is False  # no datagram yet (the fake selector's poll)
         calls.append(clock.t)
         clock.t += takes
 
@@ -206,14 +207,15 @@ def test_it_rehearses_once_per_datagram_to_be_over_rehearse_s_before_it_is_due()
     assert calls == [pytest.approx(due - 4e-4 - DueWait.FIRST_REHEARSAL_S)]
     assert sel.calls[0] == ("nap", pytest.approx(PERIOD - 4e-4 - DueWait.FIRST_REHEARSAL_S))
     assert sel.calls[-1] == 0.1  # then the plain wait (no polling)
-    assert w.rehearsed == 1 and w.rehearsal_s() == pytest.approx(3e-4)
+    assert w.rehearsed == 1  # measured with the fake poll's step (1e-5)
+    assert w.rehearsal_s() == pytest.approx(3e-4, abs=2e-5)
     sel.ready_at = due + 2e-4  # the same datagram expected again: no second rehearsal
     assert w.select(sel, 0.1) == ["datagram"] and w.rehearsed == 1
     w.arrived(due + 2e-4)  # the next datagram: timed by the measured duration now
     due = w.due()
     assert w.select(_Selector(clock, ready_at=due), 0.1) == ["datagram"]
-    assert calls[1] == pytest.approx(due - 4e-4 - 3e-4)
-    assert clock.t == pytest.approx(due)
+    assert calls[1] == pytest.approx(due - 4e-4 - 3e-4, abs=2e-5)
+    assert clock.t == pytest.approx(due, abs=2e-5)
 
 
 def test_a_slow_rehearsal_moves_the_next_one_earlier():
@@ -223,8 +225,8 @@ def test_a_slow_rehearsal_moves_the_next_one_earlier():
         due = w.due()
         assert w.select(_Selector(clock, ready_at=due + 1e-5), 0.1) == ["datagram"]
         w.arrived(clock.t)
-    assert calls[-1] == pytest.approx(due - 4e-4 - 2e-3)  # over 0.4 ms before the due time
-    assert w.rehearsal_s() == pytest.approx(2e-3)
+    assert calls[-1] == pytest.approx(due - 4e-4 - 2e-3, abs=2e-5)  # over 0.4 ms before due
+    assert w.rehearsal_s() == pytest.approx(2e-3, abs=2e-5)
 
 
 def test_a_datagram_before_the_rehearsal_or_a_late_wait_skips_it():
@@ -267,3 +269,22 @@ def test_the_rehearsal_option_is_checked():
     assert parse_input({"natnet": {"body": 1}}).options["rehearse_us"] == 0  # off by default
     with pytest.raises(ValueError, match=r"input.natnet.rehearse_us: 1000000.0 out of range"):
         parse_input({"natnet": {"body": 1, "rehearse_us": 1e6}})
+
+
+def test_a_datagram_during_the_rehearsal_is_seen_by_it():
+    clock = _Clock()
+    w = DueWait(0.0, clock=clock, nap=_nap, rehearse_s=4e-4)
+    for k in range(6):
+        w.arrived(clock.t + k * PERIOD)
+    clock.t += 5 * PERIOD
+    seen = []
+
+    def rehearse(waiting):  # decoding takes 0.5 ms, then it asks before delivering
+        clock.t += 5e-4
+        seen.append(waiting())
+
+    w.rehearse = rehearse
+    due = w.due()
+    sel = _Selector(clock, ready_at=due - 1e-3)  # early, while the rehearsal decodes
+    assert w.select(sel, 0.1) == ["datagram"]
+    assert seen == [True]  # the rehearsal is told, and cuts itself short

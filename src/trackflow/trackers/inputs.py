@@ -213,9 +213,10 @@ class LiveInput:
         self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
-        #: ``rehearsal(data, arrival_ns)`` (:class:`trackflow.trackers.rehearsal.Rehearsal`),
-        #: run on the last frame ``rehearse_us`` before the next is due; set before start
-        self.rehearsal: Callable[[bytes, int], object] | None = None
+        #: ``rehearsal(data, arrival_ns, waiting)``
+        #: (:class:`trackflow.trackers.rehearsal.Rehearsal`), run on the last frame before
+        #: each frame (option ``rehearse_us``); set before start
+        self.rehearsal: Callable[[bytes, int, Callable[[], bool]], object] | None = None
         self._last_frame: tuple[bytes, int] | None = None
 
     @staticmethod
@@ -371,13 +372,14 @@ class LiveInput:
         wait.arrived(arrival_ns * 1e-9)
         self._last_frame = (data, arrival_ns)
 
-    def _rehearse(self) -> None:
-        """The rehearsal of the last frame; one that fails is turned off and reported on
-        every body (it never touches the live path, which goes on)."""
+    def _rehearse(self, waiting: Callable[[], bool]) -> None:
+        """The rehearsal of the last frame, cut short when ``waiting()`` says a datagram
+        came; one that fails is turned off and reported on every body (it never touches the
+        live path, which goes on)."""
         if self._last_frame is None:
             return
         try:
-            self.rehearsal(*self._last_frame)
+            self.rehearsal(*self._last_frame, waiting)
         except Exception as exc:  # a bug in the twins must not stop the live input
             self.waiting.rehearse = None
             self._event_all(f"rehearsal off: {type(exc).__name__}: {exc}")

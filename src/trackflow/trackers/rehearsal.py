@@ -81,11 +81,14 @@ class Rehearsal:
         self.names = [b.name for b in inp.bodies]
         self.answer = answer
         self.runs = 0  # frames rehearsed
+        self.cut = 0  # rehearsals left after decoding: a datagram was waiting
         self._last: bytes | None = None
 
-    def __call__(self, data: bytes, arrival_ns: int) -> None:
+    def __call__(self, data: bytes, arrival_ns: int, waiting=None) -> None:
         """Rehearse the path of the frame ``data`` received at ``arrival_ns`` [ns, host
-        clock]; a frame already rehearsed is skipped (a lost frame leaves the last one)."""
+        clock]; a frame already rehearsed is skipped (a lost frame leaves the last one).
+        ``waiting()``, if given, is asked between decoding and delivery: when a datagram is
+        already waiting, the rest is left (counted in :attr:`cut`) so that it is not kept."""
         if data is self._last:
             return
         self._last = data
@@ -94,6 +97,9 @@ class Rehearsal:
             setattr(twin, attr, getattr(inp, attr))
         samples = twin.handle(data, arrival_ns)
         if not samples:  # a frame of no body (or another message): nothing to warm
+            return
+        if waiting is not None and waiting():
+            self.cut += 1
             return
         answer = (arrival_ns, _drop) if self.answer else None
         if type(samples) is SampleBlock:  # NatNet, every body plainly valid: arrays

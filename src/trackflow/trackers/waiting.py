@@ -87,8 +87,9 @@ class DueWait:
             raise ValueError(f"rehearse_s must be >= 0, got {rehearse_s}")
         self.spin_s = float(spin_s)
         self.rehearse_s = float(rehearse_s)
-        #: called once per datagram, to be over ``rehearse_s`` before it is due
-        self.rehearse: Callable[[], object] | None = None
+        #: called once per datagram, to be over ``rehearse_s`` before it is due, with a
+        #: callable telling whether a datagram is already waiting (then cut it short)
+        self.rehearse: Callable[[Callable[[], bool]], object] | None = None
         self.rehearsed = 0  # calls of rehearse
         self.rehearsals_s: deque[float] = deque(maxlen=8)  # their recent durations [s]
         self._rehearsed_due: float | None = None
@@ -125,7 +126,7 @@ class DueWait:
                         return []
                 if now < due:
                     self._rehearsed_due = due
-                    self.rehearse()
+                    self.rehearse(lambda: bool(sel.select(0)))
                     self.rehearsed += 1
                     took, now = clock() - now, clock()
                     self.rehearsals_s.append(took)
