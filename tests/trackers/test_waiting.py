@@ -235,7 +235,9 @@ def test_a_datagram_before_the_rehearsal_or_a_late_wait_skips_it():
     due = w.due()
     sel = _Selector(clock, ready_at=due - 3e-3)  # early: it wakes the nap
     assert w.select(sel, 0.1) == ["datagram"] and calls == []
-    clock.t = due + 1e-4  # the loop comes back after the due time: no rehearsal now
+    clock.t = due - 2e-4  # the loop comes back within rehearse_s of the due time
+    assert w.select(_Selector(clock, ready_at=due + 2e-4), 0.1) == ["datagram"]
+    clock.t = due + 1e-4  # or after it: no rehearsal either
     assert w.select(_Selector(clock, ready_at=due + 2e-4), 0.1) == ["datagram"]
     assert calls == [] and w.rehearsed == 0
 

@@ -124,12 +124,13 @@ class DueWait:
                     now = clock()
                     if now < start:  # the timeout first: the caller's loop comes back
                         return []
-                if now < due:
+                if now < due - self.rehearse_s:  # else it would run into the datagram
                     self._rehearsed_due = due
                     self.rehearse(lambda: bool(sel.select(0)))
                     self.rehearsed += 1
-                    took, now = clock() - now, clock()
-                    self.rehearsals_s.append(took)
+                    end = clock()
+                    self.rehearsals_s.append(end - now)
+                    now = end
         if not self.spin_s or due is None or now > due + self.spin_s:
             return sel.select(timeout)
         start = due - self.spin_s
