@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import signal
 import sys
 import threading
 from pathlib import Path
+
+from ._common import on_stop_signals
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -112,7 +113,6 @@ def run(args) -> int:
     return 0
 
 
-@contextlib.contextmanager
 def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):
     """SIGTERM and SIGHUP (a service manager's stop, a closed terminal) end the run as Ctrl-C
     does: the loop stops, the recording is closed and the summary printed (exit code 0),
@@ -123,17 +123,7 @@ def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):
         stopped_by.append(signal.Signals(signum).name)
         stop.set()
 
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        try:
-            old[sig] = signal.signal(sig, handler)
-        except ValueError:  # not the main thread (embedded use)
-            pass
-    try:
-        yield
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
+    return on_stop_signals(handler)
 
 
 def _sensor_info(inputs):

@@ -19,8 +19,9 @@ import importlib
 import os
 import pkgutil
 import re
-import signal
 import sys
+
+from ._common import on_stop_signals
 
 __all__ = ["main", "build_parser", "ArgumentParser"]
 
@@ -142,12 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _announce_compilation(quiet=getattr(args, "quiet", False))
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        try:
-            old[sig] = signal.signal(sig, _raise_terminated)
-        except ValueError:  # not the main thread (embedded use): leave signals alone
-            pass
+    with on_stop_signals(_raise_terminated):
+        return _run(args)
+
+
+def _run(args) -> int:
+    """The subcommand, behind the one error boundary."""
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()
@@ -174,9 +175,6 @@ def main(argv: list[str] | None = None) -> int:
     except Terminated as exc:
         print(f"trackflow: terminated by signal {exc.signum}", file=sys.stderr)
         return 128 + exc.signum
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":  # pragma: no cover
