@@ -170,7 +170,7 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
     stamp and the time its filter's new state was available (the local path). It starts
     feeding once a receiver subscribed to every edge (or, with ``thin_consumers``, once that
     many consumers asked for a thinned stream of every edge)."""
-    from trackflow.distributed import Agent, AgentConfig, calm_gc
+    from trackflow.distributed import Agent, AgentConfig, set_agent_gc
 
     cfg = AgentConfig(
         "sender",
@@ -207,7 +207,7 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
         while time.monotonic() < deadline and not subscribed():
             time.sleep(0.1)
         time.sleep(0.5)
-        calm_gc()
+        set_agent_gc()
         count[0] = 0
         # the sensors run unsynchronised: edge k is due at (n + k / 20) / 240 s
         slot = 1.0 / (RATE_HZ * N_EDGES)
@@ -260,7 +260,7 @@ def plot_latency(path: Path, loc: np.ndarray, rem: np.ndarray, load: str) -> Non
 def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> dict:
     import gc
 
-    from trackflow.distributed import Agent, AgentConfig, calm_gc
+    from trackflow.distributed import Agent, AgentConfig, set_agent_gc
 
     realm = f"lat{free_port()}"
     port = free_port()
@@ -319,7 +319,7 @@ def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> di
             gc_gens.append(info["generation"])
 
     with agent:
-        calm_gc()
+        set_agent_gc()
         gc.callbacks.append(on_gc)
         cpu0, n0 = time.process_time(), None
         deadline = time.monotonic() + duration_s + 150

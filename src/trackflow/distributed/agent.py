@@ -57,10 +57,10 @@ from .fragment import fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
 from .thinning import Grid, ThinStreams, demand_key, parse_demand, thin_key
 
-__all__ = ["Agent", "QueryState", "RemoteSource", "calm_gc", "remote_get", "run_agent"]
+__all__ = ["Agent", "QueryState", "RemoteSource", "set_agent_gc", "remote_get", "run_agent"]
 
 _SENSOR, _TICK = 0, 1
-_GC_THRESHOLDS = (1000, 20, 100)  # calm_gc: young collections stay short, full ones rare
+_GC_THRESHOLDS = (1000, 20, 100)  # set_agent_gc: young collections stay short, full ones rare
 _REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
 _FOREVER_NS = 2**62  # (progress of a recording played to its end)
 
@@ -1071,7 +1071,7 @@ def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0)
     raise ValueError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))
 
 
-def calm_gc() -> None:
+def set_agent_gc() -> None:
     """Quieter garbage collection for a process that is an agent: everything allocated so
     far (modules, setup, plans) lives as long as the process, so it is frozen out of the
     collector's scans, and the youngest generation is collected less often (the data path
@@ -1090,7 +1090,7 @@ def run_agent(config: AgentConfig, duration_s: float | None = None, on_ready=Non
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     agent = Agent(config).start()
-    calm_gc()
+    set_agent_gc()
     try:
         if on_ready is not None:
             on_ready(agent)
