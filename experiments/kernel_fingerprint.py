@@ -8,8 +8,9 @@ velocity), for both formulations (error state and additive), both process-noise 
 every motion model with ``n_dp, n_do`` in ``-1..2``:
 
 * ``step_packed`` sequences with every measurement level the model allows (the records too);
-* ``step_bank`` and ``predict_pose_bank`` on a bank of filters, rows in random order, with
-  one time step for all rows (as in a live packet; signed zeros too) or one per row;
+* ``step_bank``, ``predict_pose_bank`` and ``step_predict_bank`` (a packet's steps and
+  answers in one call) on a bank of filters, rows in random order, with one time step for all
+  rows (as in a live packet; signed zeros too) or one per row;
 * ``predict_pose_packed`` of single filters;
 * ``run`` (with and without covariances, with the states for smoothing) and ``smooth_run``
   through :func:`~trackflow.filters.run_filter` and :func:`~trackflow.filters.smooth_filter`;
@@ -198,7 +199,8 @@ def step_packed_sequences(k, rng, d: Digest, steps: int) -> None:
 
 
 def banks(k, rng, d: Digest, rounds: int) -> None:
-    """``step_bank`` and ``predict_pose_bank`` (and ``predict_pose_packed`` per filter)."""
+    """``step_bank``, ``step_predict_bank`` and ``predict_pose_bank`` (and
+    ``predict_pose_packed`` per filter)."""
     for n_dp, n_do in MODELS:
         if n_dp < 0 or n_do < 0:
             continue
@@ -232,11 +234,23 @@ def banks(k, rng, d: Digest, rounds: int) -> None:
                         np.full(m, 9, np.int64),
                         np.full(m, 7.0),
                     )
+                    gate = _gate(rng)
+                    xs2, ps2 = xs.copy(), ps.copy()  # the same step, with its answers
                     d.call(
                         k.step_bank, xs, ps, frozen(rows, np.int64), frozen(dts), c, frozen(zp),
-                        frozen(zo), frozen(r), _gate(rng), logs, status, nis,
+                        frozen(zo), frozen(r), gate, logs, status, nis,
                     )  # fmt: skip
                     d.add(xs, ps, logs, status, nis)
+                    ts = np.cumsum(np.abs(dts))  # step times; answers at or after the last
+                    at = float(ts.max() + abs(_dt(rng)))
+                    ahead = np.full((m, source.POSE_OUT), 7.0)
+                    status2, nis2 = np.full(m, 9, np.int64), np.full(m, 7.0)
+                    d.call(
+                        k.step_predict_bank, xs2, ps2, frozen(rows, np.int64), frozen(dts), c,
+                        frozen(zp), frozen(zo), frozen(r), gate, np.empty((m, 0)), status2, nis2,
+                        at, frozen(ts), ahead,
+                    )  # fmt: skip
+                    d.add(xs2, ps2, status2, nis2, ahead)
                     out = np.full((m, source.POSE_OUT), 7.0)
                     pdts = np.array([_dt(rng) for _ in range(m)])
                     if rng.random() < 0.5:
