@@ -227,3 +227,28 @@ def test_a_dtrack_path_of_sample_pairs_is_rehearsed_and_untouched(rehearse):
     (x0, n0), (x1, n1) = runs
     assert n0 == n1 == [len(frames)] * 2
     assert all(np.array_equal(a, b) for a, b in zip(x0, x1))
+
+
+def test_bodies_named_in_the_model_definitions_are_rehearsed_with_the_live_names():
+    """A body given by name needs MODELDEF: the twin input takes the live input's model
+    definitions (and server info) before each run, so it finds the body as the live one."""
+    specs = {
+        "head": (parse_input({"natnet": {"command_port": 1, "body": "rig"}}), np.eye(6) * 1e-6)
+    }
+    (inp,) = make_inputs(specs)
+    inp.handle(
+        natnet.encode_server_info(
+            natnet.ServerInfo(natnet_version=(4, 1, 0, 0), clock_frequency=FREQ)
+        ),
+        0,
+    )
+    defs = natnet.ModelDefinitions((natnet.RigidBodyDescription("rig", 2),))
+    inp.handle(natnet.encode_model_definitions(defs, (4, 1)), 0)
+    sources = {"head": LiveSource("head")}
+    sources["head"].consumers.append((KalmanFilter("kf_head", MOTION), 0))
+    rehearsal = Rehearsal(inp, sources)
+    for data, arrival in _frames(5):  # bodies 1..4: "rig" is body 2
+        rehearsal(data, arrival)
+    assert rehearsal.runs == 5 and rehearsal.twin.models is inp.models
+    twin = rehearsal.sources.sources["head"].consumers[0][0]
+    assert twin.stats.events_in == 5 and twin.stats.rejected == 0
