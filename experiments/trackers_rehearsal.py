@@ -37,36 +37,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import trackers_cpu  # noqa: E402  (the packets and the 20 filters of bench/trackers_cpu.py)
-from trackflow.dataflow import KalmanFilter, parse_input  # noqa: E402
-from trackflow.graph import MotionSpec  # noqa: E402
-from trackflow.trackers import natnet  # noqa: E402
-from trackflow.trackers.inputs import make_inputs  # noqa: E402
 from trackflow.trackers.rehearsal import Rehearsal  # noqa: E402
-from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, warm_up  # noqa: E402
+from trackflow.trackers.runtime import LiveSources, calm_gc  # noqa: E402
 
 PERIOD_S = 1 / trackers_cpu.RATE
-MOTION = MotionSpec(static=False, n_dp=1, n_do=1, noise=(0.0, 30.0, 0.0, 100.0))
 
 
 def _pipeline():
     """The live path of bench/trackers_cpu.py: ``one(data, arrival, deliver)`` and the
     rehearsal of its input."""
-    specs = {
-        f"b{k}": (parse_input({"natnet": {"command_port": 1, "body": k}}), np.eye(6) * 1e-6)
-        for k in range(1, trackers_cpu.BODIES + 1)
-    }
-    (inp,) = make_inputs(specs)
-    info = natnet.ServerInfo(natnet_version=(4, 1, 0, 0), clock_frequency=trackers_cpu.FREQ)
-    inp.handle(natnet.encode_server_info(info), 0)
-    sources = {name: LiveSource(name) for name in specs}
-    filters = {name: KalmanFilter(f"kf_{name}", MOTION) for name in specs}
-    for name in specs:
-        sources[name].consumers.append((filters[name], 0))
-
-    class _Net:
-        components = filters
-
-    warm_up(_Net)
+    inp, sources = trackers_cpu.network()
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
 

@@ -180,8 +180,8 @@ def test_a_descriptor_beyond_select_naps_in_the_selector_to_the_millisecond_belo
     assert sel.calls == [pytest.approx(3e-3)]
 
 
-def _rehearsing(clock, rehearse_s=4e-4, spin_s=0.0, takes=0.0):
-    w = DueWait(spin_s, clock=clock, nap=_nap, rehearse_s=rehearse_s)
+def _rehearsing(clock, rehearse_s=4e-4, takes=0.0):
+    w = DueWait(0.0, clock=clock, nap=_nap, rehearse_s=rehearse_s)
     for k in range(6):
         w.arrived(clock.t + k * PERIOD)
     clock.t += 5 * PERIOD
