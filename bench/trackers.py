@@ -43,13 +43,13 @@ from pathlib import Path
 
 import numpy as np
 
-from trackflow.dataflow import KalmanFilter, parse_input
+from trackflow.dataflow import KalmanFilter, calm_gc, collect_due, parse_input, warm_up
 from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import SampleBlock, make_inputs
 from trackflow.trackers.rehearsal import Rehearsal
-from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, collect_due, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources
 
 BODIES, RATE = 20, 240
 ROOT = Path(__file__).resolve().parents[1]

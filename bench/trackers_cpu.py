@@ -25,12 +25,12 @@ import time
 
 import numpy as np
 
-from trackflow.dataflow import KalmanFilter, parse_input
+from trackflow.dataflow import KalmanFilter, calm_gc, collect_due, parse_input, warm_up
 from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp
 from trackflow.trackers import natnet
 from trackflow.trackers.inputs import make_inputs
-from trackflow.trackers.runtime import LiveSource, LiveSources, calm_gc, collect_due, warm_up
+from trackflow.trackers.runtime import LiveSource, LiveSources
 
 BODIES, RATE, FREQ = 20, 240, 10_000_000
 

@@ -37,8 +37,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
 import trackers_cpu  # noqa: E402  (the packets and the 20 filters of bench/trackers_cpu.py)
+from trackflow.dataflow import calm_gc  # noqa: E402
 from trackflow.trackers.rehearsal import Rehearsal  # noqa: E402
-from trackflow.trackers.runtime import LiveSources, calm_gc  # noqa: E402
+from trackflow.trackers.runtime import LiveSources  # noqa: E402
 
 PERIOD_S = 1 / trackers_cpu.RATE
 

@@ -23,12 +23,39 @@ from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
+from ._scheduler import (
+    SAMPLE,
+    TICK,
+    Arrival,
+    EventSource,
+    Scheduler,
+    Ticker,
+    TimedSource,
+    WallTime,
+    calm_gc,
+    collect_due,
+    stop_signals,
+)
 from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
-from ._sources import NO_ORIGIN, RecordingPlayer, SimulatedSensor, StaticPose
+from ._sources import NO_ORIGIN, PlayerSource, RecordingPlayer, SimulatedSensor, StaticPose
+from ._warmup import warm_up
 
 __all__ = [
     "NO_ORIGIN",
+    "SAMPLE",
+    "TICK",
+    "Arrival",
+    "EventSource",
+    "PlayerSource",
+    "Scheduler",
+    "Ticker",
+    "TimedSource",
+    "WallTime",
+    "calm_gc",
+    "collect_due",
+    "stop_signals",
+    "warm_up",
     "CallbackSink",
     "Component",
     "ComponentStats",

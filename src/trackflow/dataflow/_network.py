@@ -1,28 +1,23 @@
-"""The network of components and its scheduler (virtual clock or wall clock).
+"""The network of components; :meth:`Network.run` drives it on the one scheduler.
 
-Both modes dispatch the same kinds of events in the same order - sensor samples at their
-arrival time (sample stamp + latency) and sampler ticks - and every component runs in the
-dispatching thread, so results depend only on the order of events. The virtual clock orders
-them exactly (sensor events before ticks at equal times, then insertion order) and runs as
-fast as possible; the real-time mode plays every source in its own thread, sleeping until the
-arrival time on the wall clock, so near-simultaneous events can swap order and results agree
-within a tolerance instead of bit for bit.
+Recordings' samples arrive at their arrival time (sample stamp + latency) and samplers tick
+at their rate, both as event sources of :class:`trackflow.dataflow.Scheduler`, which
+dispatches them in one order (a sample before a tick at equal times, then insertion order)
+on a virtual clock (as fast as possible) or on the wall clock (each event waits for its
+time). Every component runs in the dispatching thread, so results depend only on the order
+of events, and the two modes give the same answers.
 """
 
 from __future__ import annotations
 
-import heapq
-import queue
-import threading
-import time
+import time as _time
 
 from ._component import Component, _Clock
 from ._processing import Sampler
-from ._sources import RecordingPlayer
+from ._scheduler import Scheduler, Ticker, WallTime
+from ._sources import PlayerSource, RecordingPlayer
 
 __all__ = ["Network"]
-
-_SENSOR, _TICK = 0, 1
 
 
 class Network:
@@ -120,14 +115,17 @@ class Network:
         return {name: c.stats.summary() for name, c in self.components.items()}
 
     # -- running --------------------------------------------------------------------------------
-    def _players(self) -> list[RecordingPlayer]:
+    def players(self) -> list[RecordingPlayer]:
+        """The recordings (and simulated sensors) of the network."""
         return [c for c in self.components.values() if isinstance(c, RecordingPlayer)]
 
-    def _samplers(self) -> list[Sampler]:
+    def samplers(self) -> list[Sampler]:
+        """The samplers (push queries' ticks) of the network."""
         return [c for c in self.components.values() if isinstance(c, Sampler)]
 
-    def _span(self, until_ns: int | None) -> tuple[int, int]:
-        players = self._players()
+    def span(self, until_ns: int | None = None) -> tuple[int, int]:
+        """``(first arrival, until_ns or last arrival)`` of the recordings [ns]."""
+        players = self.players()
         if not players:
             raise ValueError("the network has no sensor or recording to run")
         arrivals = [p.arrivals() for p in players if len(p.t_ns)]
@@ -141,129 +139,51 @@ class Network:
         for c in self.components.values():
             c.reset()
 
-    def run(self, until_ns: int | None = None, realtime: bool = False, speed: float = 1.0):
+    def finish(self) -> None:
+        """End of a run: every component flushes (recorders close their files)."""
+        for c in self.components.values():
+            c.finish()
+
+    def scheduler(
+        self,
+        start_ns: int,
+        end_ns: int | None = None,
+        time: WallTime | None = None,
+        max_tick_lag_ns: int | None = None,
+    ) -> Scheduler:
+        """A :class:`Scheduler` on this network's clock with every recording and sampler of
+        the network as an event source (samplers tick from ``start_ns`` on their grid, up to
+        ``end_ns``); a runtime adds its live sources to it."""
+        sched = Scheduler(self.clock, time)
+        for p in self.players():
+            sched.add(PlayerSource(p, end_ns))
+        for s in self.samplers():
+            first = Ticker.first_at_or_after(s.start_ns, s.period_ns, start_ns)
+            sched.add(Ticker(s.name, s.tick, s.period_ns, first, end_ns, max_tick_lag_ns))
+        return sched
+
+    def run(
+        self,
+        until_ns: int | None = None,
+        realtime: bool = False,
+        speed: float = 1.0,
+        stop=None,
+    ):
         """Play every source and tick every sampler until ``until_ns`` (default: last arrival).
 
         Parameters
         ----------
         realtime : bool
-            False: virtual clock, as fast as possible, deterministic. True: wall clock, every
-            source in its own thread; ``speed`` > 1 plays faster than real time.
+            False: virtual clock, as fast as possible. True: wall clock; ``speed`` > 1 plays
+            faster than real time. Both dispatch the same events in the same order.
+        stop : threading.Event, optional
+            Ends a run early when set.
         """
-        start, end = self._span(until_ns)
+        start, end = self.span(until_ns)
         self.reset()
+        wall = WallTime(_time.perf_counter_ns, start, speed) if realtime else None
         try:
-            if realtime:
-                self._run_realtime(start, end, float(speed))
-            else:
-                self._run_virtual(start, end)
+            self.scheduler(start, end, wall).run(end, stop=stop)
         finally:
-            for c in self.components.values():
-                c.finish()
+            self.finish()
         return self
-
-    def _run_virtual(self, start: int, end: int) -> None:
-        heap: list = []
-        seq = 0
-        iters = [p.events() for p in self._players()]
-
-        def refill(i: int) -> None:
-            nonlocal seq
-            nxt = next(iters[i], None)
-            if nxt is not None and nxt[0] <= end:
-                heapq.heappush(heap, (nxt[0], _SENSOR, i, seq, nxt[1]))
-                seq += 1
-
-        for i in range(len(iters)):
-            refill(i)
-        samplers = self._samplers()
-        for s_idx, s in enumerate(samplers):
-            t0 = self._first_tick(s, start)
-            if t0 <= end:
-                heapq.heappush(heap, (t0, _TICK, s_idx, seq, None))
-                seq += 1
-        players = self._players()
-        clock = self.clock
-        while heap:
-            t, kind, i, _, payload = heapq.heappop(heap)
-            clock.now_ns = t
-            clock.dispatch_wall_ns = time.perf_counter_ns()
-            if kind == _SENSOR:
-                players[i].deliver(payload)
-                refill(i)
-            else:
-                s = samplers[i]
-                s.tick(t)
-                if t + s.period_ns <= end:
-                    heapq.heappush(heap, (t + s.period_ns, _TICK, i, seq, None))
-                    seq += 1
-
-    @staticmethod
-    def _first_tick(s: Sampler, start: int) -> int:
-        if s.start_ns >= start:
-            return s.start_ns
-        return s.start_ns + -((s.start_ns - start) // s.period_ns) * s.period_ns
-
-    def _run_realtime(self, start: int, end: int, speed: float) -> None:
-        if not speed > 0:
-            raise ValueError("speed must be > 0")
-        q: queue.Queue = queue.Queue()
-        wall0 = time.perf_counter_ns()
-        stop = threading.Event()
-
-        def wall_at(t: int) -> float:
-            return wall0 + (t - start) / speed
-
-        def play(i: int, player: RecordingPlayer) -> None:
-            for arrival, idx in player.events():
-                if arrival > end or stop.is_set():
-                    break
-                delay = (wall_at(arrival) - time.perf_counter_ns()) * 1e-9
-                if delay > 0:
-                    time.sleep(delay)
-                q.put((arrival, i, idx))
-            q.put((None, i, None))
-
-        players = self._players()
-        threads = [
-            threading.Thread(target=play, args=(i, p), daemon=True) for i, p in enumerate(players)
-        ]
-        samplers = self._samplers()
-        next_tick = [self._first_tick(s, start) for s in samplers]
-        running = len(threads)
-        for th in threads:
-            th.start()
-        clock = self.clock
-        try:
-            while running or any(t <= end for t in next_tick):
-                k = min(range(len(samplers)), key=lambda j: next_tick[j], default=None)
-                due = next_tick[k] if k is not None and next_tick[k] <= end else None
-                timeout = None
-                if due is not None:
-                    timeout = max(0.0, (wall_at(due) - time.perf_counter_ns()) * 1e-9)
-                try:
-                    arrival, i, idx = q.get(timeout=timeout) if running else (None, -1, None)
-                    if i < 0:
-                        raise queue.Empty
-                except queue.Empty:
-                    if due is None:
-                        break
-                    if running == 0:
-                        delay = (wall_at(due) - time.perf_counter_ns()) * 1e-9
-                        if delay > 0:
-                            time.sleep(delay)
-                    clock.now_ns = due
-                    clock.dispatch_wall_ns = time.perf_counter_ns()
-                    samplers[k].tick(due)
-                    next_tick[k] += samplers[k].period_ns
-                    continue
-                if arrival is None:
-                    running -= 1
-                    continue
-                clock.now_ns = arrival
-                clock.dispatch_wall_ns = time.perf_counter_ns()
-                players[i].deliver(idx)
-        finally:
-            stop.set()
-            for th in threads:
-                th.join(timeout=5.0)

@@ -78,6 +78,8 @@ class Setup:
     #: live inputs of sensors: name -> :class:`trackflow.dataflow.InputSpec`
     inputs: dict = field(default_factory=dict)
     imus: dict = field(default_factory=dict)  # name -> ImuSpec (dataflow/_inertial.py)
+    #: line of each entry in the file: ``"sensors.<name>"``, ``"queries.<name>"`` -> line
+    lines: dict = field(default_factory=dict)
 
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
@@ -347,10 +349,12 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             g.add_frame(name)
     recordings: dict[str, Path] = {}
     inputs: dict = {}
+    lines: dict[str, int] = {}
     for i, s in enumerate(doc.get("sensors") or []):
         what = f"sensors[{i}]"
         _check_keys(source, s, _SENSOR_KEYS, what)
         name = _name(source, s, "name", what)
+        lines[f"sensors.{name}"] = getattr(s, "line", 0)
         src_f = _frame(source, s, "source", what, declared)
         tgt_f = _frame(source, s, "target", what, declared)
         cov, motion = _cov(source, s, what), _motion(source, s, what)
@@ -403,7 +407,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
     for i, q in enumerate(doc.get("queries") or []):
         what = f"queries[{i}]"
         _check_keys(source, q, _QUERY_KEYS, what)
-        _name(source, q, "name", what)
+        lines[f"queries.{_name(source, q, 'name', what)}"] = getattr(q, "line", 0)
         try:
             for frame in (_frame(source, q, "source", what, declared),
                           _frame(source, q, "target", what, declared)):  # fmt: skip
@@ -433,7 +437,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 g.check_frame(spec.body)
             except ValueError as exc:
                 raise _err(source, doc, f"IMU {spec.name}: {exc}") from exc
-    return Setup(g, queries, recordings, source, inputs, imus)
+    return Setup(g, queries, recordings, source, inputs, imus, lines)
 
 
 def load_setup(path: str | Path) -> Setup:

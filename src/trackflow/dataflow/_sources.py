@@ -9,8 +9,9 @@ import numpy as np
 from ..math import Pose, UncertainPose, quat_exp, quat_multiply
 from ._component import Component
 from ._events import Measurement
+from ._scheduler import TimedSource
 
-__all__ = ["RecordingPlayer", "SimulatedSensor", "StaticPose", "NO_ORIGIN"]
+__all__ = ["RecordingPlayer", "PlayerSource", "SimulatedSensor", "StaticPose", "NO_ORIGIN"]
 
 #: ``origin_ns`` of data that never came from a sensor (static calibrations).
 NO_ORIGIN = -(2**62)
@@ -241,3 +242,35 @@ class StaticPose(Component):
     def pull(self, t_ns: int) -> Measurement:
         self.stats.events_out += 1
         return Measurement(int(t_ns), self.value, NO_ORIGIN)
+
+
+class PlayerSource(TimedSource):
+    """A :class:`RecordingPlayer` as a scheduler's event source: each sample at its arrival
+    time, up to ``end_ns``.
+
+    Samples arriving before ``skip_before_ns`` (a process started late into its recording)
+    are skipped and counted in :attr:`skipped`; :attr:`played` is the number of samples
+    played or skipped so far.
+    """
+
+    def __init__(self, player: RecordingPlayer, end_ns: int | None = None, skip_before_ns=None):
+        self.player = player
+        self.name = player.name
+        self.end_ns = end_ns
+        self.arrivals = player.arrivals()
+        self.played = 0
+        self.skipped = 0
+        if skip_before_ns is not None:
+            self.skipped = self.played = int(np.searchsorted(self.arrivals, skip_before_ns))
+
+    def next_ns(self) -> int | None:
+        k = self.played
+        if k >= len(self.arrivals):
+            return None
+        t = int(self.arrivals[k])
+        return None if self.end_ns is not None and t > self.end_ns else t
+
+    def fire(self, t_ns: int) -> None:
+        k = self.played
+        self.played = k + 1
+        self.player.deliver(k)

@@ -19,8 +19,6 @@ and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch 
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import math
 import threading
 import time
@@ -31,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import (
+    SAMPLE,
     Component,
     KalmanBank,
     KalmanFilter,
@@ -39,9 +38,14 @@ from ..dataflow import (
     Plan,
     RecordingPlayer,
     Sampler,
+    Scheduler,
     Setup,
+    Ticker,
+    WallTime,
+    collect_due,
+    warm_up,
 )
-from ..filters import Layouts, PoseFilterBank
+from ..filters import Layouts
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
 from .inputs import (
@@ -57,14 +61,12 @@ from .inputs import (
 __all__ = [
     "LiveSource",
     "LiveSources",
+    "InputSource",
     "ReplayResult",
-    "calm_gc",
-    "collect_due",
     "RunResult",
     "input_paths",
     "replay",
     "run_live",
-    "warm_up",
 ]
 
 
@@ -308,63 +310,6 @@ def _dispatched(names, samples, a: int) -> list[tuple[str, Sample]]:
     return [(n, s._replace(arrival_ns=a + k)) for k, (n, (_, s)) in enumerate(zip(names, samples))]
 
 
-def warm_up(net) -> None:
-    """Run every Kalman filter of ``net`` once on a throwaway copy, alone and in a filter
-    bank, and the inputs' packet kernels, so that compiling them (numba, first use in a
-    process) happens before the trackers are listened to."""
-    seen = set()
-    for c in net.components.values():
-        if isinstance(c, KalmanFilter) and (c.motion, c.history_s) not in seen:
-            seen.add((c.motion, c.history_s))
-            f = c.filter_factory(c.motion, c.history_s)
-            u = UncertainPose(Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), np.eye(6) * 1e-6)
-            f.update_pose(0.0, u)
-            f.update_pose(0.01, u)
-            f.predict(0.02)
-            # and the batched kernels a packet of several bodies runs (LiveSources)
-            bank = PoseFilterBank([c.filter_factory(c.motion, c.history_s) for _ in range(2)])
-            for t in (0.0, 0.01):
-                bank.update_poses([0, 1], [t, t], [u, u])
-            bank.predict_poses([0, 1], [0.02, 0.02])
-            z = [np.stack([a, a]) for a in (u.position, u.quaternion, u.covariance)]
-            bank.update_block([0, 1], [0.02, 0.02], *z, defer=True, predict_at=0.025)
-            bank.settle()  # a packet with its answers (LiveSources.deliver_block)
-    warm_up_inputs()  # and the inputs' kernels
-
-
-@contextlib.contextmanager
-def calm_gc():
-    """Within the block, garbage collection stays off the packets' path.
-
-    Entered once the network is built and warm: it collects, then freezes every object alive
-    (:func:`gc.freeze`), so that the collections a live run makes look only at the objects
-    made since (a full collection over the imported modules and compiled kernels would
-    otherwise stall one packet by milliseconds), and turns the automatic collector off: a
-    thread calls :func:`collect_due` where it has just finished its work (after a packet's
-    answers, when the next packet is furthest away) to make the collections the collector
-    would have made. On exit the collector is on and the objects unfrozen again.
-    """
-    gc.collect()
-    gc.freeze()
-    was_on = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_on:
-            gc.enable()
-        gc.unfreeze()
-
-
-def collect_due() -> None:
-    """The collection the automatic collector would make now (by its thresholds: the oldest
-    generation whose count is due), or none; for use inside :func:`calm_gc`."""
-    t0, t1, t2 = gc.get_threshold()
-    c0, c1, c2 = gc.get_count()
-    if c0 > t0:
-        gc.collect(2 if c2 > t2 else 1 if c1 > t1 else 0)
-
-
 def input_paths(record, sensor: str) -> tuple[Path, Path]:
     """``(exposure-stamped, dispatch-stamped)`` input recordings of ``sensor`` next to the
     answers file ``record``."""
@@ -389,6 +334,10 @@ class RunResult:
     duration_s: float
     interrupted: bool = False
     inputs: list[LiveInput] = field(default_factory=list, repr=False)
+    #: every served query's answer sink (push: Recorder, pull: PullSink), by query name
+    sinks: dict[str, Component] = field(default_factory=dict, repr=False)
+    #: queries of the setup that could not be planned, with the planner's reason
+    unplanned: dict[str, str] = field(default_factory=dict)
 
 
 def _push_query(setup: Setup, query: str | None):
@@ -404,127 +353,93 @@ def _sensor_edges(plan) -> list[str]:
     return [n.params["edge"] for n in plan.nodes if n.kind == "source"]
 
 
-class _Scheduler:
-    """Time-ordered dispatch of live samples and sampler ticks (module docstring).
+def _measured(setup: Setup) -> list[str]:
+    """Every sensor (measured edge) the setup names, in file order."""
+    return [e.name for e in setup.graph.edges if e.kind == "measured"]
 
-    A receiving thread dispatches its packet itself (:meth:`packet`: no hand-off to another
-    thread, so a packet's answers are not delayed by a thread switch); the scheduling
-    thread (:meth:`loop`) fires the ticks that fall due while no packet arrives. Both hold
-    one lock, so events are dispatched one at a time, in time order.
+
+def query_record_path(record, query: str) -> Path:
+    """Where the answers of push query ``query`` go when it is not the recorded main query:
+    ``out.query.<name>.tfrec`` next to ``out.tfrec``."""
+    record = Path(record)
+    stem = record.name[: -len(record.suffix)] if record.suffix else record.name
+    return record.with_name(f"{stem}.query.{query}.tfrec")
+
+
+class InputSource:
+    """A live input (one socket, one or more bodies) as an event source of the scheduler.
+
+    Its receiving thread dispatches each packet itself through
+    :meth:`trackflow.dataflow.Scheduler.arrival` (module docstring): the packet is decoded
+    at its dispatch time, its samples go to their sensors' sources as one batch
+    (:class:`LiveSources`) and the accepted ones into the input recordings.
     """
 
-    def __init__(self, net, sampler: Sampler, sources: dict, inputs: list, writers: dict):
-        self.clock = net.clock
-        self.sampler = sampler
-        self.sources = sources
-        self.delivery = LiveSources(sources)
-        self.writers = writers
-        self.names = {id(i): [b.name for b in i.bodies] for i in inputs}
-        self.lock = threading.Lock()
-        self.last = 0  # the latest dispatch time handed out
-        self.floor = 0  # no dispatch time at or below a fired tick
-        self.next_tick = 0  # the next tick to fire (set before the inputs start)
-        self.ticks = 0
-        self.error: BaseException | None = None  # raised in a receiving thread
-        self.stop = threading.Event()
+    kind = SAMPLE
 
-    def packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
-        """Decode a packet and dispatch its samples with strictly increasing dispatch times
-        ``a, a + 1, ...``, after the ticks before them (a sample first at ties)."""
-        with self.lock:
-            if self.stop.is_set():  # the run is over (or failed): nothing more dispatched
-                return
-            try:
-                a = max(stamp, self.last + 1, self.floor)
-                samples = inp.handle(data, a)
-                self.last = a + max(len(samples) - 1, 0)
+    def __init__(self, inp: LiveInput, delivery: LiveSources, writers: dict):
+        self.input = inp
+        self.name = ", ".join(b.name for b in inp.bodies)
+        self.names = [b.name for b in inp.bodies]
+        self.delivery = delivery
+        self.writers = writers
+        self._sched: Scheduler | None = None
+
+    def next_ns(self) -> None:
+        return None  # no timed events: packets come when they come
+
+    def fire(self, t_ns: int) -> None:  # pragma: no cover - never scheduled
+        raise RuntimeError(f"live input {self.name!r} has no timed events")
+
+    def open(self, scheduler: Scheduler) -> None:
+        self._sched = scheduler
+        self.input.start(self._packet)
+
+    def close(self) -> None:
+        self.input.stop()
+
+    def _packet(self, inp: LiveInput, data: bytes, stamp: int) -> None:
+        """Decode a packet and dispatch its samples at ``a, a + 1, ...`` (ticks among them
+        in between, a sample first at ties)."""
+        with self._sched.arrival(stamp) as arr:
+            if arr is not None:
+                samples = inp.handle(data, arr.at_ns)
                 if samples:
-                    names = self.names[id(inp)]
-                    if type(samples) is SampleBlock:
-                        index = samples.index
-                    else:
-                        index = [bi for bi, _ in samples]
-                    self._dispatch_packet([names[bi] for bi in index], samples, a)
-            except BaseException as exc:  # reported by the scheduling thread, which stops
-                self.error = exc
-                self.stop.set()
+                    index = (
+                        samples.index if type(samples) is SampleBlock else [i for i, _ in samples]
+                    )
+                    names = [self.names[bi] for bi in index]
+                    arr.deliver(
+                        len(samples), lambda i, j, a: self.dispatch(names[i:j], samples[i:j], a)
+                    )
         collect_due()  # the packet is answered: the next one is furthest away
 
-    def _dispatch_packet(self, names: list[str], samples, a: int) -> None:
-        """The samples of one packet (``(body index, sample)`` pairs or a block), sample
-        ``k`` of sensor ``names[k]`` at dispatch time ``a + k``, split at the ticks among
-        them."""
-        period = self.sampler.period_ns
-        i, n = 0, len(samples)
-        while i < n:
-            while self.next_tick < a + i:
-                self.fire(self.next_tick)
-                self.next_tick += period
-            j = min(n, self.next_tick - a + 1)  # the samples at or before the next tick
-            self.dispatch(names[i:j], samples[i:j], a + i)
-            i = j
-
     def dispatch(self, names: list[str], samples, a: int) -> None:
-        """Deliver samples with no tick between them, sample ``k`` at ``a + k`` (one batch,
-        :class:`LiveSources`), and record the accepted ones."""
-        self.clock.now_ns = a
-        self.clock.dispatch_wall_ns = time.perf_counter_ns()
+        """Deliver samples with no tick between them, sample ``k`` at ``a + k`` (one batch),
+        and record the accepted ones."""
+        clock = self._sched.clock
         if type(samples) is SampleBlock:
-            ok = self.delivery.deliver_block(names, samples, a, self.clock)
-            if self.writers:
-                for k, (name, good) in enumerate(zip(names, ok)):
-                    if good and name in self.writers:
-                        self._record(
-                            name, samples.t_ns, a + k, samples.position[k],
-                            samples.quaternion[k], samples.covariance[k],
-                        )  # fmt: skip
+            ok = self.delivery.deliver_block(names, samples, a, clock)
+            for k, (name, good) in enumerate(zip(names, ok)):
+                if good and name in self.writers:
+                    self._record(
+                        name, samples.t_ns, a + k, samples.position[k],
+                        samples.quaternion[k], samples.covariance[k],
+                    )  # fmt: skip
             return
         items = _dispatched(names, samples, a)
-        poses = self.delivery.deliver(items, self.clock)
-        if self.writers:
-            for (name, s), pose in zip(items, poses):
-                if pose is not None and name in self.writers:
-                    self._record(
-                        name, s.t_ns, s.arrival_ns, pose.position, pose.quaternion,
-                        pose.covariance,
-                    )  # fmt: skip
+        poses = self.delivery.deliver(items, clock)
+        for (name, s), pose in zip(items, poses):
+            if pose is not None and name in self.writers:
+                self._record(
+                    name, s.t_ns, s.arrival_ns, pose.position, pose.quaternion, pose.covariance
+                )
 
     def _record(self, name: str, t_ns: int, arrival_ns: int, p, q, c) -> None:
         """An accepted sample into its sensor's input recordings (exposure and dispatch)."""
         exposure, arrival = self.writers[name]
         exposure.append_sample(t_ns, p, q, c)
         arrival.append_sample(arrival_ns, p, q, c)
-
-    def fire(self, t: int) -> None:
-        self.clock.now_ns = t
-        self.clock.dispatch_wall_ns = time.perf_counter_ns()
-        self.sampler.tick(t)
-        self.ticks += 1
-
-    def loop(self, deadline: int | None, stop: threading.Event, status) -> None:
-        """Fire the ticks that fall due until ``deadline`` (host ns) or ``stop``;
-        ``status(now)`` is called between them. An error raised while a receiving thread
-        dispatched its packet is raised here."""
-        period = self.sampler.period_ns
-        while not (stop.is_set() or self.stop.is_set()):
-            now = host_ns()
-            if deadline is not None and now >= deadline:
-                break
-            status(now)
-            collect_due()  # also when no packet comes
-            wait = min(self.next_tick - now, 100_000_000)
-            if wait > 0:
-                self.stop.wait(wait * 1e-9)
-                continue
-            with self.lock:  # no sample stamped before the tick may still come after it
-                if host_ns() >= self.next_tick and self.error is None:
-                    self.floor = max(self.floor, self.next_tick + 1)
-                    self.fire(self.next_tick)
-                    self.next_tick += period
-        with self.lock:
-            self.stop.set()
-        if self.error is not None:
-            raise self.error
 
 
 def _writers(setup: Setup, edges: list[str], record) -> dict:
@@ -537,6 +452,67 @@ def _writers(setup: Setup, edges: list[str], record) -> dict:
                 for p in input_paths(record, e)
             )
     return out
+
+
+def _require_inputs(setup: Setup, edges: list[str]) -> None:
+    """Every sensor of a live run needs a live tracker: refused naming file, line and key."""
+    missing = [e for e in edges if e not in setup.inputs]
+    if missing:
+        line = setup.lines.get(f"sensors.{missing[0]}", 0)
+        where = f"{setup.source}:{line}" if line else setup.source
+        raise ValueError(
+            f"{where}: sensor(s) {missing} have no 'input:' (a live tracker); trackflow run "
+            "opens and records every sensor of the setup: add one, or replay a recording "
+            "with --replay"
+        )
+
+
+@dataclass
+class _Served:
+    """The queries a live run serves: the network, the main query's plan and answer sink,
+    every other query's sink, and the queries that could not be planned (with why)."""
+
+    net: Network
+    plan: Plan
+    sink: Component
+    sinks: dict[str, Component]
+    unplanned: dict[str, str]
+
+
+def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out) -> _Served:
+    """Build every query of the setup into one network: ``main`` answers to ``on_answer``
+    and ``record``; other push queries to ``out.query.<name>.tfrec`` (and VRPN sensor
+    1, 2, ... in setup order); pull queries to :class:`PullSink` objects."""
+    net = Network()
+    plan = setup.plan(main)
+    net, sink = plan.build(
+        sources, callback=on_answer, record=record, history_s=history_s, network=net
+    )
+    sinks, unplanned, vrpn_index = {main.name: sink}, {}, 0
+    for name, q in setup.queries.items():
+        if name == main.name:
+            continue
+        try:
+            other = setup.plan(q)
+        except ValueError as exc:
+            unplanned[name] = str(exc)
+            continue
+        callback = None
+        if q.mode == "push" and vrpn_out is not None:
+            vrpn_index += 1
+
+            def callback(m: Measurement, k=vrpn_index) -> None:
+                vrpn_out.report(k, m.pose.position, m.pose.quaternion, m.t_ns)
+
+        path = None if record is None or q.mode != "push" else query_record_path(record, name)
+        _, sinks[name] = other.build(
+            sources, callback=callback, record=path, history_s=history_s, network=net,
+            prefix=f"{name}:",
+        )  # fmt: skip
+    for name, src in sources.items():  # sensors no query uses are still opened and recorded
+        if name not in net.components:
+            net.add(src)
+    return _Served(net, plan, sink, sinks, unplanned)
 
 
 def run_live(
@@ -553,34 +529,38 @@ def run_live(
     history_s: float = 1.0,
     on_network: Callable[[Network, Plan, list[LiveInput]], object] | None = None,
 ) -> RunResult:
-    """Run the setup's query live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
+    """Run the setup live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
+
+    Every sensor of the setup is opened (its ``input:``) and recorded, and every query is
+    served: ``query`` (default: the first push query) is the main one, whose answers go to
+    ``callback``, ``record`` and VRPN sensor 0; the other push queries' answers go to
+    ``out.query.<name>.tfrec`` and VRPN sensors 1, 2, ...; pull queries are answered by the
+    :class:`PullSink` objects in :attr:`RunResult.sinks` (and the network ``on_network``
+    gets).
 
     Parameters
     ----------
     record : path, optional
         ``.tfrec`` of the answers; the inputs go next to it (module docstring).
     callback : callable, optional
-        Called with every answer (a :class:`Measurement`).
+        Called with every answer of the main query (a :class:`Measurement`).
     vrpn_out : VrpnTrackerServer, optional
-        Every answer is also served as sensor 0 of this VRPN tracker.
+        Answers are also served as sensors of this VRPN tracker.
     on_status : callable, optional
         Called once with ``["listening: ..."]`` when the inputs are open, then every
         ``status_period_s`` with one status line per sensor.
     on_network : callable, optional
-        Called once with the built network (reset, filters warmed up), the query's plan and
-        the live inputs (their :attr:`LiveInput.bodies` carry each sensor's status) before the
-        trackers are listened to: the place to add push consumers, such as a browser view
+        Called once with the built network (reset, filters warmed up), the main query's plan
+        and the live inputs (their :attr:`LiveInput.bodies` carry each sensor's status) before
+        the trackers are listened to: the place to add push consumers, such as a browser view
         (``trackflow run --view``). Each sensor's source is the component named like its edge.
     """
-    q = _push_query(setup, query)
-    plan = setup.plan(q)
-    edges = _sensor_edges(plan)
-    missing = [e for e in edges if e not in setup.inputs]
-    if missing:
-        raise ValueError(
-            f"{setup.source}: sensor(s) {missing} have no 'input:' (a live tracker); "
-            "add one, or replay a recording with --replay"
-        )
+    if query is None:
+        push = [n for n, q in setup.queries.items() if q.mode == "push" and q.rate_hz]
+        query = push[0] if push else None
+    main = _push_query(setup, query)
+    edges = _measured(setup)
+    _require_inputs(setup, edges)
     sources = {e: LiveSource(e) for e in edges}
 
     def on_answer(m: Measurement) -> None:
@@ -589,75 +569,79 @@ def run_live(
         if callback is not None:
             callback(m)
 
-    net, sink = plan.build(sources, callback=on_answer, record=record, history_s=history_s)
-    sampler = next(c for c in net.components.values() if isinstance(c, Sampler))
+    served = _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out)
+    net = served.net
     net.reset()
     warm_up(net)
+    warm_up_inputs()
     inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
     if on_network is not None:
-        on_network(net, plan, inputs)
+        on_network(net, served.plan, inputs)
     writers = _writers(setup, edges, record)
-    sched = _Scheduler(net, sampler, sources, inputs, writers)
-    bodies = [b for i in inputs for b in i.bodies]
-    next_status = [0]
-
-    def status(now: int) -> None:
-        if on_status is not None and now >= next_status[0]:
-            on_status([b.status.line(now, b.spec.stale_s) for b in bodies])
-            next_status[0] = now + int(status_period_s * 1e9)
-
+    delivery = LiveSources(sources)
     t_start = host_ns()
-    next_tick = -(-t_start // sampler.period_ns) * sampler.period_ns
-    sampler.start_ns = sched.next_tick = next_tick
-    deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
-    next_status[0] = t_start + int(status_period_s * 1e9)
-    interrupted = False
+    sched = net.scheduler(t_start, None, WallTime(host_ns))
     for inp in inputs:
-        _rehearse(inp, sources)
-        inp.start(sched.packet)
+        sched.add(InputSource(inp, delivery, writers))
+    main_ticks = _main_ticker(sched, net, served.sink)
+    bodies = [b for i in inputs for b in i.bodies]
+    status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s)
+    deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
+    interrupted = False
     try:
-        for inp in inputs:
-            inp.ready.wait(5.0)
-        if on_status is not None:
-            on_status([f"listening: {', '.join(b.name for b in bodies)}"])
-        with calm_gc():
-            sched.loop(deadline, stop or threading.Event(), status)
+        sched.run(deadline, stop=stop, on_idle=status, calm=True)
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        with sched.lock:  # no packet is dispatched from here on (also after Ctrl-C)
-            sched.stop.set()
-        for inp in inputs:
-            inp.stop()
-        for c in net.components.values():
-            c.finish()
+        net.finish()
         for pair in writers.values():
             for w in pair:
                 w.close()
     end = host_ns()
     return RunResult(
-        answers=sink.stats.events_in,
-        ticks=sched.ticks,
+        answers=served.sink.stats.events_in,
+        ticks=main_ticks.fired,
         statuses={b.name: b.status.summary(end, b.spec.stale_s) for b in bodies},
         stats=net.stats(),
         record=None if record is None else Path(record),
         duration_s=(end - t_start) * 1e-9,
         interrupted=interrupted,
         inputs=inputs,
+        sinks=served.sinks,
+        unplanned=served.unplanned,
     )
 
 
-def _rehearse(inp: LiveInput, sources: dict) -> None:
-    """Give an input with ``rehearse_us`` its :class:`~trackflow.trackers.rehearsal.Rehearsal`,
-    or report on its sensors why it has none."""
-    if not inp.options.get("rehearse_us"):
-        return
-    from .rehearsal import Rehearsal  # built on this module's sources
+def _main_ticker(sched: Scheduler, net: Network, sink: Component) -> Ticker:
+    """The ticker of the sampler that feeds ``sink`` (the main query's)."""
+    name = next(
+        n
+        for n, c in net.components.items()
+        if isinstance(c, Sampler) and any(dst is sink for dst, _ in c.consumers)
+    )
+    return next(s for s in sched.sources if isinstance(s, Ticker) and s.name == name)
 
-    try:
-        inp.rehearsal = Rehearsal(inp, sources)
-    except ValueError as exc:
-        inp._event_all(f"rehearsal off: {exc}")
+
+def _status_printer(on_status, bodies, inputs, unplanned, period_s):
+    """The run's idle callback: once the inputs are listening, ``listening: ...`` (and the
+    queries not served, with why), then a status line per sensor every ``period_s``."""
+    state = {"next": None}
+
+    def status(now: int) -> None:
+        if on_status is None:
+            return
+        if state["next"] is None:
+            for inp in inputs:
+                inp.ready.wait(5.0)
+            lines = [f"listening: {', '.join(b.name for b in bodies)}"]
+            lines += [f"query {n!r} not served: {why}" for n, why in unplanned.items()]
+            on_status(lines)
+            state["next"] = now + int(period_s * 1e9)
+        elif now >= state["next"]:
+            on_status([b.status.line(now, b.spec.stale_s) for b in bodies])
+            state["next"] = now + int(period_s * 1e9)
+
+    return status
 
 
 class _ArrivalPlayer(RecordingPlayer):
