@@ -16,10 +16,10 @@ One rule orders everything: events are dispatched in time order (``clock.now_ns`
 first; at equal times a sample goes before a tick (``SAMPLE < TICK``), then the order in
 which they were scheduled. A receiving thread's event stamped at or before an already
 dispatched one is dispatched just after it (``last + 1 ns``), counted in
-:attr:`Scheduler.late`. Under the virtual clock a run goes as fast as possible; under a wall clock (:class:`WallTime`) a
-timed event waits until its time, or ``delay_ns`` after it (a jitter buffer, which lets
-events that travelled a network go in their time order; each is still dispatched at its
-own time).
+:attr:`Scheduler.late`. Under the virtual clock a run goes as fast as possible; under a wall
+clock (:class:`WallTime`) a timed event waits until its time, or ``delay_ns`` after it (a
+jitter buffer, which lets events that travelled a network go in their time order; each is
+still dispatched at its own time).
 """
 
 from __future__ import annotations
