@@ -170,7 +170,7 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
     stamp and the time its filter's new state was available (the local path). It starts
     feeding once a receiver subscribed to every edge (or, with ``thin_consumers``, once that
     many consumers asked for a thinned stream of every edge)."""
-    from trackflow.distributed import Agent, AgentConfig, set_agent_gc
+    from trackflow.distributed import Agent, AgentConfig
 
     cfg = AgentConfig(
         "sender",
@@ -184,7 +184,7 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
     updated = np.zeros(n_max, np.int64)
     count = [0]
     with Agent(cfg) as agent:
-        for pub in agent._publishers.values():  # port 0: right after the filter's update
+        for pub in agent.publishers.values():  # port 0: right after the filter's update
             publish = pub.push
 
             def timed(m, port=0, publish=publish):
@@ -201,13 +201,12 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
         def subscribed() -> bool:
             if thin_consumers:
                 streams = agent.status()["thin_streams"]
-                return all(len(streams.get(e, {})) >= thin_consumers for e in agent._publishers)
-            return all(p.publisher.matching_status.matching for p in agent._publishers.values())
+                return all(len(streams.get(e, {})) >= thin_consumers for e in agent.publishers)
+            return all(p.publisher.matching_status.matching for p in agent.publishers.values())
 
         while time.monotonic() < deadline and not subscribed():
             time.sleep(0.1)
         time.sleep(0.5)
-        set_agent_gc()
         count[0] = 0
         # the sensors run unsynchronised: edge k is due at (n + k / 20) / 240 s
         slot = 1.0 / (RATE_HZ * N_EDGES)
@@ -260,7 +259,7 @@ def plot_latency(path: Path, loc: np.ndarray, rem: np.ndarray, load: str) -> Non
 def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> dict:
     import gc
 
-    from trackflow.distributed import Agent, AgentConfig, set_agent_gc
+    from trackflow.distributed import Agent, AgentConfig
 
     realm = f"lat{free_port()}"
     port = free_port()
@@ -296,7 +295,7 @@ def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> di
     stamps = np.zeros(n_max, np.int64)
     adopted = np.zeros(n_max, np.int64)
     count = [0]
-    deliver = agent._deliver
+    deliver = agent.remote.deliver
 
     def timed(edge, s, offset_ns, sigma_s):  # the receiver's replica adopts the state
         deliver(edge, s, offset_ns, sigma_s)
@@ -306,7 +305,7 @@ def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> di
             stamps[i] = s.stamp_ns
             count[0] = i + 1
 
-    agent._deliver = timed
+    agent.remote.deliver = timed
     gc_pauses: list[float] = []
     gc_gens: list[int] = []
     gc_start = [0]
@@ -319,7 +318,6 @@ def bench_latency(duration_s: float, work: Path, plot: Path | None = None) -> di
             gc_gens.append(info["generation"])
 
     with agent:
-        set_agent_gc()
         gc.callbacks.append(on_gc)
         cpu0, n0 = time.process_time(), None
         deadline = time.monotonic() + duration_s + 150

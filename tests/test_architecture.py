@@ -13,6 +13,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "trackflow"
 #: layer of every top-level package or module of trackflow (docs/architecture.md)
 LAYERS = {
     "math": 0,
+    "scheduler": 0,
     "graph": 1,
     "io": 1,
     "filters": 1,
@@ -24,8 +25,8 @@ LAYERS = {
     "optical": 3,
     "viewer": 3,
     "calibration": 3,
-    "distributed": 3,
-    "cli": 4,
+    "distributed": 4,
+    "cli": 5,
 }
 #: imports allowed between packages of one layer (importer -> imported)
 SAME_LAYER: set[tuple[str, str]] = set()

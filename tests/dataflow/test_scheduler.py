@@ -1,4 +1,4 @@
-"""The one scheduler (dataflow/_scheduler.py): time order, the tie rule, a packet's samples
+"""The one scheduler (trackflow/scheduler.py): time order, the tie rule, a packet's samples
 split at the ticks among them, the jitter buffer's release, errors of receiving threads,
 stalled tickers, and the garbage-collection policy."""
 

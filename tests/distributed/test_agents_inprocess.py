@@ -149,5 +149,5 @@ def test_pull_via_get_asks_the_sensor_agent_per_request():
         direct = remote_get(c.session, realm, "get/s", t)
         assert np.array_equal(m.pose.position, direct.pose.position)
         assert np.array_equal(m.pose.covariance, direct.pose.covariance)
-        assert isinstance(c._filters["s"], RemoteGet) and not c._subs  # nothing streamed
+        assert isinstance(c.filters["s"], RemoteGet) and not c.remote.subs  # nothing streamed
         assert c.status()["replicas"] == {}

@@ -8,8 +8,6 @@ names that argparse needs up front are mirrored below and checked against the li
 from __future__ import annotations
 
 import argparse
-import contextlib
-import signal
 import sys
 
 __all__ = [
@@ -206,21 +204,3 @@ def add_learned_orders(p) -> None:
 def parse_orders(text: str) -> tuple[int, ...]:
     """``"3,5,10"`` -> ``(3, 5, 10)``; ``"none"`` -> ``()`` (no learned models)."""
     return () if text.strip().lower() == "none" else parse_ints(text)
-
-
-@contextlib.contextmanager
-def on_stop_signals(handler):
-    """``handler(signum, frame)`` for SIGTERM and SIGHUP (a service manager's stop, a closed
-    terminal) within the block, the previous handlers restored after it. Outside the main
-    thread (embedded use) signals are left alone."""
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        try:
-            old[sig] = signal.signal(sig, handler)
-        except ValueError:  # not the main thread
-            pass
-    try:
-        yield
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)

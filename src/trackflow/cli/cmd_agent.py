@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 
@@ -28,9 +29,12 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    from ..dataflow import stop_signals
     from ..distributed import load_agent, run_agent
 
     cfg = load_agent(args.setup)
+    if any(spec.protocol == "optical" for spec in cfg.setup.inputs.values()):
+        from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 5 wires it)
     if args.mode:
         cfg.zenoh["mode"] = args.mode
     if args.listen is not None:
@@ -43,7 +47,9 @@ def run(args) -> int:
     def ready(agent) -> None:
         print(json.dumps({"ready": agent.name, "realm": agent.realm}), flush=True)
 
-    status = run_agent(cfg, args.duration, on_ready=ready)
+    stop = threading.Event()
+    with stop_signals(lambda *_: stop.set()):  # SIGTERM/SIGHUP end the agent as Ctrl-C does
+        status = run_agent(cfg, args.duration, on_ready=ready, stop=stop)
     text = json.dumps(status, indent=2)
     if args.status is not None:
         args.status.write_text(text)

@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ._common import on_stop_signals
+from ..scheduler import stop_signals as on_stop_signals
 
 
 def register(subparsers) -> argparse.ArgumentParser:

@@ -21,7 +21,7 @@ import pkgutil
 import re
 import sys
 
-from ._common import on_stop_signals
+from ..scheduler import stop_signals as on_stop_signals
 
 __all__ = ["main", "build_parser", "ArgumentParser"]
 

@@ -7,6 +7,19 @@ those bodies' pose sensors (``docs/inertial.md``).
 """
 
 from ..filters import make_filter  # the default filter factory, re-exported for plans
+from ..scheduler import (
+    SAMPLE,
+    TICK,
+    Arrival,
+    EventSource,
+    Scheduler,
+    Ticker,
+    TimedSource,
+    WallTime,
+    calm_gc,
+    collect_due,
+    stop_signals,
+)
 from ._bank import KalmanBank
 from ._component import Component
 from ._events import ComponentStats, Measurement
@@ -23,19 +36,6 @@ from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
-from ._scheduler import (
-    SAMPLE,
-    TICK,
-    Arrival,
-    EventSource,
-    Scheduler,
-    Ticker,
-    TimedSource,
-    WallTime,
-    calm_gc,
-    collect_due,
-    stop_signals,
-)
 from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
 from ._sources import NO_ORIGIN, PlayerSource, RecordingPlayer, SimulatedSensor, StaticPose

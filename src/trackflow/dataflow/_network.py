@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import time as _time
 
+from ..scheduler import Scheduler, Ticker, WallTime
 from ._component import Component, _Clock
 from ._processing import Sampler
-from ._scheduler import Scheduler, Ticker, WallTime
 from ._sources import PlayerSource, RecordingPlayer
 
 __all__ = ["Network"]
@@ -35,9 +35,10 @@ class Network:
     5
     """
 
-    def __init__(self):
+    def __init__(self, clock: _Clock | None = None):
         self.components: dict[str, Component] = {}
-        self.clock = _Clock()
+        #: the time every component reads (a runtime may share one across networks)
+        self.clock = _Clock() if clock is None else clock
         self._edges: list[tuple[str, str, str, int]] = []
 
     def add(self, component: Component) -> Component:

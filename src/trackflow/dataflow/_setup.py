@@ -91,17 +91,27 @@ class Setup:
             raise ValueError(f"{self.source}: no query {name!r} (have {list(self.queries)})")
         return self.queries[name]
 
-    def plan(self, query: Query | str | None = None, align: bool = True) -> Plan:
-        """Plan a query of this setup (a :class:`Query`, a query name, or the first)."""
+    def plan(
+        self,
+        query: Query | str | None = None,
+        align: bool = True,
+        graph: SpatialRelationshipGraph | None = None,
+    ) -> Plan:
+        """Plan a query of this setup (a :class:`Query`, a query name, or the first).
+
+        ``graph``: plan on this graph instead of the setup's own (an agent's union of the
+        realm's fragments); the setup's IMUs are attached all the same.
+        """
         q = query if isinstance(query, Query) else self.query(query)
+        graph = self.graph if graph is None else graph
         try:
-            plan = plan_query(self.graph, q, align=align)
+            plan = plan_query(graph, q, align=align)
         except ValueError as exc:
             raise ValueError(f"{self.source}: {exc}") from None
         if self.imus and align:
             from ._inertial import attach_imus
 
-            attach_imus(plan, self.graph, self.imus)
+            attach_imus(plan, graph, self.imus)
         return plan
 
     def players(self) -> dict[str, RecordingPlayer]:

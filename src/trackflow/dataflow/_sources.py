@@ -7,9 +7,9 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..math import Pose, UncertainPose, quat_exp, quat_multiply
+from ..scheduler import TimedSource
 from ._component import Component
 from ._events import Measurement
-from ._scheduler import TimedSource
 
 __all__ = ["RecordingPlayer", "PlayerSource", "SimulatedSensor", "StaticPose", "NO_ORIGIN"]
 

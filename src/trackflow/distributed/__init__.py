@@ -12,7 +12,7 @@ Needs the ``eclipse-zenoh`` package (``pip install trackflow[distributed]``); im
 this package works without it, opening an agent does not.
 """
 
-from .agent import Agent, QueryState, RemoteSource, remote_get, run_agent, set_agent_gc
+from .agent import Agent, QueryState, RemoteSource, remote_get, run_agent
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
 from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
@@ -41,7 +41,6 @@ __all__ = [
     "StateSample",
     "WireError",
     "WireSample",
-    "set_agent_gc",
     "decode",
     "decode_state",
     "edge_from_dict",

@@ -247,6 +247,7 @@ class Scheduler:
         self._heap: list = []
         self._seq = itertools.count()
         self._last = -(2**62)  # the latest dispatch time handed out
+        self._armed: dict[int, int] = {}  # id(source) -> seq of its one live heap entry
         self.late = 0  # events stamped at or before an already dispatched one
         self.error: BaseException | None = None
         self.stopped = threading.Event()
@@ -262,9 +263,25 @@ class Scheduler:
 
     def _schedule(self, source) -> None:
         t = source.next_ns()
-        if t is not None:
+        if t is None:
+            self._armed.pop(id(source), None)  # an entry announced before is stale
+        else:
             delay = getattr(source, "delay_ns", 0)
-            heapq.heappush(self._heap, (t, source.kind, next(self._seq), source, None, delay))
+            seq = self._armed[id(source)] = next(self._seq)
+            heapq.heappush(self._heap, (t, source.kind, seq, source, None, delay))
+
+    def reschedule(self, source: EventSource) -> None:
+        """From any thread: the source's next event changed (it is asked again; the event
+        it announced before is dropped)."""
+        with self.lock:
+            self._schedule(source)
+            self._wake.notify()
+
+    def _drop_stale(self) -> None:
+        """Pop heap entries of sources that were rescheduled since."""
+        heap = self._heap
+        while heap and heap[0][3] is not None and self._armed.get(id(heap[0][3])) != heap[0][2]:
+            heapq.heappop(heap)
 
     def post(
         self, t_ns: int, fn: Callable[[int], None], kind: int = SAMPLE, delay_ns: int = 0
@@ -310,12 +327,16 @@ class Scheduler:
 
     # -- dispatch -------------------------------------------------------------------------------
     def _head_time(self) -> int | None:
+        self._drop_stale()
         return self._heap[0][0] if self._heap else None
 
     def _released(self) -> bool:
         """Whether the head event's release time has come (always, on a virtual clock)."""
         if self.time is None:
             return True
+        self._drop_stale()
+        if not self._heap:
+            return False
         t, _, _, source, _, delay = self._heap[0]
         now = self.time.now_ns()
         return t + delay <= now or (isinstance(source, TimedSource) and source.early(t, now))
@@ -325,7 +346,10 @@ class Scheduler:
         self.clock.dispatch_wall_ns = time.perf_counter_ns()
 
     def _fire_head(self) -> None:
+        self._drop_stale()
         t, _, _, source, fn, _ = heapq.heappop(self._heap)
+        if source is not None:
+            del self._armed[id(source)]
         if t < self._last and source is None:  # a posted event behind the dispatched ones
             self.late += 1
         if isinstance(source, Ticker) and self.time is not None:
@@ -351,10 +375,10 @@ class Scheduler:
         idle_s: float = 0.1,
         calm: bool = False,
     ) -> None:
-        """Open the sources, dispatch until ``until_ns`` (scheduler time; default: until no
-        timed event is left and, on a wall clock, no live source is open... i.e. forever with
-        live sources), ``stop`` is set or a receiving thread fails (its error is raised here),
-        then close the sources.
+        """Open the sources, dispatch until ``until_ns`` (scheduler time), ``stop`` is set
+        or a receiving thread fails (its error is raised here), then close the sources.
+        Without ``until_ns`` a virtual run ends when no timed event is left; a wall-clock
+        run goes on until stopped (live sources may post or dispatch events at any time).
 
         ``on_idle(now)`` is called between events at least every ``idle_s`` (wall clock).
         ``calm``: run inside :func:`calm_gc` (garbage collection off the events' path).
@@ -381,18 +405,14 @@ class Scheduler:
             raise err
 
     def _run_virtual(self, until_ns, stop) -> None:
-        heap = self._heap
-        while heap and not stop.is_set():
-            if until_ns is not None and heap[0][0] > until_ns:
+        while not stop.is_set():
+            t = self._head_time()
+            if t is None or (until_ns is not None and t > until_ns):
                 break
             self._fire_head()
 
-    def _live(self) -> bool:
-        return any(not isinstance(s, TimedSource) for s in self.sources)
-
     def _run_wall(self, until_ns, stop, on_idle, idle_s, calm) -> None:
         wall, heap = self.time, self._heap
-        live = self._live()
         next_idle = 0.0
         while not (stop.is_set() or self.stopped.is_set()):
             if on_idle is not None and time.monotonic() >= next_idle:
@@ -402,12 +422,11 @@ class Scheduler:
                 collect_due()
             with self.lock:
                 now = wall.now_ns()
+                self._drop_stale()
                 if heap and (until_ns is None or heap[0][0] <= until_ns) and self._released():
                     self._fire_head()
                     continue
                 if until_ns is not None and now >= until_ns:
-                    break
-                if not heap and not live and until_ns is None:
                     break
                 wait = idle_s
                 if heap and (until_ns is None or heap[0][0] <= until_ns):

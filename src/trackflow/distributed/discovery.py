@@ -1,0 +1,237 @@
+"""What an agent knows of the others: live edges, fragments, statics and clock offsets.
+
+Discovery follows the liveliness tokens ``trackflow/<realm>/alive/<agent>/<edge>``: a new
+token makes the agent fetch the owner's fragment (``fragment/<agent>``) and measure its clock
+(``clock/<agent>``, round trips); a token that disappears takes its edge out of the live set.
+Each change of the live set is handed to ``on_change(reason, t_event_ns)`` (the agent
+re-plans), one at a time, from the discovery thread.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from ..graph import Edge, SpatialRelationshipGraph
+from .clock import ClockOffset
+from .fragment import parse_fragment
+
+__all__ = ["Discovery", "RemoteAgent", "realm_key"]
+
+
+def realm_key(realm: str, *parts: str) -> str:
+    """``trackflow/<realm>/<parts...>``: a key of the realm's key space."""
+    return "/".join(("trackflow", realm, *parts))
+
+
+@dataclass
+class RemoteAgent:
+    """What the agent knows about another agent."""
+
+    name: str
+    edges: dict[str, Edge] = field(default_factory=dict)
+    frames: list[str] = field(default_factory=list)
+    clock: ClockOffset = field(default_factory=ClockOffset)
+
+
+class Discovery:
+    """The live set of other agents' edges, kept by one thread (module docstring).
+
+    Parameters
+    ----------
+    name, realm : str
+        This agent's name and realm.
+    lock : threading.RLock
+        The agent's lock: the live set changes under it.
+    rejections : wire.Rejections
+        Where malformed keys and fragments are counted.
+    on_change : callable
+        ``on_change(reason, t_event_ns)``: the live set changed (or a re-plan was asked).
+    on_clock : callable
+        Called after every round of clock measurements (every 2 s).
+    """
+
+    def __init__(self, name, realm, lock, rejections, on_change, on_clock):
+        self.name, self.realm = name, realm
+        self.lock = lock
+        self.rejections = rejections
+        self.on_change: Callable[[str, int], None] = on_change
+        self.on_clock: Callable[[], None] = on_clock
+        self.remotes: dict[str, RemoteAgent] = {}
+        self.live: dict[str, str] = {}  # live remote measured edge -> agent
+        self.statics: dict[str, Edge] = {}  # remote static edges (kept after their agent left)
+        self._seen: dict[str, set[str]] = {}  # agent -> edges whose tokens are alive
+        self._work: queue.Queue = queue.Queue()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.session = None
+
+    # -- life cycle -----------------------------------------------------------------------------
+    def start(self, session, now_ns: Callable[[], int]) -> None:
+        """Start the discovery and clock threads and follow the realm's tokens."""
+        self.session, self._now = session, now_ns
+        for target in (self._worker, self._clock_loop):
+            th = threading.Thread(target=target, name=f"{self.name}-{target.__name__}", daemon=True)
+            th.start()
+            self._threads.append(th)
+        self._work.put(("replan", "start", time.perf_counter_ns()))
+        self._sub = session.liveliness().declare_subscriber(
+            realm_key(self.realm, "alive", "**"), self._on_liveliness, history=True
+        )
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._work.put(("stop",))
+        for th in self._threads:
+            th.join(timeout=2.0)
+
+    # -- queries --------------------------------------------------------------------------------
+    def agent_of(self, edge: str) -> RemoteAgent | None:
+        """The agent currently providing the live remote sensor ``edge`` (or ``None``)."""
+        agent = self.live.get(edge)
+        return self.remotes.get(agent) if agent is not None else None
+
+    def union_graph(self, own: SpatialRelationshipGraph) -> SpatialRelationshipGraph:
+        """Own edges, live remote sensors and every static edge learned so far."""
+        g = SpatialRelationshipGraph()
+        for f in own.frames:
+            g.add_frame(f)
+        names = set()
+        for e in own.edges:
+            g.add_edge(e)
+            names.add(e.name)
+        for e in self.statics.values():
+            if e.name not in names:
+                g.add_edge(e)
+                names.add(e.name)
+        for edge, agent in sorted(self.live.items()):
+            e = self.remotes[agent].edges[edge]
+            if e.name not in names:
+                g.add_edge(e)
+                names.add(e.name)
+        for rem in self.remotes.values():
+            for f in rem.frames:
+                g.add_frame(f)
+        return g
+
+    def clocks(self) -> dict:
+        """Measured clock offsets of the other agents (JSON-able)."""
+        return {
+            n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
+            for n, r in self.remotes.items()
+            if r.clock.known
+        }
+
+    # -- events ---------------------------------------------------------------------------------
+    def _on_liveliness(self, sample) -> None:
+        import zenoh
+
+        parts = str(sample.key_expr).split("/")
+        if len(parts) != 5:
+            self.rejections.add("malformed liveliness key")
+            return
+        agent, edge = parts[3], parts[4]
+        if agent == self.name:
+            return
+        kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
+        self._work.put((kind, agent, edge, time.perf_counter_ns()))
+
+    def _fetch_fragment(self, agent: str) -> RemoteAgent | None:
+        replies = self.session.get(realm_key(self.realm, "fragment", agent), timeout=2.0)
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                _, frames, edges = parse_fragment(reply.ok.payload.to_bytes())
+            except ValueError:
+                self.rejections.add("malformed fragment")
+                continue
+            rem = self.remotes.get(agent) or RemoteAgent(agent)
+            rem.edges = {e.name: e for e in edges}
+            rem.frames = frames
+            with self.lock:
+                self.remotes[agent] = rem
+            self._ping(rem, 5)
+            return rem
+        return None
+
+    def _ping(self, rem: RemoteAgent, n: int) -> None:
+        for _ in range(n):
+            t0 = self._now()
+            replies = list(self.session.get(realm_key(self.realm, "clock", rem.name), timeout=1.0))
+            t1 = self._now()
+            for reply in replies:
+                if reply.ok is not None and len(reply.ok.payload.to_bytes()) == 8:
+                    remote = int.from_bytes(reply.ok.payload.to_bytes(), "little", signed=True)
+                    rem.clock.add_round_trip(t0, remote, t1)
+
+    def _worker(self) -> None:
+        """Discovery events, one at a time: fetch fragments, update the live set, re-plan.
+
+        A token whose fragment cannot be fetched yet (the agent is still starting, or busy)
+        is tried again every 0.5 s for 30 s, then counted as a rejection."""
+        while True:
+            item = self._work.get()
+            if item[0] == "stop" or self._stop.is_set():
+                return
+            if item[0] == "replan":
+                self.on_change(item[1], item[2])
+            elif item[0] == "delete":
+                self._gone(*item[1:])
+            else:
+                self._appeared(*item[1:])
+
+    def _gone(self, agent: str, edge: str, t_event: int) -> None:
+        self._seen.get(agent, set()).discard(edge)
+        with self.lock:  # status() reads these from other threads
+            gone = self.live.get(edge) == agent
+            if gone:
+                del self.live[edge]
+        if gone:
+            self.on_change(f"sensor {edge} of agent {agent} left", t_event)
+
+    def _appeared(self, agent: str, edge: str, t_event: int, *attempt) -> None:
+        import zenoh
+
+        if attempt and edge not in self._seen.get(agent, set()):
+            return  # the token went away while we waited
+        self._seen.setdefault(agent, set()).add(edge)
+        rem = self.remotes.get(agent)
+        if rem is None or edge not in rem.edges:
+            try:
+                rem = self._fetch_fragment(agent)
+            except zenoh.ZError:  # the other agent went away meanwhile
+                rem = None
+            if rem is None or edge not in rem.edges:
+                n = attempt[0] if attempt else 0
+                if n >= 60:
+                    self.rejections.add("token without fragment edge")
+                else:
+                    retry = ("put", agent, edge, t_event, n + 1)
+                    threading.Timer(0.5, self._work.put, args=(retry,)).start()
+                return
+        with self.lock:
+            for name in sorted(self._seen[agent] & set(rem.edges)):
+                e = rem.edges[name]
+                if e.kind == "static":
+                    self.statics[name] = e
+                else:
+                    self.live[name] = agent
+        if self._work.empty():  # re-plan once after a burst of appearances
+            self.on_change(f"edge {edge} of agent {agent} appeared", t_event)
+
+    def _clock_loop(self) -> None:
+        import zenoh
+
+        while not self._stop.wait(2.0):
+            with self.lock:
+                remotes = [r for r in self.remotes.values() if r.name in self.live.values()]
+            for rem in remotes:
+                try:
+                    self._ping(rem, 1)
+                except zenoh.ZError:  # the remote may be gone; next round
+                    continue
+            self.on_clock()
