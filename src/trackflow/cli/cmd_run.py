@@ -16,14 +16,19 @@ def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "run",
         help="run a setup live on its trackers (DTrack, NatNet, VRPN, optical) or replay a run",
-        description="Connect to the trackers named in the setup's 'input:' keys, run the "
-        "query's dataflow until Ctrl-C, SIGTERM or SIGHUP (or --duration) with a status line "
-        "per sensor, record every input and answer (--record), serve the answers over VRPN "
-        "(--vrpn-port); or replay a recorded run offline and check that it gives the same "
-        "answers bit for bit.",
+        description="Connect to the trackers named in the setup's 'input:' keys (every sensor "
+        "of the setup is opened and recorded), serve every query of the setup until Ctrl-C, "
+        "SIGTERM or SIGHUP (or --duration) with a status line per sensor, record every input "
+        "and the answers (--record: the main query's to the file, other push queries' next to "
+        "it), serve the answers over VRPN (--vrpn-port: the main query as sensor 0, the other "
+        "push queries as 1, 2, ...); or replay a recorded run offline and check that it gives "
+        "the same answers bit for bit.",
     )
     p.add_argument("setup", type=Path, help="YAML setup file")
-    p.add_argument("--query", help="name of a push query in the setup (default: the first)")
+    p.add_argument(
+        "--query",
+        help="the main push query: recorded, sensor 0 over VRPN (default: the first push query)",
+    )
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     p.add_argument("--record", type=Path, default=None, help="record answers (.tfrec) + inputs")
     p.add_argument("--replay", type=Path, default=None, help="replay a recorded run offline")
@@ -98,6 +103,7 @@ def run(args) -> int:
         "duration_s": round(res.duration_s, 3),
         "interrupted": res.interrupted or bool(stopped_by),
         "sensors": res.statuses,
+        "queries": _queries(setup, res),
         "record": None if res.record is None else str(res.record),
     }
     if stopped_by:
@@ -111,6 +117,21 @@ def run(args) -> int:
         out["rehearsals"] = rehearsed
     print(json.dumps(out) if args.json else _lines(out))
     return 0
+
+
+def _queries(setup, res) -> dict:
+    """Every query of the setup: how it was served (answers pushed, or pulled on request),
+    or why it could not be planned."""
+    out = {}
+    for name, q in setup.queries.items():
+        if name in res.unplanned:
+            out[name] = {"mode": q.mode, "served": False, "reason": res.unplanned[name]}
+        elif q.mode == "push":
+            out[name] = {"mode": q.mode, "served": True,
+                         "answers": res.sinks[name].stats.events_in}  # fmt: skip
+        else:
+            out[name] = {"mode": q.mode, "served": True}
+    return out
 
 
 def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):

@@ -169,6 +169,7 @@ class Network:
         realtime: bool = False,
         speed: float = 1.0,
         stop=None,
+        repeat: bool = False,
     ):
         """Play every source and tick every sampler until ``until_ns`` (default: last arrival).
 
@@ -179,12 +180,17 @@ class Network:
             faster than real time. Both dispatch the same events in the same order.
         stop : threading.Event, optional
             Ends a run early when set.
+        repeat : bool
+            Start over (components reset) after each pass until ``stop`` is set (a live
+            view of recordings).
         """
         start, end = self.span(until_ns)
-        self.reset()
-        wall = WallTime(_time.perf_counter_ns, start, speed) if realtime else None
-        try:
-            self.scheduler(start, end, wall).run(end, stop=stop)
-        finally:
-            self.finish()
-        return self
+        while True:
+            self.reset()
+            wall = WallTime(_time.perf_counter_ns, start, speed) if realtime else None
+            try:
+                self.scheduler(start, end, wall).run(end, stop=stop)
+            finally:
+                self.finish()
+            if not repeat or stop is None or stop.is_set():
+                return self

@@ -88,8 +88,7 @@ class SetupRun:
 
     def _run(self) -> None:
         try:
-            while not self._stop.is_set():
-                self.network.run(realtime=True)
+            self.network.run(realtime=True, stop=self._stop, repeat=True)
         except (ValueError, RuntimeError) as exc:  # reported by serve()
             self.error = exc
 
@@ -104,8 +103,7 @@ class SetupRun:
             time.sleep(0.02)
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Stop the view and let the network finish its current run (a run cannot be
-        interrupted; with short data - as for a snapshot - it ends within ``timeout_s``)."""
+        """Stop the view and the network (its run ends at the next event)."""
         self._stop.set()
         self.view.close()
         self._thread.join(timeout=timeout_s)
