@@ -6,7 +6,7 @@ sequential dataflow of the replay."""
 from __future__ import annotations
 
 import json
-import threading
+import signal
 import time
 from pathlib import Path
 
@@ -16,6 +16,7 @@ from trackflow.dataflow import Component, load_setup
 from trackflow.math import numba_available, use_backend
 from trackflow.trackers.runtime import replay, run_live
 
+from ._lines import read_lines, wait_line
 from .test_live_e2e import _finish, _free_port, _trackflow
 
 BEFORE = Path(__file__).resolve().parent / "data" / "before_bank"
@@ -39,18 +40,23 @@ def test_a_live_run_of_two_bodies_per_packet_replays_bit_for_bit(shared_data, tm
     setup = tmp_path / "live.yaml"
     setup.write_text((BEFORE / "setup.yaml").read_text().replace("47811", str(port)))
     rec = tmp_path / "out.tfrec"
-    run = _trackflow("run", setup, "--duration", 6, "--record", rec, "--json")
-    first: list[str] = []
-    reader = threading.Thread(target=lambda: first.append(run.stderr.readline()), daemon=True)
-    reader.start()
-    reader.join(180)  # the run compiles (or loads) its filters, then says it is listening
-    assert first and first[0].startswith("listening"), first
-    sim = _trackflow(
-        "simulate", "natnet", room1, "--port", port, "--body", "rig", "--bodies", 2,
-        "--duration", 2, "--jitter-ms", 1, "--wait", 20,
-    )  # fmt: skip
-    sent = json.loads(_finish(sim, 90))["sent"]
-    out = json.loads(_finish(run, 90))
+    run = _trackflow("run", setup, "--record", rec, "--json")
+    try:
+        lines = read_lines(run.stderr)
+        wait_line(lines, "listening", 180)  # it compiles (or loads) its filters, then listens
+        sim = _trackflow(
+            "simulate", "natnet", room1, "--port", port, "--body", "rig", "--bodies", 2,
+            "--duration", 2, "--jitter-ms", 1, "--wait", 20,
+        )  # fmt: skip
+        sent = json.loads(_finish(sim, 90))["sent"]
+        # both stale: every frame sent has been received (no run length to guess)
+        wait_line(lines, lambda line: line.count("STALE") == 2, 60)
+        run.send_signal(signal.SIGTERM)
+        out = json.loads(_finish(run, 90))
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
     for sensor in ("head", "hand"):
         assert out["sensors"][sensor]["measurements"] > 0.9 * sent, out
     assert out["answers"] > 100, out
