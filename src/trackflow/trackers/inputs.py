@@ -197,8 +197,6 @@ class LiveInput:
     """
 
     protocol = ""
-    #: attributes the input learns from its server (a handshake), mirrored by a rehearsal
-    handshake: tuple[str, ...] = ()
 
     def __init__(self, spec: InputSpec):
         self.spec = spec
@@ -213,11 +211,6 @@ class LiveInput:
         self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
-        #: ``rehearsal(data, arrival_ns, waiting)``
-        #: (:class:`trackflow.trackers.rehearsal.Rehearsal`), run on the last frame before
-        #: each frame (option ``rehearse_us``); set before start
-        self.rehearsal: Callable[[bytes, int, Callable[[], bool]], object] | None = None
-        self._last_frame: tuple[bytes, int] | None = None
 
     @staticmethod
     def connection_key(spec: InputSpec) -> tuple:
@@ -357,32 +350,9 @@ class LiveInput:
         raise NotImplementedError  # pragma: no cover
 
     def _due_wait(self) -> DueWait:
-        """The receiving thread's wait for a periodic stream (options ``spin_us`` and
-        ``rehearse_us``), rehearsing the last frame before the next is due when the input
-        has a :attr:`rehearsal`."""
-        o = self.options
-        wait = self.waiting = DueWait(o["spin_us"] * 1e-6, rehearse_s=o["rehearse_us"] * 1e-6)
-        if self.rehearsal is not None and wait.rehearse_s:
-            wait.rehearse = self._rehearse
+        """The receiving thread's wait for a periodic stream (option ``spin_us``)."""
+        wait = self.waiting = DueWait(self.options["spin_us"] * 1e-6)
         return wait
-
-    def _frame_arrived(self, wait: DueWait, data: bytes, arrival_ns: int) -> None:
-        """A frame of the stream was received (and handled): its time for the wait, and
-        the frame for the next rehearsal."""
-        wait.arrived(arrival_ns * 1e-9)
-        self._last_frame = (data, arrival_ns)
-
-    def _rehearse(self, waiting: Callable[[], bool]) -> None:
-        """The rehearsal of the last frame, cut short when ``waiting()`` says a datagram
-        came; one that fails is turned off and reported on every body (it never touches the
-        live path, which goes on)."""
-        if self._last_frame is None:
-            return
-        try:
-            self.rehearsal(*self._last_frame, waiting)
-        except Exception as exc:  # a bug in the twins must not stop the live input
-            self.waiting.rehearse = None
-            self._event_all(f"rehearsal off: {type(exc).__name__}: {exc}")
 
     def _reject_all(self, reason: str) -> None:
         for b in self.bodies:
@@ -495,7 +465,7 @@ class DTrackInput(LiveInput):
                     except OSError:
                         return
                     sink(self, data, arrival)
-                    self._frame_arrived(wait, data, arrival)  # one datagram per frame
+                    wait.arrived(arrival * 1e-9)  # one datagram per frame
         finally:
             sel.close()
 
@@ -529,7 +499,6 @@ class NatNetInput(LiveInput):
     #: round trips at the start, then the period between them [s]
     ECHO_FIRST, ECHO_PERIOD_S = 8, 1.0
 
-    handshake = ("server", "models")
 
     def __init__(self, spec):
         super().__init__(spec)
@@ -895,7 +864,7 @@ class NatNetInput(LiveInput):
                     had_server = self.server is not None
                     sink(self, raw, arrival)
                     if raw[:2] == _FRAME_ID:  # the stream's period is the frames'
-                        self._frame_arrived(wait, raw, arrival)
+                        wait.arrived(arrival * 1e-9)
                     if connected is not (self.server is not None):
                         connected = self.server is not None
                         self._connected(connected)

@@ -613,7 +613,6 @@ def run_live(
     next_status[0] = t_start + int(status_period_s * 1e9)
     interrupted = False
     for inp in inputs:
-        _rehearse(inp, sources)
         inp.start(sched.packet)
     try:
         for inp in inputs:
@@ -645,19 +644,6 @@ def run_live(
         interrupted=interrupted,
         inputs=inputs,
     )
-
-
-def _rehearse(inp: LiveInput, sources: dict) -> None:
-    """Give an input with ``rehearse_us`` its :class:`~trackflow.trackers.rehearsal.Rehearsal`,
-    or report on its sensors why it has none."""
-    if not inp.options.get("rehearse_us"):
-        return
-    from .rehearsal import Rehearsal  # built on this module's sources
-
-    try:
-        inp.rehearsal = Rehearsal(inp, sources)
-    except ValueError as exc:
-        inp._event_all(f"rehearsal off: {exc}")
 
 
 class _ArrivalPlayer(RecordingPlayer):
