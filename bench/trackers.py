@@ -16,17 +16,13 @@
   bookkeeping (the filters' times and log records, the counts) follows it. The latency is
   from the packet's receipt (the kernel's receive stamp, so time in the socket buffer
   counts) to the answers' delivery (``time.time_ns`` on entering the callback, same clock).
-  The input is set for latency: ``spin_us`` 200 (it sleeps until 0.2 ms before each frame
-  is due, then polls) and ``rehearse_us`` 400 (before each frame it runs the packet path on
-  twins with the last frame, :mod:`trackflow.trackers.rehearsal`, timed to be over 0.4 ms
-  before the frame is due, so the code is warm when it comes). ``options`` names them,
-  ``cpu_share`` is this process's CPU (of a core) while the sender ran. ``plain`` is the
-  same run, made first, with the input's defaults (asleep until a packet, no rehearsal):
-  the same keys, for comparison.
+  The input runs with the options named in ``options``: ``spin_us`` 200 by default (it
+  sleeps until 0.2 ms before each frame is due, then polls the socket); ``cpu_share`` is
+  this process's CPU (of a core) while the sender ran. ``plain`` is the same run, made
+  first, with the input's defaults (asleep until a packet): the same keys, for comparison.
 
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R] [--spin-us U]
-[--rehearse-us U] [--no-plain]``. The machine is shared: take the figures as the best of a
-few runs.
+[--no-plain]``. The machine is shared: take the figures as the best of a few runs.
 """
 
 from __future__ import annotations
@@ -48,7 +44,6 @@ from trackflow.graph import MotionSpec
 from trackflow.math import quat_exp, quat_to_matrix
 from trackflow.trackers import dtrack, natnet, vrpn
 from trackflow.trackers.inputs import SampleBlock, make_inputs
-from trackflow.trackers.rehearsal import Rehearsal
 from trackflow.trackers.runtime import LiveSource, LiveSources
 
 BODIES, RATE = 20, 240
@@ -138,12 +133,9 @@ def decode_rates(repeat: int) -> dict:
     return {"decode": out, "pkg": pkg}
 
 
-def e2e_latency(
-    seconds: float, recording: Path, spin_us: float = 0.0, rehearse_us: float = 0.0
-) -> dict:
+def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
     """Packet receipt -> 20 filtered answers delivered [us] (module docstring); ``spin_us``
-    is the input's polling window around a frame's due time (0: it sleeps until a packet),
-    ``rehearse_us`` how long before it the input rehearses the packet path (0: never)."""
+    is the input's polling window around a frame's due time (0: it sleeps until a packet)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -158,7 +150,6 @@ def e2e_latency(
                         "command_port": port,
                         "body": k,
                         "spin_us": spin_us,
-                        "rehearse_us": rehearse_us,
                     }
                 }
             ),  # fmt: skip
@@ -190,8 +181,6 @@ def e2e_latency(
 
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
-    if rehearse_us:
-        inp.rehearsal = Rehearsal(inp, sources, answer=True)
 
     def answer(samples, t0, entered):
         taken, cpu = time.time_ns(), time.thread_time_ns()
@@ -260,8 +249,6 @@ def e2e_latency(
         "service_p50": float(np.percentile(svc, 50)),
         "service_p99": float(np.percentile(svc, 99)),
         "service_cpu_p50": float(np.percentile(cpu, 50)),
-        "rehearsals": inp.waiting.rehearsed,
-        "rehearsals_cut": 0 if inp.rehearsal is None else inp.rehearsal.cut,
         "cpu_share": cpu_share,  # of a core: this process while the sender ran
         "polled_share": inp.waiting.polled_s / seconds,  # of a core
         "caught_share": inp.waiting.caught / max(len(latencies), 1),
@@ -285,11 +272,7 @@ def _report(name: str, lat: dict) -> None:
             f"  polling: {100 * lat['polled_share']:.1f} % of a core, "
             f"{100 * lat['caught_share']:.0f} % of the packets caught while polling"
         )
-    print(
-        f"  rehearsals: {lat['rehearsals']} ({lat['rehearsals_cut']} cut short: a packet "
-        f"came); this process's CPU: "
-        f"{100 * lat['cpu_share']:.1f} % of a core"
-    )
+    print(f"  this process's CPU: {100 * lat['cpu_share']:.1f} % of a core")
 
 
 def main(argv=None) -> int:
@@ -304,17 +287,10 @@ def main(argv=None) -> int:
         help="the NatNet input's spin_us: it polls from that long before each frame is due",
     )
     ap.add_argument(
-        "--rehearse-us",
-        type=float,
-        default=400.0,
-        help="the NatNet input's rehearse_us: it rehearses the packet path to be over that "
-        "long before each frame is due (trackflow.trackers.rehearsal)",
-    )
-    ap.add_argument(
         "--no-plain",
         dest="plain",
         action="store_false",
-        help="skip the second run with the input's defaults (no polling, no rehearsal)",
+        help="skip the run with the input's defaults (no polling)",
     )
     ap.add_argument(
         "--recording",
@@ -327,7 +303,7 @@ def main(argv=None) -> int:
     d = decode_rates(args.repeat)
     # the plain input first: a second run in the same process is not favoured by its place
     plain = e2e_latency(args.seconds, args.recording) if args.plain else None
-    lat = e2e_latency(args.seconds, args.recording, args.spin_us, args.rehearse_us)
+    lat = e2e_latency(args.seconds, args.recording, args.spin_us)
     out = {
         "decode_frames_per_s": {k: round(v) for k, v in d["decode"].items()},
         "natnet_pkg_frames_per_s": None if d["pkg"] is None else round(d["pkg"]),
@@ -335,7 +311,7 @@ def main(argv=None) -> int:
         "bodies": BODIES,
         "rate_hz": RATE,
     }
-    out["options"] = {"spin_us": args.spin_us, "rehearse_us": args.rehearse_us}
+    out["options"] = {"spin_us": args.spin_us}
     out["cpu_share"] = round(lat["cpu_share"], 4)
     if plain is not None:
         out["plain"] = {
@@ -349,9 +325,9 @@ def main(argv=None) -> int:
         print(f"{k}: {v}")
     if d["pkg"]:
         print(f"natnet decode vs the natnet package: {d['decode']['natnet'] / d['pkg']:.1f}x")
-    _report(f"spin_us {args.spin_us:g}, rehearse_us {args.rehearse_us:g}", lat)
+    _report(f"spin_us {args.spin_us:g}", lat)
     if plain is not None:
-        _report("the input's defaults (sleeping until a packet, no rehearsal)", plain)
+        _report("the input's defaults (sleeping until a packet)", plain)
     return 0
 
 

@@ -9,8 +9,9 @@ script separates the two causes:
    packet, nothing (hot loop), a sleep of the packet period (the thread blocks, the core may
    go idle) or a busy wait of the same length (the core stays busy with this thread).
 2. ``e2e``: ``trackers.e2e_latency`` as shipped (the receiving thread blocks in its selector)
-   and with the selector of ``trackflow.trackers.inputs`` replaced by one that polls without
-   blocking (the thread spins: the core never idles, at the price of a full core).
+   and with the selector of the NatNet input (``trackflow.trackers.natnet_input``)
+   replaced by one that polls without blocking (the thread spins: the core never idles, at
+   the price of a full core).
 
 Usage: ``PYTHONPATH=src python experiments/trackers_idle_core.py [--seconds S] [--packets N]``
 (prints one JSON object). The spinning selector is an experiment, not an option of the
@@ -32,7 +33,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 import trackers  # noqa: E402  (bench/trackers.py)
 import trackers_cpu  # noqa: E402  (bench/trackers_cpu.py)
-from trackflow.trackers import inputs  # noqa: E402
+from trackflow.trackers import natnet_input  # noqa: E402
 
 PERIOD_S = 1.0 / trackers.RATE
 
@@ -76,14 +77,14 @@ def main(argv=None) -> int:
     keys = ("p50", "p99", "wake_p50", "wake_p99", "handle_p50", "service_p50")
     lat = trackers.e2e_latency(args.seconds, args.recording)
     out["e2e_us"]["blocking"] = {k: round(lat[k]) for k in keys}
-    shipped = inputs.selectors
-    inputs.selectors = types.SimpleNamespace(
+    shipped = natnet_input.selectors
+    natnet_input.selectors = types.SimpleNamespace(
         DefaultSelector=_SpinningSelector, EVENT_READ=selectors.EVENT_READ
     )
     try:
         lat = trackers.e2e_latency(args.seconds, args.recording)
     finally:
-        inputs.selectors = shipped
+        natnet_input.selectors = shipped
     out["e2e_us"]["spinning"] = {k: round(lat[k]) for k in keys}
     print(json.dumps(out))
     return 0

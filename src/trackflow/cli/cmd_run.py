@@ -108,13 +108,6 @@ def run(args) -> int:
     }
     if stopped_by:
         out["signal"] = stopped_by[0]
-    rehearsed = {  # inputs with rehearse_us: the frames their twins ran
-        ", ".join(b.name for b in i.bodies): i.rehearsal.runs
-        for i in res.inputs
-        if i.rehearsal is not None
-    }
-    if rehearsed:
-        out["rehearsals"] = rehearsed
     print(json.dumps(out) if args.json else _lines(out))
     return 0
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..filters import ImuExtrinsics, ImuNoise, InertialFilter, InertialModel
 from ._events import Measurement
+from ._plan_node import PlanNode
 from ._processing import KalmanFilter
 from ._sources import RecordingPlayer
 
@@ -212,8 +213,6 @@ def attach_imus(plan, graph, imus: dict[str, ImuSpec]):
     Every ``kalman`` node of a measured edge ``x -> body`` gets ``params["imu"]`` and a push
     input from an ``imu source`` node (one per IMU). Returns the plan (changed in place).
     """
-    from ._planner import PlanNode
-
     by_body = {}
     for spec in imus.values():
         if spec.body in by_body:

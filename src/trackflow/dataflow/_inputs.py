@@ -54,7 +54,6 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
         "interface": (str, "127.0.0.1"),
         "timeout_ms": ((int, float), 2000),
         "spin_us": ((int, float), 0),
-        "rehearse_us": ((int, float), 0),
     },
     "dtrack": {
         "port": (int, 5000),
@@ -66,7 +65,6 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
         "command_port": (int, 50105),
         "latency_ms": ((int, float), 0.0),
         "spin_us": ((int, float), 0),
-        "rehearse_us": ((int, float), 0),
     },
     "vrpn": {
         "device": (str, ...),
@@ -243,7 +241,7 @@ def parse_input(doc, base_dir=None) -> InputSpec:
         cfg = Path(opts["config"])
         if not cfg.is_absolute() and base_dir is not None:
             opts["config"] = str(Path(base_dir) / cfg)
-    for key in ("latency_ms", "timeout_ms", "spin_us", "rehearse_us"):
+    for key in ("latency_ms", "timeout_ms", "spin_us"):
         if key in opts and not 0 <= float(opts[key]) < 1e5:
             raise ValueError(f"input.{proto}.{key}: {opts[key]} out of range")
     up = str(doc.get("up", "z")).lower()

@@ -22,41 +22,19 @@ Construction rules (thesis 7.4, figures 7.2-7.4):
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from os import PathLike
 
 from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
 from ..math import UncertainPose
+from ._inertial import InertialKalmanFilter
 from ._network import Network
+from ._plan_node import PlanNode
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._sinks import PullSink, Recorder
 from ._sources import RecordingPlayer, StaticPose
 
 __all__ = ["Plan", "PlanNode", "plan_query"]
-
-
-@dataclass
-class PlanNode:
-    """One component of a plan: ``kind`` in {source, kalman, latest, static, inversion,
-    inference, sampler, recorder, pull sink}; ``inputs`` are ``(node_id, "push"|"pull")``."""
-
-    id: str
-    kind: str
-    params: dict = field(default_factory=dict)
-    inputs: list[tuple[str, str]] = field(default_factory=list)
-    why: str = ""
-
-    def label(self) -> str:
-        p = self.params
-        if self.kind == "kalman":
-            m = p["motion"]
-            model = "static" if m.static else f"n_dp={m.n_dp}, n_do={m.n_do}"
-            return f"kalman ({p['role']}; {model})"
-        if self.kind == "sampler":
-            return f"sampler ({p['rate_hz']:g} Hz, offset {p['offset_ns'] * 1e-6:+g} ms)"
-        if self.kind == "source":
-            return f"source ({p['edge']})"
-        return self.kind
 
 
 @dataclass
@@ -171,8 +149,6 @@ class Plan:
             elif n.kind == "kalman":
                 cls, extra = KalmanFilter, {"filter_factory": filter_factory}
                 if "imu" in p:
-                    from ._inertial import InertialKalmanFilter
-
                     cls, extra = InertialKalmanFilter, {"imu": p["imu"]}
                 kf = cls(
                     name,

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..dataflow import InputSpec, feed_factory
 from ._packet import PacketError
-from .inputs import Body, LiveInput, Sample, host_ns
+from .live_input import Body, LiveInput, Sample, host_ns
 
 __all__ = ["FeedInput"]
 

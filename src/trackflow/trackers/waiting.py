@@ -12,13 +12,6 @@ the sockets without blocking until the datagram comes, or until ``spin_s`` after
 when it sleeps again. The price is CPU: about ``spin_s`` of polling per frame (7 % of a core
 for 0.3 ms at 240 Hz), counted in :attr:`DueWait.polled_s`. Off (``spin_s = 0``) it is the
 selector's plain wait.
-
-With ``rehearse_s`` and a :attr:`DueWait.rehearse` callable, the wait also wakes once per
-datagram to call it (a :class:`~trackflow.trackers.rehearsal.Rehearsal` of the packet's path,
-which warms the code the datagram will run), timed to be over ``rehearse_s`` before the
-datagram is due: it starts that long plus its own recent duration (the longest of the last
-few calls, measured) before. The code cools again while the thread sleeps, so the closer the
-better, as long as the rehearsal is over when the datagram comes.
 """
 
 from __future__ import annotations
@@ -28,7 +21,6 @@ import select
 import statistics
 import time
 from collections import deque
-from collections.abc import Callable
 
 __all__ = ["DueWait", "select_nap"]
 
@@ -64,12 +56,7 @@ class DueWait:
     nap : callable
         ``nap(selector, seconds)`` waits up to ``seconds`` for one of the selector's files to
         be readable (:func:`select_nap`).
-    rehearse_s : float
-        How long before the due time :attr:`rehearse` should be over [s]; 0: never called.
     """
-
-    #: the assumed duration of a rehearsal before one was measured [s]
-    FIRST_REHEARSAL_S = 1e-3
 
     MIN_INTERVALS = 3  # intervals seen before a period is trusted
 
@@ -79,20 +66,10 @@ class DueWait:
         history: int = 15,
         clock=time.time,
         nap=None,
-        rehearse_s: float = 0.0,
     ):
         if not spin_s >= 0:
             raise ValueError(f"spin_s must be >= 0, got {spin_s}")
-        if not rehearse_s >= 0:
-            raise ValueError(f"rehearse_s must be >= 0, got {rehearse_s}")
         self.spin_s = float(spin_s)
-        self.rehearse_s = float(rehearse_s)
-        #: called once per datagram, to be over ``rehearse_s`` before it is due, with a
-        #: callable telling whether a datagram is already waiting (then cut it short)
-        self.rehearse: Callable[[Callable[[], bool]], object] | None = None
-        self.rehearsed = 0  # calls of rehearse
-        self.rehearsals_s: deque[float] = deque(maxlen=8)  # their recent durations [s]
-        self._rehearsed_due: float | None = None
         self.period_s: float | None = None  # the stream's period, once known
         self.polled_s = 0.0  # time spent polling [s]
         self.caught = 0  # datagrams that arrived while polling
@@ -113,24 +90,6 @@ class DueWait:
         caller's loop comes back)."""
         due, clock = self.due(), self._clock
         now = clock()
-        if self.rehearse_s and self.rehearse is not None and due is not None:
-            if due != self._rehearsed_due:  # once per datagram, and not when it is late
-                start = due - self.rehearse_s - self.rehearsal_s()
-                if now < start:  # asleep until the rehearsal
-                    self._nap(sel, min(timeout, start - now))
-                    ready = sel.select(0)
-                    if ready:
-                        return ready
-                    now = clock()
-                    if now < start:  # the timeout first: the caller's loop comes back
-                        return []
-                if now < due - self.rehearse_s:  # else it would run into the datagram
-                    self._rehearsed_due = due
-                    self.rehearse(lambda: bool(sel.select(0)))
-                    self.rehearsed += 1
-                    end = clock()
-                    self.rehearsals_s.append(end - now)
-                    now = end
         if not self.spin_s or due is None or now > due + self.spin_s:
             return sel.select(timeout)
         start = due - self.spin_s
@@ -150,14 +109,10 @@ class DueWait:
         self.caught += bool(ready)
         return ready
 
-    def rehearsal_s(self) -> float:
-        """How long a rehearsal is expected to take [s]: the longest of the recent ones."""
-        return max(self.rehearsals_s, default=self.FIRST_REHEARSAL_S)
-
     def arrived(self, t: float) -> None:
         """A datagram of the stream arrived at ``t`` [s] (the ``clock``'s time); nothing
-        to learn when neither polling nor rehearsing."""
-        if not (self.spin_s or self.rehearse_s):
+        to learn when not polling."""
+        if not self.spin_s:
             return
         if self._last is not None:
             gap = t - self._last
