@@ -50,8 +50,9 @@ from ..dataflow import (
 )
 from ..graph import Edge, SpatialRelationshipGraph
 from ..math import UncertainPose
+from ..timesync import RoundTripOffset
 from . import wire
-from .clock import ClockOffset, time_error_covariance, twist_between
+from .clock import time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
 from .fragment import fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher, warm_up
@@ -118,7 +119,7 @@ class _Remote:
     name: str
     edges: dict[str, Edge] = field(default_factory=dict)
     frames: list[str] = field(default_factory=list)
-    clock: ClockOffset = field(default_factory=ClockOffset)
+    clock: RoundTripOffset = field(default_factory=RoundTripOffset)
 
 
 class Agent:
@@ -695,11 +696,12 @@ class Agent:
         return {e: frozenset(p) for e, p in periods.items() if e not in raw}
 
     def _offset_ns(self, edge: str) -> int:
-        """The clock offset (remote minus this agent) of a live remote sensor's agent [ns]."""
+        """Remote minus this agent's clock [ns] for a live remote sensor's agent (the
+        negative of the :mod:`trackflow.timesync` offset)."""
         rem = self._remotes.get(self._live.get(edge, ""))
         if rem is None or self.cfg.clock_sync != "estimate" or not rem.clock.known:
             return 0
-        return rem.clock.offset_ns
+        return -rem.clock.offset_ns
 
     def _subscribe_thin(self, edge: Edge, periods: frozenset) -> None:
         """A replica fed by a thinned stream: one demand token per tick period (the grid
@@ -756,7 +758,7 @@ class Agent:
         if self.cfg.clock_sync == "estimate":
             if not rem.clock.known:
                 return None
-            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+            offset, sigma = -rem.clock.offset_ns, rem.clock.sigma_s  # remote minus this
         try:
             w = remote_get(self.session, self.realm, f"get/{edge}", t_ns + offset, 0.5)
             pose = w.pose
@@ -772,7 +774,8 @@ class Agent:
 
     # -- data path ------------------------------------------------------------------------------
     def _mapping(self, edge: str) -> tuple[int, float] | None:
-        """Clock offset [ns] and its sigma [s] for a remote sensor's stamps (None: counted)."""
+        """Remote minus this agent's clock [ns] and its sigma [s] for a remote sensor's stamps
+        (None: counted)."""
         agent = self._live.get(edge)
         rem = self._remotes.get(agent) if agent is not None else None
         if rem is None:
@@ -783,7 +786,7 @@ class Agent:
         if not rem.clock.known:
             self.rejections.add("clock offset not yet estimated")
             return None
-        return rem.clock.offset_ns, rem.clock.sigma_s
+        return -rem.clock.offset_ns, rem.clock.sigma_s
 
     def _on_thin(self, edge: str, sample) -> None:
         """A message of a thinned stream: the tick it completes (attachment) and a state of

@@ -24,11 +24,11 @@ import numpy as np
 
 from ..dataflow import NETWORK_PROTOCOLS, InputSpec
 from ..math import check_covariance, frozen, kernels_for
+from ..timesync import ClockMapper
 from . import dtrack, natnet, vrpn
 from . import kernels as _kernels
 from ._packet import PacketError
 from .axes import BoundaryConversion
-from .clock import ClockMapper
 from .status import SensorStatus, StatusGroup
 from .waiting import DueWait
 
