@@ -1,30 +1,30 @@
 """Mapping a remote clock onto the host clock: offset and drift from a lower envelope.
 
-Every packet gives a pair (remote stamp ``x`` of an event, host receive time ``h``); the
-remote clock is a tracker's, say. The difference ``y = h - x`` is the clock offset
-(``host - remote``, the convention of :mod:`trackflow.timesync`) plus the transport delay,
-and the delay is never negative: the smallest ``y`` over time are the packets that came through fastest. The
-estimator fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift
-``b`` is the slope of the line that lies below every point of a sliding window and maximises
-the sum of its values (linear programming; the edge of the lower convex hull above the mean
-of ``x``), and the offset ``a`` puts the line through the lowest point of the last seconds,
-so that mapping a new stamp extrapolates over seconds, not over the whole window. Delay
-spikes sit above the envelope and never move it; until the window spans ``min_span_s`` the
-drift is taken as zero. The mapped host time of a stamp is ``x + a + b (x - x_ref)``; it
-includes the minimum transport delay (on loopback tens of microseconds), which no one-way
-method can separate from the offset. Its scatter is the gap between the two smallest delays of
-the anchoring seconds (:attr:`ClockEstimate.scatter_ns`): the smallest of many delays is as far
-from the true minimum, on average and in spread, as it is from the second smallest.
+Every packet gives a pair (remote stamp ``x`` of an event, host receive time ``h``); the remote
+clock is a tracker's, say. The difference ``y = h - x`` is the clock offset (``host - remote``,
+the convention of :mod:`trackflow.timesync`) plus the transport delay, and the delay is never
+negative: the smallest ``y`` over time are the packets that came through fastest. The estimator
+fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift ``b`` is the
+slope of the line that lies below every point of a sliding window and maximises the sum of its
+values (linear programming; the edge of the lower convex hull above the mean of ``x``), and the
+offset ``a`` puts the line through the lowest point of the last seconds, so that mapping a new
+stamp extrapolates over seconds, not over the whole window. Delay spikes sit above the envelope
+and never move it; until the window spans ``min_span_s`` the drift is taken as zero. The mapped
+host time of a stamp is ``x + a + b (x - x_ref)``; it includes the minimum transport delay (on
+loopback tens of microseconds), which no one-way method can separate from the offset. Its
+scatter is the gap between the two smallest delays of the anchoring seconds
+(:attr:`ClockEstimate.scatter_ns`): the smallest of many delays is as far from the true
+minimum, on average and in spread, as it is from the second smallest.
 
 Points are reduced to per-bin minima (``bin_s``) so a refit costs ``O(window / bin)``, done
 once per closed bin; between refits a new point below the line lowers the line at once.
 
-Round trips (:meth:`ClockMapper.add_round_trip`, NatNet's echo requests) separate the two:
-a request sent at host time ``s``, answered at remote time ``x`` and received at ``r``
-bounds the offset to ``[s - x, r - x]``; with equal delays both ways it is the midpoint,
-within half the round trip time (:func:`~trackflow.timesync.round_trip_offset`). Of the
-round trips in the window, the shortest one gives the minimum transport delay ``transit = line(x) - ((s + r) / 2 - x)`` (at least 0), which the
-published mapping subtracts.
+Round trips (:meth:`ClockMapper.add_round_trip`, NatNet's echo requests) separate the two: a
+request sent at host time ``s``, answered at remote time ``x`` and received at ``r`` bounds the
+offset to ``[s - x, r - x]``; with equal delays both ways it is the midpoint, within half the
+round trip time (:func:`~trackflow.timesync.round_trip_offset`). Of the round trips in the
+window, the shortest one gives the minimum transport delay
+``transit = line(x) - ((s + r) / 2 - x)`` (at least 0), which the published mapping subtracts.
 """
 
 from __future__ import annotations
