@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from trackflow.math import numba_available
 from trackflow.timesync import ClockMapper, lower_envelope
 
 
@@ -131,3 +132,19 @@ def test_scatter_matches_monte_carlo_error():
     assert (err >= 0).all()  # the envelope never undercuts the fastest packet
     ratio = np.sqrt(np.mean(scatter**2) / np.mean(err**2))
     assert 0.75 < ratio < 1.35, ratio
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba not installed")
+def test_compiled_envelope_fit_equals_the_reference():
+    from trackflow.math import frozen, kernels_for, use_backend
+    from trackflow.timesync import _kernels
+
+    rng = np.random.default_rng(8)
+    tx = np.cumsum(rng.integers(50_000_000, 150_000_000, 200)).astype(np.int64)
+    y = 1e6 + 20e-6 * tx + rng.exponential(3e5, 200)
+    args = (frozen(tx, np.int64), frozen(y), 10**10, 5e-4, 3 * 10**9, 1e5)
+    ref = _kernels.envelope_fit(*args)
+    with use_backend("numba"):
+        fast = kernels_for(_kernels).envelope_fit(*args)
+    np.testing.assert_allclose(fast, ref, rtol=1e-12)
+    assert ref[3] > 0  # the scatter: the gap to the second lowest bin
