@@ -33,7 +33,7 @@ from ._sampling import (
     trajectory,
 )
 
-__all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
+__all__ = ["StreamClockOffset", "coarse_offset", "estimate_clock_offset"]
 
 #: Angular-speed spread [rad/s] below which a stream counts as not rotating.
 MIN_ANGULAR_STD = np.radians(2.0)
@@ -47,7 +47,7 @@ RATE_HALF_WINDOW_S = 0.2
 
 
 @dataclass(frozen=True)
-class ClockOffset:
+class StreamClockOffset:
     """Result of :func:`estimate_clock_offset`.
 
     Attributes
@@ -193,7 +193,7 @@ def estimate_clock_offset(
     signal: str = "auto",
     refine: bool = True,
     rate_half_window_s: float = RATE_HALF_WINDOW_S,
-) -> ClockOffset:
+) -> StreamClockOffset:
     """Offset (and optionally drift) of ``b``'s clock relative to ``a``'s, with standard error.
 
     Parameters
@@ -233,7 +233,7 @@ def estimate_clock_offset(
     t_ref = 0.5 * (lo + hi) - off0  # in b's clock
     wa, oka = body_rates(ta, grid, hw)
     if sig == "linear" or not refine:
-        return ClockOffset(
+        return StreamClockOffset(
             off0, coarse.sigma_s, None, None, epoch + int(round(t_ref * 1e9)),
             off0, peak, sig, np.array([0.0, 0.0, 0.0, 1.0]), lags, corr, float("nan"),
         )  # fmt: skip
@@ -291,7 +291,7 @@ def estimate_clock_offset(
     # The rates are differences of poses over +-hw: neighbouring residuals share samples, so
     # the covariance is the sandwich over the samples' rotation errors (_noise_sandwich).
     cov = _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) if full else sol.cov
-    return ClockOffset(
+    return StreamClockOffset(
         offset_s=float(sol.x[4]),
         sigma_s=float(np.sqrt(cov[3, 3])),
         drift=float(sol.x[5]) if drift else None,
