@@ -124,6 +124,12 @@ def estimate_clock_offset(
     as host clock and the IMU as remote clock (``d = host - remote``); call that directly for
     the offset's standard error. The speed is independent of the IMU-to-body rotation, so this
     works before that rotation is known.
+
+    Raises
+    ------
+    ValueError
+        The recordings overlap less than ``12 max_offset``, or the correlation peaks at the
+        edge of the search range.
     """
     ti = np.asarray(imu_t, float)
     tp_mid, w_pose = angular_velocity_from_poses(pose_t, quaternion)
