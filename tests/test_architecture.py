@@ -14,6 +14,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "trackflow"
 LAYERS = {
     "math": 0,
     "scheduler": 0,
+    "timesync": 0,
     "graph": 1,
     "io": 1,
     "filters": 1,
@@ -29,7 +30,7 @@ LAYERS = {
     "cli": 5,
 }
 #: imports allowed between packages of one layer (importer -> imported)
-SAME_LAYER: set[tuple[str, str]] = set()
+SAME_LAYER: set[tuple[str, str]] = {("timesync", "math")}
 
 
 def _imports(path: Path) -> set[str]:

@@ -1,4 +1,4 @@
-"""Clock offsets between hosts: Cristian's estimate and the time uncertainty in covariances."""
+"""Clock offsets between hosts: the time uncertainty in covariances, the agents' estimate."""
 
 from __future__ import annotations
 
@@ -7,38 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from trackflow.distributed.clock import ClockOffset, time_error_covariance, twist_between
+from trackflow.distributed.clock import time_error_covariance, twist_between
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
-
-
-def test_offset_from_the_fastest_round_trip(rng):
-    true_offset = 250_000_000
-    c = ClockOffset(window=16)
-    for _ in range(16):
-        t0 = int(rng.integers(0, 10**12))
-        up, down = rng.integers(20_000, 2_000_000, size=2)
-        remote = t0 + up + true_offset
-        c.add_round_trip(t0, remote, t0 + up + down)
-    # the estimate is within half the best round trip of the truth
-    rtt = c.sigma_s * 2 * np.sqrt(3) * 1e9
-    assert abs(c.offset_ns - true_offset) <= rtt / 2 + 1
-    assert c.to_local(10**9 + true_offset) == 10**9 - (c.offset_ns - true_offset)
-    with pytest.raises(ValueError, match="ends before"):
-        c.add_round_trip(10, 0, 5)
-    with pytest.raises(ValueError, match="no clock round trip"):
-        ClockOffset().offset_ns
-
-
-def test_sigma_matches_uniform_errors_monte_carlo(rng):
-    # the remote reading falls uniformly inside the round trip: error sd = rtt / sqrt(12)
-    rtt = 1_000_000
-    errors = []
-    for _ in range(4000):
-        c = ClockOffset(window=1)
-        t0 = 0
-        c.add_round_trip(t0, int(rng.uniform(0, rtt)), t0 + rtt)
-        errors.append(c.offset_ns * 1e-9)
-    assert np.std(errors) == pytest.approx(c.sigma_s, rel=0.05)
 
 
 def test_time_error_covariance_monte_carlo(rng):
@@ -155,7 +125,7 @@ def test_skewed_host_clock_is_mapped(tmp_path):
                 unmapped.append(abs(truth_x(t + int(skew * 1e6)) - truth_x(t)))
                 time.sleep(0.05)
             offset = c.status()["clocks"]["skewed"]
-            assert abs(offset["offset_ms"] - skew) < 5.0
+            assert abs(offset["offset_ms"] + skew) < 5.0  # host - remote (docs/conventions.md)
             assert np.median(errors) < 0.01
             assert np.median(unmapped) > 5 * np.median(errors)  # what no mapping would cost
         finally:

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from trackflow.dataflow import parse_input
+from trackflow.timesync import ClockMapper
 from trackflow.trackers import PacketError, natnet
-from trackflow.trackers.clock import ClockMapper
 from trackflow.trackers.inputs import make_input
 
 FREQ = 10_000_000

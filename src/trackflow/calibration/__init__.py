@@ -6,7 +6,7 @@ measured figures: ``docs/calibration.md``.
 """
 
 from .alignment import AlignmentResult, align_trajectories, umeyama
-from .clock_offset import ClockOffset, estimate_clock_offset
+from .clock_offset import StreamClockOffset, estimate_clock_offset
 from .fragment import sensor_update, static_edge, write_fragment
 from .hand_eye import (
     HandEyeResult,
@@ -20,10 +20,10 @@ from .pivot import PivotResult, pivot_calibration
 
 __all__ = [
     "AlignmentResult",
-    "ClockOffset",
     "HandEyeResult",
     "NoiseResult",
     "PivotResult",
+    "StreamClockOffset",
     "align_trajectories",
     "estimate_clock_offset",
     "sensor_noise",

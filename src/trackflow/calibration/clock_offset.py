@@ -1,13 +1,15 @@
 """Clock offset (and drift) between two pose streams of rigidly joined bodies.
 
 Frame-independent: the coarse estimate cross-correlates the angular speeds of the two streams
-(or their linear speeds when neither rotates enough); the refinement fits the offset jointly with
+(or their linear speeds when neither rotates enough) with
+:func:`trackflow.timesync.correlation_offset`; the refinement fits the offset jointly with
 the rotation ``R_a_b`` between the two body frames, using body angular velocities
 ``w_a(t) = R_a_b w_b(t - offset)``, and reports a standard error. Works on streams of different
 rates and with gaps (samples inside gaps are left out).
 
-Convention: a sample of stream ``b`` stamped ``s`` (b's clock) happened at ``s + offset_s`` on
-stream ``a``'s clock; with drift, at ``s + offset_s + drift * (s - reference)``.
+Convention (:mod:`trackflow.timesync`, ``offset = host - remote`` with ``a`` the host): a sample
+of stream ``b`` stamped ``s`` (b's clock) happened at ``s + offset_s`` on stream ``a``'s clock;
+with drift, at ``s + offset_s + drift * (s - reference)``.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from ..io import PoseStream
 from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew
+from ..timesync import CorrelationOffset, correlation_offset
 from ._geometry import kabsch
 from ._lsq import robust_solve
 from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
@@ -30,7 +33,7 @@ from ._sampling import (
     trajectory,
 )
 
-__all__ = ["ClockOffset", "coarse_offset", "estimate_clock_offset"]
+__all__ = ["StreamClockOffset", "coarse_offset", "estimate_clock_offset"]
 
 #: Angular-speed spread [rad/s] below which a stream counts as not rotating.
 MIN_ANGULAR_STD = np.radians(2.0)
@@ -44,7 +47,7 @@ RATE_HALF_WINDOW_S = 0.2
 
 
 @dataclass(frozen=True)
-class ClockOffset:
+class StreamClockOffset:
     """Result of :func:`estimate_clock_offset`.
 
     Attributes
@@ -56,7 +59,8 @@ class ClockOffset:
     reference_time_ns : int
         b's stamp at which the drift term is zero (middle of the overlap).
     coarse_offset_s : float
-        The cross-correlation peak, before refinement.
+        The speed profiles' offset (:func:`~trackflow.timesync.correlation_offset`), before
+        the refinement with the body rotation.
     peak_correlation : float
         Normalised correlation at the peak (1 = identical speed profiles).
     signal : str
@@ -111,8 +115,9 @@ def _grid(a: Trajectory, b: Trajectory, step: float, max_offset_s: float) -> np.
 
 def coarse_offset(
     a: Trajectory, b: Trajectory, max_offset_s: float = 1.0, signal: str = "auto"
-) -> tuple[float, float, str, np.ndarray, np.ndarray]:
-    """Cross-correlation peak of the speed profiles: ``(offset, peak, signal, lags, corr)``.
+) -> tuple[CorrelationOffset, str]:
+    """Offset of the speed profiles (:func:`trackflow.timesync.correlation_offset`, ``a`` the
+    host, ``b`` the remote) and the signal used (``"angular"`` or ``"linear"``).
 
     Raises ``ValueError`` when neither stream moves, or the profiles do not correlate.
     """
@@ -140,41 +145,17 @@ def coarse_offset(
             f"{MIN_LINEAR_STD * 1e3:.0f} mm/s in both streams"
         )
     sa = wa if signal == "angular" else va
-    lags = np.arange(-max_offset_s, max_offset_s + step / 2, step)
-    corr = np.full(len(lags), np.nan)
     gb = np.arange(b.t[0], b.t[-1], step)
-    wb, vb, okb_grid = speeds(b, gb, hw)
-    sb_grid = wb if signal == "angular" else vb
-    for k, lag in enumerate(lags):
-        sb = np.interp(grid - lag, gb, sb_grid)
-        okb = np.interp(grid - lag, gb, okb_grid.astype(float), left=0, right=0) > 0.999
-        ok = oka & okb
-        if ok.sum() < 20:
-            continue
-        x, y = sa[ok] - sa[ok].mean(), sb[ok] - sb[ok].mean()
-        d = np.sqrt((x @ x) * (y @ y))
-        corr[k] = (x @ y) / d if d > 0 else np.nan
-    if not np.any(np.isfinite(corr)):
-        raise ValueError(f"streams {a.name} and {b.name} share too few valid samples")
-    k = int(np.nanargmax(corr))
-    peak = float(corr[k])
-    off = float(lags[k])
-    if 0 < k < len(lags) - 1 and np.all(np.isfinite(corr[k - 1 : k + 2])):
-        c0, c1, c2 = corr[k - 1 : k + 2]
-        den = c0 - 2 * c1 + c2
-        if den < 0:
-            off += float(0.5 * (c0 - c2) / den * step)
-    if peak < 0.3:
-        raise ValueError(
-            f"the {signal} speeds of {a.name} and {b.name} do not correlate (peak {peak:.2f} "
-            f"within +-{max_offset_s} s): are they the same rigid body, is the offset larger?"
-        )
-    if k in (0, len(lags) - 1):
-        raise ValueError(
-            f"correlation peak at the edge of the search range +-{max_offset_s} s: "
-            "increase max_offset_s"
-        )
-    return off, peak, signal, lags, corr
+    wb, vb, okb = speeds(b, gb, hw)
+    sb = wb if signal == "angular" else vb
+    try:
+        r = correlation_offset(
+            grid, np.where(oka, sa, np.nan), gb, np.where(okb, sb, np.nan),
+            max_offset_s=max_offset_s, step_s=step, correlation_time_s=2 * hw,
+        )  # fmt: skip
+    except ValueError as e:
+        raise ValueError(f"the {signal} speeds of {a.name} and {b.name}: {e}") from e
+    return r, signal
 
 
 def _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) -> np.ndarray:
@@ -212,7 +193,7 @@ def estimate_clock_offset(
     signal: str = "auto",
     refine: bool = True,
     rate_half_window_s: float = RATE_HALF_WINDOW_S,
-) -> ClockOffset:
+) -> StreamClockOffset:
     """Offset (and optionally drift) of ``b``'s clock relative to ``a``'s, with standard error.
 
     Parameters
@@ -226,8 +207,8 @@ def estimate_clock_offset(
     signal : {"auto", "angular", "linear"}
         Speed profile for the coarse search; auto takes angular speed when both streams rotate.
     refine : bool
-        Refine jointly with the body rotation (False: the coarse peak, with the standard
-        deviation of a uniform error over one coarse step as its sigma).
+        Refine jointly with the body rotation (False: the speed profiles' offset and its
+        standard error).
     rate_half_window_s : float
         Half window [s] of the central differences for the refinement's body rates (at least
         the slower stream's sample period): rates averaged over ``2 rate_half_window_s``
@@ -242,7 +223,8 @@ def estimate_clock_offset(
     """
     epoch = common_epoch_ns(a, b)
     ta, tb = trajectory(a, epoch, "a"), trajectory(b, epoch, "b")
-    off0, peak, sig, lags, corr = coarse_offset(ta, tb, max_offset_s, signal)
+    coarse, sig = coarse_offset(ta, tb, max_offset_s, signal)
+    off0, peak, lags, corr = coarse.offset_s, coarse.peak, coarse.lags_s, coarse.correlation
     slow = max(ta.period_s, tb.period_s)
     hw = max(slow, float(rate_half_window_s))
     # Refinement on a grid at the slower stream's rate, inside the overlap.
@@ -251,8 +233,8 @@ def estimate_clock_offset(
     t_ref = 0.5 * (lo + hi) - off0  # in b's clock
     wa, oka = body_rates(ta, grid, hw)
     if sig == "linear" or not refine:
-        return ClockOffset(
-            off0, 0.5 * slow / np.sqrt(12.0), None, None, epoch + int(round(t_ref * 1e9)),
+        return StreamClockOffset(
+            off0, coarse.sigma_s, None, None, epoch + int(round(t_ref * 1e9)),
             off0, peak, sig, np.array([0.0, 0.0, 0.0, 1.0]), lags, corr, float("nan"),
         )  # fmt: skip
     wb0, okb0 = body_rates(tb, grid - off0, hw)
@@ -309,7 +291,7 @@ def estimate_clock_offset(
     # The rates are differences of poses over +-hw: neighbouring residuals share samples, so
     # the covariance is the sandwich over the samples' rotation errors (_noise_sandwich).
     cov = _rate_covariance(fun, sol, ta, tb, grid, hw, t_ref, drift) if full else sol.cov
-    return ClockOffset(
+    return StreamClockOffset(
         offset_s=float(sol.x[4]),
         sigma_s=float(np.sqrt(cov[3, 3])),
         drift=float(sol.x[5]) if drift else None,

@@ -54,7 +54,7 @@ def write_json(directory, data: dict) -> Path:
 
 
 def write_clock_report(directory, result) -> Path:
-    """``report.json`` and ``correlation.png`` for a :class:`ClockOffset`."""
+    """``report.json`` and ``correlation.png`` for a :class:`StreamClockOffset`."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     (d / "report.json").write_text(json.dumps(result.as_dict(), indent=2))

@@ -13,7 +13,7 @@ this package works without it, opening an agent does not.
 """
 
 from .agent import Agent, QueryState, RemoteSource, remote_get, run_agent
-from .clock import ClockOffset, time_error_covariance, twist_between
+from .clock import time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
 from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
 from .replica import RemoteFilter, RemoteGet, StatePublisher
@@ -31,7 +31,6 @@ from .wire import (
 __all__ = [
     "Agent",
     "AgentConfig",
-    "ClockOffset",
     "QueryState",
     "Rejections",
     "RemoteFilter",

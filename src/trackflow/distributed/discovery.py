@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ..graph import Edge, SpatialRelationshipGraph
-from .clock import ClockOffset
+from ..timesync import RoundTripOffset
 from .fragment import parse_fragment
 
 __all__ = ["Discovery", "RemoteAgent", "realm_key"]
@@ -34,7 +34,7 @@ class RemoteAgent:
     name: str
     edges: dict[str, Edge] = field(default_factory=dict)
     frames: list[str] = field(default_factory=list)
-    clock: ClockOffset = field(default_factory=ClockOffset)
+    clock: RoundTripOffset = field(default_factory=RoundTripOffset)
 
 
 class Discovery:
@@ -118,7 +118,8 @@ class Discovery:
         return g
 
     def clocks(self) -> dict:
-        """Measured clock offsets of the other agents (JSON-able)."""
+        """Measured clock offsets of the other agents, ``host - remote``
+        (:mod:`trackflow.timesync`), JSON-able."""
         return {
             n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
             for n, r in self.remotes.items()

@@ -129,11 +129,12 @@ class RemoteInputs:
         return {e: frozenset(p) for e, p in periods.items() if e not in raw}
 
     def offset_ns(self, edge: str) -> int:
-        """The clock offset (remote minus this agent) of a live remote sensor's agent [ns]."""
+        """Remote minus this agent's clock [ns] for a live remote sensor's agent (the
+        negative of the :mod:`trackflow.timesync` offset)."""
         rem = self.discovery.agent_of(edge)
         if rem is None or self.cfg.clock_sync != "estimate" or not rem.clock.known:
             return 0
-        return rem.clock.offset_ns
+        return -rem.clock.offset_ns
 
     def subscribe_thin(self, edge: Edge, periods: frozenset) -> None:
         """A replica fed by a thinned stream: one demand token per tick period (the grid
@@ -202,7 +203,7 @@ class RemoteInputs:
         if self.cfg.clock_sync == "estimate":
             if not rem.clock.known:
                 return None
-            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s
+            offset, sigma = -rem.clock.offset_ns, rem.clock.sigma_s  # remote minus this
         realm = self.agent.realm
         try:
             w = remote_get(self.session, realm, f"get/{edge}", t_ns + offset, 0.5)
@@ -219,7 +220,8 @@ class RemoteInputs:
 
     # -- data path ------------------------------------------------------------------------------
     def mapping(self, edge: str) -> tuple[int, float] | None:
-        """Clock offset [ns] and its sigma [s] for a remote sensor's stamps (None: counted)."""
+        """Remote minus this agent's clock [ns] and its sigma [s] for a remote sensor's stamps
+        (None: counted)."""
         rem = self.discovery.agent_of(edge)
         if rem is None:
             self.rejections.add("sensor not live")
@@ -229,7 +231,7 @@ class RemoteInputs:
         if not rem.clock.known:
             self.rejections.add("clock offset not yet estimated")
             return None
-        return rem.clock.offset_ns, rem.clock.sigma_s
+        return -rem.clock.offset_ns, rem.clock.sigma_s
 
     def on_thin(self, edge: str, sample) -> None:
         """A message of a thinned stream: the tick it completes (attachment) and a state of

@@ -10,8 +10,8 @@ Conventions: ``docs/conventions.md``; protocols and time mapping: ``docs/tracker
 """
 
 from ..dataflow import InputSpec, parse_input
+from ..timesync import ClockEstimate, ClockMapper
 from ._packet import MAX_DATAGRAM, PacketError
-from .clock import ClockEstimate, ClockMapper
 from .inputs import LiveInput, Sample, make_input, make_inputs
 from .runtime import LiveSource, ReplayResult, RunResult, replay, run_live
 from .simulate import SimConfig, Simulator, simulate

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataflow import InputSpec
-from .clock import ClockMapper
+from ..timesync import ClockMapper
 from .dtrack_input import DTrackInput
 from .feed import FeedInput
 from .live_input import (

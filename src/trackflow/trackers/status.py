@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 
-from .clock import ClockEstimate
+from ..timesync import ClockEstimate
 
 __all__ = ["RESTART_FRAMES", "SensorStatus", "StatusGroup"]
 

@@ -4,7 +4,8 @@
   instability from a static segment (IEEE 952 overlapping Allan deviation).
 * :func:`angular_velocity_from_poses`: body-frame angular velocity of a pose recording.
 * :func:`estimate_clock_offset`: IMU-to-tracker clock offset from the cross-correlation of the
-  angular speeds ``|omega|`` (independent of the unknown mounting rotation).
+  angular speeds ``|omega|`` (independent of the unknown mounting rotation;
+  :func:`trackflow.timesync.correlation_offset`).
 * :func:`estimate_imu_rotation`: ``R_b_s`` from gyro and pose angular velocities (Wahba's
   problem, solved by SVD), with the gyro bias.
 * :func:`estimate_gravity`: gravity in the tracker's world frame from poses and accelerometer.
@@ -23,6 +24,7 @@ from trackflow.math import (
     quat_rotate,
     quat_slerp,
 )
+from trackflow.timesync import correlation_offset
 
 from .model import GRAVITY, ImuNoise
 
@@ -111,20 +113,23 @@ def angular_velocity_from_poses(t, quaternion) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (t[1:] + t[:-1]), inc / dt[:, None]
 
 
-def _speed_on_grid(t, omega, grid):
-    return np.interp(grid, t, np.linalg.norm(omega, axis=1))
-
-
 def estimate_clock_offset(
     imu_t, gyro, pose_t, quaternion, max_offset: float = 0.5, step: float | None = None
 ) -> float:
     """Clock offset ``d`` [s] such that IMU time ``t_imu + d`` is tracker time.
 
-    Both angular speeds (gyro norm; pose angular velocity norm) are resampled on a common grid
-    of ``step`` (default: half the median pose interval, at most 5 ms), made zero-mean, and
-    cross-correlated over ``[-max_offset, max_offset]``; a parabola through the peak and its
-    neighbours refines the lag below one grid step. The speed is independent of the
-    IMU-to-body rotation, so this works before that rotation is known.
+    The angular speeds of the two (gyro norm; pose angular velocity norm) are cross-correlated
+    over ``[-max_offset, max_offset]`` on a grid of ``step`` (default: half the median pose
+    interval, at most 5 ms) by :func:`trackflow.timesync.correlation_offset`, with the tracker
+    as host clock and the IMU as remote clock (``d = host - remote``); call that directly for
+    the offset's standard error. The speed is independent of the IMU-to-body rotation, so this
+    works before that rotation is known.
+
+    Raises
+    ------
+    ValueError
+        The recordings overlap less than ``12 max_offset``, or the correlation peaks at the
+        edge of the search range.
     """
     ti = np.asarray(imu_t, float)
     tp_mid, w_pose = angular_velocity_from_poses(pose_t, quaternion)
@@ -132,26 +137,14 @@ def estimate_clock_offset(
     tp_mid, w_pose = tp_mid[ok], w_pose[ok]
     if step is None:
         step = min(0.5 * float(np.median(np.diff(pose_t))), 0.005)
-    lo = max(ti[0], tp_mid[0]) + max_offset
-    hi = min(ti[-1], tp_mid[-1]) - max_offset
-    if hi - lo < 10 * max_offset:
+    if min(ti[-1], tp_mid[-1]) - max(ti[0], tp_mid[0]) < 12 * max_offset:
         raise ValueError("IMU and pose recordings overlap too little to estimate a clock offset")
-    grid = np.arange(lo, hi, step)
-    s_pose = _speed_on_grid(tp_mid, w_pose, grid)
-    s_pose -= s_pose.mean()
-    lags = np.arange(-int(max_offset / step), int(max_offset / step) + 1)
-    corr = np.empty(lags.shape[0])
     speed_imu = np.linalg.norm(np.asarray(gyro, float), axis=1)
-    for i, lag in enumerate(lags):
-        s_imu = np.interp(grid - lag * step, ti, speed_imu)
-        corr[i] = np.dot(s_imu - s_imu.mean(), s_pose)
-    j = int(np.argmax(corr))
-    frac = 0.0
-    if 0 < j < lags.shape[0] - 1:
-        a, b, c = corr[j - 1], corr[j], corr[j + 1]
-        den = a - 2 * b + c
-        frac = 0.5 * (a - c) / den if den != 0 else 0.0
-    return float((lags[j] + frac) * step)
+    r = correlation_offset(
+        tp_mid, np.linalg.norm(w_pose, axis=1), ti, speed_imu, max_offset_s=max_offset,
+        step_s=step, min_peak=0.0,
+    )  # fmt: skip
+    return r.offset_s
 
 
 def estimate_imu_rotation(

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trackflow.trackers.clock import ClockMapper, lower_envelope
+from trackflow.math import numba_available
+from trackflow.timesync import ClockMapper, lower_envelope
 
 
 def test_lower_envelope_is_below_every_point_and_touches_the_hull():
@@ -110,3 +111,40 @@ def test_a_step_of_the_tracker_clock_restarts_the_fit():
     m.reset()
     with pytest.raises(ValueError, match="no samples"):
         m.to_host(0)
+
+
+def test_scatter_matches_monte_carlo_error():
+    """Exponential delays over a 30 us minimum: the mapping's error about the minimum transit
+    is the smallest delay's excess, whose spread the reported scatter (the gap to the
+    second smallest bin minimum) matches in RMS over seeded runs."""
+    err, scatter = [], []
+    for seed in range(150):
+        rng = np.random.default_rng(seed)
+        x = np.arange(600, dtype=np.int64) * 10_000_000 + 10**9
+        offset = -5_000_000_000  # host - remote
+        h = x + offset + 30_000 + np.round(rng.exponential(300_000, x.shape)).astype(np.int64)
+        m = ClockMapper()
+        for xi, hi in zip(x, h):
+            m.add(int(xi), int(hi))
+        err.append(m.to_host(int(x[-1])) - (x[-1] + offset + 30_000))
+        scatter.append(m.estimate.offset_sigma_ns)
+    err, scatter = np.array(err, float), np.array(scatter)
+    assert (err >= 0).all()  # the envelope never undercuts the fastest packet
+    ratio = np.sqrt(np.mean(scatter**2) / np.mean(err**2))
+    assert 0.75 < ratio < 1.35, ratio
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba not installed")
+def test_compiled_envelope_fit_equals_the_reference():
+    from trackflow.math import frozen, kernels_for, use_backend
+    from trackflow.timesync import _kernels
+
+    rng = np.random.default_rng(8)
+    tx = np.cumsum(rng.integers(50_000_000, 150_000_000, 200)).astype(np.int64)
+    y = 1e6 + 20e-6 * tx + rng.exponential(3e5, 200)
+    args = (frozen(tx, np.int64), frozen(y), 10**10, 5e-4, 3 * 10**9, 1e5)
+    ref = _kernels.envelope_fit(*args)
+    with use_backend("numba"):
+        fast = kernels_for(_kernels).envelope_fit(*args)
+    np.testing.assert_allclose(fast, ref, rtol=1e-12)
+    assert ref[3] > 0  # the scatter: the gap to the second lowest bin

@@ -1,38 +1,43 @@
-"""Mapping a tracker's clock onto the host clock: offset and drift from a lower envelope.
+"""Mapping a remote clock onto the host clock: offset and drift from a lower envelope.
 
-Every packet gives a pair (tracker stamp ``x`` of an event, host receive time ``h``). The
-difference ``y = h - x`` is the clock offset plus the transport delay, and the delay is never
-negative: the smallest ``y`` over time are the packets that came through fastest. The
-estimator fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift
-``b`` is the slope of the line that lies below every point of a sliding window and maximises
-the sum of its values (linear programming; the edge of the lower convex hull above the mean
-of ``x``), and the offset ``a`` puts the line through the lowest point of the last seconds,
-so that mapping a new stamp extrapolates over seconds, not over the whole window. Delay
-spikes sit above the envelope and never move it; until the window spans ``min_span_s`` the
-drift is taken as zero. The mapped host time of a stamp is ``x + a + b (x - x_ref)``; it
-includes the minimum transport delay (on loopback tens of microseconds), which no one-way
-method can separate from the offset.
+Every packet gives a pair (remote stamp ``x`` of an event, host receive time ``h``); the remote
+clock is a tracker's, say. The difference ``y = h - x`` is the clock offset (``host - remote``,
+the convention of :mod:`trackflow.timesync`) plus the transport delay, and the delay is never
+negative: the smallest ``y`` over time are the packets that came through fastest. The estimator
+fits the line ``y = a + b (x - x_ref)`` from below (the lower envelope): the drift ``b`` is the
+slope of the line that lies below every point of a sliding window and maximises the sum of its
+values (linear programming; the edge of the lower convex hull above the mean of ``x``), and the
+offset ``a`` puts the line through the lowest point of the last seconds, so that mapping a new
+stamp extrapolates over seconds, not over the whole window. Delay spikes sit above the envelope
+and never move it; until the window spans ``min_span_s`` the drift is taken as zero. The mapped
+host time of a stamp is ``x + a + b (x - x_ref)``; it includes the minimum transport delay (on
+loopback tens of microseconds), which no one-way method can separate from the offset. Its
+scatter is the gap between the two smallest delays of the anchoring seconds
+(:attr:`ClockEstimate.scatter_ns`): the smallest of many delays is as far from the true
+minimum, on average and in spread, as it is from the second smallest.
 
 Points are reduced to per-bin minima (``bin_s``) so a refit costs ``O(window / bin)``, done
 once per closed bin; between refits a new point below the line lowers the line at once.
 
-Round trips (:meth:`ClockMapper.add_round_trip`, NatNet's echo requests) separate the two:
-a request sent at host time ``s``, answered at tracker time ``x`` and received at ``r``
-bounds the offset to ``[s - x, r - x]``; with equal delays both ways it is the midpoint,
-within half the round trip time. Of the round trips in the window, the shortest one gives
-the minimum transport delay ``transit = line(x) - ((s + r) / 2 - x)`` (at least 0), which the
-published mapping subtracts.
+Round trips (:meth:`ClockMapper.add_round_trip`, NatNet's echo requests) separate the two: a
+request sent at host time ``s``, answered at remote time ``x`` and received at ``r`` bounds the
+offset to ``[s - x, r - x]``; with equal delays both ways it is the midpoint, within half the
+round trip time (:func:`~trackflow.timesync.round_trip_offset`). Of the round trips in the
+window, the shortest one gives the minimum transport delay
+``transit = line(x) - ((s + r) / 2 - x)`` (at least 0), which the published mapping subtracts.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..math import frozen, kernels_for
-from . import kernels as _kernels
+from . import _kernels
+from ._round_trip import round_trip_offset
 
 __all__ = ["ClockEstimate", "ClockMapper", "lower_envelope"]
 
@@ -44,11 +49,11 @@ class ClockEstimate:
     Attributes
     ----------
     offset_ns : float
-        ``host - tracker`` at tracker time ``ref_ns`` [ns] (offset plus minimum delay).
+        ``host - remote`` at remote time ``ref_ns`` [ns] (offset plus minimum delay).
     drift : float
-        ``d(host) / d(tracker) - 1`` (dimensionless; 1e-6 = 1 ppm).
+        ``d(host) / d(remote) - 1`` (dimensionless; 1e-6 = 1 ppm).
     ref_ns : int
-        Tracker time of the reference point [ns].
+        Remote time of the reference point [ns].
     sigma_ns : float
         Median height of the per-bin minima above the envelope [ns]: how far a typical
         fastest packet sits above the fitted line, the scale of the mapping's uncertainty
@@ -61,6 +66,9 @@ class ClockEstimate:
     transit_sigma_ns : float
         Half the shortest round trip time [ns]: the bound on ``transit_ns`` if the delays
         both ways differ (0 without round trips).
+    scatter_ns : float
+        Standard deviation of the envelope's offset [ns]: the height of the second lowest
+        bin minimum above the line's anchor (module docstring; 0 with one bin).
     """
 
     offset_ns: float
@@ -70,18 +78,26 @@ class ClockEstimate:
     points: int
     transit_ns: float = 0.0
     transit_sigma_ns: float = 0.0
+    scatter_ns: float = 0.0
 
-    def to_host(self, tracker_ns: int) -> int:
-        """Host time [ns] of a tracker time [ns]."""
-        dx = tracker_ns - self.ref_ns
-        return tracker_ns + int(round(self.offset_ns - self.transit_ns + self.drift * dx))
+    @property
+    def offset_sigma_ns(self) -> float:
+        """Standard deviation of the mapped host time [ns]: the envelope's scatter and the
+        shortest round trip's uniform error (``transit_sigma_ns / sqrt 3``) together. Without
+        round trips the mapping is in addition late by the minimum transport delay."""
+        return math.hypot(self.scatter_ns, self.transit_sigma_ns / math.sqrt(3.0))
+
+    def to_host(self, remote_ns: int) -> int:
+        """Host time [ns] of a remote time [ns]."""
+        dx = remote_ns - self.ref_ns
+        return remote_ns + int(round(self.offset_ns - self.transit_ns + self.drift * dx))
 
 
 def lower_envelope(x, y) -> tuple[float, float]:
     """``(a, b)`` of the line ``a + b (x - mean(x))`` below every point with the largest sum.
 
     ``x`` must be increasing. One point (or all at one ``x``): the lowest, ``b = 0``
-    (:func:`trackflow.trackers.kernels.lower_envelope`).
+    (:func:`trackflow.timesync._kernels.lower_envelope`).
     """
     if len(x) == 0:
         raise ValueError("no points")
@@ -90,12 +106,12 @@ def lower_envelope(x, y) -> tuple[float, float]:
 
 
 class ClockMapper:
-    """Online tracker-to-host clock mapping (see the module docstring).
+    """Online remote-to-host clock mapping (see the module docstring).
 
     Parameters
     ----------
     window_s : float
-        Span of tracker time kept for the fit [s].
+        Span of remote time kept for the fit [s].
     bin_s : float
         Width of the bins whose minima are fitted [s].
     min_span_s : float
@@ -110,7 +126,7 @@ class ClockMapper:
         the window's envelope.
     step_s : float
         A stamp earlier than the newest one by more than this, or an offset sample below
-        the line by more than this [s], is a step of the tracker's clock (a restart): the fit
+        the line by more than this [s], is a step of the remote clock (a restart): the fit
         starts again from it.
     max_rtt_s : float
         Longer round trips (and negative ones) are rejected and counted [s].
@@ -139,7 +155,7 @@ class ClockMapper:
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
         self.max_drift = float(max_drift)
-        #: the closed bins' minima, tracker ns and host - tracker ns, in the order closed
+        #: the closed bins' minima, remote ns and host - remote ns, in the order closed
         self._tx = np.empty(int(window_s / bin_s) + 8, np.int64)
         self._y = np.empty_like(self._tx)
         self._nbins = 0
@@ -150,50 +166,55 @@ class ClockMapper:
         #: the published mapping (the envelope minus the transit found by round trips)
         self.estimate: ClockEstimate | None = None
         self._published: tuple | None = None  # (envelope, round trip) of the estimate
-        self.round_trips: deque[tuple[int, int, int]] = deque()  # (tracker, rtt, offset)
+        self.round_trips: deque[tuple[int, int, int]] = deque()  # (remote, rtt, offset)
         #: round trips rejected (negative or longer than ``max_rtt_s``)
         self.rejected_round_trips = 0
         self.count = 0
         self._newest = 0
 
     def reset(self) -> None:
-        """Forget everything (the tracker restarted)."""
+        """Forget everything (the remote clock restarted)."""
         self._nbins = 0
         self._unordered = False
         self._cur = self._cur_bin = self._env = self.estimate = self._published = None
         self.round_trips.clear()
         self._newest = 0
 
-    def add(self, tracker_ns: int, host_ns: int) -> None:
-        """Add one (tracker stamp, host receive time) pair [ns]."""
+    def add(self, remote_ns: int, host_ns: int) -> None:
+        """Add one (remote stamp, host receive time) pair [ns]."""
         self.count += 1
-        y = host_ns - tracker_ns
+        y = host_ns - remote_ns
         e = self._env
         line = 0.0
         if e is not None:
-            line = e.offset_ns + e.drift * (tracker_ns - e.ref_ns)  # the envelope at this x
-            if tracker_ns < self._newest - self.step_ns or y < line - self.step_ns:
+            line = e.offset_ns + e.drift * (remote_ns - e.ref_ns)  # the envelope at this x
+            if remote_ns < self._newest - self.step_ns or y < line - self.step_ns:
                 self.reset()
                 self.steps += 1
-        if self._env is None or tracker_ns > self._newest:
-            self._newest = tracker_ns
-        k = tracker_ns // self.bin_ns
+        if self._env is None or remote_ns > self._newest:
+            self._newest = remote_ns
+        k = remote_ns // self.bin_ns
         if self._cur_bin is None or k != self._cur_bin:
             if self._cur is not None:
-                self._close_bin(tracker_ns)
+                self._close_bin(remote_ns)
                 self._refit()
-            self._cur_bin, self._cur = k, (tracker_ns, y)
+            self._cur_bin, self._cur = k, (remote_ns, y)
         elif y < self._cur[1]:
-            self._cur = (tracker_ns, y)
+            self._cur = (remote_ns, y)
         e2 = self._env
         if e2 is None:
-            self._env = ClockEstimate(float(y), 0.0, tracker_ns, 0.0, 1)
+            self._env = ClockEstimate(float(y), 0.0, remote_ns, 0.0, 1)
         else:
             if e2 is not e:  # refitted or reset: the new envelope at this x
-                line = e2.offset_ns + e2.drift * (tracker_ns - e2.ref_ns)
+                line = e2.offset_ns + e2.drift * (remote_ns - e2.ref_ns)
             if y < line:  # below the envelope: lower it now, keep the slope
                 self._env = ClockEstimate(
-                    e2.offset_ns - (line - y), e2.drift, e2.ref_ns, e2.sigma_ns, e2.points
+                    e2.offset_ns - (line - y),
+                    e2.drift,
+                    e2.ref_ns,
+                    e2.sigma_ns,
+                    e2.points,
+                    scatter_ns=min(e2.scatter_ns, line - y) if e2.points > 1 else line - y,
                 )
         self._publish()
 
@@ -207,7 +228,7 @@ class ClockMapper:
         if c.estimate is None or c.estimate.points < 2:
             raise RuntimeError("the clock fit made no estimate")
 
-    def _close_bin(self, tracker_ns: int) -> None:
+    def _close_bin(self, remote_ns: int) -> None:
         """The open bin's minimum into the window; the bins older than the window go."""
         n, tx, y = self._nbins, self._tx, self._y
         if n == len(tx):
@@ -219,7 +240,7 @@ class ClockMapper:
         tx[n], y[n] = x_c, y_c
         n += 1
         old = 0
-        while old < n and tracker_ns - int(tx[old]) > self.window_ns:
+        while old < n and remote_ns - int(tx[old]) > self.window_ns:
             old += 1
         if old:
             tx[: n - old] = tx[old:n].copy()
@@ -240,29 +261,31 @@ class ClockMapper:
                 self._unordered = False
         # with the envelope's slope, the line through the lowest recent bin (it extrapolates
         # over seconds instead of the whole window) unless every recent packet was late
-        a, b, sigma = kernels_for(_kernels).envelope_fit(
+        a, b, sigma, scatter = kernels_for(_kernels).envelope_fit(
             frozen(tx, np.int64), frozen(y), self.min_span_ns, self.max_drift, self.anchor_ns,
             self.stall_ns,
         )  # fmt: skip
         a, b, sigma, ref_ns = float(a), float(b), float(sigma), int(tx[-1])
-        self._env = ClockEstimate(a, b, ref_ns, sigma, n)
+        scatter = float(scatter)
+        self._env = ClockEstimate(a, b, ref_ns, sigma, n, scatter_ns=scatter)
         if self._cur is not None:  # the open bin may already hold a lower point
             x_c, y_c = self._cur
             line = a + b * (x_c - ref_ns)
             if y_c < line:
-                self._env = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, n)
+                self._env = ClockEstimate(a - (line - y_c), b, ref_ns, sigma, n, 0.0, 0.0,
+                                          min(scatter, line - y_c))  # fmt: skip
 
-    def add_round_trip(self, send_host_ns: int, tracker_ns: int, recv_host_ns: int) -> bool:
+    def add_round_trip(self, send_host_ns: int, remote_ns: int, recv_host_ns: int) -> bool:
         """Add one round trip: a request sent at host time ``send_host_ns``, answered at
-        tracker time ``tracker_ns`` and received at ``recv_host_ns`` [ns] (module docstring).
+        remote time ``remote_ns`` and received at ``recv_host_ns`` [ns] (module docstring).
         False (counted in :attr:`rejected_round_trips`) if its time is negative or longer
         than ``max_rtt_s``."""
         rtt = recv_host_ns - send_host_ns
         if not 0 <= rtt <= self.max_rtt_ns:
             self.rejected_round_trips += 1
             return False
-        mid = (send_host_ns + recv_host_ns) // 2 - tracker_ns
-        self.round_trips.append((tracker_ns, rtt, mid))
+        mid = round_trip_offset(send_host_ns, remote_ns, recv_host_ns)[0]
+        self.round_trips.append((remote_ns, rtt, mid))
         newest = max(t for t, _, _ in self.round_trips)
         while self.round_trips and newest - self.round_trips[0][0] > self.window_ns:
             self.round_trips.popleft()
@@ -281,12 +304,12 @@ class ClockMapper:
         x, rtt, mid = self._best
         transit = max(e.offset_ns + e.drift * (x - e.ref_ns) - mid, 0.0)
         self.estimate = ClockEstimate(
-            e.offset_ns, e.drift, e.ref_ns, e.sigma_ns, e.points, transit, rtt / 2
+            e.offset_ns, e.drift, e.ref_ns, e.sigma_ns, e.points, transit, rtt / 2, e.scatter_ns
         )
         self._published = (e, self._best)
 
-    def to_host(self, tracker_ns: int) -> int:
-        """Host time [ns] of a tracker time [ns] (the latest estimate)."""
+    def to_host(self, remote_ns: int) -> int:
+        """Host time [ns] of a remote time [ns] (the latest estimate)."""
         if self.estimate is None:
             raise ValueError("clock mapper: no samples yet")
-        return self.estimate.to_host(tracker_ns)
+        return self.estimate.to_host(remote_ns)
