@@ -26,14 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..filters import MotionModel, PoseKalmanFilter, chi2_gate
-from ..math import Pose, UncertainPose, skew
-from ._kernels import (
-    drop_merged,
-    fit_pose_cov,
-    guided_assign,
-    pack_cameras,
-    refine_points_packed,
-)
+from ..math import Pose, UncertainPose, kernels_for, skew
+from . import _kernels
+from ._kernels import pack_cameras
+from .absolute_orientation import fit_pose_cov
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
@@ -268,11 +264,14 @@ class OpticalTracker:
         allb = np.ascontiguousarray(np.concatenate(blobs)) if start[-1] else np.zeros((0, 2))
         P, R, tt = self._packed
         s2 = c.sigma_px**2
-        uv_obs, claim = guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
+        k = kernels_for(_kernels)
+        uv_obs, claim = k.guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
         if c.merged_area_ratio:
             owner = np.repeat(np.arange(len(models)), [len(m) for m in models])
-            drop_merged(uv_obs, claim, owner, len(models), self._areas, start, c.merged_area_ratio)
-        Xr, cov, chi2, n_views = refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
+            k.drop_merged(
+                uv_obs, claim, owner, len(models), self._areas, start, c.merged_area_ratio
+            )
+        Xr, cov, chi2, n_views = k.refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
         dof = 2 * n_views - 3
         with np.errstate(invalid="ignore"):
             good = (n_views >= 2) & (

@@ -2,8 +2,9 @@
 
 A kernel source for :mod:`trackflow.math._backend` (plain Python on NumPy arrays, compiled by
 numba when that backend is active; keep it numba-compatible: explicit loops, contiguous float64
-arrays, no Python objects). Scalar SO(3) and small linear algebra come from
-:mod:`trackflow.math._scalar`, the gate and reset decisions from :mod:`trackflow.filters.gating`.
+arrays, no Python objects). SO(3) comes from :mod:`trackflow.math._lie`, small linear
+algebra from :mod:`trackflow.math._scalar`, the gate and reset decisions from
+:mod:`trackflow.filters.gating`.
 Every allocating kernel is a thin wrapper of its in-place ``*_into`` twin, and one offline loop
 (:func:`run`) serves both formulations with or without covariance output.
 
@@ -36,24 +37,25 @@ from trackflow.filters.gating import (
     next_gated_run,
     reset_due,
 )
+from trackflow.math._lie import (
+    exp_jac,
+    left_mult,
+    qexp_into,
+    qmul_into,
+    qrminus_into,
+    qrplus_into,
+    right_jac_into,
+    right_mult,
+    rotmat_into,
+)
 from trackflow.math._scalar import (
     TINY,
     chol,
     chol_into,
     chol_solve,
     chol_solve_rows,
-    exp_jac,
     fact,
     joseph_selection,
-    left_mult,
-    qexp_into,
-    qlog,
-    qlog_into,
-    qmul,
-    qmul_into,
-    right_jac_into,
-    right_mult,
-    rotmat_into,
     sandwich_into,
     sym,
 )
@@ -110,7 +112,7 @@ KERNELS = (
     "run",
     "smooth_run",
 )
-KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
+KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.math._lie", "trackflow.filters.gating")
 # Glue of one filter's step and prediction, inlined into their compiled callers
 # (``trackflow.math._backend``): each passes 15 to 35 arrays on, and every array argument
 # of a call costs two atomic reference-count operations, more than the glue's own work.
@@ -409,11 +411,7 @@ def innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb):
             y[r + k] = zo[k] - x[xo + k]
         return
     if not additive:
-        qa[0], qa[1], qa[2], qa[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
-        qmul_into(qa, zo, qb)
-        qlog_into(qb, qa)
-        for k in range(3):
-            y[r + k] = qa[k]
+        qrminus_into(zo, x[qo : qo + 4], y[r : r + 3])
         return
     q = x[qo : qo + 4]
     ll = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -589,10 +587,9 @@ def inject(x, delta, n_dp, n_do, additive, wmax, d4, q4):
         for i in range(qo, nx):
             x[i] += delta[i]
     else:
-        qexp_into(delta[qo : qo + 3], d4)
         for k in range(4):
             q4[k] = x[qo + k]
-        qmul_into(q4, d4, x[qo : qo + 4])
+        qrplus_into(q4, delta[qo : qo + 3], x[qo : qo + 4])
         for i in range(qo + 4, nx):
             x[i] += delta[i - 1]
     n = math.sqrt(x[qo] ** 2 + x[qo + 1] ** 2 + x[qo + 2] ** 2 + x[qo + 3] ** 2)
@@ -742,9 +739,7 @@ def local(x1, x0, n_dp, n_do, additive):
         for i in range(qo + 4, nx):
             d[i] = x1[i] - x0[i]
         return d
-    qc = x0[qo : qo + 4].copy()
-    qc[0], qc[1], qc[2] = -qc[0], -qc[1], -qc[2]
-    d[qo : qo + 3] = qlog(qmul(qc, x1[qo : qo + 4]))
+    qrminus_into(x1[qo : qo + 4], x0[qo : qo + 4], d[qo : qo + 3])
     for i in range(qo + 4, nx):
         d[i - 1] = x1[i] - x0[i]
     return d
