@@ -9,8 +9,9 @@ tools given the same association and alignment:
   estimate's times), if within ``t_max_diff``. Times are compared as float64 seconds.
 * **Alignment** (:func:`trackflow.math.umeyama`): ``"se3"`` a rigid motion, ``"sim3"`` a
   similarity, fitted by least squares to the associated positions (Umeyama 1991);
-  ``"origin"`` maps the first estimated pose onto the first reference pose; ``"none"``. The alignment ``T_ref_est`` is
-  applied to every estimated pose: ``P'_i = S P_i`` (position scaled by ``s`` for Sim(3)).
+  ``"origin"`` maps the first estimated pose onto the first reference pose; ``"none"``. The
+  alignment ``T_ref_est`` is applied to every estimated pose: ``P'_i = S P_i`` (position
+  scaled by ``s`` for Sim(3)).
 * **APE**: ``E_i = Q_i^-1 P'_i`` for reference poses ``Q_i`` (``T_world_body``); translation
   error ``|t(E_i)| = |t(P'_i) - t(Q_i)|`` [m], rotation error ``angle(E_i)`` [deg]. Per-axis
   errors are ``t(P'_i) - t(Q_i)`` in the reference's world frame.
