@@ -109,10 +109,12 @@ def jacobian_coefficients(t2):
         c = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
         return a, b, c
     t = math.sqrt(t2)
-    h = math.sin(0.5 * t) / t
+    sh = math.sin(0.5 * t)
+    h = sh / t
     a = 2.0 * h * h
     b = (t - math.sin(t)) / (t2 * t)
-    c = 1.0 / t2 - (1.0 + math.cos(t)) / (2.0 * t * math.sin(t))
+    # (1 + cos t) / (2 t sin t) written as cos(t/2) / (2 t sin(t/2)): exact near pi
+    c = 1.0 / t2 - math.cos(0.5 * t) / (2.0 * t * sh)
     return a, b, c
 
 

@@ -316,7 +316,7 @@ def so3_right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     c = np.where(
         small,
         1.0 / 12.0 + theta2 / 720.0 + theta2 * theta2 / 30240.0,
-        1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)),
+        1.0 / t**2 - np.cos(0.5 * t) / (2.0 * t * np.sin(0.5 * t)),
     )
     k = skew(phi)
     return np.eye(3) + 0.5 * k + c[..., None, None] * (k @ k)
