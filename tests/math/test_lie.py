@@ -78,7 +78,9 @@ def test_series_and_closed_forms_agree_at_the_threshold():
     np.testing.assert_allclose(
         _lie.exp_coefficients(t_lo**2), _lie.exp_coefficients(t_hi**2), rtol=2e-15, atol=0
     )
-    (a_lo, b_lo, c_lo), (a_hi, b_hi, c_hi) = (_lie.jacobian_coefficients(t**2) for t in (t_lo, t_hi))
+    (a_lo, b_lo, c_lo), (a_hi, b_hi, c_hi) = (
+        _lie.jacobian_coefficients(t**2) for t in (t_lo, t_hi)
+    )
     assert a_lo == pytest.approx(a_hi, rel=2e-15, abs=0)
     # b and c multiply [v]x^2 (size t^2): that product is what must agree to rounding
     assert b_lo * t_lo**2 == pytest.approx(b_hi * t_hi**2, rel=0, abs=2e-16)

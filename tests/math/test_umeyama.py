@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trackflow.math import Pose, quat_exp, quat_to_matrix, umeyama
+from trackflow.math import Pose, numba_available, quat_exp, quat_to_matrix, umeyama, use_backend
 
 
 def _seeded(seed=0, m=12):
@@ -103,3 +103,19 @@ def test_bad_input():
         umeyama(np.zeros((4, 3)), np.zeros((5, 3)))
     with pytest.raises(ValueError, match="weights"):
         umeyama(line, line, -np.ones(5), allow_collinear=True)
+
+
+@pytest.mark.skipif(not numba_available(), reason="numba not installed")
+def test_compiled_fit_equals_the_reference():
+    rng, pts_b, T_a_b = _seeded(8)
+    pts_a = 1.3 * T_a_b.transform_points(pts_b) + rng.normal(0, 0.01, pts_b.shape)
+    w = rng.uniform(0.5, 1.5, len(pts_b))
+    fits = {}
+    for backend in ("numpy", "numba"):
+        with use_backend(backend):
+            fits[backend] = umeyama(pts_a, pts_b, w, with_scale=True)
+    a, b = fits["numpy"], fits["numba"]
+    np.testing.assert_allclose(a.rotation, b.rotation, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(a.translation, b.translation, rtol=0, atol=1e-14)
+    assert a.scale == pytest.approx(b.scale, rel=1e-14)
+    assert a.residual == pytest.approx(b.residual, rel=1e-12)

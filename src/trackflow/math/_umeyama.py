@@ -6,15 +6,28 @@ onto corresponding points, in least squares with per-point weights. Trajectory a
 (``trackflow.optical``), the rotation of the hand-eye and clock-offset calibrations and the
 IMU-to-body rotation all call it; callers add their own refusals (too little spread, opposite
 handedness) on top of what it reports.
+
+The fit itself is a kernel (:func:`umeyama_into`, this module is a kernel source for
+:mod:`trackflow.math._backend`): :func:`umeyama` drives it, and compiled loops (the optical
+tracker's pose fit) call it directly.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
 
+from ._backend import frozen
+from ._backend import kernels as _kernels
+
 __all__ = ["UmeyamaFit", "umeyama"]
+
+KERNELS = ("det3", "umeyama_into", "umeyama_batch")
+KERNELS_INLINE = ("det3",)
+KERNEL_SOURCES = ()
+INFO = 6  # umeyama_into's info: scale, residual, three singular values, reflected (0 or 1)
 
 # The cross-covariance has rank < 2 (collinear points, rotation about their line unknown)
 # when its second singular value is below this fraction of the first.
@@ -116,44 +129,111 @@ def umeyama(
             f"need two (M, 3) point sets of the same shape with M >= {need}, got {a.shape} "
             f"and {b.shape}"
         )
-    m = a.shape[-2]
+    batch, m = a.shape[:-2], a.shape[-2]
     if weights is None:
-        w = np.full(a.shape[:-1], 1.0 / m)
+        w = np.ones(a.shape[:-1])
     else:
         w = np.broadcast_to(np.asarray(weights, dtype=float), a.shape[:-1])
-        total = w.sum(axis=-1, keepdims=True)
+        total = w.sum(axis=-1)
         if np.any(w < 0) or not np.all(total > 0) or not np.all(np.isfinite(w)):
             raise ValueError("weights must be (M,) non-negative and finite, with a positive sum")
-        w = w / total
-    if with_translation:
-        ca = np.einsum("...m,...mi->...i", w, a)
-        cb = np.einsum("...m,...mi->...i", w, b)
-        da = a - ca[..., None, :]
-        db = b - cb[..., None, :]
-    else:
-        ca = cb = np.zeros(a.shape[:-2] + (3,))
-        da, db = a, b
-    cross = np.einsum("...m,...mi,...mj->...ij", w, da, db)
-    u, sv, vt = np.linalg.svd(cross)
-    if not allow_collinear and np.any(sv[..., 1] <= _RANK_TOLERANCE * sv[..., 0]):
+    n = int(np.prod(batch))
+    rotation = np.empty((n, 3, 3))
+    translation = np.empty((n, 3))
+    info = np.empty((n, INFO))
+    _kernels(sys.modules[__name__]).umeyama_batch(
+        frozen(a.reshape(n, m, 3)),
+        frozen(b.reshape(n, m, 3)),
+        frozen(w.reshape(n, m)),
+        int(with_scale),
+        int(with_translation),
+        rotation,
+        translation,
+        info,
+    )
+    sv = info[:, 2:5]
+    if not allow_collinear and np.any(sv[:, 1] <= _RANK_TOLERANCE * sv[:, 0]):
         raise ValueError(
             "the points are collinear (or all equal): the rotation about their line is unknown"
         )
-    sign = np.sign(np.linalg.det(u) * np.linalg.det(vt))
-    sign = np.where(sign == 0.0, 1.0, sign)
-    d = np.ones(sv.shape)
-    d[..., 2] = sign
-    rotation = np.einsum("...ij,...j,...jk->...ik", u, d, vt)
-    if with_scale:
-        var_b = np.einsum("...m,...mi,...mi->...", w, db, db)
-        scale = np.sum(sv * d, axis=-1) / var_b
-    else:
-        scale = np.ones(a.shape[:-2])
-    translation = ca - scale[..., None] * np.einsum("...ij,...j->...i", rotation, cb)
-    fit = np.einsum("...ij,...mj->...mi", rotation, b) * scale[..., None, None]
-    r = a - fit - translation[..., None, :]
-    residual = np.sqrt(np.einsum("...m,...mi,...mi->...", w, r, r))
-    reflected = sign < 0
-    if a.ndim == 2:  # one fit: plain numbers
-        scale, residual, reflected = float(scale), float(residual), bool(reflected)
-    return UmeyamaFit(rotation, translation, scale, residual, sv, reflected)
+    if not batch:  # one fit: plain numbers
+        s, r, f = float(info[0, 0]), float(info[0, 1]), bool(info[0, 5])
+        return UmeyamaFit(rotation[0], translation[0], s, r, sv[0].copy(), f)
+    return UmeyamaFit(
+        rotation.reshape(batch + (3, 3)),
+        translation.reshape(batch + (3,)),
+        info[:, 0].reshape(batch),
+        info[:, 1].reshape(batch),
+        sv.reshape(batch + (3,)),
+        info[:, 5].reshape(batch) > 0.5,
+    )
+
+
+def det3(m):
+    """Determinant of a 3x3 matrix."""
+    return (
+        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+    )
+
+
+def umeyama_into(a, b, w, with_scale, with_translation, rot, trans, info):
+    """Kernel of :func:`umeyama` for one fit: ``a ~ s R b + t`` for points ``a, b`` (M, 3).
+
+    ``w`` (M,) non-negative weights with a positive sum; ``with_scale`` and ``with_translation``
+    are 0 or 1. Writes ``rot`` (3, 3), ``trans`` (3,) and ``info`` (6,): scale, weighted RMS
+    residual, the cross-covariance's singular values (descending), 1.0 if the best
+    orthogonal map was a reflection (else 0.0). Does not check for collinear points.
+    """
+    m = a.shape[0]
+    total = 0.0
+    for i in range(m):
+        total += w[i]
+    ca = np.zeros(3)
+    cb = np.zeros(3)
+    if with_translation:
+        for i in range(m):
+            wi = w[i] / total
+            for k in range(3):
+                ca[k] += wi * a[i, k]
+                cb[k] += wi * b[i, k]
+    cross = np.zeros((3, 3))
+    var_b = 0.0
+    for i in range(m):
+        wi = w[i] / total
+        for r in range(3):
+            da = wi * (a[i, r] - ca[r])
+            for c in range(3):
+                cross[r, c] += da * (b[i, c] - cb[c])
+        for c in range(3):
+            db = b[i, c] - cb[c]
+            var_b += wi * db * db
+    u, sv, vt = np.linalg.svd(cross)
+    sign = -1.0 if det3(u) * det3(vt) < 0.0 else 1.0
+    for r in range(3):
+        for c in range(3):
+            rot[r, c] = u[r, 0] * vt[0, c] + u[r, 1] * vt[1, c] + sign * u[r, 2] * vt[2, c]
+    s = (sv[0] + sv[1] + sign * sv[2]) / var_b if with_scale else 1.0
+    for r in range(3):
+        trans[r] = ca[r] - s * (rot[r, 0] * cb[0] + rot[r, 1] * cb[1] + rot[r, 2] * cb[2])
+    e2 = 0.0
+    for i in range(m):
+        wi = w[i] / total
+        for r in range(3):
+            fit = rot[r, 0] * b[i, 0] + rot[r, 1] * b[i, 1] + rot[r, 2] * b[i, 2]
+            d = a[i, r] - s * fit - trans[r]
+            e2 += wi * d * d
+    info[0] = s
+    info[1] = np.sqrt(e2)
+    info[2] = sv[0]
+    info[3] = sv[1]
+    info[4] = sv[2]
+    info[5] = 1.0 if sign < 0.0 else 0.0
+
+
+def umeyama_batch(a, b, w, with_scale, with_translation, rot, trans, info):
+    """:func:`umeyama_into` for each of ``T`` fits: ``a, b`` (T, M, 3), ``w`` (T, M), outputs
+    ``rot`` (T, 3, 3), ``trans`` (T, 3), ``info`` (T, 6)."""
+    for k in range(a.shape[0]):
+        umeyama_into(a[k], b[k], w[k], with_scale, with_translation, rot[k], trans[k], info[k])

@@ -10,20 +10,28 @@ translations (C, 3).
 
 A kernel source for :mod:`trackflow.math._backend` (plain Python on NumPy arrays, compiled by
 numba when that backend is active; call them through ``kernels_for(_kernels)``); SO(3) comes
-from :mod:`trackflow.math._lie`.
+from :mod:`trackflow.math._lie`, the closed-form fit from :mod:`trackflow.math._umeyama`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from trackflow.math._lie import hat, so3_exp
+from trackflow.math._lie import hat, quat_of_rotmat, so3_exp
+from trackflow.math._umeyama import umeyama_into
 from trackflow.optical.camera import CameraRig
 
 __all__ = ["KERNELS", "pack_cameras"]
 
-KERNEL_SOURCES = ("trackflow.math._lie",)
-KERNELS = ("_project", "guided_assign", "refine_points_packed", "refine_pose", "drop_merged")
+KERNEL_SOURCES = ("trackflow.math._lie", "trackflow.math._umeyama")
+KERNELS = (
+    "_project",
+    "guided_assign",
+    "refine_points_packed",
+    "refine_pose",
+    "fit_pose_cov",
+    "drop_merged",
+)
 
 
 def pack_cameras(rig: CameraRig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,6 +251,30 @@ def refine_pose(m, x, W, R, t, iterations):
         t = t + d[:3]
         R = R @ so3_exp(d[3:])
     return R, t, H, pc
+
+
+def fit_pose_cov(m, x, C, iterations):
+    """Pose and covariance of ``x ~ R m + t`` from point covariances ``C`` (M, 3, 3).
+
+    The closed form (:func:`trackflow.math.umeyama`'s kernel, each point weighted by the
+    inverse trace of its covariance), then :func:`refine_pose` with the full information
+    matrices. Returns ``t`` (3,), ``q`` (4,), the 6x6 covariance and ``point_chi2`` (M,);
+    raises ``numpy.linalg.LinAlgError`` when the points do not fix the pose.
+    """
+    M = m.shape[0]
+    W = np.empty((M, 3, 3))
+    w = np.empty(M)
+    for i in range(M):
+        W[i] = np.linalg.inv(C[i])
+        w[i] = 1.0 / (C[i, 0, 0] + C[i, 1, 1] + C[i, 2, 2])
+    R0 = np.empty((3, 3))
+    t0 = np.empty(3)
+    info = np.empty(6)
+    umeyama_into(x, m, w, 0, 1, R0, t0, info)
+    R, t, H, pc = refine_pose(m, x, W, R0, t0, iterations)
+    cov = np.linalg.inv(H)
+    cov = 0.5 * (cov + cov.T)
+    return t, quat_of_rotmat(R), cov, pc
 
 
 def drop_merged(uv, claim, owner, n_bodies, areas, start, ratio):

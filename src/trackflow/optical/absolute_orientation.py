@@ -18,28 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..math import Pose, UncertainPose, kernels_for, quat_from_matrix, umeyama
+from ..math import Pose, UncertainPose, kernels_for
 from . import _kernels
 
-__all__ = ["PoseFit", "fit_pose", "fit_pose_cov"]
-
-
-def fit_pose_cov(m, x, C, iterations):
-    """Pose and covariance of ``x ~ R m + t`` from point covariances ``C`` (M, 3, 3).
-
-    The closed form (:func:`trackflow.math.umeyama`, each point weighted by the inverse trace
-    of its covariance) then ``iterations`` Gauss-Newton steps with the full information
-    matrices. Returns ``t`` (3,), ``q`` (4,), the 6x6 covariance and ``point_chi2`` (M,); raises
-    ``numpy.linalg.LinAlgError`` when the points do not fix the pose.
-    """
-    W = np.ascontiguousarray(np.linalg.inv(C))
-    w = 1.0 / np.trace(C, axis1=1, axis2=2)
-    start = umeyama(x, m, w, allow_collinear=True)
-    R, t, H, pc = kernels_for(_kernels).refine_pose(
-        m, x, W, start.rotation, start.translation, int(iterations)
-    )
-    cov = np.linalg.inv(H)
-    return t, quat_from_matrix(R), 0.5 * (cov + cov.T), pc
+__all__ = ["PoseFit", "fit_pose"]
 
 
 @dataclass
@@ -96,7 +78,7 @@ def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
         raise ValueError("the points are collinear: the rotation about their line is unknown")
     if np.any(np.linalg.eigvalsh(C)[:, 0] <= 0):
         raise ValueError("a point covariance is not positive definite")
-    t, q, cov, point_chi2 = fit_pose_cov(
+    t, q, cov, point_chi2 = kernels_for(_kernels).fit_pose_cov(
         np.ascontiguousarray(m), np.ascontiguousarray(x), np.ascontiguousarray(C), int(iterations)
     )
     pose = UncertainPose(Pose(t, q, normalize=True), cov)

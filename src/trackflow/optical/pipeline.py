@@ -29,7 +29,6 @@ from ..filters import MotionModel, PoseKalmanFilter, chi2_gate
 from ..math import Pose, UncertainPose, kernels_for, skew
 from . import _kernels
 from ._kernels import pack_cameras
-from .absolute_orientation import fit_pose_cov
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
@@ -305,7 +304,7 @@ class OpticalTracker:
             if ok.sum() < c.min_markers_tracked:
                 return None
             try:
-                t, q, cov, pc = fit_pose_cov(m.points[ok], X[ok], C[ok], 2)
+                t, q, cov, pc = kernels_for(_kernels).fit_pose_cov(m.points[ok], X[ok], C[ok], 2)
             except np.linalg.LinAlgError:  # degenerate (e.g. three nearly collinear markers)
                 return None
             worst = int(np.argmax(pc))
