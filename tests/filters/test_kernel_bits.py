@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from trackflow.filters import gating
 from trackflow.filters.derivative import kernels as source
 from trackflow.filters.derivative import motion_kernels, update_kernels
 from trackflow.math import _scalar, frozen, kernels_for, numba_available, use_backend
@@ -180,7 +181,7 @@ def test_gain_is_its_definition(rng, backend):
                         for b in range(m):
                             w += float(want_kt[b, i]) * float(r[b, c])
                         want_kr[i, c] = w
-            assert ok and st == source.ACCEPTED, trial
+            assert ok and st == gating.ACCEPTED, trial
             assert _same_bits(kt, want_kt) and _same_bits(delta, want_delta), trial
             assert _same_bits(kr, want_kr), trial
 

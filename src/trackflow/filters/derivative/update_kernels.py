@@ -72,14 +72,15 @@ def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, qa, qb):
     ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
     not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
     ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
-    ``qa`` and ``qb`` (4) are scratch. :func:`innovation_into` and :func:`jacobian_into`.
+    ``qa`` and ``qb`` (4) are scratch (unused since the residual is ``qrminus``; kept for the
+    callers). :func:`innovation_into` and :func:`jacobian_into`.
     """
     innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb)
     jacobian_into(x, n_dp, n_do, additive, lp, lo, h)
 
 
 def innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb):
-    """The innovation ``y`` of :func:`residual_into` alone; ``qa`` and ``qb`` (4) scratch."""
+    """The innovation ``y`` of :func:`residual_into` alone; ``qa`` and ``qb`` (4) unused."""
     npl = n_dp + 1 if n_dp >= 0 else 0
     for i in range(y.shape[0]):
         y[i] = 0.0
@@ -261,7 +262,7 @@ def inject(x, delta, n_dp, n_do, additive, wmax, d4, q4):
 
     Error state: ``q <- q Exp(dtheta)``; additive: ``q <- q + dq``; then ``q`` is normalised and
     the angular velocity clipped to ``|w| <= wmax`` (if ``wmax > 0``), which changes the mean
-    only: the covariance stays symmetric positive definite. ``d4`` and ``q4`` are scratch (4,).
+    only: the covariance stays symmetric positive definite. ``q4`` is scratch (4,), ``d4`` unused.
     """
     npl, nol, nx, nc = dims(n_dp, n_do, additive)
     qo = 3 * npl
