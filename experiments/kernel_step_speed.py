@@ -24,7 +24,8 @@ import numba
 import numpy as np
 
 from trackflow.filters.derivative import kernels as source
-from trackflow.math import frozen, kernels_for, quat_exp, quat_multiply
+from trackflow.filters.derivative import update_kernels
+from trackflow.math import _scalar, frozen, kernels_for, quat_exp, quat_multiply
 
 BODIES = 20
 N_DP, N_DO, ADD, KIND = 1, 1, 0, 0
@@ -56,8 +57,9 @@ def _states(k):
 
 def _loops(k):
     """Compiled timing loops over the kernels of ``k`` (numba dispatchers)."""
-    step_with, predict_into, update_with = k.step_with, k.predict_into, k.update_with
-    gain_into, joseph, ppw = k.gain_into, k.joseph_selection, k.predict_pose_with
+    u = kernels_for(update_kernels)
+    step_with, predict_into, update_with = k.step_with, k.predict_into, u.update_with
+    gain_into, joseph, ppw = u.gain_into, kernels_for(_scalar).joseph_selection, k.predict_pose_with
     residual_into = k.residual_into
     jit = numba.njit(cache=False)
 
@@ -156,7 +158,7 @@ def measure(repeat: int = 7, n: int = 20000) -> dict:
         for b in range(6):
             s[a, b] = 0.5 * (hp[a, idx[b]] + hp[b, idx[a]]) + 0.5 * (R[a, b] + R[b, a])
     res["gain_into"] = _best(lambda m: t_gain(m, hp, s, y, r, lo, sy, kt, kr, delta, mp), n, repeat)
-    k.gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta, mp)
+    kernels_for(update_kernels).gain_into(hp, s, y, r, GATE, lo, sy, kt, kr, delta, mp)
     res["joseph_selection"] = _best(
         lambda m: t_joseph(m, pp, pq, kt, kr, hp, idx, mp, g, acc), n, repeat
     ) - (base * 0.9)  # p only (x is 1/13 of the restore)

@@ -6,7 +6,7 @@ import numpy as np
 
 from .evaluation import PredictionReport, Predictor, Trajectory, predict_kalman, predict_linear
 from .io import atomic_output
-from .math import quat_log, quat_make_continuous
+from .math import quat_make_continuous, quat_rminus
 
 __all__ = ["plot_sequence", "plot_error_vs_horizon", "require_matplotlib", "save_figure"]
 
@@ -81,10 +81,9 @@ def plot_sequence(
         )
     first = np.flatnonzero(m)[0]
     ref, p0 = q[first], p[first]
-    from .math import quat_conjugate, quat_multiply
 
     def rv(qq):
-        return np.degrees(quat_log(quat_multiply(quat_conjugate(ref), qq)))
+        return np.degrees(quat_rminus(qq, ref))
 
     fig, axes = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     for ax, meas, filt, pred, lin, unit in (

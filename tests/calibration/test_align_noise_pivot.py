@@ -9,9 +9,9 @@ from scipy import stats
 
 from trackflow.calibration import (
     align_trajectories,
+    fit_alignment,
     pivot_calibration,
     sensor_noise,
-    umeyama,
 )
 from trackflow.io import PoseStream
 from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
@@ -63,14 +63,14 @@ def test_alignment_with_scale():
     assert r.residual_rmse_mm < 6.0
 
 
-def test_umeyama_rejects_reflections_and_lines():
+def test_fit_alignment_rejects_reflections_and_lines():
     rng = np.random.default_rng(0)
     p = rng.normal(size=(50, 3))
     with pytest.raises(ValueError, match="handedness"):
-        umeyama(p, p * np.array([1, 1, -1]))
+        fit_alignment(p, p * np.array([1, 1, -1]))
     line = np.outer(np.linspace(0, 1, 50), [1.0, 2.0, 0.5])
     with pytest.raises(ValueError, match="line"):
-        umeyama(line, line)
+        fit_alignment(line, line)
 
 
 def _static_stream(seed, sigma_p, sigma_r, n_rest=3):

@@ -10,9 +10,9 @@ import pytest
 from trackflow import Pose, UncertainPose
 from trackflow.filters import MotionModel, PoseKalmanFilter, gating
 from trackflow.filters.derivative import kernels as source
-from trackflow.filters.derivative import streaming
+from trackflow.filters.derivative import streaming, update_kernels
 from trackflow.io import read_stream
-from trackflow.math import use_backend
+from trackflow.math import kernels_for, use_backend
 
 NOISE = (0.0, 30.0, 0.0, 100.0)
 C_POSE = np.diag([1e-6] * 3 + [1e-5] * 3)
@@ -48,7 +48,7 @@ def _reference(f: PoseKalmanFilter, t, p, q, form: str):
         else:
             ws = k.predict_scratch(n_dp, n_do, add)
             k.predict_into(x, p_, t[i] - t_prev, n_dp, n_do, add, kind, sp, so, ws)
-            y, h = k.residual(x, n_dp, n_do, add, lp, lo, zp, zo)
+            y, h = kernels_for(update_kernels).residual(x, n_dp, n_do, add, lp, lo, zp, zo)
             rr = k.measurement_cov(r, x, n_dp, lp, lo, add)
             gate = f._gates[3 if lo < 0 else 6]
             status, _ = k.update(x, p_, y, h, rr, gate, n_dp, n_do, add, f._wmax)

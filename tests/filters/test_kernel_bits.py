@@ -13,7 +13,9 @@ import math
 import numpy as np
 import pytest
 
+from trackflow.filters import gating
 from trackflow.filters.derivative import kernels as source
+from trackflow.filters.derivative import motion_kernels, update_kernels
 from trackflow.math import _scalar, frozen, kernels_for, numba_available, use_backend
 
 BACKENDS = ["numpy"] + (["numba"] if numba_available() else [])
@@ -152,7 +154,7 @@ def test_gain_is_its_definition(rng, backend):
     order of the measurement rows."""
     nc, m = 12, 6
     with use_backend(backend):
-        k = kernels_for(source)
+        k = kernels_for(update_kernels)
         sc = kernels_for(_scalar)
         for trial in range(8):
             a = rng.normal(size=(m, m))
@@ -179,7 +181,7 @@ def test_gain_is_its_definition(rng, backend):
                         for b in range(m):
                             w += float(want_kt[b, i]) * float(r[b, c])
                         want_kr[i, c] = w
-            assert ok and st == source.ACCEPTED, trial
+            assert ok and st == gating.ACCEPTED, trial
             assert _same_bits(kt, want_kt) and _same_bits(delta, want_delta), trial
             assert _same_bits(kr, want_kr), trial
 
@@ -240,7 +242,9 @@ def test_kept_process_noise_is_the_fresh_one(backend, additive):
         for dt in (0.004, 0.004, 0.0, -0.0, -0.0, math.nan, math.nan, 0.01, 0.004):
             fresh = np.full((nc, nc), 5.0)
             with np.errstate(all="ignore"):
-                k.process_noise_into(x, dt, n_dp, n_do, additive, kind, sp, so, fresh, lv)
+                kernels_for(motion_kernels).process_noise_into(
+                    x, dt, n_dp, n_do, additive, kind, sp, so, fresh, lv
+                )
                 k.process_noise_memo(x, dt, n_dp, n_do, additive, kind, sp, so, qm, lv, memo)
             assert qm.tobytes() == fresh.tobytes(), dt
 

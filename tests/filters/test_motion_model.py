@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from trackflow.filters import MotionModel
-from trackflow.math import _scalar as _core
+from trackflow.math import _lie as _core
 
 LAYOUTS = [(n_dp, n_do) for n_dp in range(4) for n_do in range(3)]
 EPS = 1e-6

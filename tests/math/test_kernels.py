@@ -145,11 +145,15 @@ def test_compose_compiles_one_batch_specialisation(rng):
 
 
 @needs_numba
-def test_kernels_named_for_inlining_are_kernels_and_compile_inlined():
+@pytest.mark.parametrize("name", ["kernels", "motion_kernels", "update_kernels"])
+def test_kernels_named_for_inlining_are_kernels_and_compile_inlined(name):
     """A name in a source's ``KERNELS_INLINE`` that is not one of its ``KERNELS`` would
     silently inline nothing; the compiled copy marks the named ones, and only them."""
-    from trackflow.filters.derivative import kernels as source
+    import importlib
+
     from trackflow.math import kernels_for
+
+    source = importlib.import_module(f"trackflow.filters.derivative.{name}")
 
     inline = set(source.KERNELS_INLINE)
     assert inline and inline <= set(source.KERNELS)

@@ -1,11 +1,13 @@
-"""The compiled guided-step kernels agree with the NumPy reference implementations."""
+"""The guided-step kernels (compiled under the numba backend) agree with the NumPy reference
+implementations."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from trackflow.optical import ring_rig
-from trackflow.optical._kernels import guided_assign, pack_cameras, refine_points_packed
+from trackflow.math import kernels_for
+from trackflow.optical import _kernels, ring_rig
+from trackflow.optical._kernels import pack_cameras
 from trackflow.optical.triangulation import refine_points
 
 
@@ -18,7 +20,9 @@ def test_assignment_and_refinement_match_numpy():
     start = np.concatenate([[0], np.cumsum([len(b) for b in blobs])]).astype(np.int64)
     P, R, t = pack_cameras(rig)
     C = np.broadcast_to(np.eye(3) * 1e-8, (30, 3, 3)).copy()
-    obs, claim = guided_assign(P, R, t, X, C, np.concatenate(blobs), start, 0.01, 18.4)
+    obs, claim = kernels_for(_kernels).guided_assign(
+        P, R, t, X, C, np.concatenate(blobs), start, 0.01, 18.4
+    )
     np.testing.assert_array_equal(obs, uv)  # every marker finds its own blob
     for c in range(4):
         np.testing.assert_array_equal(claim[start[c] : start[c] + 30], np.arange(30))
@@ -27,7 +31,7 @@ def test_assignment_and_refinement_match_numpy():
     mask = np.ones((4, 30), bool)
     mask[2:, :5] = False
     obs[~mask] = np.nan
-    Xk, cov, chi2, nv = refine_points_packed(P, R, t, X0, obs, 0.01, 3)
+    Xk, cov, chi2, nv = kernels_for(_kernels).refine_points_packed(P, R, t, X0, obs, 0.01, 3)
     ref = refine_points(rig, X0, obs, mask, 0.1, iterations=3)
     np.testing.assert_allclose(Xk, ref.X, atol=1e-12)
     np.testing.assert_allclose(cov, ref.covariance, rtol=1e-8)
@@ -45,7 +49,7 @@ def test_ambiguous_blobs_are_left_out():
     b1 = np.array([uv[1, 0]])
     C = np.broadcast_to(np.eye(3) * 1e-8, (2, 3, 3)).copy()
     Xs = np.array([X[0], X[0] + [1e-5, 0, 0]])  # both predictions at one place in camera 1
-    obs, claim = guided_assign(
+    obs, claim = kernels_for(_kernels).guided_assign(
         P, R, t, Xs, C, np.concatenate([b0, b1]), np.array([0, 3, 4]), 0.01, 18.4
     )
     assert np.all(np.isnan(obs[1]))  # the shared blob is not given to either marker

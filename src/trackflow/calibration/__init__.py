@@ -5,7 +5,7 @@ conventions of ``docs/conventions.md``; ``trackflow calibrate ...`` wraps them. 
 measured figures: ``docs/calibration.md``.
 """
 
-from .alignment import AlignmentResult, align_trajectories, umeyama
+from .alignment import AlignmentResult, align_trajectories, fit_alignment
 from .clock_offset import StreamClockOffset, estimate_clock_offset
 from .fragment import sensor_update, static_edge, write_fragment
 from .hand_eye import (
@@ -25,6 +25,7 @@ __all__ = [
     "PivotResult",
     "StreamClockOffset",
     "align_trajectories",
+    "fit_alignment",
     "estimate_clock_offset",
     "sensor_noise",
     "evaluate_hand_eye",
@@ -34,6 +35,5 @@ __all__ = [
     "sensor_update",
     "solve_hand_eye",
     "static_edge",
-    "umeyama",
     "write_fragment",
 ]

@@ -6,15 +6,7 @@ import numpy as np
 
 from ..math import quat_from_matrix, quat_to_matrix
 
-__all__ = ["kabsch", "mean_rotation", "rotation_axis_spread"]
-
-
-def kabsch(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``R`` (3, 3) minimising ``sum |u_i - R v_i|^2`` for ``u, v`` (M, 3)."""
-    h = v.T @ u
-    U, _, Vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+__all__ = ["mean_rotation", "rotation_axis_spread"]
 
 
 def mean_rotation(q: np.ndarray) -> np.ndarray:

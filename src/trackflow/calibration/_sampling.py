@@ -19,6 +19,7 @@ from ..math import (
     quat_log,
     quat_make_continuous,
     quat_multiply,
+    quat_rminus,
     quat_to_matrix,
     so3_right_jacobian_inverse,
 )
@@ -93,7 +94,7 @@ def make_trajectory(t, p, q, name: str = "stream") -> Trajectory:
     t, p, q = np.asarray(t, float), np.asarray(p, float), np.asarray(q, float)
     if np.any(np.diff(t) <= 0):
         raise ValueError(f"{name}: timestamps must be strictly increasing")
-    step = quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:]))
+    step = quat_rminus(q[1:], q[:-1])
     return Trajectory(t, p, q, name, step, float(np.median(np.diff(t))))
 
 
@@ -113,7 +114,7 @@ def interpolate(traj: Trajectory, tq, max_gap_s: float | None = None) -> Sampled
     v = (traj.p[i + 1] - traj.p[i]) / dt[:, None]
     p = traj.p[i] + s[:, None] * (traj.p[i + 1] - traj.p[i])
     if traj.step is None:
-        step = quat_log(quat_multiply(quat_conjugate(traj.q[i]), traj.q[i + 1]))
+        step = quat_rminus(traj.q[i + 1], traj.q[i])
     else:
         step = traj.step[i]
     q = quat_multiply(traj.q[i], quat_exp(s[:, None] * step))
@@ -129,7 +130,7 @@ def body_rates(traj: Trajectory, tq, half_window_s: float) -> tuple[np.ndarray, 
     tq = np.asarray(tq, float)
     a = interpolate(traj, tq - half_window_s)
     b = interpolate(traj, tq + half_window_s)
-    w = quat_log(quat_multiply(quat_conjugate(a.q), b.q)) / (2.0 * half_window_s)
+    w = quat_rminus(b.q, a.q) / (2.0 * half_window_s)
     return w, a.valid & b.valid
 
 
@@ -175,7 +176,7 @@ def velocities(traj: Trajectory, tq, half_window_s: float) -> tuple[np.ndarray, 
     tq = np.asarray(tq, float)
     a = interpolate(traj, tq - half_window_s)
     b = interpolate(traj, tq + half_window_s)
-    w = quat_log(quat_multiply(quat_conjugate(a.q), b.q)) / (2.0 * half_window_s)
+    w = quat_rminus(b.q, a.q) / (2.0 * half_window_s)
     return (b.p - a.p) / (2.0 * half_window_s), w
 
 

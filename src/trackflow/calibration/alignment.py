@@ -14,13 +14,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import Pose, UncertainPose, quat_exp, quat_multiply, quat_to_matrix, skew
+from ..math import (
+    Pose,
+    UmeyamaFit,
+    UncertainPose,
+    quat_exp,
+    quat_multiply,
+    quat_to_matrix,
+    skew,
+    umeyama,
+)
 from ._geometry import matrix_quaternion
 from ._lsq import robust_solve
 from ._sampling import common_epoch_ns, trajectory, velocities
 from .clock_offset import estimate_clock_offset
 
-__all__ = ["AlignmentResult", "align_trajectories", "umeyama"]
+__all__ = ["AlignmentResult", "align_trajectories", "fit_alignment"]
 
 
 @dataclass(frozen=True)
@@ -58,32 +67,34 @@ class AlignmentResult:
         }
 
 
-def umeyama(pa: np.ndarray, pb: np.ndarray, with_scale: bool = False):
-    """Closed-form ``(s, R, t)`` minimising ``sum |pa - (s R pb + t)|^2`` for (M, 3) points.
+def fit_alignment(pa: np.ndarray, pb: np.ndarray, with_scale: bool = False) -> UmeyamaFit:
+    """Closed-form ``T_a_b`` (and scale) with ``pa ~ s R_a_b pb + t_a_b`` for (M, 3) positions.
 
-    Raises ``ValueError`` when the points are (nearly) collinear, or when only a reflection
-    fits (the two trajectories have opposite handedness, e.g. a Unity left-handed frame).
+    :func:`trackflow.math.umeyama` with the refusals of trajectory alignment: positions (nearly)
+    on a line (second spread below 1 % of the first), and trajectories of opposite handedness
+    (only a reflection fits, e.g. one in Unity's left-handed frame).
+
+    Raises
+    ------
+    ValueError
+        Collinear positions or opposite handedness.
     """
-    ma, mb = pa.mean(axis=0), pb.mean(axis=0)
-    A, B = pa - ma, pb - mb
-    sv = np.linalg.svd(B, compute_uv=False)
+    pb = np.asarray(pb, dtype=float)
+    sv = np.linalg.svd(pb - pb.mean(axis=0), compute_uv=False)
     if sv[1] < 0.01 * sv[0]:
         raise ValueError(
             "degenerate trajectory for alignment: the positions lie on a line (spread "
             f"{sv[1] / max(sv[0], 1e-300):.4f} of the main direction); rotation about it is "
             "unobservable"
         )
-    U, D, Vt = np.linalg.svd(A.T @ B / len(pa))
-    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    S = np.diag([1.0, 1.0, d])
-    R = U @ S @ Vt
-    if d < 0 and D[2] > 0.2 * D[1]:
+    fit = umeyama(pa, pb, with_scale=with_scale)
+    d = fit.singular_values
+    if fit.reflected and d[2] > 0.2 * d[1]:
         raise ValueError(
             "the trajectories have opposite handedness: only a reflection aligns them (is "
             "one in a left-handed frame such as Unity's? mirror it first, docs/formats.md)"
         )
-    s = float(np.trace(np.diag(D) @ S) / np.mean(np.sum(B * B, axis=1))) if with_scale else 1.0
-    return s, R, ma - s * R @ mb
+    return fit
 
 
 def align_trajectories(
@@ -128,7 +139,8 @@ def align_trajectories(
     A = ta.sample(grid)
     B0 = tb.sample(grid - offset_s)
     ok = A.valid & B0.valid
-    s0, R0, t0 = umeyama(A.p[ok], B0.p[ok], with_scale)
+    start = fit_alignment(A.p[ok], B0.p[ok], with_scale)
+    s0, R0, t0 = start.scale, start.rotation, start.translation
 
     def fun(x):
         R = quat_to_matrix(x[3:7])

@@ -19,9 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew
+from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew, umeyama
 from ..timesync import CorrelationOffset, correlation_offset
-from ._geometry import kabsch
 from ._lsq import robust_solve
 from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
 from ._sampling import (
@@ -239,7 +238,7 @@ def estimate_clock_offset(
         )  # fmt: skip
     wb0, okb0 = body_rates(tb, grid - off0, hw)
     ok0 = oka & okb0
-    R0 = kabsch(wa[ok0], wb0[ok0])
+    R0 = umeyama(wa[ok0], wb0[ok0], with_translation=False, allow_collinear=True).rotation
     axes = np.linalg.svd(wb0[ok0] / max(np.abs(wb0[ok0]).max(), 1e-12), compute_uv=False)
     full = axes[1] > 0.05 * axes[0]
 

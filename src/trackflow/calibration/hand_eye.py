@@ -32,12 +32,14 @@ from ..math import (
     quat_exp,
     quat_log,
     quat_multiply,
+    quat_rminus,
     quat_rotate,
     quat_to_matrix,
     skew,
     so3_right_jacobian_inverse,
+    umeyama,
 )
-from ._geometry import kabsch, matrix_quaternion, mean_rotation, rotation_axis_spread
+from ._geometry import matrix_quaternion, mean_rotation, rotation_axis_spread
 from ._lsq import robust_solve
 from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
 from ._pair_noise import pair_noise_jacobians, relative_pose_jacobians
@@ -282,7 +284,7 @@ def _pairs(q: np.ndarray, min_angle: float, max_lag: int = 20) -> tuple[np.ndarr
     n = len(q)
     for lag in range(1, max_lag + 1):
         i = np.arange(n - lag)
-        ang = np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[i]), q[i + lag])), axis=1)
+        ang = np.linalg.norm(quat_rminus(q[i + lag], q[i]), axis=1)
         ok = ang >= min_angle
         ii.append(i[ok])
         jj.append(i[ok] + lag)
@@ -311,7 +313,7 @@ def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=10.0, max_lag: int = 20):
             f"(axis spread {spread:.3f} < {MIN_AXIS_SPREAD}); X's translation along that axis "
             "is unobservable - rotate about at least two different axes"
         )
-    RX = kabsch(alpha, beta)
+    RX = umeyama(alpha, beta, with_translation=False, allow_collinear=True).rotation
     qX = matrix_quaternion(RX)
     RA = quat_to_matrix(a_q)
     M = (RA - np.eye(3)).reshape(-1, 3)

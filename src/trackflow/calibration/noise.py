@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_conjugate, quat_log, quat_make_continuous, quat_multiply
+from ..math import quat_make_continuous, quat_rminus
 from ._geometry import mean_rotation
 
 __all__ = ["NoiseResult", "sensor_noise"]
@@ -76,7 +76,7 @@ def _static(t, p, q, max_speed, max_rate, min_segment_s):
     i1 = np.clip(np.searchsorted(t, t + 0.25, side="right") - 1, 0, len(t) - 1)
     dt = np.maximum(t[i1] - t[i0], 1e-9)
     v = np.linalg.norm(p[i1] - p[i0], axis=1) / dt
-    w = np.linalg.norm(quat_log(quat_multiply(quat_conjugate(q[i0]), q[i1])), axis=1) / dt
+    w = np.linalg.norm(quat_rminus(q[i1], q[i0]), axis=1) / dt
     still = (v < max_speed) & (w < max_rate)
     errs = []
     n_seg = 0
@@ -84,8 +84,7 @@ def _static(t, p, q, max_speed, max_rate, min_segment_s):
         if t[b - 1] - t[a] < min_segment_s or b - a < 10:
             continue
         qm = mean_rotation(q[a:b])
-        e = np.concatenate([p[a:b] - p[a:b].mean(axis=0), quat_log(
-            quat_multiply(quat_conjugate(qm), q[a:b]))], axis=1)  # fmt: skip
+        e = np.concatenate([p[a:b] - p[a:b].mean(axis=0), quat_rminus(q[a:b], qm)], axis=1)
         errs.append(e * np.sqrt((b - a) / (b - a - 1)))  # unbiased per segment
         n_seg += 1
     if not errs:
@@ -117,7 +116,7 @@ def _dynamic(t, p, q, k):
     rp = p[centre] - np.einsum("j,njk->nk", w_centre, p[win])
     # rotations as rotation vectors relative to the centre sample (locally linear)
     qc = q[centre]
-    rel = quat_log(quat_multiply(quat_conjugate(qc)[:, None, :], q[win]))
+    rel = quat_rminus(q[win], qc[:, None, :])
     rr = -np.einsum("j,njk->nk", w_centre, rel)  # centre's own rel is 0
     e = np.concatenate([rp, rr], axis=1)[ok] / np.sqrt(1.0 - lev)
     # robust: drop the largest 1 % (jumps) before the covariance
@@ -149,8 +148,9 @@ def _innovation(t, p, q, tune: bool, rounds: int = 3):
         res = pred.run(t, meas, (h,), max_gap=3 * h, covariance=True)
         pr = res.predictions[h]
         ok = regular & (res.status[1:] == 0) & (res.status[:-1] == 0)
-        e = np.concatenate([p[1:] - pr.position[:-1], quat_log(
-            quat_multiply(quat_conjugate(pr.quaternion[:-1]), q[1:]))], axis=1)[ok]  # fmt: skip
+        e = np.concatenate(
+            [p[1:] - pr.position[:-1], quat_rminus(q[1:], pr.quaternion[:-1])], axis=1
+        )[ok]
         P = pr.covariance[:-1][ok]
         C = e.T @ e / len(e) - P.mean(axis=0)
         if np.any(np.diag(C) <= 0):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_conjugate, quat_log, quat_multiply, quat_to_matrix
+from ..math import quat_rminus, quat_to_matrix
 from ._geometry import rotation_axis_spread
 from ._lsq import robust_solve
 
@@ -60,7 +60,7 @@ def pivot_calibration(stream: PoseStream) -> PivotResult:
     p = np.asarray(stream.position, float)
     if len(q) < 10:
         raise ValueError(f"pivot calibration needs at least 10 samples, got {len(q)}")
-    rel = quat_log(quat_multiply(quat_conjugate(q[0]), q))
+    rel = quat_rminus(q, q[0])
     angle = np.degrees(np.linalg.norm(rel, axis=1).max())
     if angle < MIN_PIVOT_ANGLE_DEG:
         raise ValueError(

@@ -9,7 +9,7 @@ predictor (``kalman_imu``) on a thinned pose stream. See ``docs/posetool.md`` an
 """
 
 from ._baselines import LinearPredictor, NoPredictor, predict_linear, predict_none
-from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories, umeyama
+from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._inertial import (
     IMU_PREDICTORS,
@@ -71,7 +71,6 @@ __all__ = [
     "shrinkage_factors",
     "associate",
     "compare_trajectories",
-    "umeyama",
     "LEARNED_ORDERS",
     "PREDICTORS",
     "ErrorStats",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..math import quat_conjugate, quat_exp, quat_log, quat_multiply
+from ..math import quat_exp, quat_multiply, quat_rminus
 from ._prediction import Prediction, stack_predictions
 from ._trajectory import Trajectory
 
@@ -50,7 +50,7 @@ def predict_linear(
         return p, q
     s = horizon / np.diff(t)
     p[1:] = position[1:] + s[:, None] * (position[1:] - position[:-1])
-    d = quat_log(quat_multiply(quat_conjugate(quaternion[:-1]), quaternion[1:]))
+    d = quat_rminus(quaternion[1:], quaternion[:-1])
     q[1:] = quat_multiply(quaternion[1:], quat_exp(s[:, None] * d))
     return p, q
 

@@ -7,10 +7,11 @@ tools given the same association and alignment:
 * **Association** (:func:`associate`): for every sample of the recording with fewer samples,
   the sample of the other recording nearest in time (after adding ``t_offset`` to the
   estimate's times), if within ``t_max_diff``. Times are compared as float64 seconds.
-* **Alignment** (:func:`umeyama`): ``"se3"`` a rigid motion, ``"sim3"`` a similarity, fitted by
-  least squares to the associated positions (Umeyama 1991); ``"origin"`` maps the first
-  estimated pose onto the first reference pose; ``"none"``. The alignment ``T_ref_est`` is
-  applied to every estimated pose: ``P'_i = S P_i`` (position scaled by ``s`` for Sim(3)).
+* **Alignment** (:func:`trackflow.math.umeyama`): ``"se3"`` a rigid motion, ``"sim3"`` a
+  similarity, fitted by least squares to the associated positions (Umeyama 1991);
+  ``"origin"`` maps the first estimated pose onto the first reference pose; ``"none"``. The
+  alignment ``T_ref_est`` is applied to every estimated pose: ``P'_i = S P_i`` (position
+  scaled by ``s`` for Sim(3)).
 * **APE**: ``E_i = Q_i^-1 P'_i`` for reference poses ``Q_i`` (``T_world_body``); translation
   error ``|t(E_i)| = |t(P'_i) - t(Q_i)|`` [m], rotation error ``angle(E_i)`` [deg]. Per-axis
   errors are ``t(P'_i) - t(Q_i)`` in the reference's world frame.
@@ -30,9 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import PoseStream
-from ..math import quat_from_matrix, quat_to_matrix
+from ..math import quat_from_matrix, quat_to_matrix, umeyama
 
-__all__ = ["ALIGNMENTS", "CompareResult", "Stats", "associate", "compare_trajectories", "umeyama"]
+__all__ = ["ALIGNMENTS", "CompareResult", "Stats", "associate", "compare_trajectories"]
 
 #: Names accepted by ``align=``.
 ALIGNMENTS = ("none", "se3", "sim3", "origin")
@@ -99,39 +100,6 @@ def associate(
     i_short = np.flatnonzero(ok)
     i_long = np.where(take_up, j, j - 1)[ok]
     return (i_short, i_long) if est_longer else (i_long, i_short)
-
-
-def umeyama(x: np.ndarray, y: np.ndarray, with_scale: bool) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares ``R, t, s`` with ``y ~ s R x + t`` (Umeyama 1991).
-
-    Parameters
-    ----------
-    x, y : ndarray, shape (N, 3)
-        Estimated and reference positions [m], N >= 3 not collinear for a unique rotation.
-    with_scale : bool
-        Fit ``s`` (Sim(3)); else ``s = 1`` (SE(3)).
-
-    Returns
-    -------
-    R : ndarray (3, 3), t : ndarray (3,), s : float
-    """
-    x = np.asarray(x, float)
-    y = np.asarray(y, float)
-    if len(x) < 3:
-        raise ValueError(f"alignment needs at least 3 associated poses, got {len(x)}")
-    mx, my = x.mean(axis=0), y.mean(axis=0)
-    dx, dy = x - mx, y - my
-    var_x = np.mean(np.sum(dx * dx, axis=1))
-    cov = dy.T @ dx / len(x)
-    u, d, vt = np.linalg.svd(cov)
-    if np.count_nonzero(d > 1e-12 * max(d[0], 1e-300)) < 2:
-        raise ValueError("alignment is degenerate: the associated positions are collinear")
-    sgn = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sgn[2, 2] = -1.0
-    r = u @ sgn @ vt
-    s = float(np.trace(np.diag(d) @ sgn) / var_x) if with_scale else 1.0
-    return r, my - s * r @ mx, s
 
 
 def _matrices(stream: PoseStream, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -306,7 +274,8 @@ def compare_trajectories(
     re_, pe = _matrices(est, ie)
     rot, trans, scale = np.eye(3), np.zeros(3), 1.0
     if align in ("se3", "sim3"):
-        rot, trans, scale = umeyama(pe, pq, align == "sim3")
+        fit = umeyama(pq, pe, with_scale=align == "sim3")  # T_ref_est
+        rot, trans, scale = fit.rotation, fit.translation, fit.scale
     elif align == "origin":
         rot = rq[0] @ re_[0].T
         trans = pq[0] - rot @ pe[0]

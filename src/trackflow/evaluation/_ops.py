@@ -8,7 +8,7 @@ import numpy as np
 
 from ..filters import smooth_filter
 from ..io import PoseStream
-from ..math import Pose, UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ..math import Pose, UncertainPose, quat_rminus
 from ._predictor import KalmanPredictor, default_predictor
 from ._targets import default_gap
 
@@ -62,7 +62,7 @@ def stream_info(stream: PoseStream) -> dict:
     del v
 
     def angle(i: int, j: int) -> np.ndarray:
-        rel = quat_log(quat_multiply(quat_conjugate(q[i:j]), q[i + 1 : j + 1]))
+        rel = quat_rminus(q[i + 1 : j + 1], q[i:j])
         return np.degrees(np.linalg.norm(rel, axis=1))
 
     w = _per_interval(n, angle)

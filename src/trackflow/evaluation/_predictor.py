@@ -12,7 +12,7 @@ import numpy as np
 
 from ..filters import MotionModel, run_filter
 from ..filters.twist_ar import TwistARModel, run_twist_ar
-from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ..math import UncertainPose, quat_rminus
 from ._prediction import Prediction, stack_predictions
 from ._trajectory import Trajectory
 
@@ -252,6 +252,6 @@ def estimate_noise(t, position, quaternion) -> tuple[float, float]:
         raise ValueError("need at least four samples to estimate the measurement noise")
     d2 = p[2:] - 2.0 * p[1:-1] + p[:-2]
     ps = 1.4826 * float(np.median(np.abs(d2))) / np.sqrt(6.0)
-    inc = quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:]))
+    inc = quat_rminus(q[1:], q[:-1])
     os_ = 1.4826 * float(np.median(np.abs(np.diff(inc, axis=0)))) / np.sqrt(6.0)
     return max(ps, 1e-6), max(os_, 1e-6)

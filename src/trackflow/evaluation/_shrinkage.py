@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..math import quat_conjugate, quat_exp, quat_log, quat_multiply
+from ..math import quat_rminus, quat_rplus
 from ._prediction import Prediction, Predictor, positive_horizons
 from ._trajectory import Trajectory
 
@@ -119,11 +119,9 @@ def apply_shrinkage(position, quaternion, pp, pq, lam_p, lam_o) -> tuple:
     q = np.asarray(quaternion, dtype=float)
     out_p = np.empty_like(pp)
     out_q = np.empty_like(pq)
-    qc = quat_conjugate(q)
     for i in range(pp.shape[0]):
         out_p[i] = p + lam_p[i] * (pp[i] - p)
-        d = quat_log(quat_multiply(qc, pq[i]))
-        out_q[i] = quat_multiply(q, quat_exp(lam_o[i] * d))
+        out_q[i] = quat_rplus(q, lam_o[i] * quat_rminus(pq[i], q))
     return out_p, out_q
 
 
@@ -155,10 +153,9 @@ def change_factors(position, quaternion, pp, pq, tp, tq, masks) -> tuple[tuple, 
     for i in range(len(masks)):
         m = np.asarray(masks[i], dtype=bool) & np.all(np.isfinite(pp[i]), axis=1)
         m &= np.all(np.isfinite(pq[i]), axis=1)
-        qi = quat_conjugate(q[m])
         d_pos, true_pos = pp[i][m] - p[m], tp[i][m] - p[m]
-        d_ori = quat_log(quat_multiply(qi, pq[i][m]))
-        true_ori = quat_log(quat_multiply(qi, tq[i][m]))
+        d_ori = quat_rminus(pq[i][m], q[m])
+        true_ori = quat_rminus(tq[i][m], q[m])
         for d, y, out in ((d_pos, true_pos, lp), (d_ori, true_ori, lo)):
             den = float(np.sum(d * d))
             out.append(float(np.clip(np.sum(d * y) / den, 0.0, 1.0)) if den > 0 else 1.0)

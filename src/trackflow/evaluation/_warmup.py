@@ -4,7 +4,8 @@ numba compiles a kernel the first time it runs with a new combination of argumen
 caches the machine code on disk (``trackflow.math._backend``). :func:`compile_kernels` runs
 every library path the command line uses (tuning and scoring, filtering with covariances and
 predictions, the learned model, the whole-recording smoother of ``infer``, the live filter of
-``run``/``view``/``lookup``/``demo``, uncertain composition)
+``run``/``view``/``lookup``/``demo``, uncertain composition, the point-set fit of ``compare``
+and the alignments)
 on a small synthetic recording, so that a command's first run finds its kernels compiled.
 ``make`` calls it through ``trackflow compile`` right after installing.
 """
@@ -17,7 +18,7 @@ import numpy as np
 
 from ..filters import PoseFilterBank, PoseKalmanFilter, TwistARModel
 from ..io import PoseStream
-from ..math import Pose, UncertainPose, get_backend, quat_exp
+from ..math import Pose, UncertainPose, get_backend, quat_exp, umeyama
 from ._model_file import filter_stream
 from ._ops import infer_streams
 from ._predictor import TwistARPredictor, default_predictor
@@ -95,4 +96,8 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     (a[0] @ a[1]).inverse()
     a @ a
     steps.append("compose")
+
+    say("trajectory alignment (compare, calibrate align)")
+    umeyama(pos[:100], pos[1:101], with_scale=True)
+    steps.append("align")
     return steps

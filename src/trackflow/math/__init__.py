@@ -35,6 +35,7 @@ from ._pose import Pose
 from ._quaternion import (
     quat_align_sign,
     quat_angle,
+    quat_between,
     quat_conjugate,
     quat_exp,
     quat_from_matrix,
@@ -43,19 +44,23 @@ from ._quaternion import (
     quat_make_continuous,
     quat_multiply,
     quat_normalize,
+    quat_rminus,
     quat_rotate,
+    quat_rplus,
     quat_slerp,
     quat_to_matrix,
     skew,
     so3_right_jacobian,
     so3_right_jacobian_inverse,
 )
+from ._umeyama import UmeyamaFit, umeyama
 from ._uncertain import UncertainPose, ellipsoid, evaluate_covariance
 
 __all__ = [
     "UNIT_TOLERANCE",
     "Pose",
     "UncertainPose",
+    "UmeyamaFit",
     "check_covariance",
     "check_position",
     "check_quaternion",
@@ -82,6 +87,7 @@ __all__ = [
     "propagate_covariance",
     "quat_align_sign",
     "quat_angle",
+    "quat_between",
     "quat_conjugate",
     "quat_exp",
     "quat_from_matrix",
@@ -91,12 +97,15 @@ __all__ = [
     "quat_make_continuous",
     "quat_multiply",
     "quat_normalize",
+    "quat_rminus",
     "quat_rotate",
+    "quat_rplus",
     "quat_slerp",
     "quat_to_matrix",
     "set_backend",
     "skew",
     "so3_right_jacobian",
     "so3_right_jacobian_inverse",
+    "umeyama",
     "use_backend",
 ]

@@ -13,8 +13,8 @@ import numpy as np
 from ._quaternion import (
     quat_conjugate,
     quat_exp,
-    quat_log,
     quat_multiply,
+    quat_rminus,
     quat_to_matrix,
     skew,
     so3_right_jacobian,
@@ -124,8 +124,7 @@ def jacobians_interpolate(q_a, q_b, s) -> tuple[np.ndarray, np.ndarray]:
     J_s_a, J_s_b : ndarray, shape (..., 6, 6)
     """
     s = np.asarray(s, dtype=float)
-    q_rel = quat_multiply(quat_conjugate(q_a), q_b)
-    phi = quat_log(q_rel)
+    phi = quat_rminus(q_b, q_a)
     sphi = s[..., None] * phi
     jr_s = so3_right_jacobian(sphi)
     rot_s_t = np.swapaxes(quat_to_matrix(quat_exp(sphi)), -1, -2)

@@ -1,7 +1,7 @@
 """Compiled kernels of the uncertain-pose algebra, with the NumPy formulas as reference path.
 
 A kernel source for :mod:`trackflow.math._backend` (``KERNELS`` below), built on the scalar SO(3)
-kernels of :mod:`trackflow.math._scalar`. With the numba backend, uncertain composition runs
+kernels of :mod:`trackflow.math._lie`. With the numba backend, uncertain composition runs
 :func:`compose_one` (5-20x faster on single calls and large batches); with the NumPy backend it
 runs the vectorised public formulas (:func:`~trackflow.math.jacobians_compose` and
 :func:`~trackflow.math.propagate_covariance`), and ``tests/math/test_kernels.py`` checks the two
@@ -16,13 +16,13 @@ import numpy as np
 
 from ._backend import get_backend, kernels
 from ._jacobians import jacobians_compose, propagate_covariance
+from ._lie import qmul_into, rotmat_into
 from ._quaternion import quat_multiply, quat_rotate
-from ._scalar import qmul_into, rotmat_into
 
 __all__ = ["compose", "covariance_is_plainly_valid"]
 
 KERNELS = ("compose_one", "compose_batch", "compose_single", "covariance_code")
-KERNEL_SOURCES = ("trackflow.math._scalar",)
+KERNEL_SOURCES = ("trackflow.math._lie",)
 
 
 # -- uncertain composition ----------------------------------------------------------------------

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._lie import SMALL_ANGLE as _SMALL_ANGLE
+
 __all__ = [
     "quat_identity",
     "quat_multiply",
@@ -19,6 +21,9 @@ __all__ = [
     "quat_exp",
     "quat_log",
     "quat_slerp",
+    "quat_between",
+    "quat_rplus",
+    "quat_rminus",
     "quat_align_sign",
     "quat_make_continuous",
     "quat_angle",
@@ -29,9 +34,8 @@ __all__ = [
     "so3_right_jacobian_inverse",
 ]
 
-# Below this angle (radians) the series expansions are used; their truncation error there is
-# far below double precision.
-_SMALL_ANGLE = 1e-4
+# Below _SMALL_ANGLE (radians, the policy of trackflow.math._lie) the series expansions are
+# used; their truncation error there is far below double precision.
 
 
 def quat_identity(shape: tuple[int, ...] = ()) -> np.ndarray:
@@ -134,6 +138,25 @@ def quat_log(q: np.ndarray) -> np.ndarray:
     return k * v
 
 
+def quat_between(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+    """``q_a^* q_b`` (..., 4): ``R_a_b`` of the orientations ``q_a = R_w_a`` and ``q_b = R_w_b``."""
+    return quat_multiply(quat_conjugate(q_a), q_b)
+
+
+def quat_rplus(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``q (+) v = q Exp(v)`` (..., 4): ``q`` moved by the right error ``v`` (..., 3) [rad]."""
+    return quat_multiply(q, quat_exp(v))
+
+
+def quat_rminus(q_b: np.ndarray, q_a: np.ndarray) -> np.ndarray:
+    """``q_b (-) q_a = Log(q_a^* q_b)`` (..., 3) [rad]: the right error taking ``q_a`` to ``q_b``.
+
+    The inverse of :func:`quat_rplus`: ``quat_rplus(q_a, quat_rminus(q_b, q_a))`` is ``q_b`` up
+    to sign. The scalar kernels of the same maps are in :mod:`trackflow.math._lie`.
+    """
+    return quat_log(quat_between(q_a, q_b))
+
+
 def quat_align_sign(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Return ``q`` or ``-q``, whichever is closer to ``reference`` (non-negative dot product)."""
     q = np.asarray(q, dtype=float)
@@ -169,7 +192,7 @@ def quat_make_continuous(q: np.ndarray) -> np.ndarray:
 
 def quat_angle(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
     """Angle (radians, in [0, pi]) of the rotation between orientations ``q0`` and ``q1``."""
-    d = quat_multiply(quat_conjugate(q0), q1)
+    d = quat_between(q0, q1)
     n = np.linalg.norm(d[..., :3], axis=-1)
     return 2.0 * np.arctan2(n, np.abs(d[..., 3]))
 
@@ -182,8 +205,7 @@ def quat_slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray | float) -> np.ndar
     """
     q0 = np.asarray(q0, dtype=float)
     s = np.asarray(s, dtype=float)[..., None]
-    delta = quat_log(quat_multiply(quat_conjugate(q0), q1))
-    return quat_multiply(q0, quat_exp(s * delta))
+    return quat_rplus(q0, s * quat_rminus(q1, q0))
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -258,10 +280,9 @@ def skew(v: np.ndarray) -> np.ndarray:
 def _jacobian_coefficients(theta2: np.ndarray):
     """``(1 - cos t)/t^2`` and ``(t - sin t)/t^3`` with series for small ``t``."""
     theta = np.sqrt(theta2)
-    small = theta < 1e-3
+    small = theta < _SMALL_ANGLE
     t = np.where(small, 1.0, theta)
-    # (1 - cos t)/t^2 written as 2 sin^2(t/2)/t^2: no cancellation just above the switch
-    # (the direct form loses ~1e-10 relative precision at t = 1e-3).
+    # (1 - cos t)/t^2 written as 2 sin^2(t/2)/t^2: no cancellation just above the switch.
     half_sinc = np.sin(0.5 * t) / t
     a = np.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, 2.0 * half_sinc**2)
     b = np.where(
@@ -290,12 +311,12 @@ def so3_right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     phi = np.asarray(phi, dtype=float)
     theta2 = np.sum(phi * phi, axis=-1)
     theta = np.sqrt(theta2)
-    small = theta < 1e-3
+    small = theta < _SMALL_ANGLE
     t = np.where(small, 1.0, theta)
     c = np.where(
         small,
         1.0 / 12.0 + theta2 / 720.0 + theta2 * theta2 / 30240.0,
-        1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)),
+        1.0 / t**2 - np.cos(0.5 * t) / (2.0 * t * np.sin(0.5 * t)),
     )
     k = skew(phi)
     return np.eye(3) + 0.5 * k + c[..., None, None] * (k @ k)

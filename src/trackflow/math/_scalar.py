@@ -1,4 +1,4 @@
-"""Scalar SO(3) and small linear-algebra kernels: the one source every compiled loop uses.
+"""Small linear-algebra kernels: the one source every compiled loop uses.
 
 A kernel source for :mod:`trackflow.math._backend`: plain Python on NumPy arrays, kept
 numba-compatible (explicit loops, contiguous float64 arrays, no Python objects). The filters and
@@ -6,8 +6,8 @@ the composition kernels call these functions by name, and their compiled copies 
 compiled copies of these. Each allocating function is a thin wrapper of its in-place ``*_into``
 twin, so every formula is written once.
 
-Quaternions are ``(x, y, z, w)``, Hamilton; rotation vectors in radians; ``Exp``/``Log`` map
-between them with series near zero (docs/conventions.md).
+The SO(3) kernels (``Exp``, ``Log``, ``Jr``, rplus, rminus, between) are in
+:mod:`trackflow.math._lie`.
 """
 
 from __future__ import annotations
@@ -19,19 +19,6 @@ import numpy as np
 KERNELS = (
     "sym",
     "fact",
-    "qmul_into",
-    "qmul",
-    "qexp_into",
-    "qexp",
-    "qlog_into",
-    "qlog",
-    "rotmat_into",
-    "rotmat",
-    "right_jac_into",
-    "right_jac",
-    "left_mult",
-    "right_mult",
-    "exp_jac",
     "sandwich_into",
     "sandwich",
     "chol_into",
@@ -42,7 +29,6 @@ KERNELS = (
 )
 KERNEL_SOURCES = ()
 
-SMALL = 1e-4  # below this angle (rad) the series expansions are used
 # Covariance entries below this are flushed to zero: cross terms that are zero in theory
 # otherwise decay into denormal numbers, which make every later operation ~10x slower.
 TINY = 1e-150
@@ -64,163 +50,6 @@ def fact(k):
     for i in range(2, k + 1):
         r *= i
     return r
-
-
-# -- quaternions --------------------------------------------------------------------------------
-
-
-def qmul_into(a, b, out):
-    """``out = a * b`` (Hamilton); ``out`` must not alias ``a`` or ``b``."""
-    out[0] = a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1]
-    out[1] = a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0]
-    out[2] = a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3]
-    out[3] = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]
-
-
-def qmul(a, b):
-    """``a * b`` as a new array (see :func:`qmul_into`)."""
-    out = np.empty(4)
-    qmul_into(a, b, out)
-    return out
-
-
-def qexp_into(v, out):
-    """``out = Exp(v)``: unit quaternion of the rotation vector ``v`` (rad)."""
-    t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    if t2 < SMALL * SMALL:
-        k = 0.5 - t2 / 48.0
-        out[3] = 1.0 - t2 / 8.0 + t2 * t2 / 384.0
-    else:
-        t = math.sqrt(t2)
-        k = math.sin(0.5 * t) / t
-        out[3] = math.cos(0.5 * t)
-    out[0] = k * v[0]
-    out[1] = k * v[1]
-    out[2] = k * v[2]
-
-
-def qexp(v):
-    """``Exp(v)`` as a new array (see :func:`qexp_into`)."""
-    out = np.empty(4)
-    qexp_into(v, out)
-    return out
-
-
-def qlog_into(q, out):
-    """``out`` (3) = ``Log(q)``: rotation vector (rad) of the shortest rotation, ``|Log| <= pi``."""
-    s = -1.0 if q[3] < 0.0 else 1.0
-    w = s * q[3]
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
-    if n < 0.5 * SMALL:
-        k = 2.0 / w * (1.0 - n * n / (3.0 * w * w))
-    else:
-        k = 2.0 * math.atan2(n, w) / n
-    out[0] = s * k * q[0]
-    out[1] = s * k * q[1]
-    out[2] = s * k * q[2]
-
-
-def qlog(q):
-    """``Log(q)`` as a new array (see :func:`qlog_into`)."""
-    out = np.empty(3)
-    qlog_into(q, out)
-    return out
-
-
-def rotmat_into(q, r):
-    """``r`` (3x3) = rotation matrix of the unit quaternion ``q``."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    r[0, 1] = 2.0 * (x * y - w * z)
-    r[0, 2] = 2.0 * (x * z + w * y)
-    r[1, 0] = 2.0 * (x * y + w * z)
-    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    r[1, 2] = 2.0 * (y * z - w * x)
-    r[2, 0] = 2.0 * (x * z - w * y)
-    r[2, 1] = 2.0 * (y * z + w * x)
-    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-def rotmat(q):
-    """Rotation matrix of ``q`` as a new array (see :func:`rotmat_into`)."""
-    r = np.empty((3, 3))
-    rotmat_into(q, r)
-    return r
-
-
-def right_jac_into(v, j):
-    """``j`` (3x3) = SO(3) right Jacobian ``Jr(v)``: ``Exp(v + d) ~ Exp(v) Exp(Jr(v) d)``."""
-    t2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    if t2 < SMALL * SMALL:
-        a = 0.5 - t2 / 24.0
-        b = 1.0 / 6.0 - t2 / 120.0
-    else:
-        t = math.sqrt(t2)
-        a = (1.0 - math.cos(t)) / t2
-        b = (t - math.sin(t)) / (t2 * t)
-    # Jr = I - a [v]x + b [v]x^2 with [v]x^2 = v v^T - |v|^2 I
-    for r in range(3):
-        for c in range(3):
-            j[r, c] = b * v[r] * v[c]
-        j[r, r] += 1.0 - b * t2
-    j[0, 1] += a * v[2]
-    j[0, 2] -= a * v[1]
-    j[1, 0] -= a * v[2]
-    j[1, 2] += a * v[0]
-    j[2, 0] += a * v[1]
-    j[2, 1] -= a * v[0]
-
-
-def right_jac(v):
-    """``Jr(v)`` as a new array (see :func:`right_jac_into`)."""
-    j = np.empty((3, 3))
-    right_jac_into(v, j)
-    return j
-
-
-def left_mult(q):
-    """``L(q)`` (4x4) with ``q * p = L(q) p``."""
-    m = np.empty((4, 4))
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    m[0, 0], m[0, 1], m[0, 2], m[0, 3] = w, -z, y, x
-    m[1, 0], m[1, 1], m[1, 2], m[1, 3] = z, w, -x, y
-    m[2, 0], m[2, 1], m[2, 2], m[2, 3] = -y, x, w, z
-    m[3, 0], m[3, 1], m[3, 2], m[3, 3] = -x, -y, -z, w
-    return m
-
-
-def right_mult(d):
-    """``M(d)`` (4x4) with ``q * d = M(d) q`` (the upper-left block of the thesis's ``A_R``)."""
-    m = np.empty((4, 4))
-    x, y, z, w = d[0], d[1], d[2], d[3]
-    m[0, 0], m[0, 1], m[0, 2], m[0, 3] = w, z, -y, x
-    m[1, 0], m[1, 1], m[1, 2], m[1, 3] = -z, w, x, y
-    m[2, 0], m[2, 1], m[2, 2], m[2, 3] = y, -x, w, z
-    m[3, 0], m[3, 1], m[3, 2], m[3, 3] = -x, -y, -z, w
-    return m
-
-
-def exp_jac(b):
-    """``d Exp(b) / d b`` (4x3); at ``b = 0`` the limit ``[I/2; 0]`` (thesis's B-tilde)."""
-    t2 = b[0] * b[0] + b[1] * b[1] + b[2] * b[2]
-    j = np.zeros((4, 3))
-    if t2 < SMALL * SMALL:
-        s = 0.5 - t2 / 48.0  # sin(t/2)/t
-        ds = -1.0 / 24.0 + t2 / 960.0  # (d s / d t) / t
-        dw = -0.25 + t2 / 96.0  # (d cos(t/2) / d t) / t
-    else:
-        t = math.sqrt(t2)
-        sn = math.sin(0.5 * t)
-        cs = math.cos(0.5 * t)
-        s = sn / t
-        ds = (0.5 * cs * t - sn) / (t2 * t)
-        dw = -0.5 * sn / t
-    for i in range(3):
-        for k in range(3):
-            j[i, k] = ds * b[i] * b[k]
-        j[i, i] += s
-        j[3, i] = dw * b[i]
-    return j
 
 
 # -- small linear algebra -----------------------------------------------------------------------

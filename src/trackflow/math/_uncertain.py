@@ -20,12 +20,11 @@ from ._jacobians import (
 )
 from ._pose import Pose
 from ._quaternion import (
-    quat_conjugate,
     quat_exp,
-    quat_log,
     quat_make_continuous,
     quat_multiply,
     quat_normalize,
+    quat_rminus,
     quat_to_matrix,
     skew,
 )
@@ -347,14 +346,12 @@ class UncertainPose:
         q = quat_make_continuous(poses.quaternion)
         q_mean = quat_normalize(np.sum(q, axis=0))  # chordal mean as the starting point
         for _ in range(max_iterations):
-            step = np.mean(quat_log(quat_multiply(quat_conjugate(q_mean), q)), axis=0)
+            step = np.mean(quat_rminus(q, q_mean), axis=0)
             q_mean = quat_normalize(quat_multiply(q_mean, quat_exp(step)))
             if np.linalg.norm(step) < 1e-13:
                 break
         t_mean = np.mean(t, axis=0)
-        res = np.concatenate(
-            [t - t_mean, quat_log(quat_multiply(quat_conjugate(q_mean), q))], axis=1
-        )
+        res = np.concatenate([t - t_mean, quat_rminus(q, q_mean)], axis=1)
         cov = res.T @ res / (len(res) - 1)
         return cls._trusted(t_mean, q_mean, 0.5 * (cov + cov.T))
 

@@ -10,7 +10,7 @@ frames (:mod:`.render`) and the whole pipeline guided by the pose Kalman filter
 Conventions: ``docs/conventions.md``; the tracker: ``docs/optical.md``.
 """
 
-from .absolute_orientation import PoseFit, fit_pose, umeyama
+from .absolute_orientation import PoseFit, fit_pose
 from .blobs import Blobs, detect_blobs
 from .calibration import CalibrationFileError, read_opencv_calibration, write_opencv_calibration
 from .camera import Camera, CameraRig, ring_rig
@@ -67,6 +67,5 @@ __all__ = [
     "trajectory_from_stream",
     "triangulate",
     "triangulate_linear",
-    "umeyama",
     "write_opencv_calibration",
 ]

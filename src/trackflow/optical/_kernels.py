@@ -1,5 +1,5 @@
-"""Compiled kernels of the filter-guided frame step (numba): projection with Jacobians,
-gated blob assignment and point refinement. They compute exactly what
+"""Kernels of the filter-guided frame step: projection with Jacobians, gated blob assignment,
+point refinement and the Gauss-Newton step of absolute orientation. They compute exactly what
 :meth:`Camera.project`, :func:`~trackflow.optical.triangulation.refine_points` and the gating
 in :mod:`~trackflow.optical.pipeline` describe, one point at a time without temporaries; the
 tests check them against those NumPy versions.
@@ -7,16 +7,31 @@ tests check them against those NumPy versions.
 Camera parameters are packed per camera as ``(fx, s, cx, fy, cy, k1, k2, p1, p2, k3, k4, k5,
 k6, width, height)`` (:func:`pack_cameras`), rotations ``R_cam_world`` (C, 3, 3) and
 translations (C, 3).
+
+A kernel source for :mod:`trackflow.math._backend` (plain Python on NumPy arrays, compiled by
+numba when that backend is active; call them through ``kernels_for(_kernels)``); SO(3) comes
+from :mod:`trackflow.math._lie`, the closed-form fit from :mod:`trackflow.math._umeyama`.
 """
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from .camera import CameraRig
+from trackflow.math._lie import hat, quat_of_rotmat, so3_exp
+from trackflow.math._umeyama import umeyama_into
+from trackflow.optical.camera import CameraRig
 
-__all__ = ["guided_assign", "pack_cameras", "refine_points_packed"]
+__all__ = ["KERNELS", "pack_cameras"]
+
+KERNEL_SOURCES = ("trackflow.math._lie", "trackflow.math._umeyama")
+KERNELS = (
+    "_project",
+    "guided_assign",
+    "refine_points_packed",
+    "refine_pose",
+    "fit_pose_cov",
+    "drop_merged",
+)
 
 
 def pack_cameras(rig: CameraRig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -32,7 +47,6 @@ def pack_cameras(rig: CameraRig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return P, R, t
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
 def _project(P, R, t, X, J):
     """Pixel of world point ``X`` (3,) and ``J`` (2, 3) = d uv / d X; NaN behind the camera."""
     xc0 = R[0, 0] * X[0] + R[0, 1] * X[1] + R[0, 2] * X[2] + t[0]
@@ -76,7 +90,6 @@ def _project(P, R, t, X, J):
     return fx * xd + s * yd + cx, fy * yd + cy
 
 
-@numba.njit(cache=True, nogil=True)
 def guided_assign(P, R, t, X, CX, blobs, start, sigma2, gate2):
     """Assign blobs to predicted markers.
 
@@ -150,7 +163,6 @@ def guided_assign(P, R, t, X, CX, blobs, start, sigma2, gate2):
     return uv, claim
 
 
-@numba.njit(cache=True, nogil=True)
 def refine_points_packed(P, R, t, X0, uv, sigma2, iterations):
     """Gauss-Newton refinement of points (Q, 3) on pixels ``uv`` (C, Q, 2) (NaN: not seen).
 
@@ -210,46 +222,14 @@ def refine_points_packed(P, R, t, X0, uv, sigma2, iterations):
     return X, cov, chi2, nv
 
 
-@numba.njit(cache=True, nogil=True)
-def _exp_so3(w):
-    """Rotation matrix of the rotation vector ``w`` (3,) (Rodrigues)."""
-    th = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    K = np.zeros((3, 3))
-    K[0, 1], K[0, 2], K[1, 0] = -w[2], w[1], w[2]
-    K[1, 2], K[2, 0], K[2, 1] = -w[0], -w[1], w[0]
-    if th < 1e-8:
-        a, b = 1.0 - th * th / 6.0, 0.5 - th * th / 24.0
-    else:
-        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
-    return np.eye(3) + a * K + b * (K @ K)
+def refine_pose(m, x, W, R, t, iterations):
+    """Gauss-Newton for the rigid fit ``x ~ R m + t`` with point information matrices ``W``.
 
-
-@numba.njit(cache=True, nogil=True)
-def fit_pose_packed(m, x, W, w_init, iterations):
-    """Rigid fit ``x ~ R m + t`` with point information matrices ``W`` (M, 3, 3).
-
-    Closed form (weighted Umeyama, weights ``w_init``) then Gauss-Newton on
-    ``sum r_i^T W_i r_i`` with the error ``(dt, dtheta)``, ``R_true = R Exp(dtheta)``.
-    Returns ``R`` (3, 3), ``t`` (3,), ``H`` (6, 6) information, ``point_chi2`` (M,).
+    Minimises ``sum r_i^T W_i r_i`` (``W`` (M, 3, 3)) from the start ``R`` (3, 3), ``t`` (3,)
+    with the error ``(dt, dtheta)``, ``R_true = R Exp(dtheta)``. Returns ``R`` (3, 3), ``t``
+    (3,), ``H`` (6, 6) information and ``point_chi2`` (M,) at the last iterate.
     """
     M = m.shape[0]
-    ws = w_init / w_init.sum()
-    ca = np.zeros(3)
-    cb = np.zeros(3)
-    for i in range(M):
-        ca += ws[i] * m[i]
-        cb += ws[i] * x[i]
-    S = np.zeros((3, 3))
-    for i in range(M):
-        for a in range(3):
-            for b in range(3):
-                S[a, b] += ws[i] * (x[i, a] - cb[a]) * (m[i, b] - ca[b])
-    U, sv, Vt = np.linalg.svd(S)
-    D = np.eye(3)
-    if np.linalg.det(U @ Vt) < 0:
-        D[2, 2] = -1.0
-    R = U @ D @ Vt
-    t = cb - R @ ca
     H = np.zeros((6, 6))
     pc = np.zeros(M)
     J = np.zeros((3, 6))
@@ -259,12 +239,8 @@ def fit_pose_packed(m, x, W, w_init, iterations):
         for i in range(M):
             Rm = R @ m[i]
             r = x[i] - Rm - t
-            # J = [I, -R [m]x]
-            Sk = np.zeros((3, 3))
-            Sk[0, 1], Sk[0, 2], Sk[1, 0] = -m[i, 2], m[i, 1], m[i, 2]
-            Sk[1, 2], Sk[2, 0], Sk[2, 1] = -m[i, 0], -m[i, 1], m[i, 0]
-            J[:, :3] = np.eye(3)
-            J[:, 3:] = -(R @ Sk)
+            J[:, :3] = np.eye(3)  # J = [I, -R [m]x]
+            J[:, 3:] = -(R @ hat(m[i]))
             JW = J.T @ W[i]
             H += JW @ J
             g += JW @ r
@@ -273,61 +249,34 @@ def fit_pose_packed(m, x, W, w_init, iterations):
             break
         d = np.linalg.solve(H, g)
         t = t + d[:3]
-        R = R @ _exp_so3(d[3:])
+        R = R @ so3_exp(d[3:])
     return R, t, H, pc
 
 
-@numba.njit(cache=True, nogil=True)
-def quat_of_matrix(R):
-    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (Shepperd's method), ``w >= 0``."""
-    q = np.empty(4)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    if tr > 0.0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q[3] = 0.25 * s
-        q[0] = (R[2, 1] - R[1, 2]) / s
-        q[1] = (R[0, 2] - R[2, 0]) / s
-        q[2] = (R[1, 0] - R[0, 1]) / s
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q[3] = (R[2, 1] - R[1, 2]) / s
-        q[0] = 0.25 * s
-        q[1] = (R[0, 1] + R[1, 0]) / s
-        q[2] = (R[0, 2] + R[2, 0]) / s
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q[3] = (R[0, 2] - R[2, 0]) / s
-        q[0] = (R[0, 1] + R[1, 0]) / s
-        q[1] = 0.25 * s
-        q[2] = (R[1, 2] + R[2, 1]) / s
-    else:
-        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q[3] = (R[1, 0] - R[0, 1]) / s
-        q[0] = (R[0, 2] + R[2, 0]) / s
-        q[1] = (R[1, 2] + R[2, 1]) / s
-        q[2] = 0.25 * s
-    if q[3] < 0.0:
-        q = -q
-    return q / np.sqrt(q @ q)
-
-
-@numba.njit(cache=True, nogil=True)
 def fit_pose_cov(m, x, C, iterations):
-    """:func:`fit_pose_packed` from point covariances ``C`` (M, 3, 3): returns ``t`` (3,),
-    ``q`` (4,), the 6x6 covariance and ``point_chi2`` (M,)."""
+    """Pose and covariance of ``x ~ R m + t`` from point covariances ``C`` (M, 3, 3).
+
+    The closed form (:func:`trackflow.math.umeyama`'s kernel, each point weighted by the
+    inverse trace of its covariance), then :func:`refine_pose` with the full information
+    matrices. Returns ``t`` (3,), ``q`` (4,), the 6x6 covariance and ``point_chi2`` (M,);
+    raises ``numpy.linalg.LinAlgError`` when the points do not fix the pose.
+    """
     M = m.shape[0]
     W = np.empty((M, 3, 3))
     w = np.empty(M)
     for i in range(M):
         W[i] = np.linalg.inv(C[i])
         w[i] = 1.0 / (C[i, 0, 0] + C[i, 1, 1] + C[i, 2, 2])
-    R, t, H, pc = fit_pose_packed(m, x, W, w, iterations)
+    R0 = np.empty((3, 3))
+    t0 = np.empty(3)
+    info = np.empty(6)
+    umeyama_into(x, m, w, 0, 1, R0, t0, info)
+    R, t, H, pc = refine_pose(m, x, W, R0, t0, iterations)
     cov = np.linalg.inv(H)
     cov = 0.5 * (cov + cov.T)
-    return t, quat_of_matrix(R), cov, pc
+    return t, quat_of_rotmat(R), cov, pc
 
 
-@numba.njit(cache=True, nogil=True)
 def drop_merged(uv, claim, owner, n_bodies, areas, start, ratio):
     """Unassign (in place) every claimed blob whose area exceeds ``ratio`` times the median
     area of the blobs claimed by the same body in the same image (at least 3 of them).

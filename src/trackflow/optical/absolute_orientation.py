@@ -1,6 +1,7 @@
 """Absolute orientation: the pose of a rigid body from measured points of its markers.
 
-Closed form first (Umeyama / Arun / Horn: the weighted cross-covariance's SVD, no scale), then
+Closed form first (:func:`trackflow.math.umeyama`: the weighted cross-covariance's SVD, no
+scale), then
 Gauss-Newton with each point's full 3x3 covariance, which makes the estimate the
 best linear unbiased one and gives its 6x6 covariance in trackflow's convention
 (``docs/conventions.md``): error ``(dt, dtheta)`` with ``t_true = t + dt`` (world frame, m)
@@ -17,44 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..math import Pose, UncertainPose
-from ._kernels import fit_pose_cov
+from ..math import Pose, UncertainPose, kernels_for
+from . import _kernels
 
-__all__ = ["PoseFit", "fit_pose", "umeyama"]
-
-
-def umeyama(model, measured, weights=None) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form rigid fit ``measured ~ R model + t`` (no scale).
-
-    Parameters
-    ----------
-    model, measured : array_like (M, 3)
-        Corresponding points, ``M >= 3`` not collinear.
-    weights : array_like (M,), optional
-        Non-negative weights (default equal).
-
-    Returns
-    -------
-    R : ndarray (3, 3)
-        Proper rotation (det = +1).
-    t : ndarray (3,)
-    """
-    a = np.asarray(model, dtype=float)
-    b = np.asarray(measured, dtype=float)
-    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or len(a) < 3:
-        raise ValueError(f"need two (M, 3) point sets with M >= 3, got {a.shape} and {b.shape}")
-    w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=float)
-    if w.shape != (len(a),) or np.any(w < 0) or not w.sum() > 0:
-        raise ValueError("weights must be (M,) non-negative with a positive sum")
-    w = w / w.sum()
-    ca, cb = w @ a, w @ b
-    S = ((b - cb) * w[:, None]).T @ (a - ca)  # cross-covariance
-    U, sv, Vt = np.linalg.svd(S)
-    if sv[1] < 1e-12 * max(sv[0], 1e-300):
-        raise ValueError("the points are collinear: the rotation about their line is unknown")
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ D @ Vt
-    return R, cb - R @ ca
+__all__ = ["PoseFit", "fit_pose"]
 
 
 @dataclass
@@ -111,7 +78,7 @@ def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
         raise ValueError("the points are collinear: the rotation about their line is unknown")
     if np.any(np.linalg.eigvalsh(C)[:, 0] <= 0):
         raise ValueError("a point covariance is not positive definite")
-    t, q, cov, point_chi2 = fit_pose_cov(
+    t, q, cov, point_chi2 = kernels_for(_kernels).fit_pose_cov(
         np.ascontiguousarray(m), np.ascontiguousarray(x), np.ascontiguousarray(C), int(iterations)
     )
     pose = UncertainPose(Pose(t, q, normalize=True), cov)

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..filters import chi2_gate
-from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ..math import UncertainPose, quat_rminus, umeyama
 from .absolute_orientation import PoseFit, fit_pose
 from .correspondence import PointCandidates
 from .models import MarkerModel
@@ -56,21 +56,9 @@ class BodyMatch:
 def pose_nis(a: UncertainPose, b: UncertainPose) -> float:
     """Mahalanobis distance squared between two poses with covariances ``a.C + b.C``, the
     difference in ``a``'s error convention (``t_b = t_a + dt``, ``R_b = R_a Exp(dtheta)``)."""
-    dq = quat_multiply(quat_conjugate(a.quaternion), b.quaternion)
-    e = np.concatenate([b.position - a.position, quat_log(dq)])
+    e = np.concatenate([b.position - a.position, quat_rminus(b.quaternion, a.quaternion)])
     S = a.covariance + b.covariance
     return float(e @ np.linalg.solve(S, e))
-
-
-def _kabsch_batch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid fits ``B ~ R A + t`` for batches (T, k, 3) of corresponding points."""
-    ca, cb = A.mean(axis=1), B.mean(axis=1)
-    S = np.einsum("tki,tkj->tij", B - cb[:, None], A - ca[:, None])
-    U, _, Vt = np.linalg.svd(S)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]
-    R = U @ Vt
-    return R, cb - np.einsum("tij,tj->ti", R, ca)
 
 
 @numba.njit(cache=True)
@@ -141,7 +129,8 @@ def _hypotheses(
     tp, tm = _seed_triangles(E, S, si[keep], sa[keep], per_seed)
     if not len(tp):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
-    return _kabsch_batch(model.points[tm], X[tp])
+    fits = umeyama(X[tp], model.points[tm], allow_collinear=True)  # T_world_body per triangle
+    return fits.rotation, fits.translation
 
 
 def _assign(pred: np.ndarray, X: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:

@@ -26,14 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..filters import MotionModel, PoseKalmanFilter, chi2_gate
-from ..math import Pose, UncertainPose, skew
-from ._kernels import (
-    drop_merged,
-    fit_pose_cov,
-    guided_assign,
-    pack_cameras,
-    refine_points_packed,
-)
+from ..math import Pose, UncertainPose, kernels_for, skew
+from . import _kernels
+from ._kernels import pack_cameras
 from .blobs import detect_blobs
 from .camera import CameraRig
 from .correspondence import match_epipolar
@@ -268,11 +263,14 @@ class OpticalTracker:
         allb = np.ascontiguousarray(np.concatenate(blobs)) if start[-1] else np.zeros((0, 2))
         P, R, tt = self._packed
         s2 = c.sigma_px**2
-        uv_obs, claim = guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
+        k = kernels_for(_kernels)
+        uv_obs, claim = k.guided_assign(P, R, tt, X, C, allb, start, s2, self._gate2)
         if c.merged_area_ratio:
             owner = np.repeat(np.arange(len(models)), [len(m) for m in models])
-            drop_merged(uv_obs, claim, owner, len(models), self._areas, start, c.merged_area_ratio)
-        Xr, cov, chi2, n_views = refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
+            k.drop_merged(
+                uv_obs, claim, owner, len(models), self._areas, start, c.merged_area_ratio
+            )
+        Xr, cov, chi2, n_views = k.refine_points_packed(P, R, tt, X, uv_obs, s2, 1)
         dof = 2 * n_views - 3
         with np.errstate(invalid="ignore"):
             good = (n_views >= 2) & (
@@ -306,7 +304,7 @@ class OpticalTracker:
             if ok.sum() < c.min_markers_tracked:
                 return None
             try:
-                t, q, cov, pc = fit_pose_cov(m.points[ok], X[ok], C[ok], 2)
+                t, q, cov, pc = kernels_for(_kernels).fit_pose_cov(m.points[ok], X[ok], C[ok], 2)
             except np.linalg.LinAlgError:  # degenerate (e.g. three nearly collinear markers)
                 return None
             worst = int(np.argmax(pc))

@@ -2,10 +2,16 @@
 
 A kernel source for :mod:`trackflow.math._backend` (plain Python on NumPy arrays, compiled by
 numba when that backend is active; keep it numba-compatible: explicit loops, contiguous float64
-arrays, no Python objects). Scalar SO(3) and small linear algebra come from
-:mod:`trackflow.math._scalar`, the gate and reset decisions from :mod:`trackflow.filters.gating`.
+arrays, no Python objects). SO(3) comes from :mod:`trackflow.math._lie`, small linear
+algebra from :mod:`trackflow.math._scalar`, the gate and reset decisions from
+:mod:`trackflow.filters.gating`.
 Every allocating kernel is a thin wrapper of its in-place ``*_into`` twin, and one offline loop
 (:func:`run`) serves both formulations with or without covariance output.
+
+The filter's kernels live in three sources: the motion model (state sizes, transition, process
+noise, prediction) in :mod:`.motion_kernels`, measurements and the Kalman update in
+:mod:`.update_kernels`, and here what composes them: initialisation, the pose of a state, the
+step and prediction of one filter and of a bank, smoothing and the offline loops.
 
 State layout (``n_dp`` position and ``n_do`` orientation derivatives, ``-1`` = not estimated):
 
@@ -25,68 +31,49 @@ import math
 
 import numpy as np
 
+from trackflow.filters.derivative.motion_kernels import (
+    dims,
+    mean_transition_into,
+    predict,
+    predict_into,
+    predict_scratch,
+    process_noise,
+    process_noise_memo,
+    transition,
+    transition_matrix_into,
+)
+from trackflow.filters.derivative.update_kernels import (
+    inject,
+    innovation_into,
+    meas_cov,
+    residual_into,
+    residual_size,
+    selection_of,
+    selection_rows,
+    update,
+    update_dense,
+    update_into,
+    update_scratch,
+)
 from trackflow.filters.gating import (
-    ACCEPTED,
     DIVERGED,
-    GATED,
     INITIALIZED,
     INVALID,
     RESET,
-    is_gated,
     next_gated_run,
     reset_due,
 )
-from trackflow.math._scalar import (
-    TINY,
-    chol,
-    chol_into,
-    chol_solve,
-    chol_solve_rows,
-    exp_jac,
-    fact,
-    joseph_selection,
+from trackflow.math._lie import (
     left_mult,
-    qexp_into,
-    qlog,
-    qlog_into,
-    qmul,
-    qmul_into,
-    right_jac_into,
-    right_mult,
-    rotmat_into,
-    sandwich_into,
+    qrminus_into,
+)
+from trackflow.math._scalar import (
+    chol,
+    chol_solve,
     sym,
 )
 
 KERNELS = (
-    "dims",
-    "level_noise_into",
-    "level_noise",
-    "mean_transition_into",
-    "transition_matrix_into",
-    "transition",
-    "process_noise_into",
-    "process_noise",
-    "process_noise_memo",
-    "predict_scratch",
-    "predict_into",
-    "predict",
-    "residual_into",
-    "innovation_into",
-    "jacobian_into",
-    "selection_of",
-    "residual_size",
-    "residual",
-    "meas_cov",
-    "gain_into",
-    "inject",
-    "state_is_valid",
-    "update_scratch",
-    "selection_rows",
-    "update_into",
-    "update",
-    "update_with",
-    "update_dense",
     "local",
     "initialize",
     "pose_of",
@@ -96,9 +83,9 @@ KERNELS = (
     "predict_pose",
     "smooth",
     "step",
+    "log_size",
     "step_into",
     "step_with",
-    "log_size",
     "constants",
     "step_packed",
     "predict_pose_packed",
@@ -110,612 +97,19 @@ KERNELS = (
     "run",
     "smooth_run",
 )
-KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
+KERNEL_SOURCES = (
+    "trackflow.math._scalar",
+    "trackflow.math._lie",
+    "trackflow.filters.gating",
+    "trackflow.filters.derivative.motion_kernels",
+    "trackflow.filters.derivative.update_kernels",
+)
 # Glue of one filter's step and prediction, inlined into their compiled callers
 # (``trackflow.math._backend``): each passes 15 to 35 arrays on, and every array argument
 # of a call costs two atomic reference-count operations, more than the glue's own work.
-KERNELS_INLINE = ("step_with", "predict_into", "update_with", "update_into", "predict_pose_with")
+KERNELS_INLINE = ("step_with", "predict_pose_with")
 
 UNKNOWN_VARIANCE = 1e12  # reported for a pose part the model does not estimate
-
-
-def dims(n_dp, n_do, additive):
-    """(position levels, orientation levels, nominal size, covariance size)."""
-    npl = n_dp + 1 if n_dp >= 0 else 0
-    nol = n_do + 1 if n_do >= 0 else 0
-    nx = 3 * npl + (4 + 3 * n_do if n_do >= 0 else 0)
-    nc = nx if additive else 3 * npl + 3 * nol
-    return npl, nol, nx, nc
-
-
-# -- quaternion helpers (scalar, (x, y, z, w)) -----------------------------------------------
-
-
-def level_noise_into(n, sig, dt, kind, m):
-    """:func:`level_noise` written into ``m`` (at least ``n x n``)."""
-    for i in range(n):
-        for j in range(n):
-            m[i, j] = 0.0
-    if kind == 1:
-        for i in range(n):
-            m[i, i] = (sig[i] * dt) ** 2
-        return
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for lvl in range(max(i, j), n):
-                e = 2 * lvl - i - j + 1
-                s += sig[lvl] ** 2 * dt**e / (fact(lvl - i) * fact(lvl - j) * e)
-            m[i, j] = s
-
-
-def level_noise(n, sig, dt, kind):
-    """Process-noise matrix over derivative levels ``0..n-1`` for one axis.
-
-    ``kind = 0``: continuous white noise of spectral density ``sig[l]^2`` driving level ``l``,
-    integrated exactly over ``dt`` (Ude eq. 23 generalised). ``kind = 1``: thesis eq. 6.21,
-    ``diag((sig[l] dt)^2)``.
-    """
-    m = np.empty((n, n))
-    level_noise_into(n, sig, dt, kind, m)
-    return m
-
-
-# -- motion model -------------------------------------------------------------------------------
-
-
-def mean_transition_into(x, dt, n_dp, n_do, out, cf, b, d):
-    """``out`` = nominal part of :func:`transition` (both formulations); returns nothing.
-
-    ``cf`` (>= max levels + 1), ``b`` (3) and ``d`` (4) are scratch; ``d`` holds ``Exp(b)``
-    and ``b`` the rotation increment afterwards.
-    """
-    npl = n_dp + 1 if n_dp >= 0 else 0
-    cf[0] = 1.0
-    for i in range(1, cf.shape[0]):
-        cf[i] = cf[i - 1] * dt / i
-    for i in range(npl):
-        for k in range(3):
-            v = 0.0
-            for j in range(i, npl):
-                v += cf[j - i] * x[3 * j + k]
-            out[3 * i + k] = v
-    if n_do < 0:
-        return
-    qo = 3 * npl
-    b[0] = 0.0
-    b[1] = 0.0
-    b[2] = 0.0
-    for lv in range(1, n_do + 1):
-        c = cf[lv]
-        for k in range(3):
-            b[k] += c * x[qo + 4 + 3 * (lv - 1) + k]
-    qexp_into(b, d)
-    qmul_into(x[qo : qo + 4], d, out[qo : qo + 4])
-    for lv in range(1, n_do + 1):
-        for k in range(3):
-            v = 0.0
-            for j in range(lv, n_do + 1):
-                v += cf[j - lv] * x[qo + 4 + 3 * (j - 1) + k]
-            out[qo + 4 + 3 * (lv - 1) + k] = v
-
-
-def transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, m3):
-    """``a`` = Jacobian ``A`` of :func:`transition` in the covariance coordinates.
-
-    Needs ``cf``, ``b`` and ``d`` as left by :func:`mean_transition_into` for the same state and
-    ``dt``. Error state: ``dtheta_new = Exp(b)^T dtheta + Jr(b) db``; additive: the thesis's
-    ``A_R`` with ``M(d)`` and ``B = L(q) dExp/db``. ``m3`` (3x3) is scratch.
-    """
-    npl = n_dp + 1 if n_dp >= 0 else 0
-    nc = a.shape[0]
-    for i in range(nc):
-        for j in range(nc):
-            a[i, j] = 0.0
-    for i in range(npl):
-        for j in range(i, npl):
-            c = cf[j - i]
-            for k in range(3):
-                a[3 * i + k, 3 * j + k] = c
-    if n_do < 0:
-        return
-    qo = 3 * npl
-    if additive:
-        a[qo : qo + 4, qo : qo + 4] = right_mult(d)
-        bm = left_mult(x[qo : qo + 4]) @ exp_jac(b)
-        for lv in range(1, n_do + 1):
-            c = cf[lv]
-            a[qo : qo + 4, qo + 4 + 3 * (lv - 1) : qo + 4 + 3 * lv] = c * bm
-        base = qo + 4 - 3  # angular level lv sits at base + 3 lv
-    else:
-        rotmat_into(d, m3)
-        for i in range(3):
-            for j in range(3):
-                a[qo + i, qo + j] = m3[j, i]
-        right_jac_into(b, m3)
-        for lv in range(1, n_do + 1):
-            c = cf[lv]
-            for i in range(3):
-                for j in range(3):
-                    a[qo + i, qo + 3 * lv + j] = c * m3[i, j]
-        base = qo
-    for lv in range(1, n_do + 1):
-        for j in range(lv, n_do + 1):
-            c = cf[j - lv]
-            for k in range(3):
-                a[base + 3 * lv + k, base + 3 * j + k] = c
-
-
-def transition(x, dt, n_dp, n_do, additive):
-    """Motion-model prediction over ``dt``: returns ``(x_new, A)`` as new arrays.
-
-    Position: Taylor series (thesis eq. 6.18). Orientation: ``q_new = q * Exp(b)`` with
-    ``b = sum_l w^(l-1) dt^l / l!`` (eq. 6.19). ``A``: see :func:`transition_matrix_into`.
-    """
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    xn = np.empty(nx)
-    a = np.empty((nc, nc))
-    cf = np.empty(max(npl, nol) + 1)
-    b = np.empty(3)
-    d = np.empty(4)
-    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
-    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, np.empty((3, 3)))
-    return xn, a
-
-
-def process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv):
-    """``qm`` = process-noise covariance ``Q`` in the covariance coordinates (:func:`level_noise`).
-
-    The additive formulation maps the rotation-vector noise onto the quaternion with
-    ``dq = L(q)[:, :3] dtheta / 2`` and adds the same variance along ``q`` itself, which makes the
-    quaternion block isotropic (``(sig dt / 2)^2 I_4`` for the thesis's diagonal model).
-    ``lv`` (levels x levels) is scratch.
-    """
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    for i in range(nc):
-        for j in range(nc):
-            qm[i, j] = 0.0
-    if npl > 0:
-        level_noise_into(npl, sig_p, dt, kind, lv)
-        for i in range(npl):
-            for j in range(npl):
-                for k in range(3):
-                    qm[3 * i + k, 3 * j + k] = lv[i, j]
-    if nol == 0:
-        return
-    mo = lv
-    level_noise_into(nol, sig_o, dt, kind, mo)
-    eo = 3 * npl
-    if not additive:
-        for i in range(nol):
-            for j in range(nol):
-                for k in range(3):
-                    qm[eo + 3 * i + k, eo + 3 * j + k] = mo[i, j]
-        return
-    g = 0.5 * left_mult(x[eo : eo + 4])[:, :3]
-    q = x[eo : eo + 4]
-    qq = g @ g.T * mo[0, 0]
-    for r in range(4):
-        for c in range(4):
-            qq[r, c] += 0.25 * mo[0, 0] * q[r] * q[c]
-    qm[eo : eo + 4, eo : eo + 4] = qq
-    for j in range(1, nol):
-        col = eo + 4 + 3 * (j - 1)
-        blk = g * mo[0, j]
-        qm[eo : eo + 4, col : col + 3] = blk
-        qm[col : col + 3, eo : eo + 4] = blk.T
-        for i in range(1, nol):
-            row = eo + 4 + 3 * (i - 1)
-            for k in range(3):
-                qm[row + k, col + k] = mo[i, j]
-
-
-def process_noise(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
-    """:func:`process_noise_into` as a new array."""
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    qm = np.empty((nc, nc))
-    nlev = max(npl, nol, 1)
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, np.empty((nlev, nlev)))
-    return qm
-
-
-def process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo):
-    """:func:`process_noise_into` unless ``qm`` already holds the noise of this ``dt``.
-
-    The error-state noise depends on ``dt`` and the filter's constants only, so the filters
-    of a bank stepped over one packet's ``dt`` compute it once. ``memo`` (2,) records it:
-    ``memo[0] = 1`` once ``qm`` holds the noise of the step ``memo[1]`` (the same bits:
-    equal and of the same sign). The additive noise depends on ``x``: always computed.
-    """
-    if (
-        not additive
-        and memo[0] == 1.0
-        and memo[1] == dt
-        and math.copysign(1.0, memo[1]) == math.copysign(1.0, dt)
-    ):
-        return
-    process_noise_into(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv)
-    memo[0] = 0.0 if additive else 1.0
-    memo[1] = dt
-
-
-def predict_scratch(n_dp, n_do, additive):
-    """Scratch arrays for :func:`predict_into` (and :func:`predict_pose_with`), for one filter
-    kind: its process noise is kept between calls (:func:`process_noise_memo`)."""
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    nlev = max(npl, nol, 1)
-    return (
-        np.empty(nlev + 1), np.empty(3), np.empty(4), np.empty(nx), np.empty((nc, nc)),
-        np.empty((nc, nc)), np.empty((nlev, nlev)), np.empty((nc, nc)), np.empty((nc, nc)),
-        np.empty((3, 3)), np.empty((nc, nc + 1), np.int64), np.zeros(2),
-    )  # fmt: skip
-
-
-def predict_into(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, ws):
-    """Time update in place: ``x = f(x)``, ``P = A P A^T + Q`` (thesis eqs. 5.59-5.60).
-
-    ``ws`` is a tuple of scratch arrays from :func:`predict_scratch`.
-    """
-    cf, b, d, xn, a, qm, lv, tmp, vals, m3, cols, memo = ws
-    mean_transition_into(x, dt, n_dp, n_do, xn, cf, b, d)
-    transition_matrix_into(x, n_dp, n_do, additive, cf, b, d, a, m3)
-    process_noise_memo(x, dt, n_dp, n_do, additive, kind, sig_p, sig_o, qm, lv, memo)
-    sandwich_into(a, p, qm, tmp, vals, cols)
-    for i in range(x.shape[0]):
-        x[i] = xn[i]
-
-
-def predict(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o):
-    """:func:`predict_into` on copies: returns the new ``(x, P)``."""
-    xn = x.copy()
-    pn = p.copy()
-    predict_into(
-        xn, pn, dt, n_dp, n_do, additive, kind, sig_p, sig_o, predict_scratch(n_dp, n_do, additive)
-    )
-    return xn, pn
-
-
-# -- measurements ----------------------------------------------------------------------------
-
-
-def residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, qa, qb):
-    """``y`` = innovation ``z - h(x)``, ``h`` = measurement Jacobian ``H`` (``y ~ H e + v``).
-
-    ``lp``/``lo``: measured position / orientation derivative level (thesis 6.3.2), ``-1`` =
-    not measured. Orientation (``lo = 0``) residual: error state ``Log(q^* z_q)`` with
-    ``H = I``; additive ``z_q - q/|q|`` (``z_q`` sign-aligned to ``q``) with ``H_R`` of eq. 6.23.
-    ``qa`` and ``qb`` (4) are scratch. :func:`innovation_into` and :func:`jacobian_into`.
-    """
-    innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb)
-    jacobian_into(x, n_dp, n_do, additive, lp, lo, h)
-
-
-def innovation_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, qa, qb):
-    """The innovation ``y`` of :func:`residual_into` alone; ``qa`` and ``qb`` (4) scratch."""
-    npl = n_dp + 1 if n_dp >= 0 else 0
-    for i in range(y.shape[0]):
-        y[i] = 0.0
-    r = 0
-    if lp >= 0:
-        for k in range(3):
-            y[k] = zp[k] - x[3 * lp + k]
-        r = 3
-    if lo < 0:
-        return
-    qo = 3 * npl
-    if lo >= 1:
-        xo = qo + 4 + 3 * (lo - 1)
-        for k in range(3):
-            y[r + k] = zo[k] - x[xo + k]
-        return
-    if not additive:
-        qa[0], qa[1], qa[2], qa[3] = -x[qo], -x[qo + 1], -x[qo + 2], x[qo + 3]
-        qmul_into(qa, zo, qb)
-        qlog_into(qb, qa)
-        for k in range(3):
-            y[r + k] = qa[k]
-        return
-    q = x[qo : qo + 4]
-    ll = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    s = 1.0
-    if zo[0] * q[0] + zo[1] * q[1] + zo[2] * q[2] + zo[3] * q[3] < 0.0:
-        s = -1.0
-    for i in range(4):
-        y[r + i] = s * zo[i] - q[i] / ll
-
-
-def jacobian_into(x, n_dp, n_do, additive, lp, lo, h):
-    """The Jacobian ``H`` of :func:`residual_into` alone (``x`` is read by the additive
-    orientation only): a selection of state rows (:func:`selection_of`) but for that one."""
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    for i in range(h.shape[0]):
-        for j in range(nc):
-            h[i, j] = 0.0
-    r = 0
-    if lp >= 0:
-        for k in range(3):
-            h[k, 3 * lp + k] = 1.0
-        r = 3
-    if lo < 0:
-        return
-    qo = 3 * npl
-    if lo >= 1:
-        xo = qo + 4 + 3 * (lo - 1)
-        co = xo if additive else qo + 3 * lo
-        for k in range(3):
-            h[r + k, co + k] = 1.0
-        return
-    if not additive:
-        for k in range(3):
-            h[r + k, qo + k] = 1.0
-        return
-    q = x[qo : qo + 4]
-    dd = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
-    ll = math.sqrt(dd)
-    for i in range(4):
-        for j in range(4):
-            h[r + i, qo + j] = ((dd if i == j else 0.0) - q[i] * q[j]) / (ll * dd)
-
-
-def selection_of(n_dp, n_do, additive, lp, lo, idx):
-    """Whether :func:`jacobian_into` writes a selection (one ``1`` per row, zeros elsewhere),
-    with its columns written to ``idx``: :func:`selection_rows` of that ``H``, known without
-    writing it. Every measurement but the additive orientation is one; that one never is
-    (the row of its largest ``|q_i|``, or a NaN row, holds no single ``1``)."""
-    if additive and lo == 0:
-        return False
-    npl = n_dp + 1 if n_dp >= 0 else 0
-    qo = 3 * npl
-    r = 0
-    if lp >= 0:
-        for k in range(3):
-            idx[k] = 3 * lp + k
-        r = 3
-    if lo >= 1:
-        co = qo + 4 + 3 * (lo - 1) if additive else qo + 3 * lo
-        for k in range(3):
-            idx[r + k] = co + k
-    elif lo == 0:
-        for k in range(3):
-            idx[r + k] = qo + k
-    return True
-
-
-def residual_size(additive, lp, lo):
-    """Number of innovation rows of a measurement of levels ``lp`` / ``lo``."""
-    m = 3 if lp >= 0 else 0
-    if lo >= 0:
-        m += 4 if (additive and lo == 0) else 3
-    return m
-
-
-def residual(x, n_dp, n_do, additive, lp, lo, zp, zo):
-    """:func:`residual_into` into new arrays: returns ``(y, H)``."""
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    m = residual_size(additive, lp, lo)
-    y = np.empty(m)
-    h = np.empty((m, nc))
-    residual_into(x, n_dp, n_do, additive, lp, lo, zp, zo, y, h, np.empty(4), np.empty(4))
-    return y, h
-
-
-def meas_cov(c, q, lp, lo, additive):
-    """Measurement noise in residual coordinates from the caller's covariance ``c``.
-
-    ``c`` is 3x3 (one part) or 6x6 (position and orientation, conventions.md order). For the
-    additive orientation it becomes 4x4 / 7x7 via ``V [[C, 0], [0, 1]] V^T`` (eqs. 6.24-6.25),
-    ``V`` mapping ``dtheta`` to ``dq = L(q)[:, :3] dtheta / 2`` and the unit scalar along ``q``.
-    """
-    if not (additive and lo == 0):
-        return c.copy()
-    m = c.shape[0] + 1
-    v = np.zeros((m, c.shape[0] + 1))
-    r = 0
-    if lp >= 0:
-        for k in range(3):
-            v[k, k] = 1.0
-        r = 3
-    lq = left_mult(q)
-    for i in range(4):
-        for j in range(3):
-            v[r + i, r + j] = 0.5 * lq[i, j]
-        v[r + i, r + 3] = q[i]
-    ce = np.zeros((m, m))
-    ce[: c.shape[0], : c.shape[0]] = c
-    ce[m - 1, m - 1] = 1.0
-    return sym(v @ ce @ v.T)
-
-
-def gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, krt):
-    """Kalman gain from ``H P`` and ``S = H P H^T + R``: returns ``(status, nis)``.
-
-    On ACCEPTED ``kt`` holds ``K^T = S^-1 H P``, ``kr`` holds ``K R`` and ``delta`` the
-    correction ``K y``; GATED (``nis > gate``) and DIVERGED (``S`` not positive definite or a
-    non-finite NIS) leave them undefined. ``lo``, ``sy`` and ``krt`` (at least m x nc) are
-    scratch.
-    """
-    nc = hp.shape[1]
-    m = y.shape[0]
-    if not chol_into(s, lo):
-        return DIVERGED, np.nan
-    for i in range(m):
-        sy[i, 0] = y[i]
-    chol_solve_rows(lo, sy)
-    nis = 0.0
-    for i in range(m):
-        nis += y[i] * sy[i, 0]
-    if not np.isfinite(nis):
-        return DIVERGED, nis
-    if is_gated(nis, gate):
-        return GATED, nis
-    for a_ in range(m):
-        for j in range(nc):
-            kt[a_, j] = hp[a_, j]
-    chol_solve_rows(lo, kt)
-    for i in range(nc):
-        delta[i] = 0.0
-    for a_ in range(m):
-        for i in range(nc):
-            delta[i] += kt[a_, i] * y[a_]
-    # K R summed as (K R)^T along the rows of K^T (contiguous, of length nc), then
-    # transposed: each entry the same terms in the same order as kr[i, b] += kt[a, i] r[a, b]
-    for b_ in range(m):
-        for i in range(nc):
-            krt[b_, i] = 0.0
-        for a_ in range(m):
-            rv = r[a_, b_]
-            for i in range(nc):
-                krt[b_, i] += kt[a_, i] * rv
-    for i in range(nc):
-        for b_ in range(m):
-            kr[i, b_] = krt[b_, i]
-    return ACCEPTED, nis
-
-
-def inject(x, delta, n_dp, n_do, additive, wmax, d4, q4):
-    """Apply a correction in the covariance coordinates (``x <- x [+] delta``) in place.
-
-    Error state: ``q <- q Exp(dtheta)``; additive: ``q <- q + dq``; then ``q`` is normalised and
-    the angular velocity clipped to ``|w| <= wmax`` (if ``wmax > 0``), which changes the mean
-    only: the covariance stays symmetric positive definite. ``d4`` and ``q4`` are scratch (4,).
-    """
-    npl, nol, nx, nc = dims(n_dp, n_do, additive)
-    qo = 3 * npl
-    for i in range(qo):
-        x[i] += delta[i]
-    if n_do < 0:
-        return
-    if additive:
-        for i in range(qo, nx):
-            x[i] += delta[i]
-    else:
-        qexp_into(delta[qo : qo + 3], d4)
-        for k in range(4):
-            q4[k] = x[qo + k]
-        qmul_into(q4, d4, x[qo : qo + 4])
-        for i in range(qo + 4, nx):
-            x[i] += delta[i - 1]
-    n = math.sqrt(x[qo] ** 2 + x[qo + 1] ** 2 + x[qo + 2] ** 2 + x[qo + 3] ** 2)
-    for i in range(4):
-        x[qo + i] /= n
-    if n_do >= 1 and wmax > 0.0:
-        wn = math.sqrt(x[qo + 4] ** 2 + x[qo + 5] ** 2 + x[qo + 6] ** 2)
-        if wn > wmax:
-            for i in range(3):
-                x[qo + 4 + i] *= wmax / wn
-
-
-def state_is_valid(x, p):
-    """Whether the state is finite and every variance positive."""
-    for i in range(p.shape[0]):
-        if not (p[i, i] > 0.0 and np.isfinite(p[i, i])):
-            return False
-    for i in range(x.shape[0]):
-        if not np.isfinite(x[i]):
-            return False
-    return True
-
-
-def update_scratch(m, nc):
-    """Scratch arrays for :func:`update_into` (``m`` measured rows, ``nc`` error size)."""
-    return (
-        np.empty((m, nc)), np.empty((m, m)), np.empty((m, m)), np.empty((m, 1)),
-        np.empty((m, nc)), np.empty((nc, m)), np.empty(nc), np.empty(m), np.empty(nc),
-        np.empty((nc, nc)), np.empty(4), np.empty(4),
-    )  # fmt: skip
-
-
-def selection_rows(h, idx):
-    """Whether ``H`` selects one state entry per row (writing them to ``idx``)."""
-    m, nc = h.shape
-    selection = True
-    for row in range(m):
-        idx[row] = -1
-        for c in range(nc):
-            if h[row, c] != 0.0:
-                if h[row, c] == 1.0 and idx[row] < 0:
-                    idx[row] = c
-                else:
-                    selection = False
-        if idx[row] < 0:
-            selection = False
-    return selection
-
-
-def update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws):
-    """EKF update (thesis eqs. 5.61-5.63) for a selection ``H`` (rows ``idx``), in place.
-
-    Returns ``(status, nis)``: ACCEPTED, GATED (state untouched) or DIVERGED (the caller
-    re-initialises). ``ws`` is a tuple of scratch arrays from :func:`update_scratch`.
-    """
-    hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
-    nc = p.shape[0]
-    m = y.shape[0]
-    for a_ in range(m):
-        for j in range(nc):
-            hp[a_, j] = p[idx[a_], j]
-    for a_ in range(m):
-        for b_ in range(m):
-            s[a_, b_] = 0.5 * (hp[a_, idx[b_]] + hp[b_, idx[a_]]) + 0.5 * (r[a_, b_] + r[b_, a_])
-    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, mp)
-    if status != ACCEPTED:
-        return status, nis
-    joseph_selection(p, kt, kr, hp, idx, mp, g, acc)
-    inject(x, delta, n_dp, n_do, additive, wmax, d4, q4)
-    if not state_is_valid(x, p):
-        return DIVERGED, nis
-    return ACCEPTED, nis
-
-
-def update(x, p, y, h, r, gate, n_dp, n_do, additive, wmax):
-    """EKF update in place for any ``H``; returns ``(status, nis)`` as :func:`update_into`.
-
-    A selection ``H`` (error state, additive non-quaternion parts) runs :func:`update_into`;
-    otherwise (the additive quaternion normalisation, user measurements) dense products.
-    """
-    nc = p.shape[0]
-    m = y.shape[0]
-    return update_with(
-        x, p, y, h, r, gate, n_dp, n_do, additive, wmax, update_scratch(m, nc),
-        np.empty(m, np.int64),
-    )  # fmt: skip
-
-
-def update_with(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws, idx):
-    """:func:`update` with its scratch arrays given (:func:`update_scratch` and ``idx``
-    (m,) int), so that a loop over many filters allocates them once."""
-    if selection_rows(h, idx):
-        return update_into(x, p, y, r, idx, gate, n_dp, n_do, additive, wmax, ws)
-    return update_dense(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws)
-
-
-def update_dense(x, p, y, h, r, gate, n_dp, n_do, additive, wmax, ws):
-    """:func:`update_with` of an ``H`` that is not a selection: dense products."""
-    nc = p.shape[0]
-    m = y.shape[0]
-    hp, s, lo, sy, kt, kr, delta, g, acc, mp, d4, q4 = ws
-    hp[:, :] = h @ p
-    s[:, :] = sym(hp @ h.T + r)
-    status, nis = gain_into(hp, s, y, r, gate, lo, sy, kt, kr, delta, mp)
-    if status != ACCEPTED:
-        return status, nis
-    # Joseph form (I - K H) P (I - K H)^T + K R K^T: keeps P symmetric positive definite even
-    # when K is not exactly optimal (rounding, gating, clipped angular velocity).
-    mm = np.eye(nc) - kt.T @ h
-    pn = mm @ p @ mm.T
-    for i in range(nc):
-        for j in range(i, nc):
-            w = 0.5 * (pn[i, j] + pn[j, i])
-            for b_ in range(m):
-                w += kr[i, b_] * kt[b_, j]
-            if abs(w) < TINY:
-                w = 0.0
-            p[i, j] = w
-            p[j, i] = w
-    inject(x, delta, n_dp, n_do, additive, wmax, d4, q4)
-    if not state_is_valid(x, p):
-        return DIVERGED, nis
-    return ACCEPTED, nis
 
 
 def local(x1, x0, n_dp, n_do, additive):
@@ -742,9 +136,7 @@ def local(x1, x0, n_dp, n_do, additive):
         for i in range(qo + 4, nx):
             d[i] = x1[i] - x0[i]
         return d
-    qc = x0[qo : qo + 4].copy()
-    qc[0], qc[1], qc[2] = -qc[0], -qc[1], -qc[2]
-    d[qo : qo + 3] = qlog(qmul(qc, x1[qo : qo + 4]))
+    qrminus_into(x1[qo : qo + 4], x0[qo : qo + 4], d[qo : qo + 3])
     for i in range(qo + 4, nx):
         d[i - 1] = x1[i] - x0[i]
     return d

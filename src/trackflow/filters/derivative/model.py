@@ -10,6 +10,7 @@ import numpy as np
 from trackflow.math import kernels_for
 
 from . import kernels as _source
+from . import update_kernels as _update
 
 __all__ = ["MotionModel", "FORMULATIONS"]
 
@@ -253,6 +254,6 @@ class MotionModel:
         )
         if zo.shape == (3,):
             zo = np.concatenate([zo, [0.0]])
-        return kernels_for(_source).residual(
+        return kernels_for(_update).residual(
             self._check_state(x), n_dp, n_do, add, position_level, orientation_level, zp, zo
         )

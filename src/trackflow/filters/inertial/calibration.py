@@ -16,13 +16,12 @@ from __future__ import annotations
 import numpy as np
 
 from trackflow.math import (
-    quat_conjugate,
     quat_from_matrix,
-    quat_log,
     quat_make_continuous,
-    quat_multiply,
+    quat_rminus,
     quat_rotate,
     quat_slerp,
+    umeyama,
 )
 from trackflow.timesync import correlation_offset
 
@@ -109,7 +108,7 @@ def angular_velocity_from_poses(t, quaternion) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(t, dtype=float)
     q = quat_make_continuous(np.asarray(quaternion, dtype=float))
     dt = np.diff(t)
-    inc = quat_log(quat_multiply(quat_conjugate(q[:-1]), q[1:]))
+    inc = quat_rminus(q[1:], q[:-1])
     return 0.5 * (t[1:] + t[:-1]), inc / dt[:, None]
 
 
@@ -179,11 +178,10 @@ def estimate_imu_rotation(
     if np.count_nonzero(use) < 10:
         raise ValueError("too little rotation to estimate the IMU-to-body rotation")
     a, b = w_s[use], w_b[use]
-    ma, mb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((b - mb).T @ (a - ma))
-    d = np.sign(np.linalg.det(u @ vt))
-    r_bs = u @ np.diag([1.0, 1.0, d]) @ vt
-    bias = ma - r_bs.T @ mb
+    # w_b = R_b_s (w_s - bias): T_b_s's rotation, its translation is -R_b_s bias
+    fit = umeyama(b, a, allow_collinear=True)
+    r_bs = fit.rotation
+    bias = -r_bs.T @ fit.translation
     return quat_from_matrix(r_bs), bias
 
 

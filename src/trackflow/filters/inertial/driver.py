@@ -138,7 +138,7 @@ class InertialFilter:
         # the pose error of T_w_s: rotation error maps by R_s_b, lever arm couples them
         J = np.zeros((6, 6))
         J[:3, :3] = np.eye(3)
-        J[:3, 3:] = r_ws @ self._k.skew3(self._t_sb)
+        J[:3, 3:] = r_ws @ self._k.hat(self._t_sb)
         J[3:, 3:] = self._r_sb
         C = J @ np.asarray(pose.covariance, dtype=float).reshape(6, 6) @ J.T
         self._P = self.model.initial_covariance(C, velocity_sigma)

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trackflow.math._lie import so3_exp
+
 __all__ = ["GyroExtrapolation", "fit_gyro_extrapolation"]
 
 
@@ -74,13 +76,11 @@ class GyroExtrapolation:
 def _world_rates(t, w):
     """``R_k omega_k`` with ``R_k`` the gyro integrated from the identity (any start will do:
     the fitted weights are the same in every world frame)."""
-    from .kernel import exp_so3
-
     out = np.empty_like(w)
     r = np.eye(3)
     dt = np.diff(t, prepend=t[0])
     for k in range(w.shape[0]):
-        r = r @ exp_so3(w[k] * dt[k])
+        r = r @ so3_exp(w[k] * dt[k])
         out[k] = r @ w[k]
     return out
 

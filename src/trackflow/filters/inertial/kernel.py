@@ -2,7 +2,8 @@
 
 Every function here works on small dense arrays with loops and elementwise NumPy so that the
 same source runs as Python (the reference) and under ``numba.njit`` (``driver`` picks one).
-The model, its error state and the formulas are documented in :mod:`.model`.
+The model, its error state and the formulas are documented in :mod:`.model`; SO(3)
+(``Exp``, ``Log``, ``Jr``, ``[v]x``) comes from :mod:`trackflow.math._lie`.
 
 Nominal state: ``x`` (15,) = ``(p_w_s, v_w_s, unused (3), b_g, b_a)`` and ``R`` (3, 3) =
 ``R_w_s``; covariance ``P`` (n, n) with ``n = 15`` (strapdown) or ``n = 12`` (gyro-driven
@@ -13,12 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from trackflow.math._lie import hat, right_jac, so3_exp, so3_log
+
 __all__ = [
     "KERNELS",
-    "exp_so3",
-    "log_so3",
-    "right_jacobian",
-    "skew3",
     "transition",
     "propagate",
     "pose_jacobian",
@@ -31,12 +30,8 @@ __all__ = [
 ]
 
 #: Names compiled by the driver when numba is available.
-KERNEL_SOURCES = ()
+KERNEL_SOURCES = ("trackflow.math._lie",)
 KERNELS = (
-    "skew3",
-    "exp_so3",
-    "log_so3",
-    "right_jacobian",
     "transition",
     "propagate",
     "pose_jacobian",
@@ -53,72 +48,6 @@ KERNELS = (
 
 # error-state blocks
 IP, IV, ITH, IBG, IBA = 0, 3, 6, 9, 12
-
-
-def skew3(v):
-    """``[v]x`` (3, 3) with ``[v]x u = v x u``."""
-    k = np.zeros((3, 3))
-    k[0, 1] = -v[2]
-    k[0, 2] = v[1]
-    k[1, 0] = v[2]
-    k[1, 2] = -v[0]
-    k[2, 0] = -v[1]
-    k[2, 1] = v[0]
-    return k
-
-
-def exp_so3(phi):
-    """Rotation matrix ``Exp(phi)`` (3, 3) of a rotation vector ``phi`` (3,) [rad]."""
-    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    k = skew3(phi)
-    if t2 < 1e-12:
-        a = 1.0 - t2 / 6.0
-        b = 0.5 - t2 / 24.0
-    else:
-        t = np.sqrt(t2)
-        a = np.sin(t) / t
-        b = (1.0 - np.cos(t)) / t2
-    return np.eye(3) + a * k + b * (k @ k)
-
-
-def log_so3(r):
-    """Rotation vector ``Log(R)`` (3,) with angle in ``[0, pi]`` of a rotation matrix (3, 3)."""
-    c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
-    c = min(1.0, max(-1.0, c))
-    t = np.arccos(c)
-    v = np.empty(3)
-    v[0] = r[2, 1] - r[1, 2]
-    v[1] = r[0, 2] - r[2, 0]
-    v[2] = r[1, 0] - r[0, 1]
-    if t < 1e-6:
-        return 0.5 * v
-    if t < np.pi - 1e-4:
-        return v * (0.5 * t / np.sin(t))
-    # near pi: axis from the diagonal (sin t ~ 0)
-    d = np.empty(3)
-    for i in range(3):
-        d[i] = np.sqrt(max(0.0, (r[i, i] + 1.0) * 0.5))
-    i = int(np.argmax(d))
-    axis = np.empty(3)
-    for j in range(3):
-        axis[j] = (r[i, j] + r[j, i]) / (4.0 * d[i]) if j != i else d[i]
-    if axis @ v < 0.0:
-        axis = -axis
-    return axis * t
-
-
-def right_jacobian(phi):
-    """Right Jacobian of SO(3) ``J_r(phi)`` (3, 3): ``Exp(phi + d) ~ Exp(phi) Exp(J_r d)``."""
-    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    k = skew3(phi)
-    if t2 < 1e-12:
-        a = 0.5 - t2 / 24.0
-        b = 1.0 / 6.0 - t2 / 120.0
-    else:
-        t = np.sqrt(t2)
-        a = (1.0 - np.cos(t)) / t2
-        b = (t - np.sin(t)) / (t2 * t)
-    return np.eye(3) - a * k + b * (k @ k)
 
 
 def transition(x, r, gyro, accel, dt, g, n):
@@ -149,15 +78,15 @@ def transition(x, r, gyro, accel, dt, g, n):
     """
     w = gyro - x[IBG : IBG + 3]
     phi = w * dt
-    jr = right_jacobian(phi)
+    jr = right_jac(phi)
     f = np.zeros(3)
     if n == 15:
         f = accel - x[IBA : IBA + 3]
-    rf = r @ skew3(f)
+    rf = r @ hat(f)
     F = np.eye(n)
     for i in range(3):
         F[IP + i, IV + i] = dt
-    dexp_t = exp_so3(phi).T
+    dexp_t = so3_exp(phi).T
     for i in range(3):
         for j in range(3):
             F[ITH + i, ITH + j] = dexp_t[i, j]
@@ -197,7 +126,7 @@ def propagate(x, r, P, gyro, accel, dt, g, noise, n):
     for i in range(3):
         x[IP + i] += x[IV + i] * dt + 0.5 * a[i] * dt * dt
         x[IV + i] += a[i] * dt
-    r_new = r @ exp_so3(w * dt)
+    r_new = r @ so3_exp(w * dt)
     Pn = F @ P @ F.T
     sg2 = noise[0] * noise[0] / dt  # discrete variance of one held reading
     sa2 = noise[1] * noise[1] / dt
@@ -222,7 +151,7 @@ def propagate(x, r, P, gyro, accel, dt, g, noise, n):
 def pose_jacobian(x, r, r_sb, t_sb, n):
     """``J_pose_x`` (6, n): pose ``T_w_b = T_w_s T_s_b`` error ``(dt, dtheta_b)`` by error state."""
     H = np.zeros((6, n))
-    k = -(r @ skew3(t_sb))
+    k = -(r @ hat(t_sb))
     for i in range(3):
         H[i, IP + i] = 1.0
         for j in range(3):
@@ -238,7 +167,7 @@ def _inject(x, r, dx, n):
         x[IBG + i] += dx[IBG + i]
         if n == 15:
             x[IBA + i] += dx[IBA + i]
-    return r @ exp_so3(dx[ITH : ITH + 3])
+    return r @ so3_exp(dx[ITH : ITH + 3])
 
 
 def _kalman(x, r, P, y, H, Rm, gate, n):
@@ -267,7 +196,7 @@ def update_pose(x, r, P, z_p, z_r, Rm, r_sb, t_sb, gate, n):
     r_pred = r @ r_sb
     y = np.empty(6)
     y[:3] = z_p - p_pred
-    y[3:] = log_so3(r_pred.T @ z_r)
+    y[3:] = so3_log(r_pred.T @ z_r)
     H = pose_jacobian(x, r, r_sb, t_sb, n)
     return _kalman(x, r, P, y, H, Rm, gate, n)
 
@@ -275,7 +204,7 @@ def update_pose(x, r, P, z_p, z_r, Rm, r_sb, t_sb, gate, n):
 def gravity_jacobian(x, r, g, n):
     """``J_accel_x`` (3, n) of the at-rest accelerometer model ``f = -R_w_s^T g + b_a``."""
     H = np.zeros((3, n))
-    k = skew3(-(r.T @ g))
+    k = hat(-(r.T @ g))
     for i in range(3):
         for j in range(3):
             H[i, ITH + j] = k[i, j]
@@ -360,12 +289,12 @@ def predict_ahead(
             for i in range(3):
                 phi[i] += coef[hi, 3 * j + i] * wbuf[j, i]
         if dt_extra > 0.0:
-            rh = exp_so3(phi) @ (r @ exp_so3(trend[0] * dt_extra))
+            rh = so3_exp(phi) @ (r @ so3_exp(trend[0] * dt_extra))
         else:
-            rh = exp_so3(phi) @ r
+            rh = so3_exp(phi) @ r
     else:
         phi = trend[0] * hq + s * 0.5 * trend[1] * hq * hq
-        rh = r @ exp_so3(phi)
+        rh = r @ so3_exp(phi)
     h = hq
     ph = x[IP : IP + 3] + x[IV : IV + 3] * h
     if coef_a.shape[1] > 0:

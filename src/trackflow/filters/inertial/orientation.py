@@ -189,7 +189,7 @@ def initial_orientation(accel, mag=None) -> np.ndarray:
         s, c = np.linalg.norm(axis), float(up[2])
         if s < 1e-12:
             return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-        return _okernel.exp_so3(axis / s * np.arctan2(s, c))
+        return _okernel.so3_exp(axis / s * np.arctan2(s, c))
     m = np.asarray(mag, dtype=float).reshape(3)
     north = m - (m @ up) * up
     n_north = np.linalg.norm(north)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from trackflow.filters.inertial.kernel import exp_so3, right_jacobian, skew3
+from trackflow.math._lie import hat, right_jac, so3_exp
 
 __all__ = [
     "KERNELS",
@@ -22,7 +22,7 @@ __all__ = [
     "run_orientation",
 ]
 
-KERNEL_SOURCES = ("trackflow.filters.inertial.kernel",)
+KERNEL_SOURCES = ("trackflow.math._lie",)
 KERNELS = (
     "orientation_transition",
     "orientation_step",
@@ -53,9 +53,9 @@ def orientation_transition(r, x, gyro, accel, dt):
         Step [s].
     """
     phi = (gyro - x[0:3]) * dt
-    e = exp_so3(phi).T
-    jr = right_jacobian(phi)
-    rf = r @ skew3(accel)
+    e = so3_exp(phi).T
+    jr = right_jac(phi)
+    rf = r @ hat(accel)
     F = np.eye(N_STATES)
     for i in range(3):
         for j in range(3):
@@ -82,7 +82,7 @@ def orientation_step(r, x, P, gyro, accel, dt, g, noise):
     for i in range(3):
         x[6 + i] += x[3 + i] * dt + 0.5 * a[i] * dt * dt
         x[3 + i] += a[i] * dt
-    r_new = r @ exp_so3((gyro - x[0:3]) * dt)
+    r_new = r @ so3_exp((gyro - x[0:3]) * dt)
     Pn = F @ P @ F.T
     qg = noise[0] * noise[0] * dt
     qb = noise[1] * noise[1] * dt
@@ -143,7 +143,7 @@ def scalar_update(r, x, P, H, y, var, keep_bias):
         x[i] += dx[IBG + i]
         x[3 + i] += dx[IV + i]
         x[6 + i] += dx[IP + i]
-    r_new = r @ exp_so3(dx[ITH : ITH + 3])
+    r_new = r @ so3_exp(dx[ITH : ITH + 3])
     # (I - K H) P (I - K H)^T + K var K^T
     A = P - np.outer(K, PH)
     Pn = A - np.outer(A @ H, K) + np.outer(K, K) * var

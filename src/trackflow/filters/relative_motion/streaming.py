@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from trackflow.math import UncertainPose, quat_conjugate, quat_log, quat_multiply
+from trackflow.math import UncertainPose, quat_rminus
 
 from ..pose_history import GatedPoseFilter
 from .ekf import RelativeMotionEKF, RelativeMotionState, process_noise
@@ -92,7 +92,7 @@ class RelativeMotionPoseFilter(GatedPoseFilter):
         r = np.concatenate(
             [
                 z.position - pred.position,
-                quat_log(quat_multiply(quat_conjugate(pred.quaternion), z.quaternion)),
+                quat_rminus(z.quaternion, pred.quaternion),
             ]
         )  # (dt, dtheta) of z relative to the prediction, trackflow convention
         return self._innovation_nis(r, pred.covariance + z.covariance)

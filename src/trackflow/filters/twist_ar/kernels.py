@@ -20,10 +20,11 @@ from trackflow.filters.gating import (
     next_gated_run,
     reset_due,
 )
-from trackflow.math._scalar import joseph_selection, qexp, qlog, qmul, right_jac, rotmat
+from trackflow.math._lie import qexp, qrminus, qrplus, right_jac, rotmat
+from trackflow.math._scalar import joseph_selection
 
 KERNELS = ("twist_ar_top", "twist_ar_top_into", "twist_ar_run")
-KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.filters.gating")
+KERNEL_SOURCES = ("trackflow.math._scalar", "trackflow.math._lie", "trackflow.filters.gating")
 
 
 def twist_ar_top(q, h, a_cat):
@@ -160,7 +161,7 @@ def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap, gate, reset_after
                 u = np.dot(rotmat(q), xi[:3])
                 for i in range(3):
                     p[i] += u[i]
-                q = qmul(q, qexp(xi[3:]))
+                q = qrplus(q, xi[3:])
                 for i in range(nh - 1, 5, -1):
                     h[i] = h[i - 6]
                 for i in range(6):
@@ -168,8 +169,7 @@ def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap, gate, reset_after
             zq = qm[k].copy()
             if q[0] * zq[0] + q[1] * zq[1] + q[2] * zq[2] + q[3] * zq[3] < 0.0:
                 zq = -zq
-            conj = np.array([-q[0], -q[1], -q[2], q[3]])
-            dth = qlog(qmul(conj, zq))
+            dth = qrminus(zq, q)
             y = np.empty(6)
             for i in range(3):
                 y[i] = pm[k, i] - p[i]
@@ -193,7 +193,7 @@ def twist_ar_run(t, pm, qm, a_cat, qn, prior, r_diag, dt, gap, gate, reset_after
                 dx = np.dot(sy, hp)  # K y
                 for i in range(3):
                     p[i] += dx[i]
-                q = qmul(q, qexp(dx[3:6]))
+                q = qrplus(q, dx[3:6])
                 for i in range(nh):
                     h[i] += dx[6 + i]
                 kr = np.empty((n, 6))

@@ -43,8 +43,8 @@ from trackflow.math import (
     kernels_for,
     quat_conjugate,
     quat_exp,
-    quat_log,
     quat_multiply,
+    quat_rminus,
     quat_rotate,
 )
 
@@ -85,7 +85,7 @@ def body_increments(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     if p.shape[0] > 1:
         qc = quat_conjugate(q[:-1])
         xi[1:, :3] = quat_rotate(qc, p[1:] - p[:-1])
-        xi[1:, 3:] = quat_log(quat_multiply(qc, q[1:]))
+        xi[1:, 3:] = quat_rminus(q[1:], q[:-1])
     return xi
 
 
