@@ -7,18 +7,15 @@ import numpy as np
 from .evaluation import PredictionReport, Predictor, Trajectory, predict_kalman, predict_linear
 from .io import atomic_output
 from .math import quat_log, quat_make_continuous
+from .optional import pyplot, require
 
 __all__ = ["plot_sequence", "plot_error_vs_horizon", "require_matplotlib", "save_figure"]
 
 
 def require_matplotlib() -> None:
-    """Raise ``ImportError`` naming the extra to install when matplotlib is missing."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise ImportError(
-            "plots need matplotlib, which is not installed: pip install 'trackflow[plot]'"
-        ) from None
+    """Raise :class:`~trackflow.errors.MissingExtraError` (an ``ImportError``) naming the
+    extra to install when matplotlib is missing."""
+    require("matplotlib", extra="plot", feature="plots")
 
 
 def save_figure(fig, path, overwrite: bool = False, dpi: int = 110) -> None:
@@ -28,13 +25,7 @@ def save_figure(fig, path, overwrite: bool = False, dpi: int = 110) -> None:
 
 
 def _pyplot():
-    require_matplotlib()
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot("plots")
 
 
 def plot_sequence(

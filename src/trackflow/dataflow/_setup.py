@@ -20,7 +20,9 @@ are added, and ``sensors`` entries that name an existing sensor and replace some
 
 Everything a file can say can also be built in Python with
 :class:`trackflow.graph.SpatialRelationshipGraph` and :class:`trackflow.graph.Query`.
-Mistakes raise ``ValueError`` naming the file, the line and the key.
+The file is read by :func:`trackflow.yamlfile.read_yaml` (a key given twice is refused).
+Mistakes raise :class:`trackflow.errors.ConfigError` (a ``ValueError``) naming the file, the
+line and the key.
 """
 
 from __future__ import annotations
@@ -29,42 +31,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from ..errors import ConfigError
 from ..graph import MotionSpec, Query, SpatialRelationshipGraph
 from ..math import Pose
+from ..yamlfile import YamlMap, line_of, read_yaml
 from ._planner import Plan, plan_query
 from ._sources import RecordingPlayer
 
 __all__ = ["Setup", "load_setup", "parse_setup"]
-
-
-class _Map(dict):
-    line = 0
-
-
-class _LineLoader(yaml.SafeLoader):
-    """A safe loader remembering the line of every mapping."""
-
-
-def _construct_map(loader: _LineLoader, node) -> _Map:
-    seen: dict = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None,
-                None,
-                f"duplicate key {key!r} (first on line {seen[key]})",
-                key_node.start_mark,
-            )
-        seen[key] = key_node.start_mark.line + 1
-    m = _Map(loader.construct_mapping(node, deep=True))
-    m.line = node.start_mark.line + 1
-    return m
-
-
-_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
 
 
 @dataclass
@@ -124,16 +99,16 @@ class Setup:
         return out
 
 
-def _err(src: str, item, msg: str) -> ValueError:
-    line = getattr(item, "line", 0)
-    return ValueError(f"{src}" + (f":{line}" if line else "") + f": {msg}")
+def _err(src: str, item, msg: str, key=None) -> ConfigError:
+    """The error of ``item`` (a mapping of ``src``): file, line (of ``key`` when given), message."""
+    return ConfigError(msg, src, line_of(item, key))
 
 
 def _cov(src, item, what) -> np.ndarray:
     if "covariance" in item:
         c = np.asarray(item["covariance"], dtype=float)
         if c.shape != (6, 6):
-            raise _err(src, item, f"{what}: covariance must be a 6x6 list of lists")
+            raise _err(src, item, f"{what}: covariance must be a 6x6 list of lists", "covariance")
         return c
     sp = np.asarray(item.get("sigma_pos_mm", 0.0), float)
     so = np.asarray(item.get("sigma_ori_deg", 0.0), float)
@@ -141,7 +116,7 @@ def _cov(src, item, what) -> np.ndarray:
         if v.ndim > 1 or v.size not in (1, 3) or not np.all(np.isfinite(v)) or np.any(v < 0):
             raise _err(
                 src, item, f"{what}: {key} must be one or three finite values >= 0, got "
-                f"{item.get(key)!r}"
+                f"{item.get(key)!r}", key
             )  # fmt: skip
     sp = np.broadcast_to(sp * 1e-3, (3,))
     so = np.radians(np.broadcast_to(so, (3,)))
@@ -152,9 +127,9 @@ def _name(src, item, key: str, what: str) -> str:
     """A frame or edge name: a non-empty string without surrounding blanks."""
     v = item[key]
     if not isinstance(v, (str, int)) or isinstance(v, bool) or not str(v).strip():
-        raise _err(src, item, f"{what}: {key} must be a non-empty name, got {v!r}")
+        raise _err(src, item, f"{what}: {key} must be a non-empty name, got {v!r}", key)
     if str(v) != str(v).strip():
-        raise _err(src, item, f"{what}: {key} {v!r} has leading or trailing blanks")
+        raise _err(src, item, f"{what}: {key} {v!r} has leading or trailing blanks", key)
     return str(v)
 
 
@@ -164,7 +139,7 @@ def _frame(src, item, key: str, what: str, declared: set[str] | None) -> str:
     if declared is not None and name not in declared:
         raise _err(
             src, item, f"{what}: {key} frame {name!r} is not declared in frames: "
-            f"{sorted(declared)}"
+            f"{sorted(declared)}", key
         )  # fmt: skip
     return name
 
@@ -246,8 +221,9 @@ def _check_keys(src, item, allowed, what):
     unknown = set(item) - allowed
     if unknown:
         raise _err(
-            src, item, f"{what}: unknown keys {sorted(unknown)} (allowed: {sorted(allowed)})"
-        )
+            src, item, f"{what}: unknown keys {sorted(unknown, key=str)} (allowed: "
+            f"{sorted(allowed)})", min(unknown, key=lambda k: line_of(item, k))
+        )  # fmt: skip
     for key in ("name", "source", "target"):
         if key not in item:
             raise _err(src, item, f"{what}: missing key {key!r}")
@@ -263,19 +239,10 @@ _FRAGMENT_SENSOR_KEYS = {
 }
 
 
-def _read_yaml(path: Path):
-    try:
-        return yaml.load(path.read_text(), Loader=_LineLoader)  # a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML: {exc}") from exc
-
-
 def _copy_map(item):
-    if not isinstance(item, dict):
-        return item
-    m = _Map(item)
-    m.line = getattr(item, "line", 0)
-    return m
+    if isinstance(item, YamlMap):
+        return item.copy()
+    return dict(item) if isinstance(item, dict) else item
 
 
 def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
@@ -294,7 +261,7 @@ def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
         path = path if path.is_absolute() or base_dir is None else base_dir / path
         if not path.is_file():
             raise _err(source, doc, f"include: fragment {path} not found")
-        frag = _read_yaml(path)
+        frag = read_yaml(path)
         if not isinstance(frag, dict) or set(frag) - {"statics", "sensors"}:
             raise ValueError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
         statics += list(frag.get("statics") or [])
@@ -338,8 +305,8 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             )  # fmt: skip
         declared = set()
         for f in frames:
-            entry = _Map(frame=f)
-            entry.line = getattr(doc, "line", 0)
+            entry = YamlMap(frame=f)
+            entry.line = line_of(doc, "frames")
             name = _name(source, entry, "frame", "frames")
             if name in declared:
                 raise _err(source, doc, f"frames: {name!r} is listed twice")
@@ -439,15 +406,4 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
 def load_setup(path: str | Path) -> Setup:
     """Read a YAML setup file; errors name the file and line."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
-    try:
-        doc = yaml.load(text, Loader=_LineLoader)  # a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        if mark is not None:
-            raise ValueError(f"{path}:{mark.line + 1}: invalid YAML: {exc.problem}") from None
-        raise ValueError(f"{path}: invalid YAML: {exc}") from None
-    return parse_setup(doc, str(path), path.parent)
+    return parse_setup(read_yaml(path), str(path), path.parent)

@@ -50,6 +50,7 @@ from ..dataflow import (
 )
 from ..graph import Edge, SpatialRelationshipGraph
 from ..math import UncertainPose
+from ..optional import require
 from . import wire
 from .clock import ClockOffset, time_error_covariance, twist_between
 from .config import AgentConfig, zenoh_config
@@ -186,7 +187,7 @@ class Agent:
 
     # -- life cycle -----------------------------------------------------------------------------
     def start(self) -> Agent:
-        import zenoh
+        zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
 
         conf = zenoh_config(self.cfg)
         try:

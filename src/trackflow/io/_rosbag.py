@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..math import cov_from_ros, cov_to_ros
+from ..optional import require
 from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
@@ -45,14 +46,9 @@ def _is_ros1(path: Path) -> bool:
 
 
 def require_rosbags() -> None:
-    """Raise ``ImportError`` naming the extra to install when ``rosbags`` is missing."""
-    try:
-        import rosbags  # noqa: F401
-    except ImportError:
-        raise ImportError(
-            "ROS bags need the rosbags package, which is not installed: "
-            "pip install 'trackflow[ros]'"
-        ) from None
+    """Raise :class:`~trackflow.errors.MissingExtraError` (an ``ImportError``) naming the
+    extra to install when ``rosbags`` is missing."""
+    require("rosbags", extra="ros", feature="ROS bags")
 
 
 def _typestore(ros1: bool):

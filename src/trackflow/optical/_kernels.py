@@ -11,10 +11,12 @@ translations (C, 3).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from ..optional import require
 from .camera import CameraRig
+
+numba = require("numba", extra="fast", feature="the optical tracker")
 
 __all__ = ["guided_assign", "pack_cameras", "refine_points_packed"]
 

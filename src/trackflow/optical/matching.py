@@ -15,15 +15,15 @@ one nearer the prediction. This is the matching heuristic the paper asks of the 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..filters import chi2_gate
-from ..math import UncertainPose, quat_conjugate, quat_log, quat_multiply
+from ..math import UncertainPose, kernels_for, quat_conjugate, quat_log, quat_multiply
 from .absolute_orientation import PoseFit, fit_pose
 from .correspondence import PointCandidates
 from .models import MarkerModel
@@ -73,7 +73,11 @@ def _kabsch_batch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return R, cb - np.einsum("tij,tj->ti", R, ca)
 
 
-@numba.njit(cache=True)
+#: the backend seam's kernels of this module (compiled with numba when it is installed)
+KERNELS = ("_seed_triangles",)
+KERNEL_SOURCES = ()
+
+
 def _seed_triangles(E, S, seed_i, seed_a, per_seed):
     """For every seed (point i = marker a), up to ``per_seed`` triangles (i, k, l) = (a, c, d)
     whose three distances all match, the best supported (``S[k, c] + S[l, d]``) first."""
@@ -138,7 +142,7 @@ def _hypotheses(
     flat = np.argsort(-S, axis=None)[:seeds]
     si, sa = np.divmod(flat, M)
     keep = S[si, sa] >= 2
-    tp, tm = _seed_triangles(E, S, si[keep], sa[keep], per_seed)
+    tp, tm = kernels_for(sys.modules[__name__])._seed_triangles(E, S, si[keep], sa[keep], per_seed)
     if not len(tp):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     return _kabsch_batch(model.points[tm], X[tp])

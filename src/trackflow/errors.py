@@ -1,0 +1,181 @@
+"""The errors trackflow raises: each says what was asked and why it could not be done.
+
+Every error of trackflow derives from :class:`TrackflowError` and from the builtin exception it
+stands for (``ValueError``, ``RuntimeError``, ``ImportError``), so ``except ValueError`` keeps
+working and ``except TrackflowError`` catches every mistake a user can make, while a bug
+(``KeyError``, ``AttributeError`` ...) is not caught by it. The command line turns a
+``TrackflowError`` into one line on standard error (``--debug`` shows the traceback).
+
+====================  ============  =========================================================
+error                 builtin       raised when
+====================  ============  =========================================================
+InputError            ValueError    an argument or a value in the data is not acceptable
+ConfigError           ValueError    a key of a file (setup, agent, optical, model): file, line
+FormatError           ValueError    a recording or packet cannot be read: file and line, or
+                                    sensor and packet
+PlanError             ValueError    a query has no answer in the graph (no path, unknown
+                                    frame, edge or query)
+ExtrapolationError    ValueError    a time outside the data was asked for
+NumericalError        ValueError    a computation on acceptable input found no answer
+                                    (singular, degenerate, did not converge)
+StateError            RuntimeError  an object was asked for something its state cannot give
+ServiceError          RuntimeError  a process, server or network trackflow runs failed
+MissingExtraError     ImportError   an optional dependency is not installed: names the extra
+====================  ============  =========================================================
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ConfigError",
+    "ExtrapolationError",
+    "FormatError",
+    "InputError",
+    "MissingExtraError",
+    "NumericalError",
+    "PlanError",
+    "ServiceError",
+    "StateError",
+    "TrackflowError",
+    "where",
+]
+
+
+def where(file=None, line: int | None = None, key: str | None = None) -> str:
+    """``"file:line: key"`` with the parts that are known (``""`` when none is)."""
+    head = "" if file is None else str(file)
+    if line:
+        head = f"{head}:{int(line)}" if head else f"line {int(line)}"
+    if key:
+        head = f"{head}: {key}" if head else str(key)
+    return head
+
+
+class TrackflowError(Exception):
+    """Base of every error trackflow raises on purpose (a user's mistake, not a bug)."""
+
+
+class InputError(TrackflowError, ValueError):
+    """An argument, or a value in the data given, that trackflow cannot accept."""
+
+
+class ConfigError(InputError):
+    """A file of settings (setup, agent, optical, calibration, model file) that is wrong.
+
+    Parameters
+    ----------
+    message : str
+        Why the key is wrong.
+    file, line, key : optional
+        Where: the file, the 1-based line and the key; the message is prefixed with the known
+        parts (``setup.yaml:12: sensors[0].rate_hz: must be > 0``).
+    """
+
+    def __init__(self, message: str, file=None, line: int | None = None, key=None):
+        self.file = None if file is None else str(file)
+        self.line = int(line) if line else None
+        self.key = None if key is None else str(key)
+        self.reason = message
+        head = where(self.file, self.line, self.key)
+        super().__init__(f"{head}: {message}" if head else message)
+
+
+class FormatError(InputError):
+    """A recording, file or network packet whose content cannot be read.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong with the content.
+    file, line : optional
+        Where, for a file.
+    sensor, packet : optional
+        Where, for a live input: the sensor (or input) and the packet (a count or an id).
+    """
+
+    def __init__(self, message: str, file=None, line: int | None = None, sensor=None, packet=None):
+        self.file = None if file is None else str(file)
+        self.line = int(line) if line else None
+        self.sensor = sensor
+        self.packet = packet
+        self.reason = message
+        head = where(self.file, self.line)
+        if sensor is not None:
+            head = f"{head}: " if head else ""
+            head += f"sensor {sensor!s}" + ("" if packet is None else f", packet {packet!s}")
+        super().__init__(f"{head}: {message}" if head else message)
+
+
+class PlanError(TrackflowError, ValueError):
+    """A query that the graph cannot answer: no path, or an unknown frame, edge or query."""
+
+
+class ExtrapolationError(TrackflowError, ValueError):
+    """A time outside the data was asked for (the tf2 message, in trackflow's units).
+
+    Parameters
+    ----------
+    asked_ns : int
+        The time asked for [ns].
+    first_ns, last_ns : int or None
+        Oldest and newest time of the data [ns] (``None``: no data at all).
+    what : str
+        What was asked (``"T_world_head"``, ``"sensor art"``).
+    """
+
+    def __init__(self, asked_ns: int, first_ns=None, last_ns=None, what: str = "the estimate"):
+        self.asked_ns, self.first_ns, self.last_ns, self.what = asked_ns, first_ns, last_ns, what
+        if first_ns is None or last_ns is None:
+            msg = f"{what} at {_clock(asked_ns)}: no data yet"
+        elif asked_ns > last_ns:
+            msg = (
+                f"{what} at {_clock(asked_ns)} would need extrapolation "
+                f"{(asked_ns - last_ns) * 1e-6:.3g} ms into the future; newest data "
+                f"{_clock(last_ns)}"
+            )
+        else:
+            msg = (
+                f"{what} at {_clock(asked_ns)} would need extrapolation "
+                f"{(first_ns - asked_ns) * 1e-6:.3g} ms into the past; oldest data "
+                f"{_clock(first_ns)}"
+            )
+        super().__init__(msg)
+
+
+def _clock(t_ns) -> str:
+    """Seconds with nanosecond digits (the stamps are often clock times, not small numbers)."""
+    return f"{int(t_ns) * 1e-9:.9f} s"
+
+
+class NumericalError(TrackflowError, ValueError):
+    """A computation on acceptable input that found no answer (singular, degenerate, diverged)."""
+
+
+class StateError(TrackflowError, RuntimeError):
+    """An object asked for something its present state cannot give (not initialised ...)."""
+
+
+class ServiceError(TrackflowError, RuntimeError):
+    """A process, server or network trackflow started or joined did not do its part."""
+
+
+class MissingExtraError(TrackflowError, ImportError):
+    """An optional dependency is not installed; the message names the pip extra.
+
+    Parameters
+    ----------
+    module : str
+        The module that could not be imported (``"zenoh"``).
+    extra : str
+        trackflow's extra that installs it (``"distributed"``).
+    feature : str
+        What needs it (``"trackflow agent"``).
+    """
+
+    def __init__(self, module: str, extra: str, feature: str):
+        self.module, self.extra, self.feature = module, extra, feature
+        super().__init__(
+            f"{feature} needs the Python package {module!r}, which is not installed: "
+            f"pip install 'trackflow[{extra}]'",
+            name=module,
+        )
