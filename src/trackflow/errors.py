@@ -111,40 +111,52 @@ class PlanError(TrackflowError, ValueError):
 
 
 class ExtrapolationError(TrackflowError, ValueError):
-    """A time outside the data was asked for (the tf2 message, in trackflow's units).
+    """A time outside the data was asked for (tf2's message, in trackflow's units).
 
     Parameters
     ----------
-    asked_ns : int
-        The time asked for [ns].
-    first_ns, last_ns : int or None
-        Oldest and newest time of the data [ns] (``None``: no data at all).
     what : str
-        What was asked (``"T_world_head"``, ``"sensor art"``).
+        What was asked (``"T_world_head"``, ``"the estimate"``).
+    asked_s : float
+        The time asked for [s].
+    first_s, last_s : float or None
+        Oldest and newest time of the data [s] (both ``None``: no data at all; one ``None``:
+        that side is open).
+    note : str
+        Why the data ends there (``"the history keeps 2 s"``).
+
+    Times that look like Unix time (after 2001) are shown as UTC clock times.
     """
 
-    def __init__(self, asked_ns: int, first_ns=None, last_ns=None, what: str = "the estimate"):
-        self.asked_ns, self.first_ns, self.last_ns, self.what = asked_ns, first_ns, last_ns, what
-        if first_ns is None or last_ns is None:
-            msg = f"{what} at {_clock(asked_ns)}: no data yet"
-        elif asked_ns > last_ns:
+    def __init__(self, what: str, asked_s: float, first_s=None, last_s=None, note: str = ""):
+        self.what, self.asked_s, self.first_s, self.last_s = what, asked_s, first_s, last_s
+        if first_s is None and last_s is None:
+            msg = f"{what} at {_clock(asked_s)}: no data yet"
+        elif last_s is not None and asked_s > last_s:
             msg = (
-                f"{what} at {_clock(asked_ns)} would need extrapolation "
-                f"{(asked_ns - last_ns) * 1e-6:.3g} ms into the future; newest data "
-                f"{_clock(last_ns)}"
+                f"{what} at {_clock(asked_s)} would need extrapolation "
+                f"{_ms(asked_s - last_s)} into the future; newest data {_clock(last_s)}"
             )
         else:
             msg = (
-                f"{what} at {_clock(asked_ns)} would need extrapolation "
-                f"{(first_ns - asked_ns) * 1e-6:.3g} ms into the past; oldest data "
-                f"{_clock(first_ns)}"
+                f"{what} at {_clock(asked_s)} would need extrapolation "
+                f"{_ms(first_s - asked_s)} into the past; oldest data {_clock(first_s)}"
             )
-        super().__init__(msg)
+        super().__init__(f"{msg}; {note}" if note else msg)
 
 
-def _clock(t_ns) -> str:
-    """Seconds with nanosecond digits (the stamps are often clock times, not small numbers)."""
-    return f"{int(t_ns) * 1e-9:.9f} s"
+def _ms(dt_s: float) -> str:
+    return f"{dt_s * 1e3:.3g} ms"
+
+
+def _clock(t_s: float) -> str:
+    """``12:00:01.250`` (UTC) for Unix times, else seconds with microsecond digits."""
+    if t_s > 1e9:  # after 2001-09-09: a wall clock stamp
+        import datetime
+
+        d = datetime.datetime.fromtimestamp(t_s, datetime.UTC)
+        return d.strftime("%H:%M:%S.") + f"{d.microsecond // 1000:03d}"
+    return f"{t_s:.6f} s"
 
 
 class NumericalError(TrackflowError, ValueError):

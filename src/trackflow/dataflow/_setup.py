@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, PlanError
 from ..graph import MotionSpec, Query, SpatialRelationshipGraph
 from ..math import Pose
 from ..yamlfile import YamlMap, line_of, read_yaml
@@ -57,11 +57,11 @@ class Setup:
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
         if not self.queries:
-            raise ValueError(f"{self.source}: the setup defines no queries")
+            raise PlanError(f"{self.source}: the setup defines no queries")
         if name is None:
             return next(iter(self.queries.values()))
         if name not in self.queries:
-            raise ValueError(f"{self.source}: no query {name!r} (have {list(self.queries)})")
+            raise PlanError(f"{self.source}: no query {name!r} (have {list(self.queries)})")
         return self.queries[name]
 
     def plan(self, query: Query | str | None = None, align: bool = True) -> Plan:
@@ -70,7 +70,7 @@ class Setup:
         try:
             plan = plan_query(self.graph, q, align=align)
         except ValueError as exc:
-            raise ValueError(f"{self.source}: {exc}") from None
+            raise PlanError(f"{self.source}: {exc}") from None
         if self.imus and align:
             from ._inertial import attach_imus
 
@@ -263,7 +263,7 @@ def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
             raise _err(source, doc, f"include: fragment {path} not found")
         frag = read_yaml(path)
         if not isinstance(frag, dict) or set(frag) - {"statics", "sensors"}:
-            raise ValueError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
+            raise ConfigError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
         statics += list(frag.get("statics") or [])
         for i, upd in enumerate(frag.get("sensors") or []):
             if not isinstance(upd, dict) or "name" not in upd:
@@ -289,7 +289,7 @@ def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
 def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> Setup:
     """Build a :class:`Setup` from a parsed YAML document (a mapping)."""
     if not isinstance(doc, dict):
-        raise ValueError(f"{source}: a setup must be a mapping with sensors/statics/queries")
+        raise ConfigError(f"{source}: a setup must be a mapping with sensors/statics/queries")
     unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include", "imus"}
     if unknown:
         raise _err(source, doc, f"unknown top-level keys {sorted(unknown)}")
@@ -356,9 +356,9 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
         try:
             q = np.asarray(s.get("quaternion", [0, 0, 0, 1]), dtype=float)
             if q.shape != (4,) or not np.all(np.isfinite(q)):
-                raise ValueError(f"quaternion must be 4 finite numbers (x, y, z, w), got {q}")
+                raise ConfigError(f"quaternion must be 4 finite numbers (x, y, z, w), got {q}")
             if abs(np.linalg.norm(q) - 1.0) > STATIC_UNIT_TOLERANCE:
-                raise ValueError(
+                raise ConfigError(
                     f"quaternion {q.tolist()} has norm {np.linalg.norm(q):.6g}, not unit "
                     f"(allowed deviation {STATIC_UNIT_TOLERANCE:g}, for rounded digits)"
                 )

@@ -180,7 +180,7 @@ def _mapping(value) -> dict:
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise ValueError("expected a mapping of Zenoh configuration keys")
+        raise ConfigError("expected a mapping of Zenoh configuration keys")
     return dict(value)
 
 

@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..optional import require
 
 __all__ = [
@@ -113,9 +114,11 @@ def set_backend(name: str) -> None:
     """Select ``"numba"`` or ``"numpy"`` for all following calls (prefer :func:`use_backend`)."""
     global _backend
     if name not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
+        raise InputError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
     if name == "numba" and not numba_available():
-        raise ValueError("numba backend requested but numba is not installed")
+        raise InputError(
+            "numba backend requested but numba is not installed: pip install 'trackflow[fast]'"
+        )
     _backend = name
 
 

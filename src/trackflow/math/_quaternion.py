@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = [
     "quat_identity",
     "quat_multiply",
@@ -79,7 +81,7 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n == 0.0) or not np.all(np.isfinite(n)):
-        raise ValueError("cannot normalize a zero or non-finite quaternion")
+        raise InputError("cannot normalize a zero or non-finite quaternion")
     return q / n
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import kernels_for
 
 __all__ = ["Blobs", "detect_blobs"]
@@ -220,18 +221,18 @@ def detect_blobs(
     """
     img = np.asarray(image)
     if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+        raise InputError(f"image must be 2-D (H, W), got shape {img.shape}")
     if img.dtype.kind not in "uif":
-        raise ValueError(f"image must be numeric, got {img.dtype}")
+        raise InputError(f"image must be numeric, got {img.dtype}")
     if not background < threshold:
-        raise ValueError(f"background ({background}) must be below threshold ({threshold})")
+        raise InputError(f"background ({background}) must be below threshold ({threshold})")
     if not np.isfinite(threshold):
-        raise ValueError("threshold must be finite")
+        raise InputError("threshold must be finite")
     if (
         img.dtype.kind in "ui"
         and not np.iinfo(img.dtype).min < threshold <= np.iinfo(img.dtype).max
     ):
-        raise ValueError(f"threshold {threshold} is outside the range of {img.dtype} images")
+        raise InputError(f"threshold {threshold} is outside the range of {img.dtype} images")
     if not img.flags.c_contiguous:
         img = np.ascontiguousarray(img)
     thr = img.dtype.type(np.ceil(threshold)) if img.dtype.kind in "ui" else threshold
@@ -244,7 +245,7 @@ def detect_blobs(
         img, flags, thr, float(background), int(max_runs)
     )
     if n < 0:
-        raise ValueError(f"more than {max_runs} runs of bright pixels: overexposed image?")
+        raise InputError(f"more than {max_runs} runs of bright pixels: overexposed image?")
     a, ax, ay, c = k._components(n, parent, s0, sx, sy, cnt)
     keep = (c >= min_area) & (c <= max_area) & (a > 0)
     a, ax, ay, c = a[keep], ax[keep], ay[keep], c[keep]

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..errors import InputError
 from ..filters import chi2_gate
 from ..math import UncertainPose, kernels_for, quat_conjugate, quat_log, quat_multiply
 from .absolute_orientation import PoseFit, fit_pose
@@ -287,14 +288,14 @@ def identify(
         Bodies found; a body missing from the dict was not found or was ambiguous.
     """
     if not 0.0 < tolerance < 1.0:
-        raise ValueError(f"tolerance must be in (0, 1) m, got {tolerance}")
+        raise InputError(f"tolerance must be in (0, 1) m, got {tolerance}")
     names = [m.name for m in models]
     if len(set(names)) != len(names):
-        raise ValueError(f"model names must be unique, got {names}")
+        raise InputError(f"model names must be unique, got {names}")
     predictions = dict(predictions or {})
     unknown = set(predictions) - set(names)
     if unknown:
-        raise ValueError(f"predictions for unknown models {sorted(unknown)}")
+        raise InputError(f"predictions for unknown models {sorted(unknown)}")
     chi_gate = chi2_gate(gate_probability, 3)
     gate6 = chi2_gate(gate_probability, 6)
     avail = np.ones(len(candidates), bool)

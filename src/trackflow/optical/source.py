@@ -39,7 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from ..dataflow import Component, Measurement, RecordingPlayer, Setup, load_setup
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
 from ..filters import MotionModel
 from ..yamlfile import line_of, read_yaml
 from .calibration import read_opencv_calibration
@@ -76,7 +76,7 @@ class RenderedFrames:
 
     def __init__(self, renderer: FrameRenderer, rate_hz: float, start_s: float, duration_s: float):
         if not rate_hz > 0 or not duration_s > 0:
-            raise ValueError("rate_hz and duration_s must be > 0")
+            raise InputError("rate_hz and duration_s must be > 0")
         n = int(np.floor(duration_s * rate_hz)) + 1
         self.renderer = renderer
         self.times_s = start_s + np.arange(n) / rate_hz
@@ -101,7 +101,7 @@ class OpticalRun:
         self.frames = frames
         self.t_ns = np.asarray(frames.t_ns, dtype=np.int64)
         if self.t_ns.ndim != 1 or np.any(np.diff(self.t_ns) <= 0):
-            raise ValueError("frame times must be 1-D and strictly increasing")
+            raise InputError("frame times must be 1-D and strictly increasing")
         self.keep = int(keep)
         self.reset()
 
@@ -144,9 +144,9 @@ class OpticalBodySensor(RecordingPlayer):
     def __init__(self, name: str, run: OpticalRun, body: str, latency_ns: int = 0):
         Component.__init__(self, name)
         if body not in {m.name for m in run.tracker.models}:
-            raise ValueError(f"sensor {name!r}: the tracker has no marker model {body!r}")
+            raise InputError(f"sensor {name!r}: the tracker has no marker model {body!r}")
         if int(latency_ns) < 0:
-            raise ValueError(f"sensor {name!r}: latency must be >= 0")
+            raise InputError(f"sensor {name!r}: latency must be >= 0")
         self.run_ = run
         self.body = body
         self.t_ns = run.t_ns
@@ -222,7 +222,7 @@ def _renderer(item, rig, models, base: Path, where: str) -> RenderedFrames:
     frames = {k: item.pop(k) for k in ("rate_hz", "start_s", "duration_s", "seed") if k in item}
     trajs_cfg = item.pop("trajectories", None)
     if not isinstance(trajs_cfg, Mapping):
-        raise ValueError(f"{where}: render needs trajectories: {{model: {{recording: ...}}}}")
+        raise ConfigError(f"{where}: render needs trajectories: {{model: {{recording: ...}}}}")
     kw = _config(RenderSettings, item, where)
     if "occluders" in kw:
         kw["occluders"] = [Cylinder(**c) for c in kw["occluders"]]
@@ -231,7 +231,7 @@ def _renderer(item, rig, models, base: Path, where: str) -> RenderedFrames:
     trajs = {}
     for name, tc in trajs_cfg.items():
         if not isinstance(tc, Mapping) or "recording" not in tc:
-            raise ValueError(f"{where}: trajectory of {name!r} needs a recording")
+            raise ConfigError(f"{where}: trajectory of {name!r} needs a recording")
         stream, _ = read_stream(base / tc["recording"], clean=True)
         trajs[name] = trajectory_from_stream(
             stream, tc.get("center", (0.0, 0.0, 1.0)), tc.get("t_start"), tc.get("detrend_s")

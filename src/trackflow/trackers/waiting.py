@@ -30,6 +30,8 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from ..errors import InputError
+
 __all__ = ["DueWait", "select_nap"]
 
 
@@ -82,9 +84,9 @@ class DueWait:
         rehearse_s: float = 0.0,
     ):
         if not spin_s >= 0:
-            raise ValueError(f"spin_s must be >= 0, got {spin_s}")
+            raise InputError(f"spin_s must be >= 0, got {spin_s}")
         if not rehearse_s >= 0:
-            raise ValueError(f"rehearse_s must be >= 0, got {rehearse_s}")
+            raise InputError(f"rehearse_s must be >= 0, got {rehearse_s}")
         self.spin_s = float(spin_s)
         self.rehearse_s = float(rehearse_s)
         #: called once per datagram, to be over ``rehearse_s`` before it is due, with a
