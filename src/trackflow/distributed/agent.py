@@ -48,6 +48,7 @@ from ..dataflow import (
     RecordingPlayer,
     plan_query,
 )
+from ..errors import ServiceError
 from ..graph import Edge, SpatialRelationshipGraph
 from ..math import UncertainPose
 from ..optional import require
@@ -194,7 +195,7 @@ class Agent:
             self.session = zenoh.open(conf)
         except zenoh.ZError as exc:
             listen = conf.get_json("listen/endpoints")
-            raise RuntimeError(
+            raise ServiceError(
                 f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
             ) from None
         s, r = self.session, self.realm
