@@ -99,16 +99,16 @@ class Setup:
         return out
 
 
-def _err(src: str, item, msg: str, key=None) -> ConfigError:
-    """The error of ``item`` (a mapping of ``src``): file, line (of ``key`` when given), message."""
-    return ConfigError(msg, src, line_of(item, key))
+def _err(src: str, item, msg: str) -> ConfigError:
+    """The error of ``item`` (a mapping of ``src``): the file, the line of ``item``, ``msg``."""
+    return ConfigError(msg, src, line_of(item))
 
 
 def _cov(src, item, what) -> np.ndarray:
     if "covariance" in item:
         c = np.asarray(item["covariance"], dtype=float)
         if c.shape != (6, 6):
-            raise _err(src, item, f"{what}: covariance must be a 6x6 list of lists", "covariance")
+            raise _err(src, item, f"{what}: covariance must be a 6x6 list of lists")
         return c
     sp = np.asarray(item.get("sigma_pos_mm", 0.0), float)
     so = np.asarray(item.get("sigma_ori_deg", 0.0), float)
@@ -116,7 +116,7 @@ def _cov(src, item, what) -> np.ndarray:
         if v.ndim > 1 or v.size not in (1, 3) or not np.all(np.isfinite(v)) or np.any(v < 0):
             raise _err(
                 src, item, f"{what}: {key} must be one or three finite values >= 0, got "
-                f"{item.get(key)!r}", key
+                f"{item.get(key)!r}"
             )  # fmt: skip
     sp = np.broadcast_to(sp * 1e-3, (3,))
     so = np.radians(np.broadcast_to(so, (3,)))
@@ -127,9 +127,9 @@ def _name(src, item, key: str, what: str) -> str:
     """A frame or edge name: a non-empty string without surrounding blanks."""
     v = item[key]
     if not isinstance(v, (str, int)) or isinstance(v, bool) or not str(v).strip():
-        raise _err(src, item, f"{what}: {key} must be a non-empty name, got {v!r}", key)
+        raise _err(src, item, f"{what}: {key} must be a non-empty name, got {v!r}")
     if str(v) != str(v).strip():
-        raise _err(src, item, f"{what}: {key} {v!r} has leading or trailing blanks", key)
+        raise _err(src, item, f"{what}: {key} {v!r} has leading or trailing blanks")
     return str(v)
 
 
@@ -139,7 +139,7 @@ def _frame(src, item, key: str, what: str, declared: set[str] | None) -> str:
     if declared is not None and name not in declared:
         raise _err(
             src, item, f"{what}: {key} frame {name!r} is not declared in frames: "
-            f"{sorted(declared)}", key
+            f"{sorted(declared)}"
         )  # fmt: skip
     return name
 
@@ -222,7 +222,7 @@ def _check_keys(src, item, allowed, what):
     if unknown:
         raise _err(
             src, item, f"{what}: unknown keys {sorted(unknown, key=str)} (allowed: "
-            f"{sorted(allowed)})", min(unknown, key=lambda k: line_of(item, k))
+            f"{sorted(allowed)})"
         )  # fmt: skip
     for key in ("name", "source", "target"):
         if key not in item:
