@@ -173,3 +173,24 @@ def test_optical_blobs_and_seeds_run_on_the_numpy_backend():
         tp2, tm2 = matching.kernels_for(matching)._seed_triangles(E, S, *seeds, 4)
         np.testing.assert_array_equal(tp, tp2)
         np.testing.assert_array_equal(tm, tm2)
+
+
+@pytest.mark.parametrize(
+    "err",
+    [
+        ConfigError("must be > 0", "lab.yaml", 7, "rate_hz"),
+        FormatError("truncated", sensor="art", packet=3),
+        ExtrapolationError("T_a_b", 2.0, 0.0, 1.0),
+        MissingExtraError("zenoh", "distributed", "trackflow agent"),
+        errors.PlanError("no path"),
+    ],
+)
+def test_errors_survive_a_process_boundary(err):
+    import pickle
+
+    from trackflow.distributed.wire import WireError
+    from trackflow.trackers._packet import PacketError
+
+    for e in (err, WireError("bad", "detail"), PacketError("truncated", "at 3")):
+        back = pickle.loads(pickle.dumps(e))
+        assert type(back) is type(e) and str(back) == str(e) and vars(back) == vars(e)

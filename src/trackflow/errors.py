@@ -54,6 +54,18 @@ def where(file=None, line: int | None = None, key: str | None = None) -> str:
 class TrackflowError(Exception):
     """Base of every error trackflow raises on purpose (a user's mistake, not a bug)."""
 
+    def __reduce__(self):
+        # errors cross process boundaries (worker pools); subclasses have their own __init__
+        # arguments, so a copy is rebuilt from the message and the attributes, not by __init__
+        return _rebuild, (type(self), self.args, self.__dict__)
+
+
+def _rebuild(cls, args, state):
+    err = cls.__new__(cls, *args)
+    err.args = args
+    err.__dict__.update(state)
+    return err
+
 
 class InputError(TrackflowError, ValueError):
     """An argument, or a value in the data given, that trackflow cannot accept."""
