@@ -4,21 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import InputError
 from .evaluation import PredictionReport, Predictor, Trajectory, predict_kalman, predict_linear
 from .io import atomic_output
 from .math import quat_make_continuous, quat_rminus
+from .optional import pyplot, require
 
 __all__ = ["plot_sequence", "plot_error_vs_horizon", "require_matplotlib", "save_figure"]
 
 
 def require_matplotlib() -> None:
-    """Raise ``ImportError`` naming the extra to install when matplotlib is missing."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise ImportError(
-            "plots need matplotlib, which is not installed: pip install 'trackflow[plot]'"
-        ) from None
+    """Raise :class:`~trackflow.errors.MissingExtraError` (an ``ImportError``) naming the
+    extra to install when matplotlib is missing."""
+    require("matplotlib", extra="plot", feature="plots")
 
 
 def save_figure(fig, path, overwrite: bool = False, dpi: int = 110) -> None:
@@ -28,13 +26,7 @@ def save_figure(fig, path, overwrite: bool = False, dpi: int = 110) -> None:
 
 
 def _pyplot():
-    require_matplotlib()
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot("plots")
 
 
 def plot_sequence(
@@ -75,7 +67,7 @@ def plot_sequence(
     lo, hi = window if window is not None else (t[0], min(t[-1], t[0] + 3.0))
     m = (t >= lo) & (t <= hi)
     if np.count_nonzero(m) < 2:
-        raise ValueError(
+        raise InputError(
             f"the window {lo:g}..{hi:g} s holds {np.count_nonzero(m)} samples; the recording "
             f"spans {t[0]:g}..{t[-1]:g} s"
         )
@@ -236,7 +228,7 @@ def plot_trajectories(path, streams, names, views=("top", "side", "3d"),
     """
     unknown = [v for v in views if v not in TRAJECTORY_VIEWS]
     if unknown or not views:
-        raise ValueError(f"views must be some of {list(TRAJECTORY_VIEWS)}, got {list(views)}")
+        raise InputError(f"views must be some of {list(TRAJECTORY_VIEWS)}, got {list(views)}")
     plt = _pyplot()
     fig = plt.figure(figsize=(5.5 * len(views), 5))
     for k, view in enumerate(views):

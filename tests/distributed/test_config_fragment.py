@@ -109,3 +109,28 @@ def test_setup_players_read_recordings(tmp_path):
     assert sorted(players) == ["art", "artoolkit"]
     assert len(players["art"].t_ns) == 60
     assert players["artoolkit"].latency_ns == 50_000_000
+
+
+def test_agent_file_duplicate_key_is_refused_with_its_line(tmp_path):
+    p = tmp_path / "agent.yaml"
+    p.write_text("agent:\n  name: a\n  realm: x\n  realm: y\n")
+    with pytest.raises(ValueError, match="duplicate key 'realm'") as info:
+        load_agent(p)
+    assert str(info.value).startswith(f"{p}:4: ")
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "match"),
+    [
+        ("agent:\n  name: a\n\n  reorder_ms: -1\n", 4, "reorder_ms must be >= 0"),
+        ("agent:\n  name: a\n  start_ns: soon\n", 3, "start_ns: 'soon' is not valid"),
+        ("agent:\n  name: a\n  realm: x\n  colour: red\n", 4, "unknown keys"),
+        ("sensors: []\nagent:\n  name: a\n  pull_via: rpc\n", 4, "pull_via must be"),
+    ],
+)
+def test_a_bad_agent_value_reports_its_line(tmp_path, text, line, match):
+    p = tmp_path / "agent.yaml"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=match) as info:
+        load_agent(p)
+    assert str(info.value).startswith(f"{p}:{line}: ")

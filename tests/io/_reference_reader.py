@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trackflow.errors import FormatError
 from trackflow.io._clean import TRUNCATED
 from trackflow.io._report import ReadReport
 from trackflow.io._table import (
@@ -138,7 +139,7 @@ def parse_rows(
                 report.notes.append(f"last line ({path}:{lineno}) is incomplete: {problem}")
                 continue
             if not clean:
-                raise ValueError(f"{path}:{lineno}: {problem}")
+                raise FormatError(f"{path}:{lineno}: {problem}")
             report.drop(reason, lineno)
             continue
         extra = max(extra, len(toks) - ncols)

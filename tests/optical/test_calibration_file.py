@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -218,3 +220,44 @@ def test_fuzzed_text_gives_a_typed_error_or_a_rig(tmp_path_factory, junk):
         read_opencv_calibration(p, image_size=(10, 10))
     except CalibrationFileError:
         pass
+
+
+def test_calibration_duplicate_key_is_refused_with_its_line(tmp_path):
+    p = tmp_path / "dup.yml"
+    p.write_text("%YAML:1.0\n---\nimage_width: 2\nimage_height: 2\nimage_width: 3\n")
+    with pytest.raises(CalibrationFileError, match="duplicate key 'image_width'") as e:
+        read_opencv_calibration(p)
+    assert f"{p}:5" in str(e.value)
+
+
+def test_a_bad_calibration_value_reports_its_line(tmp_path):
+    p = tmp_path / "bad.yml"
+    p.write_text("%YAML:1.0\n---\n\nnCameras: 1.5\n")
+    with pytest.raises(CalibrationFileError, match="expected an integer") as e:
+        read_opencv_calibration(p)
+    assert f"{p}:4: nCameras" in str(e.value)
+
+
+def _optical_file(tmp_path, body: str):
+    from trackflow.optical import load_optical_setup
+
+    ex = Path(__file__).resolve().parents[2] / "src" / "trackflow" / "examples"
+    p = tmp_path / "optical.yaml"
+    p.write_text(
+        f"setup: {ex / 'optical_setup.yaml'}\ncalibration: {ex / 'optical_cameras.yml'}\n" + body
+    )
+    return p, load_optical_setup
+
+
+def test_optical_setup_duplicate_key_is_refused_with_its_line(tmp_path):
+    p, load = _optical_file(tmp_path, "models: []\nbodies: {}\nmodels: []\n")
+    with pytest.raises(ValueError, match="duplicate key 'models'") as e:
+        load(p)
+    assert str(e.value).startswith(f"{p}:5: ")
+
+
+def test_a_bad_optical_value_reports_its_line(tmp_path):
+    p, load = _optical_file(tmp_path, "bodies: {tracker_wand: wand}\n\nmodels: 5\n")
+    with pytest.raises(ValueError, match="must be a list") as e:
+        load(p)
+    assert str(e.value).startswith(f"{p}:5: models: ")

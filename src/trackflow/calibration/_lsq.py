@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from ..errors import InputError
+
 __all__ = ["Solution", "autocorrelation_time", "robust_solve"]
 
 
@@ -155,7 +157,7 @@ def robust_solve(
         scale = np.nanmedian(m2[inl]) / stats.chi2.ppf(0.5, nb)
         new = np.isfinite(m2) & (m2 <= stats.chi2.ppf(1 - outlier_p, nb) * max(scale, 1e-12))
         if new.sum() * nb <= 2 * ndim:
-            raise ValueError(
+            raise InputError(
                 f"only {int(new.sum())} usable residuals for {ndim} unknowns: the data do not "
                 "determine the calibration"
             )

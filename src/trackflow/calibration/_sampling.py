@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import (
     quat_conjugate,
@@ -83,7 +84,7 @@ def trajectory(stream: PoseStream, epoch_ns: int, name: str | None = None) -> Tr
     """
     label = name or f"{stream.source}->{stream.target}"
     if len(stream) < 2:
-        raise ValueError(f"{label}: need at least 2 samples, got {len(stream)}")
+        raise InputError(f"{label}: need at least 2 samples, got {len(stream)}")
     t = (np.asarray(stream.t_ns, np.int64) - np.int64(epoch_ns)).astype(float) * 1e-9
     q = quat_make_continuous(np.asarray(stream.quaternion, float))
     return make_trajectory(t, np.asarray(stream.position, float), q, label)
@@ -93,7 +94,7 @@ def make_trajectory(t, p, q, name: str = "stream") -> Trajectory:
     """A :class:`Trajectory` from arrays (seconds, metres, quaternions) with its cached steps."""
     t, p, q = np.asarray(t, float), np.asarray(p, float), np.asarray(q, float)
     if np.any(np.diff(t) <= 0):
-        raise ValueError(f"{name}: timestamps must be strictly increasing")
+        raise InputError(f"{name}: timestamps must be strictly increasing")
     step = quat_rminus(q[1:], q[:-1])
     return Trajectory(t, p, q, name, step, float(np.median(np.diff(t))))
 

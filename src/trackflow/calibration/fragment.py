@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..errors import InputError
 from ..io import atomic_output
 from ..math import UncertainPose
 
@@ -66,7 +67,7 @@ def write_fragment(
     if sensors:
         doc["sensors"] = list(sensors)
     if not doc:
-        raise ValueError("a setup fragment needs at least one static edge or sensor update")
+        raise InputError("a setup fragment needs at least one static edge or sensor update")
     head = "".join(f"# {line}\n" for line in note.splitlines()) if note else ""
     with atomic_output(path, overwrite=overwrite) as tmp:
         tmp.write_text(head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))

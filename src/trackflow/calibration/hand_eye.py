@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import InputError, NumericalError
 from ..io import PoseStream
 from ..math import (
     Pose,
@@ -151,10 +152,10 @@ def pose_to_json(p: UncertainPose) -> dict:
 def pose_from_json(d, what: str) -> UncertainPose:
     """Inverse of :func:`pose_to_json`; ``ValueError`` naming ``what`` on malformed input."""
     if not isinstance(d, dict) or "position" not in d or "quaternion" not in d:
-        raise ValueError(f"{what}: expected a mapping with 'position' and 'quaternion'")
+        raise InputError(f"{what}: expected a mapping with 'position' and 'quaternion'")
     cov = np.asarray(d.get("covariance", np.zeros((6, 6))), float)
     if cov.shape != (6, 6):
-        raise ValueError(f"{what}: covariance must be 6x6, got shape {cov.shape}")
+        raise InputError(f"{what}: covariance must be 6x6, got shape {cov.shape}")
     return UncertainPose(Pose(d["position"], d["quaternion"], normalize=True), cov)
 
 
@@ -299,7 +300,7 @@ def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=10.0, max_lag: int = 20):
     """
     i, j = _pairs(Aq, np.radians(min_pair_angle_deg), max_lag)
     if len(i) < 3:
-        raise ValueError(
+        raise InputError(
             f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
             f"{min_pair_angle_deg} deg (need 3 or more)"
         )
@@ -308,7 +309,7 @@ def closed_form_X(Ap, Aq, Bp, Bq, min_pair_angle_deg=10.0, max_lag: int = 20):
     alpha, beta = quat_log(a_q), quat_log(b_q)
     spread = rotation_axis_spread(alpha)
     if spread < MIN_AXIS_SPREAD:
-        raise ValueError(
+        raise NumericalError(
             "degenerate motion for hand-eye: the robot rotated about a single axis only "
             f"(axis spread {spread:.3f} < {MIN_AXIS_SPREAD}); X's translation along that axis "
             "is unobservable - rotate about at least two different axes"
@@ -357,7 +358,7 @@ def _grid(ta: Trajectory, tb: Trajectory, offset: float, margin: float) -> np.nd
     t = ta.t if ta.period_s >= tb.period_s else tb.t + offset
     t = t[(t >= lo) & (t <= hi)]
     if len(t) < 10:
-        raise ValueError(
+        raise InputError(
             f"the streams overlap for {max(hi - lo, 0):.2f} s only (offset {offset:.3f} s): "
             "too few samples for hand-eye"
         )
@@ -415,9 +416,9 @@ def solve_hand_eye(
     if form == "auto":
         form = "robot-world" if robot.source != sensor.source else "hand-eye"
     if form not in FORMS:
-        raise ValueError(f"form must be 'auto' or one of {', '.join(FORMS)}; got {form!r}")
+        raise InputError(f"form must be 'auto' or one of {', '.join(FORMS)}; got {form!r}")
     if estimate_drift and not estimate_offset:
-        raise ValueError("estimate_drift needs estimate_offset")
+        raise InputError("estimate_drift needs estimate_offset")
     epoch = common_epoch_ns(robot, sensor)
     ta = trajectory(robot, epoch, f"robot {robot.source}->{robot.target}")
     tb = trajectory(sensor, epoch, f"sensor {sensor.source}->{sensor.target}")
@@ -520,7 +521,7 @@ def _refine_hand_eye(ta, tb, stations, X0, clock: _Clock, min_pair_angle_deg, ma
     A = ta.sample(stations)
     i, j = _pairs(A.q, np.radians(min_pair_angle_deg), max_lag)
     if len(i) < 3:
-        raise ValueError(
+        raise InputError(
             f"too little rotation for hand-eye: {len(i)} motion pairs rotate by at least "
             f"{min_pair_angle_deg} deg within {max_lag} stations (need 3 or more)"
         )
@@ -649,7 +650,7 @@ def evaluate_hand_eye(
         ok = A.valid[i] & A.valid[j] & B.valid[i] & B.valid[j]
         r = pair_residuals(*_relative(A.p, A.q, i, j), *_relative(B.p, B.q, i, j), Xt)[ok]
     if len(r) == 0:
-        raise ValueError("no valid residuals: the recordings do not overlap or do not rotate")
+        raise InputError("no valid residuals: the recordings do not overlap or do not rotate")
     dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
     da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
     return {

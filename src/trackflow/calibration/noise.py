@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import quat_make_continuous, quat_rminus
 from ._geometry import mean_rotation
@@ -88,7 +89,7 @@ def _static(t, p, q, max_speed, max_rate, min_segment_s):
         errs.append(e * np.sqrt((b - a) / (b - a - 1)))  # unbiased per segment
         n_seg += 1
     if not errs:
-        raise ValueError(
+        raise InputError(
             f"no static segment of at least {min_segment_s} s (speed < {max_speed * 1e3:.0f} "
             f"mm/s and < {np.degrees(max_rate):.1f} deg/s): use method='dynamic'"
         )
@@ -99,7 +100,7 @@ def _static(t, p, q, max_speed, max_rate, min_segment_s):
 def _dynamic(t, p, q, k):
     n = len(t)
     if n < 2 * k + 1 + 3:
-        raise ValueError(f"dynamic noise estimation needs more than {2 * k + 4} samples")
+        raise InputError(f"dynamic noise estimation needs more than {2 * k + 4} samples")
     # Local quadratic on a uniform window: leverage of the centre sample.
     u = np.arange(-k, k + 1, dtype=float)
     V = np.stack([np.ones_like(u), u, u * u], axis=1)
@@ -133,7 +134,7 @@ def _innovation(t, p, q, tune: bool, rounds: int = 3):
     h = float(np.median(dt))
     regular = np.abs(dt - h) <= 0.05 * h
     if regular.sum() < 50:
-        raise ValueError(
+        raise InputError(
             f"innovation noise needs at least 50 regular sample intervals, got {regular.sum()}"
         )
     pred = default_predictor(t, p, q)
@@ -154,7 +155,7 @@ def _innovation(t, p, q, tune: bool, rounds: int = 3):
         P = pr.covariance[:-1][ok]
         C = e.T @ e / len(e) - P.mean(axis=0)
         if np.any(np.diag(C) <= 0):
-            raise ValueError(
+            raise InputError(
                 "the filter's predicted covariance exceeds the spread of its innovations: its "
                 "motion model does not fit this recording (use tune=True or method='dynamic')"
             )
@@ -197,5 +198,5 @@ def sensor_noise(
     elif method == "innovation":
         C, n, seg, e = _innovation(t, p, q, tune)
     else:
-        raise ValueError(f"method must be 'static', 'dynamic' or 'innovation', got {method!r}")
+        raise InputError(f"method must be 'static', 'dynamic' or 'innovation', got {method!r}")
     return NoiseResult(0.5 * (C + C.T), n, seg, method, e)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import quat_rminus, quat_to_matrix
 from ._geometry import rotation_axis_spread
@@ -59,16 +60,16 @@ def pivot_calibration(stream: PoseStream) -> PivotResult:
     q = np.asarray(stream.quaternion, float)
     p = np.asarray(stream.position, float)
     if len(q) < 10:
-        raise ValueError(f"pivot calibration needs at least 10 samples, got {len(q)}")
+        raise InputError(f"pivot calibration needs at least 10 samples, got {len(q)}")
     rel = quat_rminus(q, q[0])
     angle = np.degrees(np.linalg.norm(rel, axis=1).max())
     if angle < MIN_PIVOT_ANGLE_DEG:
-        raise ValueError(
+        raise InputError(
             f"too little rotation for pivot calibration: {angle:.1f} deg "
             f"(need {MIN_PIVOT_ANGLE_DEG:.0f}); tilt the tool about its tip"
         )
     if rotation_axis_spread(rel - rel.mean(axis=0)) < 0.05:
-        raise ValueError(
+        raise InputError(
             "the tool rotated about one axis only: the tip position along it is "
             "unobservable; tilt in two directions"
         )

@@ -7,16 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optional import pyplot
+
 __all__ = ["plot_residuals", "write_clock_report", "write_hand_eye_report", "write_json"]
 
 
 def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot("calibration plots")
 
 
 def plot_residuals(path, t, residuals, inliers, title: str, xlabel: str = "time [s]") -> None:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..errors import InputError
+
 __all__ = [
     "FORMATS",
     "LEARNED_ORDERS",
@@ -99,7 +101,7 @@ def parse_columns(text: str) -> dict[str, str | int]:
     for item in text.split(","):
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
-            raise ValueError(f"--columns expects field=column pairs, got {item!r} in {text!r}")
+            raise InputError(f"--columns expects field=column pairs, got {item!r} in {text!r}")
         value = value.strip()
         out[key.strip()] = int(value) if value.isdigit() else value
     return out
@@ -153,7 +155,7 @@ def load(args, name: str = "file", suffix: str = "", min_samples: int = 1):
         why = ", ".join(f"{len(v)} {k}" for k, v in report.dropped.items())
         dropped = f", dropped: {why}" if why else ""
         hint = "" if report.rows_read else " (no data rows)"
-        raise ValueError(
+        raise InputError(
             f"{report.path}: {len(stream)} pose samples{hint}, this command needs at least "
             f"{min_samples} ({report.rows_read} rows read{dropped})"
         )
@@ -174,9 +176,9 @@ def parse_horizons(text: str) -> tuple[float, ...]:
     try:
         ms = [float(v) for v in text.split(",") if v.strip()]
     except ValueError as exc:
-        raise ValueError(f"horizons must be comma-separated milliseconds, got {text!r}") from exc
+        raise InputError(f"horizons must be comma-separated milliseconds, got {text!r}") from exc
     if not ms or any(not math.isfinite(v) or v <= 0 for v in ms):
-        raise ValueError(f"horizons must be positive milliseconds, got {text!r}")
+        raise InputError(f"horizons must be positive milliseconds, got {text!r}")
     return tuple(v / 1e3 for v in ms)
 
 
@@ -185,9 +187,9 @@ def parse_ints(text: str) -> tuple[int, ...]:
     try:
         out = tuple(int(v) for v in text.split(",") if v.strip())
     except ValueError as exc:
-        raise ValueError(f"expected comma-separated integers, got {text!r}") from exc
+        raise InputError(f"expected comma-separated integers, got {text!r}") from exc
     if not out:
-        raise ValueError(f"expected comma-separated integers, got {text!r}")
+        raise InputError(f"expected comma-separated integers, got {text!r}")
     return out
 
 

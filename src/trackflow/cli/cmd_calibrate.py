@@ -11,6 +11,7 @@ import contextlib
 import json
 from pathlib import Path
 
+from ..errors import ConfigError, InputError
 from ._common import add_input, load
 
 
@@ -158,9 +159,9 @@ def load_calibration(path: Path) -> dict:
     try:
         d = json.loads(Path(path).read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON: {exc}") from exc
+        raise ConfigError(f"{path}: not JSON: {exc}") from exc
     if not isinstance(d, dict) or "X" not in d or "offset_s" not in d:
-        raise ValueError(f"{path}: expected the keys of 'calibrate hand-eye --json' (X, offset_s)")
+        raise ConfigError(f"{path}: expected the keys of 'calibrate hand-eye --json' (X, offset_s)")
     X = pose_from_json(d["X"], f"{path}: X").pose
     Z = None if d.get("Z") is None else pose_from_json(d["Z"], f"{path}: Z").pose
     return {"X": X, "Z": Z, "offset_s": float(d["offset_s"])}
@@ -182,7 +183,7 @@ def run_hand_eye(args) -> int:
         _print(out, args.json)
         return 0
     if args.fixed_offset and args.offset is None:
-        raise ValueError("--fixed-offset needs --offset")
+        raise InputError("--fixed-offset needs --offset")
     r = solve_hand_eye(
         robot,
         sensor,

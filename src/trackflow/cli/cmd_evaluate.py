@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
+from ..errors import InputError
 from ._common import (
     add_input,
     add_learned_orders,
@@ -107,7 +108,7 @@ def evaluate_imu_file(stream, recording, args, progress):
     from ..io import read_imu
 
     if args.imu is None:
-        raise ValueError("--pose-rate needs --imu (the pose-only evaluation uses every sample)")
+        raise InputError("--pose-rate needs --imu (the pose-only evaluation uses every sample)")
     imu, _ = read_imu(args.imu, clean=args.clean)
     t = (imu.t_ns - int(stream.t_ns[0])).astype(float) * 1e-9
     return evaluate_with_imu(

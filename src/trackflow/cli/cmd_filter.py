@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 
+from ..errors import InputError
 from ._common import (
     add_input,
     add_learned_orders,
@@ -48,7 +49,7 @@ def run(args) -> int:
     from ..evaluation import Trajectory, filter_stream, load_model, tune_model
 
     if not (args.horizon >= 0 and args.horizon < 1e7):
-        raise ValueError(f"--horizon must be >= 0 ms, got {args.horizon}")
+        raise InputError(f"--horizon must be >= 0 ms, got {args.horizon}")
     stream = load(args, min_samples=10)
     if args.model is not None:
         pred = load_model(args.model)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..errors import InputError
 from ._common import add_input, add_output, load, save
 from ._progress import Progress
 
@@ -33,7 +34,7 @@ def run(args) -> int:
     a = load(args, "first", min_samples=4)
     b = load(args, "second", suffix="2", min_samples=4)
     if a.target != b.source:
-        raise ValueError(
+        raise InputError(
             f"cannot chain T_{a.source}_{a.target} ({args.first}) with T_{b.source}_{b.target} "
             f"({args.second}): the first's target must be the second's source; name the "
             "frames with --source/--target and --source2/--target2"

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..errors import InputError
+
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -38,7 +40,7 @@ def run(args) -> int:
     setup = load_setup(args.setup)
     if args.source or args.target:
         if not (args.source and args.target):
-            raise ValueError("give both --from and --to")
+            raise InputError("give both --from and --to")
         mode = args.mode or ("push" if args.rate else "pull")
         query = Query(
             args.source,

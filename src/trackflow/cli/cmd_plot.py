@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from ..errors import InputError
 from ._common import add_input, load, parse_horizons
 from ._progress import FinishingStream
 
@@ -38,10 +39,10 @@ def run(args) -> int:
     t = recording.t
     start = t[-1] * max(args.tune_fraction, 0.0) if args.start is None else args.start
     if not (np.isfinite(args.length) and args.length > 0):
-        raise ValueError(f"--length must be > 0 s, got {args.length}")
+        raise InputError(f"--length must be > 0 s, got {args.length}")
     inside = np.count_nonzero((t >= start) & (t <= start + args.length))
     if inside < 2:
-        raise ValueError(
+        raise InputError(
             f"{stream_label(args)}: the window {start:g}..{start + args.length:g} s holds "
             f"{inside} samples; the recording spans 0..{t[-1]:.6g} s (choose --start/--length)"
         )

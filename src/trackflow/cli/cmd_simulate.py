@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ..errors import InputError
+
 _DEFAULT_PORT = {"natnet": 1510, "dtrack": 5000, "vrpn": 3883}
 
 
@@ -49,7 +51,7 @@ def run(args) -> int:
     try:
         major, minor = (int(x) for x in args.natnet_version.split("."))
     except ValueError as exc:
-        raise ValueError(f"--natnet-version must be like 4.1, got {args.natnet_version!r}") from exc
+        raise InputError(f"--natnet-version must be like 4.1, got {args.natnet_version!r}") from exc
     from ..trackers.simulate import SimConfig, simulate
 
     cfg = SimConfig(

@@ -13,6 +13,7 @@ Components are wired by :class:`trackflow.dataflow.Network`, which also owns the
 
 from __future__ import annotations
 
+from ..errors import InputError
 from ._events import ComponentStats, Measurement
 
 __all__ = ["Component"]
@@ -44,7 +45,7 @@ class Component:
 
     def __init__(self, name: str):
         if not isinstance(name, str) or not name:
-            raise ValueError(f"component names must be non-empty strings, got {name!r}")
+            raise InputError(f"component names must be non-empty strings, got {name!r}")
         self.name = name
         self.stats = ComponentStats()
         self.consumers: list[tuple[Component, int]] = []
@@ -54,11 +55,11 @@ class Component:
     # -- ports ----------------------------------------------------------------------------------
     def push(self, m: Measurement, port: int = 0) -> None:
         """Receive a pushed event on input ``port``."""
-        raise ValueError(f"component {self.name!r} ({self.kind}) has no push input")
+        raise InputError(f"component {self.name!r} ({self.kind}) has no push input")
 
     def pull(self, t_ns: int) -> Measurement | None:
         """Return the relationship valid at ``t_ns`` or ``None`` (a counted rejection)."""
-        raise ValueError(f"component {self.name!r} ({self.kind}) has no pull output")
+        raise InputError(f"component {self.name!r} ({self.kind}) has no pull output")
 
     def emit(self, m: Measurement) -> None:
         """Send ``m`` to every push consumer."""

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..filters import ImuExtrinsics, ImuNoise, InertialFilter, InertialModel
 from ._events import Measurement
 from ._plan_node import PlanNode
@@ -174,7 +175,7 @@ def parse_imus(src: str, items, base_dir: Path | None, err) -> dict[str, ImuSpec
         try:
             noise = item.get("noise", {})
             if not isinstance(noise, dict):
-                raise ValueError("noise must be a mapping of gyro/accel/gyro_bias/accel_bias")
+                raise ConfigError("noise must be a mapping of gyro/accel/gyro_bias/accel_bias")
             kw = {}
             if "gravity" in item:
                 kw["gravity"] = np.asarray(item["gravity"], dtype=float)
@@ -216,7 +217,7 @@ def attach_imus(plan, graph, imus: dict[str, ImuSpec]):
     by_body = {}
     for spec in imus.values():
         if spec.body in by_body:
-            raise ValueError(
+            raise ConfigError(
                 f"two IMUs on body {spec.body!r}: {by_body[spec.body].name}, {spec.name}"
             )
         graph.check_frame(spec.body)

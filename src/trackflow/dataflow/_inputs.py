@@ -29,6 +29,8 @@ from typing import Protocol
 
 import numpy as np
 
+from ..errors import ConfigError, InputError
+
 __all__ = [
     "NETWORK_PROTOCOLS",
     "PROTOCOLS",
@@ -121,7 +123,7 @@ def _check_host(value: str, what: str) -> None:
         ipaddress.ip_address(value)
     except ValueError:
         if not value or any(c.isspace() for c in value):
-            raise ValueError(f"{what}: {value!r} is not a host address") from None
+            raise ConfigError(f"{what}: {value!r} is not a host address") from None
 
 
 class PoseFeed(Protocol):
@@ -162,7 +164,7 @@ def register_feed(protocol: str, factory: Callable[[dict], PoseFeed]) -> None:
     """Register the factory building the :class:`PoseFeed` of ``input: {protocol: ...}``
     from the parsed options (done by the implementing package when imported)."""
     if protocol not in _OPTIONS or protocol in NETWORK_PROTOCOLS:
-        raise ValueError(f"{protocol!r} is not a feed protocol")
+        raise InputError(f"{protocol!r} is not a feed protocol")
     _FEEDS[protocol] = factory
 
 
@@ -171,7 +173,7 @@ def feed_factory(protocol: str) -> Callable[[dict], PoseFeed]:
     try:
         return _FEEDS[protocol]
     except KeyError:
-        raise ValueError(
+        raise ConfigError(
             f"input.{protocol}: no feed registered (import trackflow.{protocol} first)"
         ) from None
 
@@ -182,26 +184,26 @@ def parse_input(doc, base_dir=None) -> InputSpec:
     ``base_dir`` (the setup file's folder) resolves a relative ``optical.config`` path.
     """
     if not isinstance(doc, dict):
-        raise ValueError("input must be a mapping like {natnet: {server: ..., body: ...}}")
+        raise ConfigError("input must be a mapping like {natnet: {server: ..., body: ...}}")
     protos = [k for k in doc if k in _OPTIONS]
     if len(protos) != 1:
-        raise ValueError(f"input needs exactly one of {list(PROTOCOLS)}, got {sorted(doc)}")
+        raise ConfigError(f"input needs exactly one of {list(PROTOCOLS)}, got {sorted(doc)}")
     proto = protos[0]
     unknown = set(doc) - {proto, "up", "unit", "stale_ms"}
     if unknown:
-        raise ValueError(f"input: unknown keys {sorted(unknown)} (allowed: up, unit, stale_ms)")
+        raise ConfigError(f"input: unknown keys {sorted(unknown)} (allowed: up, unit, stale_ms)")
     raw = doc[proto] or {}
     if not isinstance(raw, dict):
-        raise ValueError(f"input.{proto} must be a mapping")
+        raise ConfigError(f"input.{proto} must be a mapping")
     allowed = _OPTIONS[proto]
     bad = set(raw) - set(allowed)
     if bad:
-        raise ValueError(f"input.{proto}: unknown keys {sorted(bad)} (allowed: {sorted(allowed)})")
+        raise ConfigError(f"input.{proto}: unknown keys {sorted(bad)} (allowed: {sorted(allowed)})")
     opts = {}
     for key, (typ, default) in allowed.items():
         if key not in raw:
             if default is ...:
-                raise ValueError(f"input.{proto}: missing key {key!r}")
+                raise ConfigError(f"input.{proto}: missing key {key!r}")
             opts[key] = default
             continue
         v = raw[key]
@@ -210,47 +212,47 @@ def parse_input(doc, base_dir=None) -> InputSpec:
             and typ is not bool
             and bool not in (typ if isinstance(typ, tuple) else (typ,))
         ):
-            raise ValueError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
+            raise ConfigError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
         if not isinstance(v, typ):
-            raise ValueError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
+            raise ConfigError(f"input.{proto}.{key}: expected {typ}, got {v!r}")
         opts[key] = v
     for key in ("port", "command_port", "data_port"):
         if key in opts and not 0 < opts[key] < 65536:
-            raise ValueError(f"input.{proto}.{key}: {opts[key]} is not a port")
+            raise ConfigError(f"input.{proto}.{key}: {opts[key]} is not a port")
     for key in ("server", "interface", "group", "command"):
         if opts.get(key) is not None:
             _check_host(opts[key], f"input.{proto}.{key}")
     if proto == "vrpn":
         if "@" not in opts["device"]:
-            raise ValueError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
+            raise ConfigError(f"input.vrpn.device: {opts['device']!r} is not Name@host[:port]")
         if opts["clock"] not in ("map", "host"):
-            raise ValueError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
+            raise ConfigError("input.vrpn.clock must be 'map' (estimate the offset) or 'host'")
         if opts["connect"] not in ("tcp", "udp"):
-            raise ValueError(
+            raise ConfigError(
                 "input.vrpn.connect must be 'tcp' (connect directly) or 'udp' (ask by UDP, "
                 "the server connects back)"
             )
     if proto == "dtrack" and opts["kind"] not in ("body", "flystick", "tool", "hand"):
-        raise ValueError(
+        raise ConfigError(
             f"input.dtrack.kind must be 'body' (6d), 'flystick' (6df2), 'tool' (6dmt2) or "
             f"'hand' (gl), got {opts['kind']!r}"
         )
     if proto == "optical":
         if not opts["config"].strip():
-            raise ValueError("input.optical.config: empty path")
+            raise ConfigError("input.optical.config: empty path")
         cfg = Path(opts["config"])
         if not cfg.is_absolute() and base_dir is not None:
             opts["config"] = str(Path(base_dir) / cfg)
     for key in ("latency_ms", "timeout_ms", "spin_us"):
         if key in opts and not 0 <= float(opts[key]) < 1e5:
-            raise ValueError(f"input.{proto}.{key}: {opts[key]} out of range")
+            raise ConfigError(f"input.{proto}.{key}: {opts[key]} out of range")
     up = str(doc.get("up", "z")).lower()
     if up not in ("y", "z"):
-        raise ValueError(f"input.up must be 'y' or 'z', got {doc.get('up')!r}")
+        raise ConfigError(f"input.up must be 'y' or 'z', got {doc.get('up')!r}")
     unit = str(doc.get("unit", _DEFAULT_UNIT[proto]))
     if unit not in _UNITS:
-        raise ValueError(f"input.unit must be one of {sorted(_UNITS)}, got {unit!r}")
+        raise ConfigError(f"input.unit must be one of {sorted(_UNITS)}, got {unit!r}")
     stale = float(doc.get("stale_ms", 500)) * 1e-3
     if not 0 < stale < 3600:
-        raise ValueError(f"input.stale_ms: {doc.get('stale_ms')} out of range")
+        raise ConfigError(f"input.stale_ms: {doc.get('stale_ms')} out of range")
     return InputSpec(proto, opts, up, _UNITS[unit], stale)

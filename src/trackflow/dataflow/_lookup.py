@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError, PlanError
 from ..graph import Query
 from ..math import UncertainPose, quat_to_matrix
 from ._setup import Setup
@@ -86,12 +87,12 @@ def lookup(setup: Setup, source: str, target: str, t_ns: int | None = None) -> L
         try:
             setup.graph.check_frame(frame)
         except ValueError as exc:
-            raise ValueError(f"{setup.source}: {exc}") from None
+            raise PlanError(f"{setup.source}: {exc}") from None
     plan = setup.plan(Query(source, target, mode="pull", name=f"{source}->{target}"))
     measured = sorted({n.params["edge"] for n in plan.nodes if n.kind == "source"})
     missing = [e for e in measured if e not in setup.recordings]
     if missing:
-        raise ValueError(
+        raise PlanError(
             f"{setup.source}: the path {plan.paths[0]} uses sensor(s) {missing} without a "
             "'recording:' in the setup"
         )
@@ -103,7 +104,7 @@ def lookup(setup: Setup, source: str, target: str, t_ns: int | None = None) -> L
         net.run(until_ns=int(t_ns))
     m = sink.get(int(t_ns))
     if m is None:
-        raise ValueError(
+        raise InputError(
             f"{setup.source}: no estimate of T_{source}_{target} at {t_ns * 1e-9:.9f} s "
             "(before the first measurement, or in a gap of a sensor)"
         )

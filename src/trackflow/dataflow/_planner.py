@@ -25,6 +25,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from os import PathLike
 
+from ..errors import InputError, PlanError
 from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
 from ..math import UncertainPose
 from ._inertial import InertialKalmanFilter
@@ -52,7 +53,7 @@ class Plan:
         for n in self.nodes:
             if n.id == node_id:
                 return n
-        raise ValueError(f"no node {node_id!r} in the plan")
+        raise PlanError(f"no node {node_id!r} in the plan")
 
     def count(self, kind: str) -> int:
         """Number of nodes of a kind."""
@@ -135,7 +136,7 @@ class Plan:
             if n.kind == "source":
                 edge = p["edge"]
                 if edge not in sources:
-                    raise ValueError(f"no recording or sensor given for measured edge {edge!r}")
+                    raise PlanError(f"no recording or sensor given for measured edge {edge!r}")
                 c = sources[edge]
                 if c.name in net.components:
                     c = net.components[c.name]
@@ -143,7 +144,7 @@ class Plan:
                     net.add(c)
             elif n.kind == "imu source":  # an IMU on a body frame (dataflow/_inertial.py)
                 if p["imu"] not in sources:
-                    raise ValueError(f"no recording or sensor given for IMU {p['imu']!r}")
+                    raise PlanError(f"no recording or sensor given for IMU {p['imu']!r}")
                 c = sources[p["imu"]]
                 c = net.components[c.name] if c.name in net.components else net.add(c)
             elif n.kind == "kalman":
@@ -185,7 +186,7 @@ class Plan:
             elif n.kind == "pull sink":
                 c = net.add(PullSink(name))
             else:  # pragma: no cover - plan nodes are made by plan_query only
-                raise ValueError(f"unknown plan node kind {n.kind!r}")
+                raise InputError(f"unknown plan node kind {n.kind!r}")
             made[n.id] = c
             if c in reused:
                 continue  # already wired by the plan that made it

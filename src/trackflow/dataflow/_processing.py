@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from ..errors import InputError
 from ..filters import make_filter
 from ..graph import MotionSpec
 from ..math import UncertainPose
@@ -255,7 +256,7 @@ class Sampler(Component):
     def __init__(self, name: str, rate_hz: float, offset_ns: int = 0, start_ns: int = 0):
         super().__init__(name)
         if not 0 < rate_hz < 1e9:
-            raise ValueError(f"sampler {name!r}: rate_hz must be > 0")
+            raise InputError(f"sampler {name!r}: rate_hz must be > 0")
         self.period_ns = int(round(1e9 / rate_hz))
         self.offset_ns = int(offset_ns)
         self.start_ns = int(start_ns)

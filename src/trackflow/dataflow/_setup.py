@@ -20,7 +20,9 @@ are added, and ``sensors`` entries that name an existing sensor and replace some
 
 Everything a file can say can also be built in Python with
 :class:`trackflow.graph.SpatialRelationshipGraph` and :class:`trackflow.graph.Query`.
-Mistakes raise ``ValueError`` naming the file, the line and the key.
+The file is read by :func:`trackflow.yamlfile.read_yaml` (a key given twice is refused).
+Mistakes raise :class:`trackflow.errors.ConfigError` (a ``ValueError``) naming the file, the
+line and the key.
 """
 
 from __future__ import annotations
@@ -29,42 +31,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from ..errors import ConfigError, PlanError
 from ..graph import MotionSpec, Query, SpatialRelationshipGraph
 from ..math import Pose
+from ..yamlfile import YamlMap, line_of, read_yaml
 from ._planner import Plan, plan_query
 from ._sources import RecordingPlayer
 
 __all__ = ["Setup", "load_setup", "parse_setup"]
-
-
-class _Map(dict):
-    line = 0
-
-
-class _LineLoader(yaml.SafeLoader):
-    """A safe loader remembering the line of every mapping."""
-
-
-def _construct_map(loader: _LineLoader, node) -> _Map:
-    seen: dict = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None,
-                None,
-                f"duplicate key {key!r} (first on line {seen[key]})",
-                key_node.start_mark,
-            )
-        seen[key] = key_node.start_mark.line + 1
-    m = _Map(loader.construct_mapping(node, deep=True))
-    m.line = node.start_mark.line + 1
-    return m
-
-
-_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
 
 
 @dataclass
@@ -84,11 +59,11 @@ class Setup:
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
         if not self.queries:
-            raise ValueError(f"{self.source}: the setup defines no queries")
+            raise PlanError(f"{self.source}: the setup defines no queries")
         if name is None:
             return next(iter(self.queries.values()))
         if name not in self.queries:
-            raise ValueError(f"{self.source}: no query {name!r} (have {list(self.queries)})")
+            raise PlanError(f"{self.source}: no query {name!r} (have {list(self.queries)})")
         return self.queries[name]
 
     def plan(
@@ -107,7 +82,7 @@ class Setup:
         try:
             plan = plan_query(graph, q, align=align)
         except ValueError as exc:
-            raise ValueError(f"{self.source}: {exc}") from None
+            raise PlanError(f"{self.source}: {exc}") from None
         if self.imus and align:
             from ._inertial import attach_imus
 
@@ -136,9 +111,9 @@ class Setup:
         return out
 
 
-def _err(src: str, item, msg: str) -> ValueError:
-    line = getattr(item, "line", 0)
-    return ValueError(f"{src}" + (f":{line}" if line else "") + f": {msg}")
+def _err(src: str, item, msg: str) -> ConfigError:
+    """The error of ``item`` (a mapping of ``src``): the file, the line of ``item``, ``msg``."""
+    return ConfigError(msg, src, line_of(item))
 
 
 def _cov(src, item, what) -> np.ndarray:
@@ -258,8 +233,9 @@ def _check_keys(src, item, allowed, what):
     unknown = set(item) - allowed
     if unknown:
         raise _err(
-            src, item, f"{what}: unknown keys {sorted(unknown)} (allowed: {sorted(allowed)})"
-        )
+            src, item, f"{what}: unknown keys {sorted(unknown, key=str)} (allowed: "
+            f"{sorted(allowed)})"
+        )  # fmt: skip
     for key in ("name", "source", "target"):
         if key not in item:
             raise _err(src, item, f"{what}: missing key {key!r}")
@@ -275,19 +251,10 @@ _FRAGMENT_SENSOR_KEYS = {
 }
 
 
-def _read_yaml(path: Path):
-    try:
-        return yaml.load(path.read_text(), Loader=_LineLoader)  # a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML: {exc}") from exc
-
-
 def _copy_map(item):
-    if not isinstance(item, dict):
-        return item
-    m = _Map(item)
-    m.line = getattr(item, "line", 0)
-    return m
+    if isinstance(item, YamlMap):
+        return item.copy()
+    return dict(item) if isinstance(item, dict) else item
 
 
 def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
@@ -306,9 +273,9 @@ def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
         path = path if path.is_absolute() or base_dir is None else base_dir / path
         if not path.is_file():
             raise _err(source, doc, f"include: fragment {path} not found")
-        frag = _read_yaml(path)
+        frag = read_yaml(path)
         if not isinstance(frag, dict) or set(frag) - {"statics", "sensors"}:
-            raise ValueError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
+            raise ConfigError(f"{path}: a fragment is a mapping with 'statics' and/or 'sensors'")
         statics += list(frag.get("statics") or [])
         for i, upd in enumerate(frag.get("sensors") or []):
             if not isinstance(upd, dict) or "name" not in upd:
@@ -334,7 +301,7 @@ def _apply_includes(doc: dict, source: str, base_dir: Path | None) -> dict:
 def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> Setup:
     """Build a :class:`Setup` from a parsed YAML document (a mapping)."""
     if not isinstance(doc, dict):
-        raise ValueError(f"{source}: a setup must be a mapping with sensors/statics/queries")
+        raise ConfigError(f"{source}: a setup must be a mapping with sensors/statics/queries")
     unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include", "imus"}
     if unknown:
         raise _err(source, doc, f"unknown top-level keys {sorted(unknown)}")
@@ -350,8 +317,8 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             )  # fmt: skip
         declared = set()
         for f in frames:
-            entry = _Map(frame=f)
-            entry.line = getattr(doc, "line", 0)
+            entry = YamlMap(frame=f)
+            entry.line = line_of(doc, "frames")
             name = _name(source, entry, "frame", "frames")
             if name in declared:
                 raise _err(source, doc, f"frames: {name!r} is listed twice")
@@ -403,9 +370,9 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
         try:
             q = np.asarray(s.get("quaternion", [0, 0, 0, 1]), dtype=float)
             if q.shape != (4,) or not np.all(np.isfinite(q)):
-                raise ValueError(f"quaternion must be 4 finite numbers (x, y, z, w), got {q}")
+                raise ConfigError(f"quaternion must be 4 finite numbers (x, y, z, w), got {q}")
             if abs(np.linalg.norm(q) - 1.0) > STATIC_UNIT_TOLERANCE:
-                raise ValueError(
+                raise ConfigError(
                     f"quaternion {q.tolist()} has norm {np.linalg.norm(q):.6g}, not unit "
                     f"(allowed deviation {STATIC_UNIT_TOLERANCE:g}, for rounded digits)"
                 )
@@ -453,15 +420,4 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
 def load_setup(path: str | Path) -> Setup:
     """Read a YAML setup file; errors name the file and line."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
-    try:
-        doc = yaml.load(text, Loader=_LineLoader)  # a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        if mark is not None:
-            raise ValueError(f"{path}:{mark.line + 1}: invalid YAML: {exc.problem}") from None
-        raise ValueError(f"{path}: invalid YAML: {exc}") from None
-    return parse_setup(doc, str(path), path.parent)
+    return parse_setup(read_yaml(path), str(path), path.parent)

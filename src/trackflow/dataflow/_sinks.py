@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ._component import Component
 from ._events import Measurement
 from ._sources import NO_ORIGIN
@@ -80,7 +81,7 @@ class Recorder(CallbackSink):
         target: str | None = None,
     ):
         if path is not None and not (source and target):
-            raise ValueError(f"recorder {name!r}: a recording path needs source and target frames")
+            raise InputError(f"recorder {name!r}: a recording path needs source and target frames")
         self.path = None if path is None else Path(path)
         self.source, self.target = source, target
         self._writer = None

@@ -6,6 +6,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import Pose, UncertainPose, quat_exp, quat_multiply
 from ..scheduler import TimedSource
 from ._component import Component
@@ -48,17 +49,17 @@ class RecordingPlayer(Component):
         super().__init__(name)
         self.t_ns = np.asarray(t_ns)
         if self.t_ns.ndim != 1 or not np.issubdtype(self.t_ns.dtype, np.integer):
-            raise ValueError(f"player {name!r}: t_ns must be a 1-D integer array [ns]")
+            raise InputError(f"player {name!r}: t_ns must be a 1-D integer array [ns]")
         n = len(self.t_ns)
         self.position = np.asarray(position, dtype=float).reshape(n, 3)
         self.quaternion = np.asarray(quaternion, dtype=float).reshape(n, 4)
         cov = np.asarray(covariance, dtype=float)
         self.covariance = np.broadcast_to(cov, (n, 6, 6)) if cov.shape == (6, 6) else cov
         if self.covariance.shape != (n, 6, 6):
-            raise ValueError(f"player {name!r}: covariance must be (6, 6) or ({n}, 6, 6)")
+            raise InputError(f"player {name!r}: covariance must be (6, 6) or ({n}, 6, 6)")
         self.latency_ns = int(latency_ns)
         if self.latency_ns < 0:
-            raise ValueError(f"player {name!r}: latency must be >= 0")
+            raise InputError(f"player {name!r}: latency must be >= 0")
         self._prepare()
         self.reset()
 
@@ -118,7 +119,7 @@ class RecordingPlayer(Component):
         cov = stream.covariance
         if cov is None:
             if covariance is None:
-                raise ValueError(f"player {name!r}: the stream has no covariance; pass one")
+                raise InputError(f"player {name!r}: the stream has no covariance; pass one")
             cov = covariance
         return cls(name, stream.t_ns, stream.position, stream.quaternion, cov, latency_ns)
 
@@ -196,9 +197,9 @@ class SimulatedSensor(RecordingPlayer):
         outlier_ori_rad: float = 0.3,
     ):
         if not rate_hz > 0 or not end_s > start_s:
-            raise ValueError(f"sensor {name!r}: need rate_hz > 0 and end_s > start_s")
+            raise InputError(f"sensor {name!r}: need rate_hz > 0 and end_s > start_s")
         if not isinstance(rng, np.random.Generator):
-            raise ValueError(f"sensor {name!r}: rng must be a numpy Generator")
+            raise InputError(f"sensor {name!r}: rng must be a numpy Generator")
         n = int(np.floor((end_s - start_s) * rate_hz)) + 1
         t_true = start_s + np.arange(n) / rate_hz
         true = truth(t_true)
@@ -222,7 +223,7 @@ class SimulatedSensor(RecordingPlayer):
         stamps = np.round((t_true + stamp_offset_s) * 1e9).astype(np.int64)
         latency_ns = int(round((latency_s - stamp_offset_s) * 1e9))
         if latency_ns < 0:
-            raise ValueError(f"sensor {name!r}: the stamp offset exceeds the latency")
+            raise InputError(f"sensor {name!r}: the stamp offset exceeds the latency")
         super().__init__(name, stamps, pos, quat, cov, latency_ns)
         self.t_true_s = t_true
 
@@ -236,7 +237,7 @@ class StaticPose(Component):
     def __init__(self, name: str, value: UncertainPose):
         super().__init__(name)
         if not isinstance(value, UncertainPose) or value.shape != ():
-            raise ValueError(f"static {name!r}: value must be one UncertainPose")
+            raise InputError(f"static {name!r}: value must be one UncertainPose")
         self.value = value
 
     def pull(self, t_ns: int) -> Measurement:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..optional import pyplot
+
 __all__ = ["demo_json", "plot_errors"]
 
 
@@ -17,11 +19,7 @@ def demo_json(result: dict) -> str:
 def plot_errors(series: dict, path: Path, result: dict) -> None:
     """PNG of the position [mm] and orientation [deg] errors of every variant over time
     (``series[label] = (t [s], position error, orientation error)``), RMS in the legend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot("the demo's plot")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for label, (t, dp, dq) in series.items():

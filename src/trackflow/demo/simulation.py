@@ -9,6 +9,7 @@ from importlib import resources
 import numpy as np
 
 from ..dataflow import SimulatedSensor
+from ..errors import InputError
 from ..graph import MotionSpec, SpatialRelationshipGraph
 from ..math import Pose, UncertainPose, quat_exp, quat_make_continuous
 
@@ -92,7 +93,7 @@ def demo_truth(t_s: np.ndarray, poses: Pose, lowpass_hz: float | None = 6.0):
         from scipy.signal import butter, filtfilt
 
         if not 0 < lowpass_hz < 60:
-            raise ValueError(f"lowpass_hz must be in (0, 60) Hz, got {lowpass_hz}")
+            raise InputError(f"lowpass_hz must be in (0, 60) Hz, got {lowpass_hz}")
         grid = np.arange(t_s[0], t_s[-1], 1.0 / 120.0)
         b, a = butter(4, lowpass_hz / 60.0)
         p = filtfilt(b, a, pos(grid), axis=0)

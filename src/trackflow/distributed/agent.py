@@ -53,8 +53,10 @@ from ..dataflow import (
     warm_up,
 )
 from ..dataflow._component import _Clock
+from ..errors import ServiceError
 from ..graph import Edge
 from ..math import UncertainPose
+from ..optional import require
 from ..trackers.inputs import make_inputs, warm_up_inputs
 from ..trackers.runtime import InputSource, LiveSource, LiveSources
 from . import wire
@@ -191,14 +193,14 @@ class Agent:
 
     # -- life cycle -----------------------------------------------------------------------------
     def start(self) -> Agent:
-        import zenoh
+        zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
 
         conf = zenoh_config(self.cfg)
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as exc:
             listen = conf.get_json("listen/endpoints")
-            raise RuntimeError(
+            raise ServiceError(
                 f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
             ) from None
         s, r = self.session, self.realm

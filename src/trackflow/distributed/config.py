@@ -23,6 +23,9 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
                                 # before a tick once the clock is this far past the tick
                                 # (and the player has played every sample due by the tick)
 
+The file is read by :func:`trackflow.yamlfile.read_yaml`: a key given twice is refused, and
+every mistake is a :class:`trackflow.errors.ConfigError` naming the file, the line and the key.
+
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
 ``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts
 retried every 0.25-1 s (agents may start in any order).
@@ -35,9 +38,10 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from ..dataflow import Setup, parse_setup
+from ..errors import ConfigError
+from ..optional import require
+from ..yamlfile import config_error, line_of, read_yaml
 
 __all__ = ["AgentConfig", "load_agent", "zenoh_config"]
 
@@ -66,6 +70,13 @@ DEFAULT_ZENOH = {
 }
 
 
+def _bad(key: str | None, message: str) -> ConfigError:
+    """The error of the agent key ``key`` (``load_agent`` adds the file and line)."""
+    err = ConfigError(message)
+    err.key = key
+    return err
+
+
 @dataclass
 class AgentConfig:
     """Everything an :class:`trackflow.distributed.Agent` needs (see the module docstring)."""
@@ -86,32 +97,37 @@ class AgentConfig:
     def __post_init__(self):
         for what, value in (("name", self.name), ("realm", self.realm)):
             if not isinstance(value, str) or not _NAME.match(value):
-                raise ValueError(f"agent {what} {value!r}: use letters, digits, '_' and '-'")
+                raise _bad(what, f"agent {what} {value!r}: use letters, digits, '_' and '-'")
         for e in self.setup.graph.edges:
             if not _NAME.match(e.name):
-                raise ValueError(f"edge name {e.name!r}: use letters, digits, '_' and '-'")
+                raise _bad(None, f"edge name {e.name!r}: use letters, digits, '_' and '-'")
         if self.clock_sync not in ("estimate", "none"):
-            raise ValueError(f"clock_sync must be 'estimate' or 'none', got {self.clock_sync!r}")
+            raise _bad(
+                "clock_sync", f"clock_sync must be 'estimate' or 'none', got {self.clock_sync!r}"
+            )
         if self.pull_via not in ("replica", "get"):
-            raise ValueError(f"pull_via must be 'replica' or 'get', got {self.pull_via!r}")
+            raise _bad("pull_via", f"pull_via must be 'replica' or 'get', got {self.pull_via!r}")
         if not self.reorder_ms >= 0:
-            raise ValueError(f"reorder_ms must be >= 0, got {self.reorder_ms}")
+            raise _bad("reorder_ms", f"reorder_ms must be >= 0, got {self.reorder_ms}")
         if not isinstance(self.thin, bool):
-            raise ValueError(f"thin must be true or false, got {self.thin!r}")
+            raise _bad("thin", f"thin must be true or false, got {self.thin!r}")
         if self.thin and not self.reorder_ms > 0:
-            raise ValueError(
+            raise _bad(
+                "thin",
                 "thin: true needs reorder_ms > 0 (thinned states come just after the tick "
-                "they serve; reorder_ms is how long a tick may wait for them)"
+                "they serve; reorder_ms is how long a tick may wait for them)",
             )
         if not 0 <= self.thin_grace_ms <= 1000:
-            raise ValueError(f"thin_grace_ms must be in 0..1000, got {self.thin_grace_ms}")
+            raise _bad(
+                "thin_grace_ms", f"thin_grace_ms must be in 0..1000, got {self.thin_grace_ms}"
+            )
 
 
 def _insert(conf, key: str, value) -> None:
     """Set ``key`` (a ``a/b/c`` path) to ``value``: mappings key by key (so the other keys
     keep their defaults), or as a whole where Zenoh has no such sub-keys yet (a null
     default such as ``connect/retry``)."""
-    import zenoh
+    zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
 
     if isinstance(value, dict) and value:
         try:
@@ -126,7 +142,7 @@ def _insert(conf, key: str, value) -> None:
 def zenoh_config(cfg: AgentConfig):
     """The ``zenoh.Config`` of an agent: the file (if any), else the loopback defaults, then
     the ``zenoh`` keys of the agent file on top."""
-    import zenoh
+    zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
 
     if cfg.zenoh_config is not None:
         conf = zenoh.Config.from_file(str(cfg.zenoh_config))
@@ -139,43 +155,81 @@ def zenoh_config(cfg: AgentConfig):
             try:
                 _insert(conf, str(key), value)
             except zenoh.ZError as exc:
-                raise ValueError(f"zenoh config key {key!r} = {value!r}: {exc}") from None
+                raise _bad("zenoh", f"zenoh config key {key!r} = {value!r}: {exc}") from None
     return conf
 
 
-def load_agent(path: str | Path) -> AgentConfig:
-    """Read an agent YAML file (setup plus ``agent:`` section); errors name the file."""
-    path = Path(path)
+def _value(path, a, key: str, convert, default):
+    """``convert(a[key])`` (``default`` without the key); a value it refuses is a
+    :class:`ConfigError` at the key's line."""
+    if key not in a:
+        return default
     try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML: {exc}") from exc
+        return convert(a[key])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(
+            f"agent: {key}: {a[key]!r} is not valid ({exc})", path, line_of(a, key)
+        ) from None
+
+
+def _relative(path: Path, value) -> Path | None:
+    return None if value is None else path.parent / str(value)
+
+
+def _mapping(value) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError("expected a mapping of Zenoh configuration keys")
+    return dict(value)
+
+
+def load_agent(path: str | Path) -> AgentConfig:
+    """Read an agent YAML file (setup plus ``agent:`` section).
+
+    Raises
+    ------
+    ConfigError
+        A mistake, naming the file, the line and the key (a key given twice included).
+    OSError
+        The file cannot be read.
+    """
+    path = Path(path)
+    doc = read_yaml(path)
     if not isinstance(doc, dict) or not isinstance(doc.get("agent"), dict):
-        raise ValueError(f"{path}: an agent file needs an 'agent:' mapping (name, realm, ...)")
+        raise config_error(
+            path, doc, "an agent file needs an 'agent:' mapping (name, realm, ...)", "agent"
+        )
+    doc = doc.copy()  # the lines stay (a YamlMap)
     a = doc.pop("agent")
     unknown = set(a) - _AGENT_KEYS
     if unknown:
-        raise ValueError(
-            f"{path}: agent: unknown keys {sorted(unknown)} (allowed: {sorted(_AGENT_KEYS)})"
-        )
+        first = min(unknown, key=lambda k: (line_of(a, k), str(k)))
+        raise ConfigError(
+            f"unknown keys {sorted(unknown, key=str)} (allowed: {sorted(_AGENT_KEYS)})",
+            path, line_of(a, first), "agent",
+        )  # fmt: skip
     if "name" not in a:
-        raise ValueError(f"{path}: agent: missing key 'name'")
+        raise config_error(path, a, "missing key 'name'", "agent")
     setup = parse_setup(doc, str(path), path.parent)
-    zc = a.get("zenoh_config")
     try:
         return AgentConfig(
             name=str(a["name"]),
             setup=setup,
-            realm=str(a.get("realm", "default")),
-            zenoh=dict(a.get("zenoh") or {}),
-            zenoh_config=None if zc is None else (path.parent / str(zc)),
-            start_ns=int(a.get("start_ns", 0)),
-            reorder_ms=float(a.get("reorder_ms", 0.0)),
-            clock_sync=str(a.get("clock_sync", "estimate")),
-            clock_offset_ms=float(a.get("clock_offset_ms", 0.0)),
-            pull_via=str(a.get("pull_via", "replica")),
+            realm=_value(path, a, "realm", str, "default"),
+            zenoh=_value(path, a, "zenoh", _mapping, {}),
+            zenoh_config=_value(path, a, "zenoh_config", lambda v: _relative(path, v), None),
+            start_ns=_value(path, a, "start_ns", int, 0),
+            reorder_ms=_value(path, a, "reorder_ms", float, 0.0),
+            clock_sync=_value(path, a, "clock_sync", str, "estimate"),
+            clock_offset_ms=_value(path, a, "clock_offset_ms", float, 0.0),
+            pull_via=_value(path, a, "pull_via", str, "replica"),
             thin=a.get("thin", False),
-            thin_grace_ms=float(a.get("thin_grace_ms", 1.0)),
+            thin_grace_ms=_value(path, a, "thin_grace_ms", float, 1.0),
         )
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: agent: {exc}") from exc
+    except ConfigError as exc:  # AgentConfig's checks name the key; here the file and line
+        if exc.file is not None:
+            raise
+        if exc.key is None:  # not a key of the agent section (an edge name)
+            raise ConfigError(exc.reason, path) from None
+        raise ConfigError(f"agent: {exc.reason}", path, line_of(a, exc.key)) from None

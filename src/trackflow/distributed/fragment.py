@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ..errors import FormatError
 from ..graph import Edge, MotionSpec, SpatialRelationshipGraph
 from ..math import Pose
 
@@ -53,7 +54,7 @@ def edge_to_dict(edge: Edge) -> dict:
 def edge_from_dict(d: dict) -> Edge:
     """Inverse of :func:`edge_to_dict`; raises ``ValueError`` naming the edge and the problem."""
     if not isinstance(d, dict):
-        raise ValueError("fragment edge must be a mapping")
+        raise FormatError("fragment edge must be a mapping")
     name = d.get("name", "?")
     try:
         m = d["motion"]
@@ -87,9 +88,9 @@ def edge_from_dict(d: dict) -> Edge:
             stamp_offset_s=float(d.get("stamp_offset_s", 0.0)),
         )
     except (KeyError, TypeError) as exc:
-        raise ValueError(f"fragment edge {name!r}: missing or malformed field {exc}") from None
+        raise FormatError(f"fragment edge {name!r}: missing or malformed field {exc}") from None
     except ValueError as exc:
-        raise ValueError(f"fragment edge {name!r}: {exc}") from None
+        raise FormatError(f"fragment edge {name!r}: {exc}") from None
 
 
 def fragment_json(agent: str, graph: SpatialRelationshipGraph, frames=()) -> bytes:
@@ -108,13 +109,13 @@ def parse_fragment(data: bytes) -> tuple[str, list[str], list[Edge]]:
     try:
         doc = json.loads(bytes(data).decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"fragment is not JSON: {exc}") from None
+        raise FormatError(f"fragment is not JSON: {exc}") from None
     if not isinstance(doc, dict) or doc.get("version") != FRAGMENT_VERSION:
         version = doc.get("version") if isinstance(doc, dict) else None
-        raise ValueError(f"unknown fragment version {version!r}")
+        raise FormatError(f"unknown fragment version {version!r}")
     agent = doc.get("agent")
     frames = doc.get("frames", [])
     edges = doc.get("edges")
     if not isinstance(agent, str) or not isinstance(frames, list) or not isinstance(edges, list):
-        raise ValueError("fragment needs 'agent' (string), 'frames' and 'edges' (lists)")
+        raise FormatError("fragment needs 'agent' (string), 'frames' and 'edges' (lists)")
     return agent, [str(f) for f in frames], [edge_from_dict(e) for e in edges]

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataflow import Component, KalmanFilter, Measurement
+from ..errors import InputError
 from ..graph import MotionSpec
 from ..math import UncertainPose
 from . import wire
@@ -59,7 +60,7 @@ class StatePublisher(Component):
     def __init__(self, name: str, kf: KalmanFilter, publisher):
         super().__init__(name)
         if not hasattr(kf.filter, "snapshot"):
-            raise ValueError(
+            raise InputError(
                 f"{name}: the filter of {kf.name} ({type(kf.filter).__name__}) cannot be "
                 "replicated (no snapshot())"
             )
@@ -122,7 +123,7 @@ class RemoteFilter(KalmanFilter):
         self._model_key = (model.n_dp, model.n_do, self.filter.formulation)
 
     def push(self, m: Measurement, port: int = 0) -> None:
-        raise ValueError(f"{self.name}: a remote filter adopts filter states, not measurements")
+        raise InputError(f"{self.name}: a remote filter adopts filter states, not measurements")
 
     def adopt(self, s: wire.StateSample, offset_ns: int = 0, sigma_s: float = 0.0) -> bool:
         """Adopt one received state (counted rejections: another motion model, older than
@@ -188,7 +189,7 @@ class RemoteGet(KalmanFilter):
         self.fetch = fetch
 
     def push(self, m: Measurement, port: int = 0) -> None:
-        raise ValueError(f"{self.name}: a remote get has no push input")
+        raise InputError(f"{self.name}: a remote get has no push input")
 
     def pull(self, t_ns: int) -> Measurement | None:
         m = self.fetch(int(t_ns))

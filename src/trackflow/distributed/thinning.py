@@ -39,6 +39,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+from ..errors import InputError
+
 __all__ = [
     "DEMAND_LIMITS_NS",
     "MAX_STREAMS_PER_EDGE",
@@ -93,15 +95,15 @@ def parse_demand(key: str, realm: str) -> tuple[str, str, Grid]:
     """
     parts = key.split("/")
     if len(parts) != 7 or parts[:3] != ["trackflow", realm, "demand"]:
-        raise ValueError("malformed demand")
+        raise InputError("malformed demand")
     edge, consumer, period, phase = parts[3:]
     if not (period.isdigit() and phase.isdigit()):
-        raise ValueError("malformed demand")
+        raise InputError("malformed demand")
     p, ph = int(period), int(phase)
     if not DEMAND_LIMITS_NS[0] <= p <= DEMAND_LIMITS_NS[1]:
-        raise ValueError("demand period out of range")
+        raise InputError("demand period out of range")
     if ph >= p:
-        raise ValueError("demand phase out of range")
+        raise InputError("demand phase out of range")
     return edge, consumer, Grid(p, ph)
 
 

@@ -56,6 +56,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ..filters import FilterSnapshot, MotionModel
 from ..math import Pose, UncertainPose, kernels_for
 from . import kernels as _kernels
@@ -96,7 +97,7 @@ _SYM[_IU] = np.arange(21)
 _SYM.T[_IU] = np.arange(21)
 
 
-class WireError(ValueError):
+class WireError(FormatError):
     """A message that cannot be decoded; ``reason`` is a short counter key."""
 
     def __init__(self, reason: str, detail: str = ""):
@@ -135,7 +136,7 @@ def encode(
 ) -> bytes:
     """One message (260 bytes with covariance, 92 without); see the module docstring."""
     if pose.shape != ():
-        raise ValueError("encode takes a single pose, not a batch")
+        raise InputError("encode takes a single pose, not a batch")
     p = pose.position
     q = pose.quaternion
     head = _HEAD.pack(

@@ -21,6 +21,7 @@ from typing import ClassVar, NamedTuple, TextIO
 
 import numpy as np
 
+from ..errors import InputError
 from ..filters.inertial import (
     ImuExtrinsics,
     ImuNoise,
@@ -80,11 +81,11 @@ class ImuSamples(NamedTuple):
         w = np.ascontiguousarray(gyro, dtype=float)
         a = np.ascontiguousarray(accel, dtype=float)
         if w.shape != (ti.shape[0], 3) or a.shape != (ti.shape[0], 3):
-            raise ValueError(f"IMU arrays disagree: t {ti.shape}, gyro {w.shape}, accel {a.shape}")
+            raise InputError(f"IMU arrays disagree: t {ti.shape}, gyro {w.shape}, accel {a.shape}")
         if ti.shape[0] < 2 or not (np.all(np.isfinite(ti)) and np.all(np.diff(ti) > 0)):
-            raise ValueError("IMU times must be finite and strictly increasing (>= 2 samples)")
+            raise InputError("IMU times must be finite and strictly increasing (>= 2 samples)")
         if not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
-            raise ValueError("IMU samples must be finite")
+            raise InputError("IMU samples must be finite")
         return cls(ti, w, a)
 
     def shifted(self, offset_s: float) -> ImuSamples:
@@ -321,19 +322,19 @@ def evaluate_with_imu(
         shrinkage), ``pose_rate_hz`` and ``origins``.
     """
     if origins not in ORIGINS:
-        raise ValueError(f"origins must be one of {ORIGINS}, got {origins!r}")
+        raise InputError(f"origins must be one of {ORIGINS}, got {origins!r}")
     if not 0.0 < tune_fraction < 1.0:
-        raise ValueError(f"tune_fraction must be in (0, 1), got {tune_fraction}")
+        raise InputError(f"tune_fraction must be in (0, 1), got {tune_fraction}")
     h = positive_horizons(horizons)
     th = positive_horizons(tune_horizons, "tune_horizons")
     truth = recording
     thin = TrackerTrajectory.thinned(truth, pose_rate_hz)
     if len(thin) < 40:
-        raise ValueError(f"only {len(thin)} poses at {pose_rate_hz} Hz; need at least 40")
+        raise InputError(f"only {len(thin)} poses at {pose_rate_hz} Hz; need at least 40")
     split = float(truth.t[0] + tune_fraction * (truth.t[-1] - truth.t[0]))
     train = thin.t <= split
     if np.count_nonzero(train) < 20 or np.count_nonzero(~train) < 20:
-        raise ValueError(f"tune_fraction {tune_fraction} leaves too few poses on one side")
+        raise InputError(f"tune_fraction {tune_fraction} leaves too few poses on one side")
     tuning_poses = thin.select(train)
 
     # the IMU: clock, mounting and gravity from the tuning part (first: it fails fast on an

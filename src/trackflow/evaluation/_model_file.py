@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ConfigError, InputError
 from ..filters import MotionModel, TwistARModel, run_filter, run_twist_ar
 from ..io import PoseStream, atomic_output
 from ..math import Pose, UncertainPose
@@ -63,26 +64,26 @@ def predictor_to_dict(pred) -> dict:
             "position": predictor_to_dict(pred.position),
             "orientation": predictor_to_dict(pred.orientation),
         }
-    raise ValueError(f"not a predictor: {type(pred).__name__}")
+    raise InputError(f"not a predictor: {type(pred).__name__}")
 
 
 def _field(d: dict, key: str, where: str):
     if key not in d:
-        raise ValueError(f"{where}: missing field {key!r}")
+        raise ConfigError(f"{where}: missing field {key!r}")
     return d[key]
 
 
 def predictor_from_dict(d: dict, where: str = "model"):
     """Inverse of :func:`predictor_to_dict`; ``ValueError`` naming ``where`` and the field."""
     if not isinstance(d, dict):
-        raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
+        raise ConfigError(f"{where}: expected an object, got {type(d).__name__}")
     family = _field(d, "family", where)
     try:
         if family == "derivative":
             counts = {k: _field(d, k, where) for k in ("n_dp", "n_do")}
             for k, v in counts.items():
                 if not isinstance(v, int) or isinstance(v, bool) or not -1 <= v <= MAX_DERIVATIVES:
-                    raise ValueError(
+                    raise InputError(
                         f"{k} must be an integer in -1..{MAX_DERIVATIVES} (derivatives in the "
                         f"state), got {v!r}"
                     )
@@ -115,8 +116,8 @@ def predictor_from_dict(d: dict, where: str = "model"):
                 predictor_from_dict(_field(d, "orientation", where), f"{where}.orientation"),
             )
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: {exc}") from None
-    raise ValueError(f"{where}: unknown family {family!r} (derivative, twist_ar or partwise)")
+        raise ConfigError(f"{where}: {exc}") from None
+    raise ConfigError(f"{where}: unknown family {family!r} (derivative, twist_ar or partwise)")
 
 
 def save_model(path, pred, tuning: dict | None = None, overwrite: bool = False) -> None:
@@ -134,11 +135,11 @@ def load_model(path):
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}:{exc.lineno}: not a JSON model file ({exc.msg})") from None
+        raise ConfigError(f"{path}:{exc.lineno}: not a JSON model file ({exc.msg})") from None
     except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a JSON model file (not UTF-8 text)") from None
+        raise ConfigError(f"{path}: not a JSON model file (not UTF-8 text)") from None
     if not isinstance(doc, dict) or doc.get("trackflow_model") != MODEL_FILE_VERSION:
-        raise ValueError(
+        raise ConfigError(
             f"{path}: not a trackflow model file (write one with trackflow tune --output)"
         )
     return predictor_from_dict(doc.get("predictor"), str(path))
@@ -199,7 +200,7 @@ def scale_noise(pred, k: float):
     linear over one step, so the means change only through the outlier gate.
     """
     if not (np.isfinite(k) and k > 0):
-        raise ValueError(f"noise scale must be > 0, got {k!r}")
+        raise InputError(f"noise scale must be > 0, got {k!r}")
     r = float(np.sqrt(k))
     if isinstance(pred, KalmanPredictor):
         m = pred.model
@@ -211,7 +212,7 @@ def scale_noise(pred, k: float):
         model = TwistARModel(m.dt, m.coefficients, np.asarray(m.noise) * k,
                              np.asarray(m.twist_covariance) * k)  # fmt: skip
         return TwistARPredictor(model, pred.pos_sigma * r, pred.ori_sigma * r)
-    raise ValueError(f"cannot scale {type(pred).__name__}")
+    raise InputError(f"cannot scale {type(pred).__name__}")
 
 
 def _dof(pred) -> int:
@@ -233,7 +234,7 @@ def _run_part(pred, t, p, q, horizon: float):
         return (out.position, out.quaternion, out.covariance, res.nis,
                 int(st["rejected_gate"]), int(st["resets"]))  # fmt: skip
     if horizon > 0:
-        raise ValueError(
+        raise InputError(
             "the learned (twist_ar) model predicts means only; filter with --horizon 0, "
             "or tune with --learned-orders none for predictions with covariances"
         )

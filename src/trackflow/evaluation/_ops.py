@@ -6,6 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..errors import InputError
 from ..filters import smooth_filter
 from ..io import PoseStream
 from ..math import Pose, UncertainPose, quat_rminus
@@ -97,12 +98,12 @@ _STATS = {
 def shift_stream(stream: PoseStream, offset_s: float) -> PoseStream:
     """Add ``offset_s`` seconds to every timestamp (a constant latency correction)."""
     if not np.isfinite(offset_s):
-        raise ValueError(f"offset must be finite, got {offset_s}")
+        raise InputError(f"offset must be finite, got {offset_s}")
     off = round(offset_s * 1e9)  # exact Python integer: no wrap-around
     if len(stream):
         lo, hi = int(stream.t_ns[0]) + off, int(stream.t_ns[-1]) + off
         if lo < -(2**63) or hi > 2**63 - 1:
-            raise ValueError(
+            raise InputError(
                 f"offset {offset_s:g} s moves the timestamps out of the int64 nanosecond range "
                 f"(about +-292 years from 1970); first sample at {int(stream.t_ns[0]) * 1e-9:.9g} s"
             )
@@ -115,9 +116,9 @@ def scale_covariance(stream: PoseStream, factor: float) -> PoseStream:
     Perturbation model unchanged: ``t_true = t + dt``, ``R_true = R Exp(dtheta)``.
     """
     if not np.isfinite(factor) or factor <= 0:
-        raise ValueError(f"covariance scale factor must be positive, got {factor}")
+        raise InputError(f"covariance scale factor must be positive, got {factor}")
     if stream.covariance is None:
-        raise ValueError("the recording carries no covariance to scale")
+        raise InputError("the recording carries no covariance to scale")
     return stream.with_(covariance=stream.covariance * factor)
 
 
@@ -171,21 +172,21 @@ def infer_streams(
         ``T_x_z`` with covariances.
     """
     if a.target != b.source:
-        raise ValueError(
+        raise InputError(
             f"cannot chain T_{a.source}_{a.target} with T_{b.source}_{b.target}: "
             f"{a.target!r} != {b.source!r}"
         )
     if len(a) < 4 or len(b) < 4:
-        raise ValueError("each recording needs at least four samples")
+        raise InputError("each recording needs at least four samples")
     if method == "interpolate":
         return _infer_interpolated(a, b)
     if method != "filter":
-        raise ValueError(f"unknown method {method!r}; use 'filter' or 'interpolate'")
+        raise InputError(f"unknown method {method!r}; use 'filter' or 'interpolate'")
     t0 = min(int(a.t_ns[0]), int(b.t_ns[0]))
     tq = np.union1d(a.t_ns, b.t_ns)
     keep = _inside(tq, a.t_ns) & _inside(tq, b.t_ns)
     if not np.any(keep):
-        raise ValueError("the recordings do not overlap in time")
+        raise InputError("the recordings do not overlap in time")
     tq = tq[keep]
     ts = (tq - t0).astype(float) * 1e-9
     total = len(a) + len(b) + 2 * len(ts)
@@ -223,7 +224,7 @@ def _infer_interpolated(a: PoseStream, b: PoseStream) -> PoseStream:
     ta = a.t_ns
     keep = _inside(ta, tb)
     if not np.any(keep):
-        raise ValueError("the recordings do not overlap in time")
+        raise InputError("the recordings do not overlap in time")
     j = np.clip(np.searchsorted(tb, ta, side="right") - 1, 0, len(b) - 2)
     j, tak = j[keep], ta[keep]
     s = (tak - tb[j]).astype(float) / (tb[j + 1] - tb[j]).astype(float)

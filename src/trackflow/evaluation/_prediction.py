@@ -6,6 +6,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..errors import InputError
 from ._trajectory import Trajectory
 
 __all__ = ["Prediction", "Predictor", "positive_horizons", "predict_kalman", "stack_predictions"]
@@ -61,7 +62,7 @@ def positive_horizons(horizons, name: str = "horizons") -> np.ndarray:
     and > 0."""
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
     if h.size == 0 or np.any(~np.isfinite(h)) or np.any(h <= 0):
-        raise ValueError(f"{name} must be positive seconds, got {h.tolist()}")
+        raise InputError(f"{name} must be positive seconds, got {h.tolist()}")
     return h
 
 
@@ -81,5 +82,5 @@ def predict_kalman(recording: Trajectory, predictor: Predictor, horizons) -> Pre
         ``predictor`` is not a :class:`Predictor`.
     """
     if not isinstance(predictor, Predictor):
-        raise ValueError(f"not a predictor: {type(predictor).__name__}")
+        raise InputError(f"not a predictor: {type(predictor).__name__}")
     return predictor.predict(recording, np.ascontiguousarray(horizons, dtype=float).reshape(-1))

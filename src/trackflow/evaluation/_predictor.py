@@ -10,6 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..errors import InputError
 from ..filters import MotionModel, run_filter
 from ..filters.twist_ar import TwistARModel, run_twist_ar
 from ..math import UncertainPose, quat_rminus
@@ -30,7 +31,7 @@ def _check_sigmas(settings) -> None:
     for name in ("pos_sigma", "ori_sigma"):
         v = getattr(settings, name)
         if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+            raise InputError(f"{name} must be finite and > 0, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -67,11 +68,11 @@ class KalmanPredictor:
 
     def __post_init__(self):
         if not isinstance(self.model, MotionModel):
-            raise ValueError(f"model must be a MotionModel, got {type(self.model).__name__}")
+            raise InputError(f"model must be a MotionModel, got {type(self.model).__name__}")
         _check_sigmas(self)
         g = self.gate_probability
         if g is not None and not 0.0 < g <= 1.0:
-            raise ValueError(f"gate_probability must be in (0, 1] or None, got {g!r}")
+            raise InputError(f"gate_probability must be in (0, 1] or None, got {g!r}")
 
     def measurement_covariance(self) -> np.ndarray:
         """6x6 covariance over ``(dt, dtheta)`` of one measurement, shape (6, 6)."""
@@ -86,7 +87,7 @@ class KalmanPredictor:
         elif which == "orientation":
             sub = MotionModel(-1, m.n_do, m.noise[npl:], kind=m.kind)
         else:
-            raise ValueError(f"part must be 'position' or 'orientation', got {which!r}")
+            raise InputError(f"part must be 'position' or 'orientation', got {which!r}")
         return KalmanPredictor(sub, self.pos_sigma, self.ori_sigma, self.gate_probability)
 
     def measurements(self, position, quaternion) -> UncertainPose:
@@ -147,7 +148,7 @@ class TwistARPredictor:
 
     def __post_init__(self):
         if not isinstance(self.model, TwistARModel):
-            raise ValueError(f"model must be a TwistARModel, got {type(self.model).__name__}")
+            raise InputError(f"model must be a TwistARModel, got {type(self.model).__name__}")
         _check_sigmas(self)
 
     def predict(self, recording: Trajectory, horizons: np.ndarray) -> Prediction:
@@ -190,7 +191,7 @@ class PartwisePredictor:
         for name in ("position", "orientation"):
             v = getattr(self, name)
             if not isinstance(v, (KalmanPredictor, TwistARPredictor)):
-                raise ValueError(
+                raise InputError(
                     f"{name} must be a KalmanPredictor or TwistARPredictor, got {type(v).__name__}"
                 )
 
@@ -249,7 +250,7 @@ def estimate_noise(t, position, quaternion) -> tuple[float, float]:
     p = np.asarray(position, dtype=float)
     q = np.asarray(quaternion, dtype=float)
     if p.shape[0] < 4:
-        raise ValueError("need at least four samples to estimate the measurement noise")
+        raise InputError("need at least four samples to estimate the measurement noise")
     d2 = p[2:] - 2.0 * p[1:-1] + p[:-2]
     ps = 1.4826 * float(np.median(np.abs(d2))) / np.sqrt(6.0)
     inc = quat_rminus(q[1:], q[:-1])

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_rminus, quat_rplus
 from ._prediction import Prediction, Predictor, positive_horizons
 from ._trajectory import Trajectory
@@ -58,10 +59,10 @@ class ShrunkPredictor:
     def __post_init__(self):
         n = len(self.horizons)
         if len(self.position) != n or len(self.orientation) != n:
-            raise ValueError("one lambda per fitted horizon and part")
+            raise InputError("one lambda per fitted horizon and part")
         lam = np.asarray(self.position + self.orientation, dtype=float)
         if np.any(~np.isfinite(lam)) or np.any(lam < 0) or np.any(lam > 1):
-            raise ValueError(f"shrinkage factors must be in [0, 1], got {lam.tolist()}")
+            raise InputError(f"shrinkage factors must be in [0, 1], got {lam.tolist()}")
 
     @property
     def family(self) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_make_continuous, quat_slerp
 
 __all__ = ["default_gap", "interpolate_poses", "scored_mask"]
@@ -13,7 +14,7 @@ def default_gap(t: np.ndarray) -> float:
     """Gap threshold [s]: three times the median sample interval of ``t`` (shape (N,), s)."""
     t = np.asarray(t, dtype=float)
     if t.shape[0] < 2:
-        raise ValueError("need at least two samples to find the sample interval")
+        raise InputError("need at least two samples to find the sample interval")
     dt = np.diff(t)
     return 3.0 * float(np.median(dt))
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_slerp
 from ._prediction import Prediction
 from ._targets import default_gap, interpolate_poses, scored_mask
@@ -21,7 +22,7 @@ def thin_poses(t, rate_hz: float | None) -> np.ndarray:
     if rate_hz is None:
         return np.arange(t.shape[0])
     if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"pose rate must be a positive number of Hz, got {rate_hz!r}")
+        raise InputError(f"pose rate must be a positive number of Hz, got {rate_hz!r}")
     ticks = t[0] + np.arange(0.0, t[-1] - t[0] + 1e-12, 1.0 / rate_hz)
     return np.unique(np.searchsorted(t, ticks - 1e-9, side="left").clip(0, t.shape[0] - 1))
 
@@ -48,7 +49,7 @@ class TrackerTrajectory(Trajectory):
         of the thinned stream's default and the truth's."""
         sel = thin_poses(truth.t, rate_hz)
         if sel.shape[0] < 4:
-            raise ValueError(f"only {sel.shape[0]} poses at {rate_hz} Hz")
+            raise InputError(f"only {sel.shape[0]} poses at {rate_hz} Hz")
         gap = max(default_gap(truth.t[sel]), truth.gap_s)
         return cls(truth.t[sel], truth.position[sel], truth.quaternion[sel], gap, truth=truth)
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import UncertainPose, check_trajectory
 from ._targets import default_gap, interpolate_poses, scored_mask
@@ -60,7 +61,7 @@ class Trajectory:
         t, p, q = check_trajectory(t, position, quaternion, min_samples=4, what="the recording")
         gap = default_gap(t) if gap_s is None else float(gap_s)
         if not gap > 0:
-            raise ValueError(f"gap_s must be > 0, got {gap_s!r}")
+            raise InputError(f"gap_s must be > 0, got {gap_s!r}")
         return cls(t, p, q, gap)
 
     @classmethod

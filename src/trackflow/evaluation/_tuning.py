@@ -8,6 +8,7 @@ from typing import TextIO
 
 import numpy as np
 
+from ..errors import InputError
 from ._derivative_search import GRID_SIZE, search_derivatives
 from ._evaluate import PredictionReport, evaluate_predictors
 from ._learned_search import learned_evaluations, search_learned
@@ -129,9 +130,9 @@ def tune_model(
     """
     h = positive_horizons(horizons, "horizons")
     if not 0.0 <= holdout <= 0.5:
-        raise ValueError(f"holdout must be in [0, 0.5], got {holdout}")
+        raise InputError(f"holdout must be in [0, 0.5], got {holdout}")
     if start is not None and not isinstance(start, KalmanPredictor):
-        raise ValueError(
+        raise InputError(
             f"start must be a KalmanPredictor (its measurement noise and gate are kept), got "
             f"{type(start).__name__}"
         )
@@ -140,7 +141,7 @@ def tune_model(
     ar_orders = _orders(ar_orders)
     check = np.asarray(check_horizons, dtype=float).reshape(-1)
     if np.any(~np.isfinite(check)) or np.any(check <= 0):
-        raise ValueError(f"check_horizons must be positive seconds, got {check.tolist()}")
+        raise InputError(f"check_horizons must be positive seconds, got {check.tolist()}")
     data = recording
     base = start if start is not None else default_predictor(data.t, data.position,
                                                              data.quaternion)  # fmt: skip
@@ -164,7 +165,7 @@ def tune_model(
 def _counts(derivatives, part: str) -> tuple[int, ...]:
     ds = tuple(int(d) for d in derivatives)
     if not ds or any(d < 0 for d in ds):
-        raise ValueError(f"{part} derivative counts must be >= 0, got {ds}")
+        raise InputError(f"{part} derivative counts must be >= 0, got {ds}")
     return ds
 
 
@@ -172,10 +173,10 @@ def _orders(ar_orders) -> tuple[int, ...]:
     if isinstance(ar_orders, (str, bytes)) or not all(
         isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in ar_orders
     ):
-        raise ValueError(f"ar_orders must be a sequence of integers, got {ar_orders!r}")
+        raise InputError(f"ar_orders must be a sequence of integers, got {ar_orders!r}")
     orders = tuple(int(v) for v in ar_orders)
     if any(v < 1 for v in orders):
-        raise ValueError(f"ar_orders must be >= 1, got {orders}")
+        raise InputError(f"ar_orders must be >= 1, got {orders}")
     return orders
 
 
@@ -221,7 +222,7 @@ def evaluate_recording(
     rec = recording
     t = rec.t
     if not 0.0 <= tune_fraction < 1.0:
-        raise ValueError(f"tune_fraction must be in [0, 1), got {tune_fraction}")
+        raise InputError(f"tune_fraction must be in [0, 1), got {tune_fraction}")
     if tune_fraction == 0.0:
         m = (
             predictor
@@ -232,7 +233,7 @@ def evaluate_recording(
     split = float(t[0] + tune_fraction * (t[-1] - t[0]))
     train = t <= split
     if np.count_nonzero(train) < 20 or np.count_nonzero(~train) < 20:
-        raise ValueError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
+        raise InputError(f"tune_fraction {tune_fraction} leaves too few samples on one side")
     res = tune_model(
         rec.select(train), tune_horizons, start=predictor, ar_orders=ar_orders,
         check_horizons=horizons, progress=progress,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_angle
 from ._baselines import predict_linear
 from ._search import huber
@@ -56,7 +57,7 @@ class TuningCost:
             m = data.scored(hs)
             search, hold = m & (t < t_hold), m & (t >= t_hold)
             if np.count_nonzero(search) < 10:
-                raise ValueError(f"too few scorable samples for horizon {hs} s in the tuning data")
+                raise InputError(f"too few scorable samples for horizon {hs} s in the tuning data")
             ip, iq = data.target(hs)
             lp, lq = predict_linear(t, p, q, hs)
             for part, lin_pred, tgt in zip(PARTS, (lp, lq), (ip, iq)):

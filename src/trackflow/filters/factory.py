@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable
 from typing import Protocol
 
+from ..errors import InputError
 from .derivative import MotionModel, PoseKalmanFilter
 from .quaternion_space.streaming import QuaternionSpacePoseFilter
 from .relative_motion.streaming import RelativeMotionPoseFilter
@@ -60,7 +61,7 @@ def filter_noise(motion: MotionSpecLike) -> tuple[float, ...] | None:
     if len(noise) == sum(levels):
         return noise
     if len(noise) != 2:
-        raise ValueError(
+        raise InputError(
             f"motion noise must be a scalar, a (position, orientation) pair or {sum(levels)} "
             f"values, got {noise}"
         )
@@ -91,12 +92,12 @@ def constant_velocity_densities(motion) -> tuple[float, float]:
     elif len(noise) == motion.n_dp + motion.n_do + 2 and motion.n_dp >= 1 and motion.n_do >= 1:
         s_p, s_o = noise[1], noise[motion.n_dp + 2]
     else:
-        raise ValueError(
+        raise InputError(
             f"motion noise {noise} cannot drive a constant-velocity seed filter: give a scalar, "
             "a (position, orientation) pair, or per-level values with n_dp, n_do >= 1"
         )
     if not (math.isfinite(s_p) and math.isfinite(s_o) and s_p >= 0 and s_o >= 0):
-        raise ValueError(f"motion noise must be finite and >= 0, got {noise}")
+        raise InputError(f"motion noise must be finite and >= 0, got {noise}")
     return s_p * s_p, s_o * s_o
 
 

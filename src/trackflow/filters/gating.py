@@ -16,6 +16,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+from ..errors import InputError
 from .contract import FilterStatus
 
 KERNELS = ("reset_due", "next_gated_run", "is_gated")
@@ -55,7 +56,7 @@ def chi2_gate(probability: float | None, dof: int) -> float:
     if probability is None:
         return math.inf
     if not (0.0 <= probability <= 1.0 and int(dof) == dof and dof >= 1):
-        raise ValueError(
+        raise InputError(
             f"need 0 <= probability <= 1 and an integer dof >= 1, got {probability}, {dof}"
         )
     if probability == 1.0:
@@ -114,9 +115,9 @@ class GatePolicy:
     def __post_init__(self):
         p = self.gate_probability
         if p is not None and not (0.0 < p <= 1.0):
-            raise ValueError(f"gate_probability must be in (0, 1] or None, got {p}")
+            raise InputError(f"gate_probability must be in (0, 1] or None, got {p}")
         if int(self.reset_after) < 1:
-            raise ValueError(f"reset_after must be >= 1, got {self.reset_after}")
+            raise InputError(f"reset_after must be >= 1, got {self.reset_after}")
         object.__setattr__(self, "reset_after", int(self.reset_after))
 
     def threshold(self, dof: int) -> float:

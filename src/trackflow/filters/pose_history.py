@@ -28,6 +28,7 @@ import numpy as np
 
 from trackflow.math import UncertainPose
 
+from ..errors import ExtrapolationError, InputError
 from . import gating
 from .contract import FilterClock
 from .gating import GatePolicy
@@ -47,7 +48,7 @@ def _valid(t: float, z: UncertainPose) -> bool:
 
 def _check_pose(z) -> None:
     if not isinstance(z, UncertainPose) or z.shape != ():
-        raise ValueError("update_pose needs a single UncertainPose")
+        raise InputError("update_pose needs a single UncertainPose")
 
 
 def interpolate_estimates(
@@ -103,11 +104,11 @@ class EstimateHistory:
 
     def at(self, t: float, correlated: bool) -> UncertainPose:
         if not self.times or t < self.times[0]:
-            oldest = f"{self.times[0]:.6f} s" if self.times else "none"
-            raise ValueError(
-                f"t={t:.6f} s is older than the stored history (oldest estimate: {oldest}; "
-                f"history={self.span} s)"
-            )
+            oldest = self.times[0] if self.times else None
+            raise ExtrapolationError(
+                "the estimate", t, oldest, None,
+                f"older than the stored history (history={self.span} s)"
+            )  # fmt: skip
         i = bisect.bisect_right(self.times, t) - 1
         if i == len(self.times) - 1:
             return self.poses[i]
@@ -124,7 +125,7 @@ class GatedPoseFilter(FilterClock):
 
     def __init__(self, history: float, gate_probability: float | None, reset_after: int):
         if not (math.isfinite(history) and history >= 0):
-            raise ValueError(f"history must be finite and >= 0 seconds, got {history}")
+            raise InputError(f"history must be finite and >= 0 seconds, got {history}")
         self._history_s = float(history)
         self._policy = GatePolicy(gate_probability, reset_after)
         self._gate = self._policy.threshold(6)
@@ -211,10 +212,10 @@ class GatedPoseFilter(FilterClock):
             Before the first measurement, for a non-finite ``t`` or one older than the history.
         """
         if self._t is None:
-            raise ValueError("the filter has no measurement yet; cannot predict")
+            raise InputError("the filter has no measurement yet; cannot predict")
         t = float(t)
         if not math.isfinite(t):
-            raise ValueError(f"prediction time must be finite, got {t}")
+            raise InputError(f"prediction time must be finite, got {t}")
         if t >= self._t:
             return self._forward(t)
         return self._hist.at(t, self._correlated)

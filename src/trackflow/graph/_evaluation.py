@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import evaluate_covariance
 from ._paths import Path
 
@@ -26,7 +27,7 @@ def latency_rate(lam: float = 1.0) -> EvaluationFunction:
     interval against latency.
     """
     if not np.isfinite(lam) or lam < 0:
-        raise ValueError(f"lambda must be finite and >= 0, got {lam}")
+        raise InputError(f"lambda must be finite and >= 0, got {lam}")
 
     def step_cost(edge, inverted: bool = False) -> float:
         return edge.latency_s + lam / edge.rate_hz
@@ -78,7 +79,7 @@ def resolve_evaluation(spec) -> EvaluationFunction:
             return latency_rate(float(arg) if arg else 1.0)
         if name == "covariance" and not arg:
             return covariance_trace()
-    raise ValueError(
+    raise InputError(
         f"unknown evaluation function {spec!r} (use 'latency', 'latency:<lambda>', "
         "'covariance' or a callable)"
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import PlanError
 from ..math import UncertainPose
 from ._srg import Edge, MotionSpec, SpatialRelationshipGraph
 
@@ -117,7 +118,7 @@ def find_paths(
     graph.check_frame(source)
     graph.check_frame(target)
     if source == target:
-        raise ValueError(f"query from frame {source!r} to itself: the relationship is identity")
+        raise PlanError(f"query from frame {source!r} to itself: the relationship is identity")
     found: list[Path] = []
 
     def walk(frame: str, visited: set[str], steps: list[PathStep]) -> None:
@@ -138,5 +139,5 @@ def find_paths(
 
     walk(source, {source}, [])
     if not found:
-        raise ValueError(f"no path from frame {source!r} to frame {target!r} in the graph")
+        raise PlanError(f"no path from frame {source!r} to frame {target!r} in the graph")
     return found

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..errors import InputError
 from ._evaluation import EvaluationFunction, resolve_evaluation
 from ._paths import Path
 from ._search import best_paths
@@ -56,12 +57,12 @@ class Query:
 
     def __post_init__(self):
         if self.mode not in ("pull", "push"):
-            raise ValueError(f"query {self.name!r}: mode must be 'pull' or 'push'")
+            raise InputError(f"query {self.name!r}: mode must be 'pull' or 'push'")
         if self.mode == "push":
             if self.rate_hz is None or not (0 < self.rate_hz < math.inf):
-                raise ValueError(f"query {self.name!r}: push delivery needs a rate_hz > 0")
+                raise InputError(f"query {self.name!r}: push delivery needs a rate_hz > 0")
         if not math.isfinite(self.time_offset_s):
-            raise ValueError(f"query {self.name!r}: time_offset_s must be finite")
+            raise InputError(f"query {self.name!r}: time_offset_s must be finite")
         object.__setattr__(self, "exclude", tuple(self.exclude))
         object.__setattr__(self, "evaluate", resolve_evaluation(self.evaluation))
 

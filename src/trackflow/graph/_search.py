@@ -24,6 +24,7 @@ import heapq
 import itertools
 from collections.abc import Callable, Iterable
 
+from ..errors import InputError, PlanError
 from ._paths import Path, PathStep
 from ._srg import Edge, SpatialRelationshipGraph
 
@@ -211,7 +212,7 @@ def _memo(step_cost: StepCost) -> StepCost:
         if c is None:
             c = float(step_cost(edge, inverted))
             if not c >= 0.0:
-                raise ValueError(f"step cost of edge {edge.name!r} must be >= 0, got {c}")
+                raise InputError(f"step cost of edge {edge.name!r} must be >= 0, got {c}")
             cache[key] = c
         return c
 
@@ -273,7 +274,7 @@ def best_paths(
     graph.check_frame(source)
     graph.check_frame(target)
     if source == target:
-        raise ValueError(f"query from frame {source!r} to itself: the relationship is identity")
+        raise PlanError(f"query from frame {source!r} to itself: the relationship is identity")
     banned = set(exclude)
     paths = None
     if len(graph.edges) <= EXHAUSTIVE_MAX_EDGES or budget >= 10**6:
@@ -322,8 +323,8 @@ def best_paths(
 
 def _raise_no_path(graph, source: str, target: str, banned: set[str]):
     if banned and shortest_path(graph, source, target) is not None:
-        raise ValueError(
+        raise PlanError(
             f"no path from frame {source!r} to frame {target!r} without the excluded edges "
             f"{sorted(banned)}"
         )
-    raise ValueError(f"no path from frame {source!r} to frame {target!r} in the graph")
+    raise PlanError(f"no path from frame {source!r} to frame {target!r} in the graph")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError, PlanError
 from ..math import Pose, UncertainPose, check_covariance
 
 __all__ = ["Edge", "MotionSpec", "SpatialRelationshipGraph"]
@@ -44,7 +45,7 @@ class MotionSpec:
         for name in ("n_dp", "n_do"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or not 0 <= v <= 3:
-                raise ValueError(f"motion model {name} must be an integer in 0..3, got {v!r}")
+                raise InputError(f"motion model {name} must be an integer in 0..3, got {v!r}")
 
     @classmethod
     def make_static(cls) -> MotionSpec:
@@ -100,29 +101,29 @@ class Edge:
 
     def __post_init__(self):
         if self.kind not in ("measured", "static"):
-            raise ValueError(f"edge {self.name!r}: kind must be 'measured' or 'static'")
+            raise InputError(f"edge {self.name!r}: kind must be 'measured' or 'static'")
         if self.source == self.target:
-            raise ValueError(f"edge {self.name!r} connects frame {self.source!r} to itself")
+            raise InputError(f"edge {self.name!r} connects frame {self.source!r} to itself")
         object.__setattr__(
             self, "covariance", check_covariance(self.covariance, f"edge {self.name!r} covariance")
         )
         if self.covariance.shape != (6, 6):
-            raise ValueError(f"edge {self.name!r}: covariance must be 6x6")
+            raise InputError(f"edge {self.name!r}: covariance must be 6x6")
         for attr in ("latency_s", "cost"):
             v = float(getattr(self, attr))
             if not math.isfinite(v) or v < 0:
-                raise ValueError(f"edge {self.name!r}: {attr} must be finite and >= 0, got {v}")
+                raise InputError(f"edge {self.name!r}: {attr} must be finite and >= 0, got {v}")
         if not self.rate_hz > 0:
-            raise ValueError(f"edge {self.name!r}: rate_hz must be > 0, got {self.rate_hz}")
+            raise InputError(f"edge {self.name!r}: rate_hz must be > 0, got {self.rate_hz}")
         if not 0.0 <= self.confidence <= 1.0:
-            raise ValueError(f"edge {self.name!r}: confidence must be in [0, 1]")
+            raise InputError(f"edge {self.name!r}: confidence must be in [0, 1]")
         if self.kind == "static":
             if self.pose is None:
-                raise ValueError(f"static edge {self.name!r} needs a pose")
+                raise InputError(f"static edge {self.name!r} needs a pose")
             object.__setattr__(self, "motion", MotionSpec.make_static())
             object.__setattr__(self, "rate_hz", math.inf)
         if self.pose is not None and self.pose.shape != ():
-            raise ValueError(f"edge {self.name!r}: pose must be a single pose")
+            raise InputError(f"edge {self.name!r}: pose must be a single pose")
 
     @property
     def is_static(self) -> bool:
@@ -160,13 +161,13 @@ class SpatialRelationshipGraph:
     def add_frame(self, name: str) -> None:
         """Declare a frame; edges add their frames implicitly."""
         if not isinstance(name, str) or not name:
-            raise ValueError(f"frame names must be non-empty strings, got {name!r}")
+            raise InputError(f"frame names must be non-empty strings, got {name!r}")
         self._frames.add(name)
 
     def add_edge(self, edge: Edge) -> Edge:
         """Add an edge; names must be unique."""
         if edge.name in self._edges:
-            raise ValueError(f"duplicate edge name {edge.name!r}")
+            raise InputError(f"duplicate edge name {edge.name!r}")
         self.add_frame(edge.source)
         self.add_frame(edge.target)
         self._edges[edge.name] = edge
@@ -203,12 +204,12 @@ class SpatialRelationshipGraph:
         try:
             return self._edges[name]
         except KeyError:
-            raise ValueError(f"unknown edge {name!r}") from None
+            raise PlanError(f"unknown edge {name!r}") from None
 
     def check_frame(self, name: str) -> None:
         """Raise ``ValueError`` naming the known frames if ``name`` is not one of them."""
         if name not in self._frames:
-            raise ValueError(f"unknown frame {name!r} (known: {', '.join(self.frames)})")
+            raise PlanError(f"unknown frame {name!r} (known: {', '.join(self.frames)})")
 
     def incident(self, frame: str) -> list[tuple[Edge, bool]]:
         """Edges leaving ``frame`` as ``(edge, inverted)``: forward edges ``frame -> x`` and

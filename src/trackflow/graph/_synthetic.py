@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import Pose
 from ._srg import SpatialRelationshipGraph
 
@@ -26,7 +27,7 @@ def random_graph(
     rng : numpy.random.Generator
     """
     if n_frames < 2 or n_edges < n_frames - 1:
-        raise ValueError("need n_frames >= 2 and n_edges >= n_frames - 1")
+        raise InputError("need n_frames >= 2 and n_edges >= n_frames - 1")
     g = SpatialRelationshipGraph()
     order = rng.permutation(n_frames)
     pairs = [(int(order[rng.integers(0, i)]), int(order[i])) for i in range(1, n_frames)]

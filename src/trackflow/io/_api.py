@@ -8,6 +8,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from ..errors import FormatError, InputError
 from ._devices import read_broad, read_quest, write_broad, write_quest
 from ._kitti import read_kitti, write_kitti
 from ._native import MAGIC, read_native, write_native
@@ -101,11 +102,11 @@ def guess_format(path, for_writing: bool = False) -> str:
             return "tum"
         if for_writing and suffix in ("", ".db3", ".mcap"):
             return "rosbag"
-        raise ValueError(f"{path}: cannot tell the format from the name; pass format=")
+        raise FormatError(f"{path}: cannot tell the format from the name; pass format=")
     chunk = _head(path)
     if b"\0" in chunk:
         line = chunk[: chunk.index(b"\0")].count(b"\n") + 1
-        raise ValueError(
+        raise FormatError(
             f"{path}:{line}: binary data that is not a recognised recording (NUL byte); "
             "pass format= if it is one"
         )
@@ -118,7 +119,7 @@ def guess_format(path, for_writing: bool = False) -> str:
             return "euroc"
     line = _first_data_line(path)
     if line is None:
-        raise ValueError(f"{path}: no data lines; pass format=")
+        raise FormatError(f"{path}: no data lines; pass format=")
     if "," in line:
         return "quest" if _is_quest_line(line) else "csv"
     return "kitti" if len(line.split()) == 12 else "tum"
@@ -129,7 +130,7 @@ def _call(func, path, fmt: str, kwargs: dict):
     unknown = [k for k in kwargs if k not in params or k in ("path", "stream")]
     if unknown:
         accepted = [k for k in params if k not in ("path", "stream", "clean")]
-        raise ValueError(
+        raise InputError(
             f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
         )
     return func(path, **kwargs)
@@ -164,14 +165,14 @@ def read_stream(
         return _read_stdin(format, clean, options)
     fmt = format or guess_format(path)
     if fmt not in _READERS:
-        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+        raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     return _call(_READERS[fmt], Path(path), fmt, {"clean": bool(clean), **options})
 
 
 def _read_stdin(format, clean, options) -> tuple[PoseStream, ReadReport]:
     """Read standard input (``path="-"``): buffered to a private file, named ``<stdin>``."""
     if format == "rosbag":
-        raise ValueError("<stdin>: ROS bags cannot be read from standard input")
+        raise InputError("<stdin>: ROS bags cannot be read from standard input")
     with tempfile.TemporaryDirectory(prefix="trackflow-") as d:
         tmp = Path(d) / "stdin"
         with open(tmp, "wb") as f:  # copied in pieces: never the whole input in memory
@@ -182,7 +183,7 @@ def _read_stdin(format, clean, options) -> tuple[PoseStream, ReadReport]:
         try:
             stream, report = read_stream(tmp, format=format, clean=clean, **options)
         except ValueError as exc:
-            raise ValueError(str(exc).replace(str(tmp), "<stdin>")) from None
+            raise FormatError(str(exc).replace(str(tmp), "<stdin>")) from None
     report.path = "<stdin>"
     return stream, report
 
@@ -204,16 +205,16 @@ def write_stream(
     format can hold is listed in ``docs/formats.md``; fields it cannot hold are not written.
     """
     if not isinstance(stream, PoseStream):
-        raise ValueError(f"stream must be a PoseStream, got {type(stream).__name__}")
+        raise InputError(f"stream must be a PoseStream, got {type(stream).__name__}")
     fmt = format or ("tum" if str(path) == STDIO else guess_format(path, for_writing=True))
     if fmt not in _WRITERS:
-        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+        raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     func = _WRITERS[fmt]
     params = inspect.signature(func).parameters
     unknown = [k for k in options if k not in params or k in ("path", "stream", "overwrite")]
     if unknown:
         accepted = [k for k in params if k not in ("path", "stream", "overwrite")]
-        raise ValueError(
+        raise InputError(
             f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
         )
     func(path if str(path) == STDIO else Path(path), stream, overwrite=overwrite, **options)

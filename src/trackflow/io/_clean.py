@@ -27,6 +27,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..errors import FormatError
 from ..math import UNIT_TOLERANCE
 from ._report import ReadReport
 from ._stream import PoseStream, present_fields
@@ -198,7 +199,7 @@ class _Rows:
                 return
         if not self.clean:
             i = int(idx[0])
-            raise ValueError(
+            raise FormatError(
                 f"{locate(self.report, int(self.where[i]))}: {detail(i)} "
                 f"({len(idx)} such rows; read with clean=True to drop them)"
             )
@@ -314,7 +315,7 @@ def _increasing_times(rows: _Rows, t_ns: np.ndarray) -> np.ndarray:
         j = int(np.argmax(d <= 0)) + 1
         i, p = int(kidx[j]), int(kidx[j - 1])
         what = "duplicated timestamp" if d[j - 1] == 0 else "timestamp goes back in time"
-        raise ValueError(
+        raise FormatError(
             f"{locate(report, int(where[i]))}: {what}: {fmt_ns(t_ns[i])} after "
             f"{fmt_ns(t_ns[p])} ({locate(report, int(where[p]))}); "
             "read with clean=True to drop such rows"

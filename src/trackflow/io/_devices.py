@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
@@ -105,7 +106,7 @@ def write_quest(path, stream: PoseStream, *, overwrite: bool = False) -> None:
     t = stream.t_ns
     if np.any(t % 100):
         i = int(np.argmax(t % 100 != 0))
-        raise ValueError(f"Quest logs store 100 ns ticks; sample {i} has t_ns={int(t[i])}")
+        raise InputError(f"Quest logs store 100 ns ticks; sample {i} has t_ns={int(t[i])}")
     ticks = t // 100 + DOTNET_UNIX_EPOCH_TICKS
     p = stream.position * _MIRROR_P
     q = stream.quaternion * _MIRROR_Q
@@ -139,14 +140,14 @@ def read_broad(
     try:
         mat = loadmat(path)
     except (ValueError, OSError, TypeError, IndexError) as exc:  # scipy 1.13 raises IndexError
-        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from exc
+        raise FormatError(f"{path}: not a readable MATLAB file ({exc})") from exc
     for key in ("opt_quat", "opt_pos"):
         if key not in mat:
-            raise ValueError(f"{path}: no variable {key!r} (not a BROAD trial?)")
+            raise FormatError(f"{path}: no variable {key!r} (not a BROAD trial?)")
     q_wxyz = np.asarray(mat["opt_quat"], dtype=float)
     pos = np.asarray(mat["opt_pos"], dtype=float)
     if q_wxyz.ndim != 2 or q_wxyz.shape[1] != 4 or pos.shape != (len(q_wxyz), 3):
-        raise ValueError(
+        raise FormatError(
             f"{path}: opt_quat {q_wxyz.shape} and opt_pos {pos.shape} must be (N, 4) and (N, 3)"
         )
     n = len(pos)
@@ -181,7 +182,7 @@ def write_broad(
     idx = np.rint(t * (rate_hz / 1e9)).astype(np.int64)
     n = int(idx[-1]) + 1 if len(idx) else 0
     if n > 4 * len(t) + 1000:  # Unix-time stamps would need years of NaN rows
-        raise ValueError(
+        raise InputError(
             f"a BROAD trial starts at t = 0 and holds one row per {1e3 / rate_hz:g} ms: these "
             f"{len(t)} samples would need {n} rows (first sample at {t[0] * 1e-9:.9g} s); "
             "shift the recording to start near 0 first (trackflow shift --offset)"
@@ -190,7 +191,7 @@ def write_broad(
     off = (idx < 0) | (grid[np.clip(idx, 0, max(n - 1, 0))] != t) if n else idx < 0
     if np.any(off):
         i = int(np.argmax(off))
-        raise ValueError(
+        raise InputError(
             f"sample {i} (t_ns={int(t[i])}) is not on the {rate_hz} Hz grid of a BROAD trial"
         )
     pos = np.full((n, 3), np.nan)

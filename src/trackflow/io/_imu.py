@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ._devices import BROAD_RATE_HZ
 from ._report import ReadReport
 from ._table import parse_rows
@@ -67,14 +68,14 @@ class ImuStream:
         for name, value in arrays.items():
             a = np.ascontiguousarray(value, dtype=float)
             if a.shape != (n, 3):
-                raise ValueError(f"ImuStream.{name} must have shape ({n}, 3), got {a.shape}")
+                raise InputError(f"ImuStream.{name} must have shape ({n}, 3), got {a.shape}")
             if not np.all(np.isfinite(a)):
                 k = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
-                raise ValueError(f"ImuStream.{name} sample {k} is not finite: {a[k].tolist()}")
+                raise InputError(f"ImuStream.{name} sample {k} is not finite: {a[k].tolist()}")
             object.__setattr__(self, name, a)
         if n > 1 and np.any(np.diff(t) <= 0):
             k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-            raise ValueError(
+            raise InputError(
                 f"ImuStream times must increase strictly: sample {k} (t_ns={int(t[k])}) "
                 f"after t_ns={int(t[k - 1])}"
             )
@@ -92,7 +93,7 @@ class ImuStream:
     def rate_hz(self) -> float:
         """Median sample rate [Hz]."""
         if len(self) < 2:
-            raise ValueError("an IMU stream needs two samples to have a rate")
+            raise InputError("an IMU stream needs two samples to have a rate")
         return 1e9 / float(np.median(np.diff(self.t_ns)))
 
     def select(self, mask_or_index) -> ImuStream:
@@ -151,18 +152,18 @@ def read_broad_imu(
         IndexError,
         MatReadError,
     ) as exc:  # scipy 1.13: IndexError
-        raise ValueError(f"{path}: not a readable MATLAB file ({exc})") from exc
+        raise FormatError(f"{path}: not a readable MATLAB file ({exc})") from exc
     cols = {}
     for key in ("imu_gyr", "imu_acc"):
         if key not in mat:
-            raise ValueError(f"{path}: no variable {key!r} (not a BROAD trial?)")
+            raise FormatError(f"{path}: no variable {key!r} (not a BROAD trial?)")
         cols[key] = np.asarray(mat[key], dtype=float)
     n = cols["imu_gyr"].shape[0]
     if "imu_mag" in mat:
         cols["imu_mag"] = np.asarray(mat["imu_mag"], dtype=float)
     for key, a in cols.items():
         if a.shape != (n, 3):
-            raise ValueError(f"{path}: {key} has shape {a.shape}, expected ({n}, 3)")
+            raise FormatError(f"{path}: {key} has shape {a.shape}, expected ({n}, 3)")
     report = ReadReport(str(path), "broad", unit="row", rows_read=n)
     t_ns = np.rint(np.arange(n) * (1e9 / rate_hz)).astype(np.int64)
     values = np.concatenate(list(cols.values()), axis=1)
@@ -185,7 +186,7 @@ def _check_rows(report, where, t_ns, values, clean, prefix, unit) -> np.ndarray:
         if np.any(mask):
             k = int(np.flatnonzero(mask)[0])
             if not clean:
-                raise ValueError(f"{prefix}{int(where[k])}: {reason}")
+                raise FormatError(f"{prefix}{int(where[k])}: {reason}")
             report.drop(reason, where[mask])
     return ~bad & order
 
@@ -214,4 +215,4 @@ def read_imu(
         return read_broad_imu(path, clean=clean, **options)
     if format == "euroc_imu":
         return read_euroc_imu(path, clean=clean, **options)
-    raise ValueError(f"unknown IMU format {format!r}; expected one of {IMU_FORMATS}")
+    raise InputError(f"unknown IMU format {format!r}; expected one of {IMU_FORMATS}")

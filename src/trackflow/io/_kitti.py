@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ..math import quat_from_matrix, quat_to_matrix
 from ._clean import finish_stream
 from ._output import atomic_output
@@ -34,18 +35,18 @@ def _times_ns(path: Path, times, n_lines: int, rate_hz: float) -> np.ndarray:
     """Timestamps [ns] of the ``n_lines`` pose lines (from ``times`` or the frame rate)."""
     if times is None:
         if not (np.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
+            raise InputError(f"rate_hz must be > 0, got {rate_hz!r}")
         return np.rint(np.arange(n_lines) * (1e9 / rate_hz)).astype(np.int64)
     lines = [s.strip() for s in read_lines(Path(times))[0]]
     where = [i + 1 for i, s in enumerate(lines) if s and not s.startswith("#")]
     if len(where) != n_lines:
-        raise ValueError(f"{times}: {len(where)} times for the {n_lines} poses of {path}")
+        raise FormatError(f"{times}: {len(where)} times for the {n_lines} poses of {path}")
     out = np.empty(n_lines, dtype=np.int64)
     for k, i in enumerate(where):
         try:
             out[k] = parse_time_ns(lines[i - 1].split()[0], TIME_EXPONENTS["s"])
         except ValueError as exc:
-            raise ValueError(f"{times}:{i}: {exc}") from None
+            raise FormatError(f"{times}:{i}: {exc}") from None
     return out
 
 
@@ -81,7 +82,7 @@ def read_kitti(
     if np.any(bad):
         k = int(np.argmax(bad))
         if not clean:
-            raise ValueError(
+            raise FormatError(
                 f"{path}:{table.where[k]}: rotation is not orthonormal (|R^T R - I| = "
                 f"{err[k]:.3g}, det {det[k]:.6g})"
             )

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ..math import check_covariance
 from ._clean import TRUNCATED, finish_stream
 from ._output import atomic_output
@@ -110,7 +111,7 @@ def _check_one(body: bytes, covariance: bool) -> int:
 def _header(source: str, target: str, covariance: bool) -> bytes:
     s, t = source.encode(), target.encode()
     if len(s) > 0xFFFF or len(t) > 0xFFFF:
-        raise ValueError("frame names longer than 65535 bytes")
+        raise InputError("frame names longer than 65535 bytes")
     body_len = _FIXED.size + len(s) + len(t)
     size = (body_len + 8 + 7) // 8 * 8
     rec = record_dtype(covariance).itemsize
@@ -122,25 +123,25 @@ def _header(source: str, target: str, covariance: bool) -> bytes:
 def _parse_header(path, raw: bytes) -> tuple[str, str, bool, int]:
     """Return (source, target, has_covariance, header_size) or raise ValueError."""
     if len(raw) < 8 or raw[:8] != MAGIC:
-        raise ValueError(f"{path}: not a trackflow recording (magic bytes do not match)")
+        raise FormatError(f"{path}: not a trackflow recording (magic bytes do not match)")
     if len(raw) < _FIXED.size:
-        raise ValueError(f"{path}: header is incomplete ({len(raw)} bytes)")
+        raise FormatError(f"{path}: header is incomplete ({len(raw)} bytes)")
     _, version, layout, rec, size, ls, lt = _FIXED.unpack_from(raw)
     if version != VERSION:
-        raise ValueError(f"{path}: recording format version {version} is not supported (1 is)")
+        raise FormatError(f"{path}: recording format version {version} is not supported (1 is)")
     if layout not in (0, 1) or rec != record_dtype(bool(layout)).itemsize:
-        raise ValueError(f"{path}: header has unknown layout {layout} / record size {rec}")
+        raise FormatError(f"{path}: header has unknown layout {layout} / record size {rec}")
     if len(raw) < size or size < _FIXED.size + ls + lt + 8:
-        raise ValueError(f"{path}: header is incomplete or inconsistent ({size} bytes declared)")
+        raise FormatError(f"{path}: header is incomplete or inconsistent ({size} bytes declared)")
     (crc,) = struct.unpack_from("<I", raw, size - 8)
     if crc != zlib.crc32(raw[: size - 8]):
-        raise ValueError(f"{path}: header checksum mismatch (corrupt header)")
+        raise FormatError(f"{path}: header checksum mismatch (corrupt header)")
     o = _FIXED.size
     try:
         source = raw[o : o + ls].decode()
         target = raw[o + ls : o + ls + lt].decode()
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: frame names are not UTF-8") from exc
+        raise FormatError(f"{path}: frame names are not UTF-8") from exc
     return source, target, bool(layout), size
 
 
@@ -179,7 +180,7 @@ def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
             m = min(step, n_full - i)
             got = f.readinto(raw[: m * dt.itemsize])
             if got != m * dt.itemsize:
-                raise ValueError(f"{path}: file shrank while being read")
+                raise FormatError(f"{path}: file shrank while being read")
             b = buf[:m]
             t_ns[i : i + m] = b["t_ns"]
             pos[i : i + m] = b["position"]
@@ -202,7 +203,7 @@ def read_native(path, *, clean: bool = False) -> tuple[PoseStream, ReadReport]:
         if bad.size:
             if not clean:
                 i = int(bad[0])
-                raise ValueError(
+                raise FormatError(
                     f"{path}: record {i} (byte offset {hsize + i * dt.itemsize}): check value "
                     f"mismatch, the record is corrupt ({bad.size} such records; read with "
                     "clean=True to drop them)"
@@ -282,7 +283,7 @@ class RecordingWriter:
     def __init__(self, path, source: str, target: str, *, covariance: bool, mode: str = "w"):
         self._fd: int | None = None
         if mode not in ("w", "x", "a"):
-            raise ValueError(f"mode must be 'w', 'x' or 'a', got {mode!r}")
+            raise InputError(f"mode must be 'w', 'x' or 'a', got {mode!r}")
         self.path = Path(path)
         self.source = check_frame_name(source, "source")
         self.target = check_frame_name(target, "target")
@@ -295,7 +296,7 @@ class RecordingWriter:
             self._open_existing()
         else:
             if mode == "x" and self.path.exists():
-                raise ValueError(f"{self.path}: exists already (mode 'x')")
+                raise InputError(f"{self.path}: exists already (mode 'x')")
             tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
             try:
@@ -311,7 +312,7 @@ class RecordingWriter:
             raw = f.read(4096)
             source, target, has_cov, hsize = _parse_header(self.path, raw)
         if (source, target, has_cov) != (self.source, self.target, self.has_covariance):
-            raise ValueError(
+            raise InputError(
                 f"{self.path}: recording holds T_{source}_{target} "
                 f"({'with' if has_cov else 'without'} covariance); cannot append "
                 f"T_{self.source}_{self.target} "
@@ -344,19 +345,19 @@ class RecordingWriter:
     def append(self, stream: PoseStream) -> None:
         """Append every sample of ``stream`` (same frames; covariance iff the file has one)."""
         if self._fd is None:
-            raise ValueError(f"{self.path}: writer is closed")
+            raise InputError(f"{self.path}: writer is closed")
         if (stream.source, stream.target) != (self.source, self.target):
-            raise ValueError(
+            raise InputError(
                 f"{self.path}: cannot append T_{stream.source}_{stream.target} to a recording "
                 f"of T_{self.source}_{self.target}"
             )
         if (stream.covariance is not None) != self.has_covariance:
             need = "needs" if self.has_covariance else "does not take"
-            raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
+            raise InputError(f"{self.path}: this recording {need} a covariance per sample")
         if not len(stream):
             return
         if self._last_t is not None and stream.t_ns[0] <= self._last_t:
-            raise ValueError(
+            raise InputError(
                 f"{self.path}: timestamp {int(stream.t_ns[0])} ns is not after the last recorded "
                 f"{self._last_t} ns"
             )
@@ -382,29 +383,29 @@ class RecordingWriter:
         This is the per-measurement path of a live recorder, so it avoids numpy overhead.
         """
         if self._fd is None:
-            raise ValueError(f"{self.path}: writer is closed")
+            raise InputError(f"{self.path}: writer is closed")
         t = int(t_ns)
         p = [float(x) for x in np.ravel(position)]
         q = [float(x) for x in np.ravel(quaternion)]
         if len(p) != 3 or len(q) != 4:
-            raise ValueError(f"{self.path}: position needs 3 and quaternion 4 values")
+            raise InputError(f"{self.path}: position needs 3 and quaternion 4 values")
         if not all(math.isfinite(x) for x in p):
-            raise ValueError(f"{self.path}: position contains NaN or inf")
+            raise InputError(f"{self.path}: position contains NaN or inf")
         if abs(sum(x * x for x in q) - 1.0) > 2e-12:
             q = unit_quaternions(np.array(q)).tolist()  # raises unless unit to 1e-6
         if (covariance is not None) != self.has_covariance:
             need = "needs" if self.has_covariance else "does not take"
-            raise ValueError(f"{self.path}: this recording {need} a covariance per sample")
+            raise InputError(f"{self.path}: this recording {need} a covariance per sample")
         tri = []
         if covariance is not None:
             tri = check_covariance(np.reshape(covariance, (6, 6))).ravel().tolist()
         conf = 1.0 if confidence is None else float(confidence)
         if not 0.0 <= conf <= 1.0:
-            raise ValueError(f"{self.path}: confidence {conf} not in [0, 1]")
+            raise InputError(f"{self.path}: confidence {conf} not in [0, 1]")
         if flags is None:
             flags = FLAG_POSITION | FLAG_ORIENTATION | (FLAG_COVARIANCE if tri else 0)
         if self._last_t is not None and t <= self._last_t:
-            raise ValueError(
+            raise InputError(
                 f"{self.path}: timestamp {t} ns is not after the last recorded {self._last_t} ns"
             )
         body = struct.pack(f"<q{8 + len(tri)}dI", t, *p, *q, *tri, conf, int(flags))

@@ -31,6 +31,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from ..errors import InputError
+
 __all__ = ["STDIO", "atomic_output", "remove_stale_temporaries"]
 
 #: The path that stands for standard input (readers) or standard output (writers).
@@ -93,7 +95,7 @@ def atomic_output(path, *, overwrite: bool = False, directory: bool = False) -> 
     """
     if str(path) == STDIO:
         if directory:
-            raise ValueError("a directory output (ROS 2 bag) cannot go to standard output")
+            raise InputError("a directory output (ROS 2 bag) cannot go to standard output")
         with tempfile.TemporaryDirectory(prefix="trackflow-") as d:
             tmp = Path(d) / "out"
             yield tmp

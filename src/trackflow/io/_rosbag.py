@@ -22,7 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ..math import cov_from_ros, cov_to_ros
+from ..optional import require
 from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
@@ -45,14 +47,9 @@ def _is_ros1(path: Path) -> bool:
 
 
 def require_rosbags() -> None:
-    """Raise ``ImportError`` naming the extra to install when ``rosbags`` is missing."""
-    try:
-        import rosbags  # noqa: F401
-    except ImportError:
-        raise ImportError(
-            "ROS bags need the rosbags package, which is not installed: "
-            "pip install 'trackflow[ros]'"
-        ) from None
+    """Raise :class:`~trackflow.errors.MissingExtraError` (an ``ImportError``) naming the
+    extra to install when ``rosbags`` is missing."""
+    require("rosbags", extra="ros", feature="ROS bags")
 
 
 def _typestore(ros1: bool):
@@ -104,28 +101,28 @@ def read_rosbag(
     if path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").exists():
         path = path.parent  # a ROS 2 storage file: read its bag directory
     if stamp not in ("header", "receive"):
-        raise ValueError(f"stamp must be 'header' or 'receive', got {stamp!r}")
+        raise InputError(f"stamp must be 'header' or 'receive', got {stamp!r}")
     ros1 = _is_ros1(path)
     try:
         reader = AnyReader([path], default_typestore=_typestore(ros1))
         reader.open()
     except (AnyReaderError, ValueError, KeyError, IndexError, EOFError) as exc:
         # garbage files fail deep inside the bag parsers (codec, struct, key errors)
-        raise ValueError(f"{path}: cannot open as a ROS bag ({exc})") from None
+        raise FormatError(f"{path}: cannot open as a ROS bag ({exc})") from None
     try:
         conns = [c for c in reader.connections if c.msgtype in _SUPPORTED]
         topics = sorted({c.topic for c in conns})
         if topic is None:
             if len(topics) != 1:
                 all_topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-                raise ValueError(
+                raise FormatError(
                     f"{path}: {'no' if not topics else 'several'} pose topics; pass topic= one "
                     f"of: {', '.join(all_topics) or 'none'}"
                 )
             topic = topics[0]
         conns = [c for c in conns if c.topic == topic]
         if not conns:
-            raise ValueError(f"{path}: no supported pose messages on topic {topic!r}")
+            raise FormatError(f"{path}: no supported pose messages on topic {topic!r}")
         ts, ps, qs, covs, frames = [], [], [], [], set()
         msgtype = conns[0].msgtype
         for conn, t_recv, raw in reader.messages(connections=conns):
@@ -141,16 +138,16 @@ def read_rosbag(
                 covs.append(np.asarray(cov, dtype=float))
             frames.add((frame_id, child))
     except (AnyReaderError, KeyError, IndexError, EOFError) as exc:
-        raise ValueError(f"{path}: cannot read topic {topic!r} ({exc})") from None
+        raise FormatError(f"{path}: cannot read topic {topic!r} ({exc})") from None
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}" if str(path) not in str(exc) else str(exc)) from None
+        raise FormatError(f"{path}: {exc}" if str(path) not in str(exc) else str(exc)) from None
     finally:
         reader.close()
     n = len(ts)
     report = ReadReport(str(path), "rosbag", unit="message", rows_read=n)
     report.notes.append(f"topic {topic} ({msgtype}), time from {stamp} stamps")
     if len(frames) > 1:
-        raise ValueError(f"{path}: topic {topic} changes frames mid-recording: {sorted(frames)}")
+        raise FormatError(f"{path}: topic {topic} changes frames mid-recording: {sorted(frames)}")
     frame_id, child = frames.pop() if frames else ("", None)
     src = source or frame_id or "world"
     tgt = target or child or topic.lstrip("/") or "body"
@@ -220,9 +217,9 @@ def write_rosbag(
     if msgtype is None:
         msgtype = "PoseWithCovarianceStamped" if stream.covariance is not None else "PoseStamped"
     if msgtype not in MESSAGE_TYPES:
-        raise ValueError(f"msgtype must be one of {sorted(MESSAGE_TYPES)}, got {msgtype!r}")
+        raise InputError(f"msgtype must be one of {sorted(MESSAGE_TYPES)}, got {msgtype!r}")
     if len(stream) and stream.t_ns[0] < 0:
-        raise ValueError("ROS time cannot be negative")
+        raise InputError("ROS time cannot be negative")
     full = MESSAGE_TYPES[msgtype]
     topic = topic or "/" + stream.target
     ros1 = _is_ros1(path)

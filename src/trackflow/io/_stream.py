@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import Pose, UncertainPose, check_covariance, check_quaternion
 
 __all__ = [
@@ -59,9 +60,9 @@ def unit_quaternions(q: np.ndarray) -> np.ndarray:
 
 def check_frame_name(name, what: str) -> str:
     if not isinstance(name, str) or not name:
-        raise ValueError(f"{what} frame must be a non-empty string, got {name!r}")
+        raise InputError(f"{what} frame must be a non-empty string, got {name!r}")
     if "\n" in name or "\0" in name:
-        raise ValueError(f"{what} frame may not contain newline or NUL characters: {name!r}")
+        raise InputError(f"{what} frame may not contain newline or NUL characters: {name!r}")
     return name
 
 
@@ -114,9 +115,9 @@ class PoseStream:
     ):
         t = np.asarray(t_ns)
         if t.ndim != 1:
-            raise ValueError(f"t_ns must have shape (N,), got {t.shape}")
+            raise InputError(f"t_ns must have shape (N,), got {t.shape}")
         if t.size and not np.issubdtype(t.dtype, np.integer):
-            raise ValueError(
+            raise InputError(
                 f"t_ns must be integer nanoseconds, got dtype {t.dtype} "
                 "(use PoseStream.from_seconds for float seconds)"
             )
@@ -124,27 +125,27 @@ class PoseStream:
         n = t.shape[0]
         p = np.asarray(position, dtype=float)
         if p.shape != (n, 3):
-            raise ValueError(f"position must have shape ({n}, 3), got {p.shape}")
+            raise InputError(f"position must have shape ({n}, 3), got {p.shape}")
         if not np.all(np.isfinite(p)):
             bad = int(np.argwhere(~np.isfinite(p).all(axis=1))[0, 0])
-            raise ValueError(f"position contains NaN or inf at index {bad}")
+            raise InputError(f"position contains NaN or inf at index {bad}")
         q = np.asarray(quaternion, dtype=float)
         if q.shape != (n, 4):
-            raise ValueError(f"quaternion must have shape ({n}, 4), got {q.shape}")
+            raise InputError(f"quaternion must have shape ({n}, 4), got {q.shape}")
         if n:
             q = unit_quaternions(q)
         if n > 1:
             d = np.diff(t)
             if np.any(d <= 0):
                 i = int(np.argmax(d <= 0)) + 1
-                raise ValueError(
+                raise InputError(
                     f"t_ns must be strictly increasing: index {i} has {t[i]} after {t[i - 1]}"
                 )
         c = None
         if covariance is not None:
             c = np.asarray(covariance, dtype=float)
             if c.shape != (n, 6, 6):
-                raise ValueError(f"covariance must have shape ({n}, 6, 6), got {c.shape}")
+                raise InputError(f"covariance must have shape ({n}, 6, 6), got {c.shape}")
             if n:
                 c = check_covariance(c)
         if confidence is None:
@@ -152,21 +153,21 @@ class PoseStream:
         else:
             conf = np.asarray(confidence, dtype=float)
             if conf.shape != (n,):
-                raise ValueError(f"confidence must have shape ({n},), got {conf.shape}")
+                raise InputError(f"confidence must have shape ({n},), got {conf.shape}")
             bad = ~((conf >= 0.0) & (conf <= 1.0))
             if np.any(bad):
                 i = int(np.argmax(bad))
-                raise ValueError(f"confidence must lie in [0, 1]: index {i} has {conf[i]}")
+                raise InputError(f"confidence must lie in [0, 1]: index {i} has {conf[i]}")
         if flags is None:
             fl = np.full(n, present_fields(c is not None, confidence is not None), dtype=np.uint32)
         else:
             fl = np.asarray(flags)
             if fl.shape != (n,):
-                raise ValueError(f"flags must have shape ({n},), got {fl.shape}")
+                raise InputError(f"flags must have shape ({n},), got {fl.shape}")
             if fl.size and not np.issubdtype(fl.dtype, np.integer):
-                raise ValueError(f"flags must be unsigned integers, got dtype {fl.dtype}")
+                raise InputError(f"flags must be unsigned integers, got dtype {fl.dtype}")
             if fl.size and (fl.min() < 0 or fl.max() > 0xFFFFFFFF):
-                raise ValueError("flags must fit in uint32")
+                raise InputError("flags must fit in uint32")
             fl = fl.astype(np.uint32)
         source = check_frame_name(source, "source")
         target = check_frame_name(target, "target")
@@ -200,7 +201,7 @@ class PoseStream:
         """
         ts = np.asarray(times_s, dtype=float)
         if not np.all(np.isfinite(ts)):
-            raise ValueError("times_s contains NaN or inf")
+            raise InputError("times_s contains NaN or inf")
         return cls(
             source, target, np.round(ts * 1e9).astype(np.int64), position, quaternion, **fields
         )
@@ -213,7 +214,7 @@ class PoseStream:
         elif isinstance(poses, Pose):
             cov = None
         else:
-            raise ValueError(f"poses must be a Pose or UncertainPose, got {type(poses).__name__}")
+            raise InputError(f"poses must be a Pose or UncertainPose, got {type(poses).__name__}")
         return cls(source, target, t_ns, poses.position, poses.quaternion, cov, confidence, flags)
 
     @classmethod
@@ -224,21 +225,21 @@ class PoseStream:
         """
         streams = list(streams)
         if not streams:
-            raise ValueError("concatenate needs at least one stream")
+            raise InputError("concatenate needs at least one stream")
         first = streams[0]
         for i, s in enumerate(streams):
             if not isinstance(s, PoseStream):
-                raise ValueError(f"item {i} is not a PoseStream but {type(s).__name__}")
+                raise InputError(f"item {i} is not a PoseStream but {type(s).__name__}")
             if (s.source, s.target) != (first.source, first.target):
-                raise ValueError(
+                raise InputError(
                     f"cannot concatenate T_{s.source}_{s.target} (item {i}) "
                     f"with T_{first.source}_{first.target}"
                 )
             if (s.covariance is None) != (first.covariance is None):
-                raise ValueError(f"item {i}: either all streams or none must carry a covariance")
+                raise InputError(f"item {i}: either all streams or none must carry a covariance")
         t = np.concatenate([s.t_ns for s in streams])
         if t.size > 1 and np.any(np.diff(t) <= 0):
-            raise ValueError(
+            raise InputError(
                 "concatenated timestamps are not strictly increasing (streams overlap)"
             )
         cov = None if first.covariance is None else np.concatenate([s.covariance for s in streams])
@@ -264,7 +265,7 @@ class PoseStream:
         names += ("confidence", "flags")
         unknown = set(changes) - set(names)
         if unknown:
-            raise ValueError(f"unknown PoseStream field(s): {', '.join(sorted(unknown))}")
+            raise InputError(f"unknown PoseStream field(s): {', '.join(sorted(unknown))}")
         fields = {k: getattr(self, k) for k in names}
         fields.update(changes)
         if "covariance" in changes and changes["covariance"] is None and "flags" not in changes:
@@ -345,7 +346,7 @@ class PoseStream:
         Raises ``ValueError`` when the stream has no covariance.
         """
         if self._c is None:
-            raise ValueError(
+            raise InputError(
                 f"stream T_{self._source}_{self._target} has no covariance; "
                 "use .poses or .with_(covariance=...)"
             )

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError
 from ..math import UNIT_TOLERANCE
 from ._clean import TRUNCATED
 from ._report import ReadReport
@@ -50,10 +51,10 @@ def parse_time_ns(token: str, exponent: int) -> int:
     try:
         d = Decimal(token)
         if not d.is_finite():
-            raise ValueError(f"timestamp {token!r} is not finite")
+            raise FormatError(f"timestamp {token!r} is not finite")
         return int(d.scaleb(exponent).to_integral_value(ROUND_HALF_EVEN))
     except InvalidOperation as exc:
-        raise ValueError(f"timestamp {token!r} is not a number") from exc
+        raise FormatError(f"timestamp {token!r} is not a number") from exc
 
 
 def format_ns(t_ns: int, exponent: int = 9) -> str:
@@ -277,7 +278,7 @@ class _Builder:
                 try:
                     t = parse_time_ns(toks[time_col], time_exponent) - time_offset_ns
                     if not -(2**63) <= t < 2**63:
-                        raise ValueError(f"timestamp {toks[time_col]!r} out of the int64 ns range")
+                        raise FormatError(f"timestamp {toks[time_col]!r} out of the int64 ns range")
                     v = [float(toks[j]) for j in value_cols]
                 except ValueError as exc:
                     problem = f"unparsable value ({exc})"
@@ -289,7 +290,7 @@ class _Builder:
                     report.notes.append(f"last line ({path}:{lineno}) is incomplete: {problem}")
                     continue
                 if not self.clean:
-                    raise ValueError(f"{path}:{lineno}: {problem}")
+                    raise FormatError(f"{path}:{lineno}: {problem}")
                 report.drop(reason, lineno)
                 continue
             self.extra = max(self.extra, len(toks) - ncols)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError, InputError
 from ._clean import finish_stream
 from ._output import atomic_output
 from ._report import ReadReport
@@ -49,7 +50,7 @@ def _frames(meta: dict, source, target) -> tuple[str, str]:
 def _frames_comment(stream: PoseStream) -> str:
     for name in (stream.source, stream.target):
         if any(c.isspace() for c in name) or "=" in name:
-            raise ValueError(f"frame name {name!r} cannot be stored in a text file comment")
+            raise InputError(f"frame name {name!r} cannot be stored in a text file comment")
     return f"{FRAMES_PREFIX} source={stream.source} target={stream.target}\n"
 
 
@@ -258,7 +259,7 @@ def read_csv(
     """
     path = Path(path)
     if time_unit not in TIME_EXPONENTS:
-        raise ValueError(f"time_unit must be one of {sorted(TIME_EXPONENTS)}, got {time_unit!r}")
+        raise InputError(f"time_unit must be one of {sorted(TIME_EXPONENTS)}, got {time_unit!r}")
     report = ReadReport(str(path), "csv")
     # first look: find the header, then map columns
     header = None
@@ -278,21 +279,21 @@ def read_csv(
             if isinstance(col, (int, np.integer)):
                 mapping[fld] = int(col)
             elif header is None:
-                raise ValueError(f"{path}: column {col!r} named but the file has no header")
+                raise FormatError(f"{path}: column {col!r} named but the file has no header")
             elif col not in header:
-                raise ValueError(f"{path}: no column named {col!r} (header: {header})")
+                raise FormatError(f"{path}: no column named {col!r} (header: {header})")
             else:
                 mapping[fld] = header.index(col)
     known = set(_POSE_FIELDS) | {"confidence", "flags"} | set(_COV_NAMES)
     unknown = set(mapping) - known
     if unknown:
-        raise ValueError(f"unknown column mapping field(s): {sorted(unknown)}")
+        raise InputError(f"unknown column mapping field(s): {sorted(unknown)}")
     missing = [f for f in _POSE_FIELDS if f not in mapping]
     if missing:
-        raise ValueError(f"{path}: cannot find column(s) for {missing} (header: {header})")
+        raise FormatError(f"{path}: cannot find column(s) for {missing} (header: {header})")
     n_cov = sum(c in mapping for c in _COV_NAMES)
     if n_cov not in (0, 21):
-        raise ValueError(f"{path}: covariance needs all 21 cov_i_j columns, found {n_cov}")
+        raise FormatError(f"{path}: covariance needs all 21 cov_i_j columns, found {n_cov}")
     fields = list(_POSE_FIELDS[1:])
     fields += [f for f in ("confidence", "flags") if f in mapping]
     fields += _COV_NAMES if n_cov else []
@@ -324,7 +325,7 @@ def read_csv(
         f = v[:, pos["flags"]]
         if np.any((f != np.round(f)) | (f < 0) | (f > 0xFFFFFFFF)):
             k = int(np.argmax((f != np.round(f)) | (f < 0) | (f > 0xFFFFFFFF)))
-            raise ValueError(f"{path}:{table.where[k]}: flags {f[k]} is not a uint32")
+            raise FormatError(f"{path}:{table.where[k]}: flags {f[k]} is not a uint32")
         flags = f.astype(np.uint32)
     src, tgt = _frames(table.meta, source, target)
     stream = finish_stream(
@@ -360,7 +361,7 @@ def write_csv(
     one; :func:`read_csv` with default mapping reads the file back exactly.
     """
     if time_unit not in TIME_EXPONENTS:
-        raise ValueError(f"time_unit must be one of {sorted(TIME_EXPONENTS)}, got {time_unit!r}")
+        raise InputError(f"time_unit must be one of {sorted(TIME_EXPONENTS)}, got {time_unit!r}")
     names = list(_POSE_FIELDS) + ["confidence", "flags"]
     cols = [_times_text(stream.t_ns, TIME_EXPONENTS[time_unit])]
     cols += [stream.position[:, i] for i in range(3)]

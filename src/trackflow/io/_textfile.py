@@ -9,6 +9,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+from ..errors import FormatError
+
 __all__ = ["first_data_line", "plain_ascii", "read_lines", "scan_text", "text_blocks"]
 
 #: ASCII whitespace of ``str.split()``/``str.strip()`` besides space, tab and newline.
@@ -31,7 +33,7 @@ def scan_text(path: Path, chunk_bytes: int = 1 << 20) -> tuple[int, bool, int, i
             nul = chunk.find(b"\0")
             if nul >= 0:
                 line = n_lines + chunk[:nul].count(b"\n") + 1
-                raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
+                raise FormatError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
             n_lines += chunk.count(b"\n")
             nl = chunk.rfind(b"\n")
             last = len(chunk) - nl - 1 if nl >= 0 else last + len(chunk)
@@ -66,7 +68,7 @@ def text_blocks(path: Path, block_bytes: int) -> Iterator[tuple[int, list[str], 
                 text = block.decode("utf-8")
             except UnicodeDecodeError as exc:
                 line = line0 + block[: exc.start].count(b"\n") + 1
-                raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
+                raise FormatError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
             del block, raw
             plain = plain_ascii(text) and "#" not in text
             lines = text.split("\n")
@@ -111,14 +113,14 @@ def read_lines(path: Path) -> tuple[list[str], bool, int]:
     nul = raw.find(b"\0")
     if nul >= 0:
         line = raw[:nul].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
+        raise FormatError(f"{path}:{line}: not a text recording (binary data: NUL byte)")
     if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte order mark (Windows editors)
         raw = raw[3:]
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
-        raise ValueError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
+        raise FormatError(f"{path}:{line}: not UTF-8 text ({exc.reason})") from exc
     unterminated = bool(raw) and not raw.endswith(b"\n")
     del raw  # large files: never hold the bytes, the text and its lines at once
     lines = text.split("\n")

@@ -11,7 +11,9 @@ it calls in ``KERNEL_SOURCES`` (module names). :func:`kernels` returns, for the 
   also list in ``KERNELS_INLINE`` kernels that numba inlines into their compiled callers
   (``inline="always"``; still callable on their own): glue functions that pass many arrays on,
   whose reference counting (two atomic operations per array argument and call) would otherwise
-  cost more than their arithmetic. Inlining changes no operation, hence no result.
+  cost more than their arithmetic. Inlining changes no operation, hence no result. A source
+  may add numba options for all its kernels in ``KERNEL_OPTIONS`` (``{"nogil": True}`` for
+  kernels that run beside other threads).
 
 Nothing is compiled at import: numba itself is imported when the first compiled copy is made,
 and each function compiles (or loads from the on-disk cache) on its first call, so a command
@@ -49,6 +51,9 @@ import types
 from pathlib import Path
 
 import numpy as np
+
+from ..errors import InputError
+from ..optional import require
 
 __all__ = [
     "cache_is_warm",
@@ -109,9 +114,11 @@ def set_backend(name: str) -> None:
     """Select ``"numba"`` or ``"numpy"`` for all following calls (prefer :func:`use_backend`)."""
     global _backend
     if name not in ("numba", "numpy"):
-        raise ValueError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
+        raise InputError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
     if name == "numba" and not numba_available():
-        raise ValueError("numba backend requested but numba is not installed")
+        raise InputError(
+            "numba backend requested but numba is not installed: pip install 'trackflow[fast]'"
+        )
     _backend = name
 
 
@@ -264,7 +271,7 @@ def cache_is_warm(source: types.ModuleType) -> bool:
 
 @functools.cache
 def _compiled(name: str) -> types.ModuleType:
-    import numba
+    numba = require("numba", extra="fast", feature="the compiled backend")
 
     source = importlib.import_module(name)
     deps = {dep: (importlib.import_module(dep), _compiled(dep)) for dep in source.KERNEL_SOURCES}
@@ -282,8 +289,9 @@ def _compiled(name: str) -> types.ModuleType:
                 if value is getattr(plain, kernel):
                     setattr(mod, attr, getattr(jit, kernel))
     inline = set(getattr(source, "KERNELS_INLINE", ()))
+    base = dict(_JIT_OPTIONS, **getattr(source, "KERNEL_OPTIONS", {}))
     for kernel in source.KERNELS:
-        options = dict(_JIT_OPTIONS, inline="always") if kernel in inline else _JIT_OPTIONS
+        options = dict(base, inline="always") if kernel in inline else base
         setattr(mod, kernel, numba.njit(**options)(getattr(mod, kernel)))
     return mod
 

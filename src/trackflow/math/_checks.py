@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from ..errors import InputError
 from ._kernels import covariance_is_plainly_valid
 
 __all__ = [
@@ -36,14 +37,14 @@ def _as_float_array(x, name: str, last: tuple[int, ...]) -> np.ndarray:
     try:
         a = np.asarray(x, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric, got {type(x).__name__}") from exc
+        raise InputError(f"{name} must be numeric, got {type(x).__name__}") from exc
     if a.shape[a.ndim - len(last) :] != last or a.ndim < len(last):
         want = "(..., " + ", ".join(str(n) for n in last) + ")"
-        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+        raise InputError(f"{name} must have shape {want}, got {a.shape}")
     if not np.isfinite(a.sum()):  # one reduction decides the common, all-finite case
         finite = np.isfinite(a).all(axis=tuple(range(-len(last), 0)))
         if not np.all(finite):
-            raise ValueError(f"{name} contains NaN or inf{_where(~finite)}")
+            raise InputError(f"{name} contains NaN or inf{_where(~finite)}")
     return a
 
 
@@ -70,13 +71,13 @@ def check_quaternion(quaternion, normalize: bool = False, name: str = "quaternio
             return q / n1
     n = np.linalg.norm(q, axis=-1)
     if np.any(n == 0.0):
-        raise ValueError(f"{name} is zero{_where(n == 0.0)}")
+        raise InputError(f"{name} is zero{_where(n == 0.0)}")
     off = np.abs(n - 1.0) > UNIT_TOLERANCE
     if not normalize and np.any(off):
         bad = np.abs(n - 1.0)
         where = _where(off)
         worst = float(np.max(bad))
-        raise ValueError(
+        raise InputError(
             f"{name} is not unit length{where}: |q| - 1 = {worst:.3g} "
             f"(tolerance {UNIT_TOLERANCE:g}; pass normalize=True to accept it)"
         )
@@ -100,7 +101,7 @@ def check_covariance(covariance, name: str = "covariance", size: int = 6) -> np.
         asym = np.max(np.abs(c - ct), axis=(-2, -1))
         bad = asym > 1e-9 * np.maximum(scale, 1e-300)
         if np.any(bad):
-            raise ValueError(
+            raise InputError(
                 f"{name} is not symmetric{_where(bad)}: max |C - C^T| = {float(np.max(asym)):.3g}"
             )
         c = 0.5 * (c + ct)
@@ -113,7 +114,7 @@ def check_covariance(covariance, name: str = "covariance", size: int = 6) -> np.
         eig = np.linalg.eigvalsh(c)
         low = eig[..., 0] < -1e-12 * np.maximum(eig[..., -1], 1e-300)
         if np.any(low):
-            raise ValueError(
+            raise InputError(
                 f"{name} is not positive semi-definite{_where(low)}: smallest eigenvalue "
                 f"{float(np.min(eig[..., 0])):.3g}"
             )
@@ -131,15 +132,15 @@ def check_trajectory(t, position, quaternion, min_samples: int = 1, what: str = 
     p = np.ascontiguousarray(position, dtype=float)
     q = np.ascontiguousarray(quaternion, dtype=float)
     if p.shape != (t.shape[0], 3) or q.shape != (t.shape[0], 4):
-        raise ValueError(
+        raise InputError(
             f"need times (N,), positions (N, 3), quaternions (N, 4); got {t.shape}, "
             f"{p.shape}, {q.shape}"
         )
     if t.shape[0] < min_samples:
-        raise ValueError(f"need at least {min_samples} samples, got {t.shape[0]}")
+        raise InputError(f"need at least {min_samples} samples, got {t.shape[0]}")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        raise ValueError(f"times, positions and quaternions must be finite (clean {what})")
+        raise InputError(f"times, positions and quaternions must be finite (clean {what})")
     if t.shape[0] > 1 and np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise ValueError(f"times must increase strictly (sample {k}): {t[k]} after {t[k - 1]}")
+        raise InputError(f"times must increase strictly (sample {k}): {t[k]} after {t[k - 1]}")
     return t, p, q

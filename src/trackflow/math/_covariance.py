@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ._quaternion import quat_to_matrix
 
 __all__ = [
@@ -136,7 +137,7 @@ def cov_from_additive_quaternion(covariance7, quaternion) -> np.ndarray:
     """
     c = np.asarray(covariance7, dtype=float)
     if c.shape[-2:] != (7, 7):
-        raise ValueError(f"additive-quaternion covariance must be (..., 7, 7), got {c.shape}")
+        raise InputError(f"additive-quaternion covariance must be (..., 7, 7), got {c.shape}")
     left_t = np.swapaxes(quat_left_matrix(quaternion), -1, -2)  # L(q^*) = L(q)^T
     j = np.zeros(left_t.shape[:-2] + (6, 7))
     j[..., :3, :3] = np.eye(3)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ._checks import check_position, check_quaternion
 from ._quaternion import (
     quat_angle,
@@ -62,7 +63,7 @@ class Pose:
         try:
             shape = np.broadcast_shapes(p.shape[:-1], q.shape[:-1])
         except ValueError as exc:
-            raise ValueError(
+            raise InputError(
                 f"position batch shape {p.shape[:-1]} and quaternion batch shape "
                 f"{q.shape[:-1]} do not broadcast"
             ) from exc
@@ -88,19 +89,19 @@ class Pose:
         """From homogeneous matrices (..., 4, 4) whose rotation part is orthonormal to 1e-6."""
         m = np.asarray(matrix, dtype=float)
         if m.shape[-2:] != (4, 4):
-            raise ValueError(f"matrix must have shape (..., 4, 4), got {m.shape}")
+            raise InputError(f"matrix must have shape (..., 4, 4), got {m.shape}")
         if not np.all(np.isfinite(m)):
-            raise ValueError("matrix contains NaN or inf")
+            raise InputError("matrix contains NaN or inf")
         r = m[..., :3, :3]
         err = np.max(np.abs(r @ np.swapaxes(r, -1, -2) - np.eye(3)))
         if err > 1e-6:
-            raise ValueError(f"matrix rotation part is not a rotation (|R R^T - I| = {err:.3g})")
+            raise InputError(f"matrix rotation part is not a rotation (|R R^T - I| = {err:.3g})")
         if np.any(np.linalg.det(r) < 0):
-            raise ValueError(
+            raise InputError(
                 "matrix rotation part is not a rotation: a reflection (determinant -1)"
             )
         if np.any(np.abs(m[..., 3, :] - [0.0, 0.0, 0.0, 1.0]) > 1e-12):
-            raise ValueError("matrix last row must be [0, 0, 0, 1]")
+            raise InputError("matrix last row must be [0, 0, 0, 1]")
         return cls._trusted(m[..., :3, 3].copy(), quat_from_matrix(r))
 
     # -- attributes ---------------------------------------------------------------------------

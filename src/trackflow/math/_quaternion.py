@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ._lie import SMALL_ANGLE as _SMALL_ANGLE
 
 __all__ = [
@@ -83,7 +84,7 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n == 0.0) or not np.all(np.isfinite(n)):
-        raise ValueError("cannot normalize a zero or non-finite quaternion")
+        raise InputError("cannot normalize a zero or non-finite quaternion")
     return q / n
 
 

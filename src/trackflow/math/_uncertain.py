@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from . import _kernels
 from ._checks import check_covariance, check_position
 from ._jacobians import (
@@ -38,7 +39,7 @@ def _as_uncertain(other, operation: str) -> UncertainPose:
         return other
     if isinstance(other, Pose):
         return UncertainPose.exact(other)
-    raise ValueError(f"cannot {operation} with {type(other).__name__}; need UncertainPose or Pose")
+    raise InputError(f"cannot {operation} with {type(other).__name__}; need UncertainPose or Pose")
 
 
 def _as_cross(cross, shape) -> np.ndarray | None:
@@ -46,7 +47,7 @@ def _as_cross(cross, shape) -> np.ndarray | None:
         return None
     c = np.asarray(cross, dtype=float)
     if c.shape[-2:] != (6, 6) or not np.all(np.isfinite(c)):
-        raise ValueError(f"cross_covariance must be finite with shape (..., 6, 6), got {c.shape}")
+        raise InputError(f"cross_covariance must be finite with shape (..., 6, 6), got {c.shape}")
     return c
 
 
@@ -77,7 +78,7 @@ class UncertainPose:
 
     def __init__(self, pose: Pose, covariance):
         if not isinstance(pose, Pose):
-            raise ValueError(f"pose must be a trackflow Pose, got {type(pose).__name__}")
+            raise InputError(f"pose must be a trackflow Pose, got {type(pose).__name__}")
         c = check_covariance(covariance)
         if c is covariance:  # never alias the caller's array
             c = c.copy()
@@ -85,7 +86,7 @@ class UncertainPose:
             try:
                 c = np.broadcast_to(c, pose.shape + (6, 6)).copy()
             except ValueError as exc:
-                raise ValueError(
+                raise InputError(
                     f"covariance batch shape {c.shape[:-2]} does not match pose shape {pose.shape}"
                 ) from exc
         self._pose = pose
@@ -168,7 +169,7 @@ class UncertainPose:
         """
         if not isinstance(other, UncertainPose):
             if not isinstance(other, Pose):
-                raise ValueError(f"cannot compose with {type(other).__name__}")
+                raise InputError(f"cannot compose with {type(other).__name__}")
             other = UncertainPose.exact(other)
         pa, pb = self._pose, other._pose
         t, q, c, J_c_a, J_c_b = _kernels.compose(
@@ -341,7 +342,7 @@ class UncertainPose:
         poses : Pose with batch shape (N,), N >= 2
         """
         if len(poses.shape) != 1 or poses.shape[0] < 2:
-            raise ValueError(f"from_samples needs a batch of N >= 2 poses, got {poses.shape}")
+            raise InputError(f"from_samples needs a batch of N >= 2 poses, got {poses.shape}")
         t = poses.position
         q = quat_make_continuous(poses.quaternion)
         q_mean = quat_normalize(np.sum(q, axis=0))  # chordal mean as the starting point
@@ -377,7 +378,7 @@ def evaluate_covariance(covariance, weights=None) -> np.ndarray:
         return np.sqrt(np.maximum(np.trace(c, axis1=-2, axis2=-1), 0.0))
     a = np.asarray(weights, dtype=float)
     if a.shape[-1] != c.shape[-1]:
-        raise ValueError(f"weights must have {c.shape[-1]} columns, got shape {a.shape}")
+        raise InputError(f"weights must have {c.shape[-1]} columns, got shape {a.shape}")
     m = a @ c @ np.swapaxes(a, -1, -2)
     return np.sqrt(np.maximum(np.trace(m, axis1=-2, axis2=-1), 0.0))
 

@@ -4,17 +4,26 @@ One pass over the image finds runs of pixels at or above the threshold, joins ru
 (8-connectivity) with a union-find, and accumulates each component's intensity moments, so no
 label image is allocated. The centroid is intensity weighted with the background removed,
 ``sum (I - b) (x, y) / sum (I - b)``, in OpenCV's pixel convention (pixel centres at integer
-coordinates). Compiled with numba.
+coordinates). The loops are kernels of the backend seam (:func:`trackflow.math.kernels_for`):
+compiled with numba when it is installed, plain Python (slow, for tests and small images)
+without it.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from ..errors import InputError
+from ..math import kernels_for
+
 __all__ = ["Blobs", "detect_blobs"]
+
+KERNELS = ("_find", "_bright_chunks", "_bright_chunks_u8", "_runs_and_moments", "_components")
+KERNEL_SOURCES = ()
+KERNEL_OPTIONS = {"nogil": True}
 
 
 @dataclass
@@ -39,7 +48,6 @@ class Blobs:
         return len(self.uv)
 
 
-@numba.njit(cache=True, nogil=True)
 def _find(parent, i):
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -50,7 +58,6 @@ def _find(parent, i):
 _CHUNK = 16
 
 
-@numba.njit(cache=True, nogil=True)
 def _bright_chunks(img, thr):
     """(H, ceil(W / 16)) flags: does the chunk hold a pixel >= thr (a branch-free pass that
     the compiler vectorises; the exact scan then visits flagged chunks only)."""
@@ -77,7 +84,6 @@ _HIGH = np.uint64(0x8080808080808080)
 _ONES = np.uint64(0x0101010101010101)
 
 
-@numba.njit(cache=True, nogil=True)
 def _bright_chunks_u8(words, thr):
     """:func:`_bright_chunks` for 8-bit images read as 64-bit words (8 pixels at a time, two
     words per chunk): a byte ``b >= thr`` sets its high bit in ``(b & 0x7f) + (128 - thr)``
@@ -104,7 +110,6 @@ def _bright_chunks_u8(words, thr):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
 def _runs_and_moments(img, flags, thr, bg, max_runs):
     H, W = img.shape
     # a run starts in a flagged chunk, at most 8 per 16 pixels: allocate only that much
@@ -164,7 +169,6 @@ def _runs_and_moments(img, flags, thr, bg, max_runs):
     return n, r_row, parent, s0, sx, sy, cnt
 
 
-@numba.njit(cache=True, nogil=True)
 def _components(n, parent, s0, sx, sy, cnt):
     label = np.full(n, -1, np.int64)
     k = 0
@@ -217,31 +221,32 @@ def detect_blobs(
     """
     img = np.asarray(image)
     if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+        raise InputError(f"image must be 2-D (H, W), got shape {img.shape}")
     if img.dtype.kind not in "uif":
-        raise ValueError(f"image must be numeric, got {img.dtype}")
+        raise InputError(f"image must be numeric, got {img.dtype}")
     if not background < threshold:
-        raise ValueError(f"background ({background}) must be below threshold ({threshold})")
+        raise InputError(f"background ({background}) must be below threshold ({threshold})")
     if not np.isfinite(threshold):
-        raise ValueError("threshold must be finite")
+        raise InputError("threshold must be finite")
     if (
         img.dtype.kind in "ui"
         and not np.iinfo(img.dtype).min < threshold <= np.iinfo(img.dtype).max
     ):
-        raise ValueError(f"threshold {threshold} is outside the range of {img.dtype} images")
+        raise InputError(f"threshold {threshold} is outside the range of {img.dtype} images")
     if not img.flags.c_contiguous:
         img = np.ascontiguousarray(img)
     thr = img.dtype.type(np.ceil(threshold)) if img.dtype.kind in "ui" else threshold
+    k = kernels_for(sys.modules[__name__])
     if img.dtype == np.uint8 and img.shape[1] % _CHUNK == 0:
-        flags = _bright_chunks_u8(img.view(np.uint64), int(thr))
+        flags = k._bright_chunks_u8(img.view(np.uint64), int(thr))
     else:
-        flags = _bright_chunks(img, thr)
-    n, _, parent, s0, sx, sy, cnt = _runs_and_moments(
+        flags = k._bright_chunks(img, thr)
+    n, _, parent, s0, sx, sy, cnt = k._runs_and_moments(
         img, flags, thr, float(background), int(max_runs)
     )
     if n < 0:
-        raise ValueError(f"more than {max_runs} runs of bright pixels: overexposed image?")
-    a, ax, ay, c = _components(n, parent, s0, sx, sy, cnt)
+        raise InputError(f"more than {max_runs} runs of bright pixels: overexposed image?")
+    a, ax, ay, c = k._components(n, parent, s0, sx, sy, cnt)
     keep = (c >= min_area) & (c <= max_area) & (a > 0)
     a, ax, ay, c = a[keep], ax[keep], ay[keep], c[keep]
     uv = np.stack([ax / a, ay / a], axis=1) if len(a) else np.zeros((0, 2))

@@ -13,7 +13,9 @@ Three layouts are read, chosen by the keys present:
   ``image_width``, ``image_height``, optional extrinsics ``rvec`` / ``tvec``.
 
 Translations are in the calibration's unit; ``unit_m`` scales them to metres (0.001 for mm).
-Mistakes raise :class:`CalibrationFileError` naming the file, the line (YAML) and the key.
+YAML files are read by :func:`trackflow.yamlfile.parse_yaml` (a key given twice is refused).
+Mistakes raise :class:`CalibrationFileError` (a :class:`trackflow.errors.ConfigError`) naming the
+file, the line (YAML) and the key.
 """
 
 from __future__ import annotations
@@ -22,14 +24,15 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from ..errors import ConfigError
+from ..yamlfile import line_of, parse_yaml
 from .camera import Camera, CameraRig
 
 __all__ = ["CalibrationFileError", "read_opencv_calibration", "write_opencv_calibration"]
 
 
-class CalibrationFileError(ValueError):
+class CalibrationFileError(ConfigError):
     """A calibration file that cannot be read: names the file, line (if known) and key."""
 
 
@@ -59,19 +62,14 @@ def _matrix_from_fields(fields: dict, where: str) -> np.ndarray:
     return values.reshape(rows, cols)
 
 
-class _OpenCVLoader(yaml.SafeLoader):
-    """Safe YAML loader that understands OpenCV's ``!!opencv-matrix`` tag."""
-
-    path = "<yaml>"
-
-
-def _construct_matrix(loader: _OpenCVLoader, node) -> _Mat:
+def _construct_matrix(loader, node) -> _Mat:
+    """OpenCV's ``!!opencv-matrix`` tag."""
     line = node.start_mark.line + 1
     fields = loader.construct_mapping(node, deep=True)
-    return _Mat(_matrix_from_fields(fields, f"{loader.path}:{line}"), line)
+    return _Mat(_matrix_from_fields(fields, f"{loader.source}:{line}"), line)
 
 
-_OpenCVLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", _construct_matrix)
+_TAGS = {"tag:yaml.org,2002:opencv-matrix": _construct_matrix}
 
 
 def _read_yaml(path: Path, text: str) -> dict:
@@ -79,11 +77,14 @@ def _read_yaml(path: Path, text: str) -> dict:
     lines = text.splitlines()
     if lines and lines[0].startswith("%YAML"):
         lines[0] = ""  # keep the line numbers
-    loader = type("_Loader", (_OpenCVLoader,), {"path": str(path)})
     try:
-        doc = yaml.load("\n".join(lines), Loader=loader)  # a SafeLoader subclass
-    except yaml.YAMLError as e:
-        raise CalibrationFileError(f"{path}: not a valid OpenCV YAML file: {e}") from e
+        doc = parse_yaml("\n".join(lines), path, _TAGS)
+    except CalibrationFileError:
+        raise
+    except ConfigError as e:
+        raise CalibrationFileError(
+            f"not a valid OpenCV YAML file: {e.reason}", path, e.line
+        ) from None
     if not isinstance(doc, dict):
         raise CalibrationFileError(f"{path}: the top level must be a mapping of named values")
     return doc
@@ -131,15 +132,18 @@ class _Doc:
     def __init__(self, paths: list[Path]):
         self.values: dict = {}
         self.origin: dict = {}
+        self.lines: dict = {}
         for p in paths:
-            for k, v in _read_any(p).items():
+            doc = _read_any(p)
+            for k, v in doc.items():
                 self.values[k] = v
                 self.origin[k] = p
+                self.lines[k] = line_of(doc, k)
         self.files = ", ".join(str(p) for p in paths)
 
     def where(self, key: str) -> str:
         v = self.values.get(key)
-        line = getattr(v, "line", 0)
+        line = getattr(v, "line", 0) or self.lines.get(key, 0)
         src = self.origin.get(key, self.files)
         return f"{src}" + (f":{line}" if line else "") + f": {key}"
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import Pose, quat_from_matrix
 
 __all__ = ["Camera", "CameraRig", "ring_rig"]
@@ -33,7 +34,7 @@ _N_DIST = (4, 5, 8)
 def _as_matrix(value, shape, what: str) -> np.ndarray:
     a = np.asarray(value, dtype=float)
     if a.shape != shape or not np.all(np.isfinite(a)):
-        raise ValueError(f"{what} must be a finite array of shape {shape}, got {a.shape}")
+        raise InputError(f"{what} must be a finite array of shape {shape}, got {a.shape}")
     return a
 
 
@@ -66,22 +67,22 @@ class Camera:
     def __post_init__(self):
         K = _as_matrix(self.K, (3, 3), f"camera {self.name!r}: K")
         if not (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and K[2, 0] == 0 and K[2, 1] == 0):
-            raise ValueError(f"camera {self.name!r}: K must be upper triangular with fx, fy > 0")
+            raise InputError(f"camera {self.name!r}: K must be upper triangular with fx, fy > 0")
         if not np.isclose(K[2, 2], 1.0):
-            raise ValueError(f"camera {self.name!r}: K[2, 2] must be 1, got {K[2, 2]}")
+            raise InputError(f"camera {self.name!r}: K[2, 2] must be 1, got {K[2, 2]}")
         d = np.asarray(self.dist, dtype=float).reshape(-1)
         if d.size not in _N_DIST or not np.all(np.isfinite(d)):
-            raise ValueError(
+            raise InputError(
                 f"camera {self.name!r}: need 4, 5 or 8 finite distortion coefficients "
                 f"(k1, k2, p1, p2[, k3[, k4, k5, k6]]), got {d.size}"
             )
         R = _as_matrix(self.R_cam_world, (3, 3), f"camera {self.name!r}: R_cam_world")
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-            raise ValueError(f"camera {self.name!r}: R_cam_world is not a rotation matrix")
+            raise InputError(f"camera {self.name!r}: R_cam_world is not a rotation matrix")
         t = _as_matrix(np.reshape(self.t_cam_world, -1), (3,), f"camera {self.name!r}: t")
         w, h = (int(v) for v in self.size)
         if w <= 0 or h <= 0:
-            raise ValueError(f"camera {self.name!r}: image size must be positive, got {self.size}")
+            raise InputError(f"camera {self.name!r}: image size must be positive, got {self.size}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", d)
         object.__setattr__(self, "_d8", np.concatenate([d, np.zeros(8 - d.size)]))
@@ -101,7 +102,7 @@ class Camera:
         z /= np.linalg.norm(z)
         x = np.cross(z, np.asarray(up, dtype=float))
         if np.linalg.norm(x) < 1e-9:
-            raise ValueError(f"camera {name!r}: the viewing direction is parallel to up")
+            raise InputError(f"camera {name!r}: the viewing direction is parallel to up")
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
         R = np.stack([x, y, z])  # rows: camera axes in world coordinates
@@ -164,7 +165,7 @@ class Camera:
         """
         X = np.asarray(X_world, dtype=float)
         if X.shape[-1:] != (3,):
-            raise ValueError(
+            raise InputError(
                 f"camera {self.name!r}: points must have shape (..., 3), got {X.shape}"
             )
         Xc = X @ self.R_cam_world.T + self.t_cam_world
@@ -201,7 +202,7 @@ class Camera:
         """
         uv = np.asarray(uv, dtype=float)
         if uv.shape[-1:] != (2,):
-            raise ValueError(
+            raise InputError(
                 f"camera {self.name!r}: pixels must have shape (..., 2), got {uv.shape}"
             )
         K = self.K
@@ -258,13 +259,13 @@ class CameraRig:
     def __init__(self, cameras: Sequence[Camera]):
         cams = list(cameras)
         if not cams:
-            raise ValueError("a camera rig needs at least one camera")
+            raise InputError("a camera rig needs at least one camera")
         for c in cams:
             if not isinstance(c, Camera):
-                raise ValueError(f"rig members must be Camera objects, got {type(c).__name__}")
+                raise InputError(f"rig members must be Camera objects, got {type(c).__name__}")
         names = [c.name for c in cams]
         if len(set(names)) != len(names):
-            raise ValueError(f"camera names must be unique, got {names}")
+            raise InputError(f"camera names must be unique, got {names}")
         self.cameras = cams
 
     def __len__(self) -> int:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..filters import chi2_gate
 from ..math import skew
 from .camera import CameraRig
@@ -132,7 +133,7 @@ def match_epipolar(
     """
     C = len(rig)
     if len(blobs) != C:
-        raise ValueError(f"need one blob array per camera ({C}), got {len(blobs)}")
+        raise InputError(f"need one blob array per camera ({C}), got {len(blobs)}")
     blobs = [np.asarray(b, dtype=float).reshape(-1, 2) for b in blobs]
     free = [np.ones(len(b), bool) for b in blobs]
     if exclude is not None:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import register_feed
+from ..errors import ConfigError, InputError
 from .pipeline import OpticalTracker
 from .source import FrameSource, load_optical_setup
 
@@ -56,7 +57,7 @@ class OpticalFeed:
         """``{model name: UncertainPose or None}`` of frame ``index`` (``T_world_body`` [m],
         the pipeline's 6x6 covariance); indices must increase (frames may be skipped)."""
         if index <= self._last:
-            raise ValueError(f"{self.source}: frame {index} after frame {self._last}")
+            raise InputError(f"{self.source}: frame {index} after frame {self._last}")
         self._last = index
         res = self.tracker.process(self.t_ns[index] * 1e-9, self.frames.images(index))
         return {name: b.pose for name, b in res.bodies.items()}
@@ -67,7 +68,7 @@ def optical_feed(options: dict) -> OpticalFeed:
     file ``options["config"]`` (``ValueError`` naming the file for a bad or missing one)."""
     path = Path(options["config"])
     if not path.is_file():
-        raise ValueError(f"input.optical.config: {path} is not a file")
+        raise ConfigError(f"input.optical.config: {path} is not a file")
     opt = load_optical_setup(path)
     return OpticalFeed(opt.run.tracker, opt.run.frames, str(path))
 

@@ -15,15 +15,16 @@ one nearer the prediction. This is the matching heuristic the paper asks of the 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..errors import InputError
 from ..filters import chi2_gate
-from ..math import UncertainPose, quat_rminus, umeyama
+from ..math import UncertainPose, kernels_for, quat_rminus, umeyama
 from .absolute_orientation import PoseFit, fit_pose
 from .correspondence import PointCandidates
 from .models import MarkerModel
@@ -61,7 +62,11 @@ def pose_nis(a: UncertainPose, b: UncertainPose) -> float:
     return float(e @ np.linalg.solve(S, e))
 
 
-@numba.njit(cache=True)
+#: the backend seam's kernels of this module (compiled with numba when it is installed)
+KERNELS = ("_seed_triangles",)
+KERNEL_SOURCES = ()
+
+
 def _seed_triangles(E, S, seed_i, seed_a, per_seed):
     """For every seed (point i = marker a), up to ``per_seed`` triangles (i, k, l) = (a, c, d)
     whose three distances all match, the best supported (``S[k, c] + S[l, d]``) first."""
@@ -126,7 +131,7 @@ def _hypotheses(
     flat = np.argsort(-S, axis=None)[:seeds]
     si, sa = np.divmod(flat, M)
     keep = S[si, sa] >= 2
-    tp, tm = _seed_triangles(E, S, si[keep], sa[keep], per_seed)
+    tp, tm = kernels_for(sys.modules[__name__])._seed_triangles(E, S, si[keep], sa[keep], per_seed)
     if not len(tp):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     fits = umeyama(X[tp], model.points[tm], allow_collinear=True)  # T_world_body per triangle
@@ -272,14 +277,14 @@ def identify(
         Bodies found; a body missing from the dict was not found or was ambiguous.
     """
     if not 0.0 < tolerance < 1.0:
-        raise ValueError(f"tolerance must be in (0, 1) m, got {tolerance}")
+        raise InputError(f"tolerance must be in (0, 1) m, got {tolerance}")
     names = [m.name for m in models]
     if len(set(names)) != len(names):
-        raise ValueError(f"model names must be unique, got {names}")
+        raise InputError(f"model names must be unique, got {names}")
     predictions = dict(predictions or {})
     unknown = set(predictions) - set(names)
     if unknown:
-        raise ValueError(f"predictions for unknown models {sorted(unknown)}")
+        raise InputError(f"predictions for unknown models {sorted(unknown)}")
     chi_gate = chi2_gate(gate_probability, 3)
     gate6 = chi2_gate(gate_probability, 6)
     avail = np.ones(len(candidates), bool)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["MarkerModel", "model_separation", "random_model", "similar_model"]
 
 
@@ -39,15 +41,15 @@ class MarkerModel:
     def __post_init__(self):
         p = np.asarray(self.points, dtype=float)
         if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3 or not np.all(np.isfinite(p)):
-            raise ValueError(f"model {self.name!r}: points must be finite (M, 3) with M >= 3")
+            raise InputError(f"model {self.name!r}: points must be finite (M, 3) with M >= 3")
         c = p - p.mean(axis=0)
         sv = np.linalg.svd(c, compute_uv=False)
         if sv[1] < 1e-6:
-            raise ValueError(f"model {self.name!r}: markers are collinear")
+            raise InputError(f"model {self.name!r}: markers are collinear")
         d = self._distances(p)
         iu = np.triu_indices(len(p), 1)
         if d[iu].min() < self.marker_diameter:
-            raise ValueError(
+            raise InputError(
                 f"model {self.name!r}: two markers closer than the marker diameter "
                 f"({d[iu].min() * 1e3:.1f} mm < {self.marker_diameter * 1e3:.1f} mm)"
             )
@@ -56,7 +58,7 @@ class MarkerModel:
         else:
             n = np.asarray(self.normals, dtype=float)
             if n.shape != p.shape:
-                raise ValueError(f"model {self.name!r}: normals must have shape {p.shape}")
+                raise InputError(f"model {self.name!r}: normals must have shape {p.shape}")
             n = n / np.linalg.norm(n, axis=1, keepdims=True)
         object.__setattr__(self, "points", p)
         object.__setattr__(self, "normals", n)
@@ -74,18 +76,18 @@ class MarkerModel:
         """From ``{name, markers_mm: [[x, y, z], ...]}`` or ``markers_m``, optional
         ``marker_diameter_mm``."""
         if not isinstance(item, Mapping) or "name" not in item:
-            raise ValueError(f"{where}: a marker model needs a name and markers_mm or markers_m")
+            raise InputError(f"{where}: a marker model needs a name and markers_mm or markers_m")
         if "markers_mm" in item:
             pts = np.asarray(item["markers_mm"], dtype=float) * 1e-3
         elif "markers_m" in item:
             pts = np.asarray(item["markers_m"], dtype=float)
         else:
-            raise ValueError(f"{where}: model {item['name']!r} needs markers_mm or markers_m")
+            raise InputError(f"{where}: model {item['name']!r} needs markers_mm or markers_m")
         diam = float(item.get("marker_diameter_mm", 14.0)) * 1e-3
         try:
             return cls(str(item["name"]), pts, marker_diameter=diam)
         except ValueError as e:
-            raise ValueError(f"{where}: {e}") from e
+            raise InputError(f"{where}: {e}") from e
 
     def to_dict(self) -> dict:
         return {
@@ -126,7 +128,7 @@ def random_model(
             pts.append(p)
             if len(pts) == n_markers:
                 return MarkerModel(name, np.array(pts))
-    raise ValueError(f"cannot place {n_markers} markers {min_separation} m apart on {extent}")
+    raise InputError(f"cannot place {n_markers} markers {min_separation} m apart on {extent}")
 
 
 def similar_model(

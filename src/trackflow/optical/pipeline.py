@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..filters import MotionModel, PoseKalmanFilter, chi2_gate
 from ..math import Pose, UncertainPose, kernels_for, skew
 from . import _kernels
@@ -71,13 +72,13 @@ class TrackerConfig:
 
     def __post_init__(self):
         if not self.sigma_px > 0:
-            raise ValueError(f"sigma_px must be > 0, got {self.sigma_px}")
+            raise InputError(f"sigma_px must be > 0, got {self.sigma_px}")
         if not self.background < self.threshold:
-            raise ValueError("background must be below threshold")
+            raise InputError("background must be below threshold")
         if self.min_markers_tracked < 3 or self.min_markers < 3:
-            raise ValueError("a pose needs at least 3 markers")
+            raise InputError("a pose needs at least 3 markers")
         if not 0.0 < self.gate_probability < 1.0:
-            raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
+            raise InputError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
 
 
 @dataclass
@@ -135,7 +136,7 @@ class OpticalTracker:
         self.models = list(models)
         names = [m.name for m in self.models]
         if not names or len(set(names)) != len(names):
-            raise ValueError(f"need marker models with unique names, got {names}")
+            raise InputError(f"need marker models with unique names, got {names}")
         self.config = config or TrackerConfig()
         c = self.config
         self._gate2 = chi2_gate(c.gate_probability, 2)
@@ -167,7 +168,7 @@ class OpticalTracker:
     def process(self, t: float, images: Sequence[np.ndarray]) -> FrameResult:
         """Track one synchronised set of images exposed at ``t`` [s]."""
         if len(images) != len(self.rig):
-            raise ValueError(f"need {len(self.rig)} images (one per camera), got {len(images)}")
+            raise InputError(f"need {len(self.rig)} images (one per camera), got {len(images)}")
         c = self.config
         blobs = [
             detect_blobs(img, c.threshold, c.background, c.min_area, c.max_area) for img in images
@@ -182,16 +183,16 @@ class OpticalTracker:
         ``merged_area_ratio`` times the median area of its body's blobs in that image is taken
         for two merged markers and not used."""
         if len(blobs) != len(self.rig):
-            raise ValueError(f"need blobs of {len(self.rig)} cameras, got {len(blobs)}")
+            raise InputError(f"need blobs of {len(self.rig)} cameras, got {len(blobs)}")
         if not np.isfinite(t) or (self._last_t is not None and t <= self._last_t):
-            raise ValueError(f"frame time {t} is not after the previous frame ({self._last_t})")
+            raise InputError(f"frame time {t} is not after the previous frame ({self._last_t})")
         self._last_t = float(t)
         blobs = [np.asarray(b, dtype=float).reshape(-1, 2) for b in blobs]
         if areas is None:
             areas = [np.ones(len(b)) for b in blobs]
         areas = [np.asarray(a, dtype=float).reshape(-1) for a in areas]
         if len(areas) != len(blobs) or any(len(a) != len(b) for a, b in zip(areas, blobs)):
-            raise ValueError("areas must give one value per blob of every camera")
+            raise InputError("areas must give one value per blob of every camera")
         finite = [np.all(np.isfinite(b), axis=1) for b in blobs]
         bad = int(sum((~f).sum() for f in finite))
         if bad:
@@ -237,7 +238,7 @@ class OpticalTracker:
         that the pose covariance is made from.
         """
         if level not in ("points", "poses"):
-            raise ValueError(f"level must be 'points' or 'poses', got {level!r}")
+            raise InputError(f"level must be 'points' or 'poses', got {level!r}")
         chi, dof = self._res if level == "points" else self._fit_res
         return float(self.config.sigma_px * np.sqrt(chi / dof)) if dof else float("nan")
 

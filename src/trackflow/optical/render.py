@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtr
 
+from ..errors import ExtrapolationError, InputError
 from ..math import Pose
 from .camera import CameraRig
 from .models import MarkerModel
@@ -124,7 +125,7 @@ def trajectory_from_stream(
 
     def at(time: float) -> Pose:
         if not t[0] <= time <= t[-1]:
-            raise ValueError(f"time {time:.3f} s outside the recording [{t[0]:.3f}, {t[-1]:.3f}]")
+            raise ExtrapolationError("the trajectory", time, t[0], t[-1], "outside the recording")
         i = int(np.clip(np.searchsorted(t, time) - 1, 0, len(t) - 2))
         s = (time - t[i]) / (t[i + 1] - t[i])
         return poses[i].interpolate(poses[i + 1], s)
@@ -177,7 +178,7 @@ class FrameRenderer:
         self.models = list(models)
         missing = {m.name for m in self.models} - set(trajectories)
         if missing:
-            raise ValueError(f"no trajectory for models {sorted(missing)}")
+            raise InputError(f"no trajectory for models {sorted(missing)}")
         self.trajectories = dict(trajectories)
         self.settings = settings or RenderSettings()
         self.rng = np.random.default_rng(seed)

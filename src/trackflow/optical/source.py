@@ -37,10 +37,11 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-import yaml
 
 from ..dataflow import Component, Measurement, RecordingPlayer, Setup, load_setup
+from ..errors import ConfigError, InputError
 from ..filters import MotionModel
+from ..yamlfile import line_of, read_yaml
 from .calibration import read_opencv_calibration
 from .camera import CameraRig
 from .models import MarkerModel
@@ -75,7 +76,7 @@ class RenderedFrames:
 
     def __init__(self, renderer: FrameRenderer, rate_hz: float, start_s: float, duration_s: float):
         if not rate_hz > 0 or not duration_s > 0:
-            raise ValueError("rate_hz and duration_s must be > 0")
+            raise InputError("rate_hz and duration_s must be > 0")
         n = int(np.floor(duration_s * rate_hz)) + 1
         self.renderer = renderer
         self.times_s = start_s + np.arange(n) / rate_hz
@@ -100,7 +101,7 @@ class OpticalRun:
         self.frames = frames
         self.t_ns = np.asarray(frames.t_ns, dtype=np.int64)
         if self.t_ns.ndim != 1 or np.any(np.diff(self.t_ns) <= 0):
-            raise ValueError("frame times must be 1-D and strictly increasing")
+            raise InputError("frame times must be 1-D and strictly increasing")
         self.keep = int(keep)
         self.reset()
 
@@ -143,9 +144,9 @@ class OpticalBodySensor(RecordingPlayer):
     def __init__(self, name: str, run: OpticalRun, body: str, latency_ns: int = 0):
         Component.__init__(self, name)
         if body not in {m.name for m in run.tracker.models}:
-            raise ValueError(f"sensor {name!r}: the tracker has no marker model {body!r}")
+            raise InputError(f"sensor {name!r}: the tracker has no marker model {body!r}")
         if int(latency_ns) < 0:
-            raise ValueError(f"sensor {name!r}: latency must be >= 0")
+            raise InputError(f"sensor {name!r}: latency must be >= 0")
         self.run_ = run
         self.body = body
         self.t_ns = run.t_ns
@@ -192,11 +193,17 @@ _TOP = {"setup", "calibration", "calibration_unit_m", "image_size", "models", "b
         "tracker", "render"}  # fmt: skip
 
 
+def _at(path, item, key) -> str:
+    """``file:line: key`` of ``key`` in the mapping ``item`` read from ``path``."""
+    line = line_of(item, key)
+    return f"{path}" + (f":{line}" if line else "") + f": {key}"
+
+
 def _config(cls, item, where: str, skip=()):
     names = {f.name for f in fields(cls)} - set(skip)
     unknown = set(item) - names
     if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)} (allowed: {sorted(names)})")
+        raise ConfigError(f"{where}: unknown keys {sorted(unknown)} (allowed: {sorted(names)})")
     return dict(item)
 
 
@@ -215,7 +222,7 @@ def _renderer(item, rig, models, base: Path, where: str) -> RenderedFrames:
     frames = {k: item.pop(k) for k in ("rate_hz", "start_s", "duration_s", "seed") if k in item}
     trajs_cfg = item.pop("trajectories", None)
     if not isinstance(trajs_cfg, Mapping):
-        raise ValueError(f"{where}: render needs trajectories: {{model: {{recording: ...}}}}")
+        raise ConfigError(f"{where}: render needs trajectories: {{model: {{recording: ...}}}}")
     kw = _config(RenderSettings, item, where)
     if "occluders" in kw:
         kw["occluders"] = [Cylinder(**c) for c in kw["occluders"]]
@@ -224,7 +231,7 @@ def _renderer(item, rig, models, base: Path, where: str) -> RenderedFrames:
     trajs = {}
     for name, tc in trajs_cfg.items():
         if not isinstance(tc, Mapping) or "recording" not in tc:
-            raise ValueError(f"{where}: trajectory of {name!r} needs a recording")
+            raise ConfigError(f"{where}: trajectory of {name!r} needs a recording")
         stream, _ = read_stream(base / tc["recording"], clean=True)
         trajs[name] = trajectory_from_stream(
             stream, tc.get("center", (0.0, 0.0, 1.0)), tc.get("t_start"), tc.get("detrend_s")
@@ -241,22 +248,25 @@ def _renderer(item, rig, models, base: Path, where: str) -> RenderedFrames:
 def load_optical_setup(path) -> OpticalSetup:
     """Read an optical setup file (see the module docstring).
 
-    Raises ``ValueError`` naming the file and the key for mistakes; calibration files raise
-    :class:`~trackflow.optical.calibration.CalibrationFileError`.
+    The file is read by :func:`trackflow.yamlfile.read_yaml` (a key given twice is refused).
+    Mistakes raise :class:`~trackflow.errors.ConfigError` naming the file, the line and the
+    key; calibration files raise :class:`~trackflow.optical.calibration.CalibrationFileError`
+    (a ``ConfigError``); an ``OSError`` (no such file) is passed on.
     """
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as e:
-        raise ValueError(f"{path}: cannot read the optical setup: {e}") from e
+    doc = read_yaml(path)
     if not isinstance(doc, dict):
-        raise ValueError(f"{path}: an optical setup must be a mapping")
+        raise ConfigError("an optical setup must be a mapping", path, line_of(doc))
     unknown = set(doc) - _TOP
     if unknown:
-        raise ValueError(f"{path}: unknown keys {sorted(unknown)} (allowed: {sorted(_TOP)})")
+        first = min(unknown, key=lambda k: (line_of(doc, k), str(k)))
+        raise ConfigError(
+            f"unknown keys {sorted(unknown, key=str)} (allowed: {sorted(_TOP)})",
+            path, line_of(doc, first),
+        )  # fmt: skip
     for key in ("setup", "calibration", "models", "bodies"):
         if key not in doc:
-            raise ValueError(f"{path}: missing key {key!r}")
+            raise ConfigError(f"missing key {key!r}", path)
     base = path.parent
     setup = load_setup(base / doc["setup"])
     rig = read_opencv_calibration(
@@ -265,21 +275,35 @@ def load_optical_setup(path) -> OpticalSetup:
         unit_m=float(doc.get("calibration_unit_m", 1.0)),
     )
     if not isinstance(doc["models"], Sequence):
-        raise ValueError(f"{path}: models must be a list")
-    models = [MarkerModel.from_dict(m, f"{path}: models[{i}]") for i, m in enumerate(doc["models"])]
+        raise ConfigError("must be a list", path, line_of(doc, "models"), "models")
+    models = [
+        MarkerModel.from_dict(m, _at(path, m, f"models[{i}]")) for i, m in enumerate(doc["models"])
+    ]
     names = {m.name for m in models}
     bodies = doc["bodies"]
     if not isinstance(bodies, Mapping) or not bodies:
-        raise ValueError(f"{path}: bodies must map setup sensors to marker models")
+        raise ConfigError(
+            "must map setup sensors to marker models", path, line_of(doc, "bodies"), "bodies"
+        )
     for edge, body in bodies.items():
         if body not in names:
-            raise ValueError(f"{path}: bodies: {edge!r} -> unknown model {body!r}")
+            raise ConfigError(
+                f"{edge!r} -> unknown model {body!r}", path, line_of(bodies, edge), "bodies"
+            )
         try:
             setup.graph.edge(edge)
         except (KeyError, ValueError) as e:
-            raise ValueError(f"{path}: bodies: {edge!r} is not a sensor of {doc['setup']}") from e
-    tracker = OpticalTracker(rig, models, _tracker_config(doc.get("tracker"), f"{path}: tracker"))
+            raise ConfigError(
+                f"{edge!r} is not a sensor of {doc['setup']}", path, line_of(bodies, edge), "bodies"
+            ) from e
+    try:
+        config = _tracker_config(doc.get("tracker"), _at(path, doc, "tracker"))
+    except (TypeError, ValueError) as e:
+        if isinstance(e, ConfigError):
+            raise
+        raise ConfigError(str(e), path, line_of(doc, "tracker"), "tracker") from None
+    tracker = OpticalTracker(rig, models, config)
     if "render" not in doc:
-        raise ValueError(f"{path}: give frames to track (render: ...)")
-    frames = _renderer(doc["render"], rig, models, base, f"{path}: render")
+        raise ConfigError("give frames to track (render: ...)", path)
+    frames = _renderer(doc["render"], rig, models, base, _at(path, doc, "render"))
     return OpticalSetup(setup, rig, models, dict(bodies), OpticalRun(tracker, frames), str(path))

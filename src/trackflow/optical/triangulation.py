@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from .camera import CameraRig
 
 __all__ = ["Triangulation", "triangulate", "triangulate_linear"]
@@ -48,13 +49,13 @@ def _check(rig: CameraRig, uv, mask):
     uv = np.asarray(uv, dtype=float)
     C = len(rig)
     if uv.ndim != 3 or uv.shape[0] != C or uv.shape[2] != 2:
-        raise ValueError(f"pixels must have shape ({C}, N, 2) for {C} cameras, got {uv.shape}")
+        raise InputError(f"pixels must have shape ({C}, N, 2) for {C} cameras, got {uv.shape}")
     if mask is None:
         mask = np.all(np.isfinite(uv), axis=2)
     else:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != uv.shape[:2]:
-            raise ValueError(f"mask must have shape {uv.shape[:2]}, got {mask.shape}")
+            raise InputError(f"mask must have shape {uv.shape[:2]}, got {mask.shape}")
         mask = mask & np.all(np.isfinite(uv), axis=2)
     return uv, mask
 
@@ -108,7 +109,7 @@ def triangulate_normalized(rig: CameraRig, xn, mask) -> np.ndarray:
 def _sigma2(sigma_px, shape) -> np.ndarray:
     s = np.broadcast_to(np.asarray(sigma_px, dtype=float), shape)
     if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise ValueError("sigma_px must be finite and > 0")
+        raise InputError("sigma_px must be finite and > 0")
     return s * s
 
 

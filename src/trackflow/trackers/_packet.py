@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import struct
 
+from ..errors import FormatError
+
 __all__ = ["MAX_DATAGRAM", "PacketError", "Reader"]
 
 #: The largest UDP payload over IPv4 [bytes]; a longer "datagram" is refused as oversized.
 MAX_DATAGRAM = 65507
 
 
-class PacketError(ValueError):
+class PacketError(FormatError):
     """A packet that cannot be decoded.
 
     ``reason`` is a short, stable text used to count rejections per sensor (for example

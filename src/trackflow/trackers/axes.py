@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_multiply
 
 __all__ = ["Y_UP_TO_Z_UP", "BoundaryConversion"]
@@ -34,7 +35,7 @@ class BoundaryConversion:
 
     def __init__(self, unit_scale: float = 1.0, up: str = "z"):
         if up not in ("y", "z"):
-            raise ValueError(f"up must be 'y' or 'z', got {up!r}")
+            raise InputError(f"up must be 'y' or 'z', got {up!r}")
         self.scale = float(unit_scale)
         self.up = up
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..errors import ServiceError
 from ..io import PoseStream, read_stream
 from ..math import Pose, quat_angle, quat_slerp
 
@@ -56,9 +57,9 @@ def _done(p: subprocess.Popen, what: str, timeout: float) -> str:
         out, err = p.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         p.kill()
-        raise RuntimeError(f"{what} did not finish in {timeout:.0f} s") from None
+        raise ServiceError(f"{what} did not finish in {timeout:.0f} s") from None
     if p.returncode != 0:
-        raise RuntimeError(f"{what} failed: {err.strip()[-500:]}")
+        raise ServiceError(f"{what} failed: {err.strip()[-500:]}")
     return out
 
 
@@ -89,7 +90,7 @@ def run_live_demo(data: Path, seconds: float, out: Path, setup_file: Path) -> di
     reader.join(120)
     if not first or not first[0].startswith("listening"):
         run.kill()
-        raise RuntimeError(f"trackflow run did not start: {first}")
+        raise ServiceError(f"trackflow run did not start: {first}")
     drain = threading.Thread(target=run.stderr.read, daemon=True)  # status lines
     drain.start()
     senders = [

@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import InputError
 from ._packet import MAX_DATAGRAM, PacketError, Reader
 
 __all__ = [
@@ -190,7 +191,7 @@ def decode_message(data) -> tuple[int, memoryview]:
 
 def encode_message(msg_id: int, payload: bytes = b"") -> bytes:
     if len(payload) > 0xFFFF:
-        raise ValueError(f"NatNet payload of {len(payload)} bytes does not fit the u16 size")
+        raise InputError(f"NatNet payload of {len(payload)} bytes does not fit the u16 size")
     return _HEAD.pack(msg_id, len(payload)) + payload
 
 

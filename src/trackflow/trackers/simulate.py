@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream, read_stream, write_stream
 from ..math import quat_to_matrix
 from . import dtrack, natnet
@@ -64,21 +65,21 @@ class Simulator:
 
     def __init__(self, stream: PoseStream, cfg: SimConfig):
         if cfg.protocol not in ("natnet", "dtrack", "vrpn"):
-            raise ValueError(f"unknown protocol {cfg.protocol!r} (natnet, dtrack, vrpn)")
+            raise InputError(f"unknown protocol {cfg.protocol!r} (natnet, dtrack, vrpn)")
         if not (0 <= cfg.loss < 1 and cfg.jitter_ms >= 0 and cfg.latency_ms >= 0):
-            raise ValueError("need 0 <= loss < 1, jitter_ms >= 0, latency_ms >= 0")
+            raise InputError("need 0 <= loss < 1, jitter_ms >= 0, latency_ms >= 0")
         if not cfg.speed > 0:
-            raise ValueError("speed must be > 0")
+            raise InputError("speed must be > 0")
         if not 1 <= cfg.bodies <= 1000:
-            raise ValueError("bodies must be 1 .. 1000")
+            raise InputError("bodies must be 1 .. 1000")
         if cfg.protocol == "natnet" and not (2, 0) <= tuple(cfg.version) <= (4, 1):
-            raise ValueError(f"NatNet {cfg.version[0]}.{cfg.version[1]} is not supported (2.0-4.1)")
+            raise InputError(f"NatNet {cfg.version[0]}.{cfg.version[1]} is not supported (2.0-4.1)")
         t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
         keep = t >= cfg.start_s
         if cfg.duration_s is not None:
             keep &= t < cfg.start_s + cfg.duration_s
         if not keep.any():
-            raise ValueError("no samples in the chosen part of the recording")
+            raise InputError("no samples in the chosen part of the recording")
         self.cfg = cfg
         self.rel_s = (t[keep] - cfg.start_s) / cfg.speed
         self.position = stream.position[keep]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+from ..errors import InputError
 from ..timesync import ClockEstimate
 
 __all__ = ["RESTART_FRAMES", "SensorStatus", "StatusGroup"]
@@ -250,7 +251,7 @@ class StatusGroup:
     def add(self, status: SensorStatus) -> None:
         """Count ``status`` with the group from now on (it belongs to one group at most)."""
         if status._group is not None:
-            raise ValueError(f"status of {status.name!r} is already in a group")
+            raise InputError(f"status of {status.name!r} is already in a group")
         self.flush()
         status._group = self
         self.members.append(status)

@@ -22,6 +22,8 @@ import statistics
 import time
 from collections import deque
 
+from ..errors import InputError
+
 __all__ = ["DueWait", "select_nap"]
 
 
@@ -68,7 +70,7 @@ class DueWait:
         nap=None,
     ):
         if not spin_s >= 0:
-            raise ValueError(f"spin_s must be >= 0, got {spin_s}")
+            raise InputError(f"spin_s must be >= 0, got {spin_s}")
         self.spin_s = float(spin_s)
         self.period_s: float | None = None  # the stream's period, once known
         self.polled_s = 0.0  # time spent polling [s]

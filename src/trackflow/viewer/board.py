@@ -24,6 +24,8 @@ from multiprocessing import resource_tracker, shared_memory
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["POSE_WORDS", "RING", "Board", "BoardPose"]
 
 MAGIC = 0x7466_7669_6577  # "tfview"
@@ -110,7 +112,7 @@ class Board:
         board = cls(shm, owner=False)
         if board.q[H_MAGIC] != MAGIC or board.q[H_RING] != RING:
             board.close()
-            raise ValueError(f"shared memory {name!r} is not a trackflow view board")
+            raise InputError(f"shared memory {name!r} is not a trackflow view board")
         return board
 
     # -- layout ---------------------------------------------------------------------------------

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optional import require
+
 __all__ = ["CHROMIUM_FLAGS", "Browser", "find_chromium", "snapshot"]
 
 CHROMIUM_FLAGS = (
@@ -77,12 +79,8 @@ class Browser:
         self._pw = self._browser = None
 
     def __enter__(self) -> Browser:
-        try:
-            from playwright.sync_api import sync_playwright
-        except ImportError as exc:  # pragma: no cover - the viewer extra installs it
-            raise RuntimeError(
-                "snapshots need playwright: pip install 'trackflow[viewer]'"
-            ) from exc
+        sync_api = require("playwright.sync_api", extra="viewer", feature="snapshots")
+        sync_playwright = sync_api.sync_playwright
         exe = self.executable or find_chromium()
         self._pw = sync_playwright().start()
         try:

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Setup
+from ..errors import InputError, PlanError, ServiceError
 from .board import Board
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
 from .graph_panel import EdgeStatus
@@ -98,7 +99,7 @@ class LiveView:
         timeout_s: float = 120.0,
     ):
         if not 1.0 <= rate_hz <= 120.0:
-            raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
+            raise InputError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
         self.network, self.layout, self.board = network, layout, board
         self._sources = taps  # edge name -> components whose rejections the panel shows
         self._query_taps = query_taps  # they pull the prediction ghost
@@ -126,13 +127,13 @@ class LiveView:
 
     def _await_ready(self, timeout_s: float) -> str:
         if not self._conn.poll(timeout_s):  # (the process is ended by the caller)
-            raise RuntimeError(f"the view process did not start within {timeout_s:.0f} s")
+            raise ServiceError(f"the view process did not start within {timeout_s:.0f} s")
         try:
             msg = self._conn.recv()
         except EOFError:
-            raise RuntimeError("the view process ended while starting") from None
+            raise ServiceError("the view process ended while starting") from None
         if msg[0] != "ready":
-            raise RuntimeError(f"the view process failed: {msg[1]}")
+            raise ServiceError(f"the view process failed: {msg[1]}")
         return msg[1]
 
     # -- the feeder thread -----------------------------------------------------------------------
@@ -288,7 +289,7 @@ class _ClosedBoard:
 def _component(network: Network, plan: Plan, prefix: str, node_id: str):
     comp = network.components.get(prefix + node_id) or network.components.get(node_id)
     if comp is None:
-        raise ValueError(f"query {plan.query.name!r}: no component {node_id!r} in the network")
+        raise PlanError(f"query {plan.query.name!r}: no component {node_id!r} in the network")
     return comp
 
 
@@ -383,9 +384,9 @@ def attach_view(
         nothing else wants (Linux ``SCHED_IDLE``: fewer frames on a busy machine).
     """
     if not 1.0 <= rate_hz <= 120.0:
-        raise ValueError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
+        raise InputError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
     if priority not in PRIORITIES:
-        raise ValueError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
+        raise InputError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
     wiring = _Wiring(network, rate_hz)
     sources = _sources(network)
     edges: list[EdgeLayout] = []

@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import quat_conjugate, quat_multiply, quat_to_matrix
 from .batch import HIDDEN, BatchDrawing, BodyFrame
 from .board import Board, BoardPose
@@ -395,7 +396,7 @@ def lower_priority(priority: str) -> str:
     """Lower this process's CPU priority (before it starts threads, which inherit it);
     returns what was applied (``SCHED_IDLE``, ``nice +N`` or ``normal``)."""
     if priority not in PRIORITIES:
-        raise ValueError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
+        raise InputError(f"view priority must be one of {PRIORITIES}, got {priority!r}")
     if priority == "normal":
         return "normal"
     if priority == "idle" and hasattr(os, "SCHED_IDLE"):

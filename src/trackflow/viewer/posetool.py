@@ -16,6 +16,7 @@ import threading
 
 import numpy as np
 
+from ..errors import ServiceError
 from ..evaluation import (
     KalmanPredictor,
     Trajectory,
@@ -287,7 +288,7 @@ class PoseToolPage:
                 if not self._dirty.is_set():
                     return self.revision
             time.sleep(0.05)
-        raise RuntimeError(f"the automatic tuning did not finish in {timeout_s:.0f} s")
+        raise ServiceError(f"the automatic tuning did not finish in {timeout_s:.0f} s")
 
     def close(self) -> None:
         self._stop.set()

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..evaluation import KalmanPredictor, default_gap, default_predictor
 from ..io import PoseStream
 from ..math import Pose, UncertainPose
@@ -52,7 +53,7 @@ class RecordingTrack:
     def from_stream(cls, stream: PoseStream, predictor: KalmanPredictor | None = None):
         """Filter ``stream`` (restarting after gaps, :func:`trackflow.evaluation.default_gap`)."""
         if len(stream.t_ns) < 3:
-            raise ValueError(f"recording {stream.source}->{stream.target}: fewer than 3 samples")
+            raise InputError(f"recording {stream.source}->{stream.target}: fewer than 3 samples")
         t = (stream.t_ns - stream.t_ns[0]).astype(float) * 1e-9
         p, q = np.asarray(stream.position, float), np.asarray(stream.quaternion, float)
         pred = predictor or default_predictor(t, p, q)

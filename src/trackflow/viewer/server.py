@@ -7,6 +7,8 @@ import io
 
 import numpy as np
 
+from ..optional import require
+
 __all__ = ["SECONDS_AXIS", "ViewServer"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
@@ -27,10 +29,7 @@ class ViewServer:
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, title: str = "trackflow"):
-        try:
-            import viser
-        except ImportError as exc:  # pragma: no cover - the viewer extra installs it
-            raise RuntimeError("the viewer needs viser: pip install 'trackflow[viewer]'") from exc
+        viser = require("viser", extra="viewer", feature="the viewer")
         # viser prints a banner (and "Server stopped") on stdout whatever ``verbose`` says;
         # stdout belongs to the command (``--json`` output), so the banner is dropped
         with contextlib.redirect_stdout(io.StringIO()):

@@ -9,6 +9,7 @@ import numpy as np
 
 from trackflow.math import kernels_for
 
+from ...errors import InputError
 from . import kernels as _source
 from . import update_kernels as _update
 
@@ -20,7 +21,7 @@ _KINDS = {"white_noise": 0, "thesis": 1}
 
 def _additive(formulation: str) -> int:
     if formulation not in FORMULATIONS:
-        raise ValueError(f"unknown formulation {formulation!r}; use one of {FORMULATIONS}")
+        raise InputError(f"unknown formulation {formulation!r}; use one of {FORMULATIONS}")
     return int(formulation == "additive")
 
 
@@ -65,11 +66,11 @@ class MotionModel:
     ):
         for name, v in (("n_dp", n_dp), ("n_do", n_do)):
             if not isinstance(v, (int, np.integer)) or v < -1:
-                raise ValueError(f"{name} must be an integer >= -1, got {v!r}")
+                raise InputError(f"{name} must be an integer >= -1, got {v!r}")
         if n_dp < 0 and n_do < 0:
-            raise ValueError("a motion model needs position or orientation (n_dp, n_do both -1)")
+            raise InputError("a motion model needs position or orientation (n_dp, n_do both -1)")
         if kind not in _KINDS:
-            raise ValueError(f"unknown process-noise kind {kind!r}; use one of {tuple(_KINDS)}")
+            raise InputError(f"unknown process-noise kind {kind!r}; use one of {tuple(_KINDS)}")
         npl, nol = n_dp + 1, n_do + 1
         if noise is None:
             sig_p = np.zeros(npl)
@@ -81,12 +82,12 @@ class MotionModel:
         else:
             v = np.asarray(noise, dtype=float).reshape(-1)
             if v.size != npl + nol:
-                raise ValueError(
+                raise InputError(
                     f"noise needs {npl + nol} values ({npl} position levels, {nol} orientation "
                     f"levels) for n_dp={n_dp}, n_do={n_do}; got {v.size}"
                 )
             if not np.all(np.isfinite(v)) or np.any(v < 0):
-                raise ValueError(f"noise values must be finite and >= 0, got {v.tolist()}")
+                raise InputError(f"noise values must be finite and >= 0, got {v.tolist()}")
             sig_p, sig_o = v[:npl].copy(), v[npl:].copy()
         self._n_dp = int(n_dp)
         self._n_do = int(n_do)
@@ -172,7 +173,7 @@ class MotionModel:
     def _check_state(self, x) -> np.ndarray:
         x = np.ascontiguousarray(x, dtype=float)
         if x.shape != (self.state_size,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"state must be finite with shape ({self.state_size},), got {x.shape}")
+            raise InputError(f"state must be finite with shape ({self.state_size},), got {x.shape}")
         return x
 
     def transition(self, x, dt: float, formulation: str = "error_state"):
@@ -198,7 +199,7 @@ class MotionModel:
         n_dp, n_do, add, kind, sp, so = self._params(formulation)
         x = self.initial_state() if x is None else self._check_state(x)
         if not (math.isfinite(dt) and dt >= 0):
-            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+            raise InputError(f"dt must be finite and >= 0, got {dt}")
         return kernels_for(_source).process_noise(x, float(dt), n_dp, n_do, add, kind, sp, so)
 
     def retract(self, x, delta, formulation: str = "error_state") -> np.ndarray:

@@ -10,6 +10,7 @@ import numpy as np
 
 from trackflow.math import Pose, UncertainPose, frozen
 
+from ...errors import ExtrapolationError, InputError
 from ..contract import FilterStatus
 from .model import MotionModel
 from .streaming import PoseKalmanFilter, kernels
@@ -155,14 +156,15 @@ def smooth_filter(
     kf, t, _, _, rows = _prepared(times, poses, model, (), max_gap, *opts)
     tq = np.ascontiguousarray(queries, dtype=float).reshape(-1)
     if not np.all(np.isfinite(tq)):
-        raise ValueError("query times must be finite")
+        raise InputError("query times must be finite")
     q_order = np.argsort(tq, kind="stable")
     tq_sorted = frozen(tq[q_order])
     if tq.size and tq_sorted[0] < rows[0][0]:
-        raise ValueError(
-            f"query at t={tq_sorted[0]:.6f} s is before the first measurement "
-            f"(t={rows[0][0]:.6f} s); a smoother answers only from its first state on"
-        )
+        raise ExtrapolationError(
+            "the smoothed estimate", float(tq_sorted[0]), float(rows[0][0]), None,
+            "the query is before the first measurement; a smoother answers only from its first "
+            "state on"
+        )  # fmt: skip
     *_, status, xs, ps = _run_segments(kf, rows, frozen(()), False, max_gap, states=True)
     n_dp, n_do, add, kind, sp, so = kf._params
     out_t, out_q, out_c = np.zeros((tq.size, 3)), np.zeros((tq.size, 4)), np.zeros((tq.size, 6, 6))
@@ -201,18 +203,18 @@ def _checked_inputs(times, poses, horizons, max_gap) -> tuple[np.ndarray, np.nda
     """Times (N,) and horizons (H,) as contiguous floats; ``ValueError`` naming the problem."""
     t = np.ascontiguousarray(times, dtype=float).reshape(-1)
     if not isinstance(poses, UncertainPose) or poses.shape != t.shape:
-        raise ValueError(
+        raise InputError(
             f"poses must be an UncertainPose batch of shape {t.shape}, "
             f"got {type(poses).__name__} {getattr(poses, 'shape', '')}"
         )
     if not np.all(np.isfinite(t)):
         bad = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise ValueError(f"times must be finite (row {bad} is {t[bad]})")
+        raise InputError(f"times must be finite (row {bad} is {t[bad]})")
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
     if not np.all(np.isfinite(h)) or np.any(h < 0):
-        raise ValueError(f"horizons must be finite and >= 0, got {h.tolist()}")
+        raise InputError(f"horizons must be finite and >= 0, got {h.tolist()}")
     if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 0):
-        raise ValueError(f"max_gap must be a positive number of seconds, got {max_gap}")
+        raise InputError(f"max_gap must be a positive number of seconds, got {max_gap}")
     return t, h
 
 

@@ -19,6 +19,7 @@ from trackflow.math import (
     quat_to_matrix,
 )
 
+from ...errors import InputError, StateError
 from . import kernel as _kernel
 from .model import InertialModel
 
@@ -114,7 +115,7 @@ class InertialFilter:
     def state(self) -> InertialState:
         """A copy of the current state (after :meth:`initialize` or the first pose)."""
         if self._t is None:
-            raise RuntimeError("the inertial filter has no state before its first pose")
+            raise StateError("the inertial filter has no state before its first pose")
         return InertialState(
             self._t,
             self._x[0:3].copy(),
@@ -147,9 +148,9 @@ class InertialFilter:
     def _check_time(self, t: float, what: str) -> float:
         t = float(t)
         if not np.isfinite(t):
-            raise ValueError(f"{what} time must be finite, got {t}")
+            raise InputError(f"{what} time must be finite, got {t}")
         if self._t is not None and t < self._t:
-            raise ValueError(f"{what} at t={t} is older than the filter state (t={self._t})")
+            raise InputError(f"{what} at t={t} is older than the filter state (t={self._t})")
         return t
 
     def update_imu(self, t: float, gyro, accel) -> None:
@@ -160,10 +161,10 @@ class InertialFilter:
         w = np.asarray(gyro, dtype=float).reshape(3)
         a = np.asarray(accel, dtype=float).reshape(3)
         if not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
-            raise ValueError(f"IMU sample at t={t} is not finite: gyro {w}, accel {a}")
+            raise InputError(f"IMU sample at t={t} is not finite: gyro {w}, accel {a}")
         t = float(t)
         if self._t_imu is not None and t <= self._t_imu:
-            raise ValueError(f"IMU sample at t={t} is not after the previous one (t={self._t_imu})")
+            raise InputError(f"IMU sample at t={t} is not after the previous one (t={self._t_imu})")
         if self._t is not None and t > self._t and self._gyro is not None:
             if self.model.input_hold == "preceding":
                 wi, ai = w, a
@@ -213,7 +214,7 @@ class InertialFilter:
     def update_gravity(self, accel) -> bool:
         """Fuse the last IMU sample's accelerometer as the direction of gravity (no tracker)."""
         if self._t is None:
-            raise RuntimeError("initialise the filter before fusing gravity")
+            raise StateError("initialise the filter before fusing gravity")
         a = np.asarray(accel, dtype=float).reshape(3)
         self._r, nis, ok = self._k.update_gravity(
             self._x, self._r, self._P, a, self._g, self.model.gravity_sigma, 0.0, self._n
@@ -225,7 +226,7 @@ class InertialFilter:
         """``T_w_b`` at ``t >= time`` with covariance, holding the last IMU sample."""
         t = self._check_time(t, "prediction")
         if self._t is None:
-            raise RuntimeError("the inertial filter has no state before its first pose")
+            raise StateError("the inertial filter has no state before its first pose")
         x, r, P = self._x.copy(), self._r.copy(), self._P.copy()
         if t > self._t and self._gyro is not None:
             r = self._k.propagate(
@@ -324,18 +325,18 @@ def run_inertial(
     p = np.ascontiguousarray(position, dtype=float).reshape(-1, 3)
     q = np.ascontiguousarray(quaternion, dtype=float).reshape(-1, 4)
     if w.shape[0] != ti.shape[0] or a.shape[0] != ti.shape[0]:
-        raise ValueError(f"IMU arrays disagree: t {ti.shape}, gyro {w.shape}, accel {a.shape}")
+        raise InputError(f"IMU arrays disagree: t {ti.shape}, gyro {w.shape}, accel {a.shape}")
     if p.shape[0] != tp.shape[0] or q.shape[0] != tp.shape[0]:
-        raise ValueError(f"pose arrays disagree: t {tp.shape}, p {p.shape}, q {q.shape}")
+        raise InputError(f"pose arrays disagree: t {tp.shape}, p {p.shape}, q {q.shape}")
     if tp.shape[0] < 2 or ti.shape[0] < 2:
-        raise ValueError("need at least two IMU samples and two poses")
+        raise InputError("need at least two IMU samples and two poses")
     Rm = np.ascontiguousarray(pose_covariance, dtype=float).reshape(6, 6)
     h = np.ascontiguousarray(horizons, dtype=float).reshape(-1)
     sc = np.ones(tp.shape[0], bool) if scored is None else np.asarray(scored, bool).reshape(-1)
     # start at the first pose that has an IMU sample at or before it
     start = int(np.searchsorted(tp, ti[0], side="left"))
     if start >= tp.shape[0] - 1:
-        raise ValueError("the IMU recording starts after the last pose (clocks not aligned?)")
+        raise InputError("the IMU recording starts after the last pose (clocks not aligned?)")
     f = InertialFilter(model)
     v0 = (p[start + 1] - p[start]) / (tp[start + 1] - tp[start])
     f.initialize(tp[start], UncertainPose(Pose(p[start], q[start]), Rm), v0, velocity_sigma)

@@ -20,6 +20,8 @@ import numpy as np
 
 from trackflow.math._lie import so3_exp
 
+from ...errors import InputError
+
 __all__ = ["GyroExtrapolation", "fit_gyro_extrapolation"]
 
 
@@ -44,9 +46,9 @@ class GyroExtrapolation:
         h = np.asarray(self.horizons, dtype=float).reshape(-1)
         c = np.asarray(self.coef, dtype=float)
         if c.ndim != 2 or c.shape[0] != h.shape[0] or h.shape[0] == 0:
-            raise ValueError(f"coef must be (H, L) for H = {h.shape[0]} horizons, got {c.shape}")
+            raise InputError(f"coef must be (H, L) for H = {h.shape[0]} horizons, got {c.shape}")
         if np.any(np.diff(h) <= 0) or np.any(h <= 0) or not np.all(np.isfinite(c)):
-            raise ValueError("horizons must be positive and increasing, weights finite")
+            raise InputError("horizons must be positive and increasing, weights finite")
         object.__setattr__(self, "horizons", h)
         object.__setattr__(self, "coef", np.ascontiguousarray(c))
 
@@ -123,14 +125,14 @@ def fit_gyro_extrapolation(
     w = np.asarray(gyro, dtype=float).reshape(-1, 3)
     h = np.sort(np.asarray(horizons, dtype=float).reshape(-1))
     if lags < 1:
-        raise ValueError(f"lags must be >= 1, got {lags}")
+        raise InputError(f"lags must be >= 1, got {lags}")
     if t.shape[0] < 10 * lags + 100:
-        raise ValueError(f"{t.shape[0]} IMU samples are too few to fit {lags} lags")
+        raise InputError(f"{t.shape[0]} IMU samples are too few to fit {lags} lags")
     w = w - np.median(w, axis=0)  # constant offsets (bias) are not motion
     if integrals == 1:  # angular velocity into a world frame: integrate the gyro itself
         w = _world_rates(t, w)
     if integrals not in (1, 2):
-        raise ValueError(f"integrals must be 1 or 2, got {integrals}")
+        raise InputError(f"integrals must be 1 or 2, got {integrals}")
 
     def integral(v):
         steps = 0.5 * (v[1:] + v[:-1]) * np.diff(t)[:, None]

@@ -30,6 +30,7 @@ import numpy as np
 
 from trackflow.math import check_quaternion, quat_to_matrix
 
+from ...errors import InputError
 from .extrapolation import GyroExtrapolation
 
 __all__ = ["GRAVITY", "MODES", "ImuExtrinsics", "ImuNoise", "InertialModel"]
@@ -66,9 +67,9 @@ class ImuNoise:
         for name in ("gyro", "accel", "gyro_bias", "accel_bias"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"ImuNoise.{name} must be finite and >= 0, got {v!r}")
+                raise InputError(f"ImuNoise.{name} must be finite and >= 0, got {v!r}")
         if self.gyro <= 0 or self.accel <= 0:
-            raise ValueError("ImuNoise.gyro and ImuNoise.accel must be > 0")
+            raise InputError("ImuNoise.gyro and ImuNoise.accel must be > 0")
 
     def as_array(self) -> np.ndarray:
         """``(gyro, accel, gyro_bias, accel_bias)``, shape (4,)."""
@@ -102,7 +103,7 @@ class ImuExtrinsics:
         check_quaternion(q)
         t = np.asarray(self.lever_arm, dtype=float).reshape(3)
         if not np.all(np.isfinite(t)):
-            raise ValueError(f"lever arm must be finite, got {t.tolist()}")
+            raise InputError(f"lever arm must be finite, got {t.tolist()}")
         object.__setattr__(self, "quaternion", q)
         object.__setattr__(self, "lever_arm", t)
 
@@ -171,24 +172,24 @@ class InertialModel:
 
     def __post_init__(self):
         if self.mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+            raise InputError(f"mode must be one of {MODES}, got {self.mode!r}")
         g = np.asarray(self.gravity, dtype=float).reshape(3)
         if not np.all(np.isfinite(g)):
-            raise ValueError(f"gravity must be finite, got {g.tolist()}")
+            raise InputError(f"gravity must be finite, got {g.tolist()}")
         object.__setattr__(self, "gravity", g)
         for name in ("gyro_bias_sigma", "accel_bias_sigma", "gravity_sigma"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+                raise InputError(f"{name} must be finite and > 0, got {v!r}")
         if self.input_hold not in ("trapezoid", "preceding"):
-            raise ValueError(
+            raise InputError(
                 f"input_hold must be 'trapezoid' or 'preceding', got {self.input_hold!r}"
             )
         if not (np.isfinite(self.smoothing_s) and self.smoothing_s >= 0):
-            raise ValueError(f"smoothing_s must be finite and >= 0, got {self.smoothing_s!r}")
+            raise InputError(f"smoothing_s must be finite and >= 0, got {self.smoothing_s!r}")
         p = self.gate_probability
         if p is not None and not 0.0 < p < 1.0:
-            raise ValueError(f"gate_probability must be in (0, 1) or None, got {p!r}")
+            raise InputError(f"gate_probability must be in (0, 1) or None, got {p!r}")
 
     @property
     def n_states(self) -> int:

@@ -45,6 +45,7 @@ import numpy as np
 
 from trackflow.math import kernels_for, quat_conjugate, quat_from_matrix, quat_multiply
 
+from ...errors import InputError
 from . import orientation_kernel as _okernel
 
 __all__ = [
@@ -123,7 +124,7 @@ class ImuOrientationModel:
             if name == "gravity" and value is None:
                 continue
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"ImuOrientationModel.{name} must be finite and > 0: {value!r}")
+                raise InputError(f"ImuOrientationModel.{name} must be finite and > 0: {value!r}")
 
     def noise(self) -> np.ndarray:
         """``(gyro_noise, gyro_bias_walk, accel_noise)`` (3,) for the kernels."""
@@ -182,7 +183,7 @@ def initial_orientation(accel, mag=None) -> np.ndarray:
     up = np.asarray(accel, dtype=float).reshape(3)
     n_up = np.linalg.norm(up)
     if not np.isfinite(n_up) or n_up == 0.0:
-        raise ValueError(f"cannot level the IMU: accelerometer reads {up.tolist()}")
+        raise InputError(f"cannot level the IMU: accelerometer reads {up.tolist()}")
     up = up / n_up
     if mag is None:
         axis = np.cross(up, [0.0, 0.0, 1.0])
@@ -194,7 +195,7 @@ def initial_orientation(accel, mag=None) -> np.ndarray:
     north = m - (m @ up) * up
     n_north = np.linalg.norm(north)
     if not np.isfinite(n_north) or n_north < 1e-9 * max(np.linalg.norm(m), 1e-300):
-        raise ValueError(f"magnetic field {m.tolist()} has no horizontal part: no heading")
+        raise InputError(f"magnetic field {m.tolist()} has no horizontal part: no heading")
     north /= n_north
     east = np.cross(north, up)
     return np.vstack([east, north, up])  # rows: world axes in the sensor frame
@@ -232,16 +233,16 @@ def run_imu_orientation(
         arrays["mag"] = np.ascontiguousarray(mag, dtype=float)
     for name, arr in arrays.items():
         if arr.shape != (m_count, 3):
-            raise ValueError(f"IMU {name} must have shape ({m_count}, 3), got {arr.shape}")
+            raise InputError(f"IMU {name} must have shape ({m_count}, 3), got {arr.shape}")
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"IMU {name} sample {k} is not finite: {arr[k].tolist()}")
+            raise InputError(f"IMU {name} sample {k} is not finite: {arr[k].tolist()}")
     if m_count < 2:
-        raise ValueError(f"need at least two IMU samples, got {m_count}")
+        raise InputError(f"need at least two IMU samples, got {m_count}")
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(~(np.diff(t) > 0))[0]) + 1 if np.isfinite(t).all() else 0
-        raise ValueError(f"IMU times must be finite and increase strictly (sample {k})")
+        raise InputError(f"IMU times must be finite and increase strictly (sample {k})")
     head = t <= t[0] + model.init_time
     m0 = arrays["mag"][head].mean(axis=0) if mag is not None else None
     r0, x, P, g = _initial_state(model, a[head].mean(axis=0), m0)
@@ -324,12 +325,12 @@ class ImuOrientationFilter:
         a = np.asarray(accel, dtype=float).reshape(3)
         m = np.zeros(3) if mag is None else np.asarray(mag, dtype=float).reshape(3)
         if self.magnetometer and mag is None:
-            raise ValueError(f"IMU sample at t={t}: the filter fuses a magnetometer, mag missing")
+            raise InputError(f"IMU sample at t={t}: the filter fuses a magnetometer, mag missing")
         if not (np.isfinite(t) and np.isfinite(w).all() and np.isfinite(a).all()
                 and np.isfinite(m).all()):  # fmt: skip
-            raise ValueError(f"IMU sample at t={t} is not finite: gyro {w}, accel {a}, mag {m}")
+            raise InputError(f"IMU sample at t={t} is not finite: gyro {w}, accel {a}, mag {m}")
         if self._t is not None and t <= self._t:
-            raise ValueError(f"IMU sample at t={t} is not after the previous one (t={self._t})")
+            raise InputError(f"IMU sample at t={t} is not after the previous one (t={self._t})")
         if self._state is None:
             if not self._buffer or t <= self._buffer[0][0] + self.model.init_time:
                 self._buffer.append((t, w, a, m))

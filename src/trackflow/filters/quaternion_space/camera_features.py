@@ -31,6 +31,8 @@ import numpy as np
 
 from trackflow.math import Pose, quat_to_matrix, skew
 
+from ...errors import InputError, NumericalError
+
 __all__ = [
     "PinholeCamera",
     "CameraObservation",
@@ -75,13 +77,13 @@ class PinholeCamera:
         for name in ("fx", "fy"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
-                raise ValueError(f"PinholeCamera.{name} must be a positive focal length, got {v}")
+                raise InputError(f"PinholeCamera.{name} must be a positive focal length, got {v}")
         if self.width <= 0 or self.height <= 0:
-            raise ValueError(
+            raise InputError(
                 f"PinholeCamera image size must be positive, got {self.width}x{self.height}"
             )
         if self.pose.shape != ():
-            raise ValueError(
+            raise InputError(
                 f"PinholeCamera.pose must be a single pose, got shape {self.pose.shape}"
             )
 
@@ -132,7 +134,7 @@ class PinholeCamera:
         z = x_c[..., 2]
         if np.any(~(z > 1e-9)):
             bad = int(np.argmax(~(z > 1e-9).reshape(-1)))
-            raise ValueError(
+            raise InputError(
                 f"point {bad} is not in front of the camera (depth {z.reshape(-1)[bad]:.3g} m)"
             )
         iz = 1.0 / z
@@ -176,7 +178,7 @@ def segment_parameters(a, b) -> tuple[np.ndarray, np.ndarray]:
     d = b - a
     l2 = np.sum(d * d, axis=-1)
     if np.any(~(l2 > 0)):
-        raise ValueError("segment has coincident end-points (zero length)")
+        raise InputError("segment has coincident end-points (zero length)")
     y = np.concatenate([0.5 * (a + b), np.arctan2(d[..., 1], d[..., 0])[..., None]], axis=-1)
     J = np.zeros(a.shape[:-1] + (3, 4))
     J[..., 0, 0] = J[..., 0, 2] = 0.5
@@ -237,7 +239,7 @@ def anisotropic_endpoint_covariance(a, b, sigma_along, sigma_across, quantizatio
     d = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
     n = np.linalg.norm(d, axis=-1, keepdims=True)
     if np.any(~(n > 0)):
-        raise ValueError("segment has coincident end-points (zero length)")
+        raise InputError("segment has coincident end-points (zero length)")
     t = d / n
     nn = np.stack([-t[..., 1], t[..., 0]], axis=-1)
     cov = sigma_along**2 * t[..., :, None] * t[..., None, :]
@@ -253,7 +255,7 @@ def _whitening(cov: np.ndarray, name: str) -> np.ndarray:
         L = np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
         bad = [i for i in range(cov.shape[0]) if np.any(np.linalg.eigvalsh(cov[i]) <= 0)]
-        raise ValueError(
+        raise NumericalError(
             f"{name} covariance of feature {bad[:1]} is not positive definite"
         ) from None
     eye = np.broadcast_to(np.eye(cov.shape[-1]), cov.shape)
@@ -299,16 +301,16 @@ class CameraObservation:
         for name, tail in shapes.items():
             arr = np.asarray(getattr(self, name), dtype=float)
             if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail:
-                raise ValueError(
+                raise InputError(
                     f"CameraObservation.{name} must have shape (N, {tail}), got {arr.shape}"
                 )
             if not np.all(np.isfinite(arr)):
-                raise ValueError(f"CameraObservation.{name} contains NaN or inf")
+                raise InputError(f"CameraObservation.{name} contains NaN or inf")
             object.__setattr__(self, name, arr)
         for kind in ("point", "segment"):
             n = {getattr(self, f"{kind}_{s}").shape[0] for s in ("model", "meas", "cov")}
             if len(n) != 1:
-                raise ValueError(
+                raise InputError(
                     f"CameraObservation: {kind} model, meas and cov counts differ: {n}"
                 )
         object.__setattr__(self, "point_whitening", _whitening(self.point_cov, "point"))

@@ -53,6 +53,7 @@ from trackflow.math import (
     so3_right_jacobian_inverse,
 )
 
+from ...errors import InputError, NumericalError
 from .camera_features import CameraObservation
 
 __all__ = [
@@ -102,17 +103,17 @@ class QuaternionSpaceState:
         for name in ("position", "velocity", "angular_velocity"):
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise ValueError(f"QuaternionSpaceState.{name} must be 3 finite numbers, got {v}")
+                raise InputError(f"QuaternionSpaceState.{name} must be 3 finite numbers, got {v}")
             object.__setattr__(self, name, v)
         q = check_quaternion(self.quaternion, name="QuaternionSpaceState.quaternion")
         if q.shape != (4,):
-            raise ValueError(f"QuaternionSpaceState.quaternion must have shape (4,), got {q.shape}")
+            raise InputError(f"QuaternionSpaceState.quaternion must have shape (4,), got {q.shape}")
         object.__setattr__(self, "quaternion", q)
         c = np.asarray(self.covariance, dtype=float)
         if c.shape != (12, 12) or not np.all(np.isfinite(c)):
-            raise ValueError(f"QuaternionSpaceState.covariance must be finite 12x12, got {c.shape}")
+            raise InputError(f"QuaternionSpaceState.covariance must be finite 12x12, got {c.shape}")
         if not np.allclose(c, c.T, rtol=1e-9, atol=1e-12 * np.max(np.abs(c), initial=1.0)):
-            raise ValueError("QuaternionSpaceState.covariance must be symmetric")
+            raise InputError("QuaternionSpaceState.covariance must be symmetric")
         object.__setattr__(self, "covariance", 0.5 * (c + c.T))
         object.__setattr__(self, "time", float(self.time))
 
@@ -201,7 +202,7 @@ def process_noise(dt: float, a: float, alpha: float) -> np.ndarray:
         Over ``(e_p, e_phi, e_v, e_w)``.
     """
     if dt < 0 or a < 0 or alpha < 0:
-        raise ValueError(f"process_noise needs dt, a, alpha >= 0, got {dt}, {a}, {alpha}")
+        raise InputError(f"process_noise needs dt, a, alpha >= 0, got {dt}, {a}, {alpha}")
     Q = np.zeros((12, 12))
     eye = np.eye(3)
     for k, s in ((0, a), (3, alpha)):
@@ -239,7 +240,7 @@ def predict_state(
     J_pred_state : ndarray, shape (12, 12)
     """
     if not np.isfinite(dt) or dt < 0:
-        raise ValueError(f"prediction interval must be finite and >= 0, got {dt}")
+        raise InputError(f"prediction interval must be finite and >= 0, got {dt}")
     w = state.angular_velocity
     J = transition_jacobian(w, dt)
     Q = process_noise(dt, a, alpha)
@@ -249,7 +250,7 @@ def predict_state(
         inv = np.linalg.inv(_HALF)
         S = inv @ (J @ (_HALF @ state.covariance @ _HALF) @ J.T + Q) @ inv
     else:
-        raise ValueError(f"orientation_error must be 'full' or 'paper', got {orientation_error!r}")
+        raise InputError(f"orientation_error must be 'full' or 'paper', got {orientation_error!r}")
     q = quat_normalize(quat_multiply(quat_exp(dt * w), state.quaternion))
     pred = QuaternionSpaceState(
         state.time + dt, state.position + dt * state.velocity, q, state.velocity.copy(), w.copy(), S
@@ -275,7 +276,7 @@ def _equilibrated_pinv_normal(D: np.ndarray) -> np.ndarray:
     scale = np.where(scale > 0, scale, 1.0)
     _, s, Vt = np.linalg.svd(D / scale, full_matrices=False)
     if s[-1] <= s[0] * 1e-14:
-        raise ValueError("least-squares problem is singular: the state is not observable")
+        raise NumericalError("least-squares problem is singular: the state is not observable")
     Vs = Vt.T / s
     cov = (Vs @ Vs.T) / np.outer(scale, scale)
     return 0.5 * (cov + cov.T)
@@ -330,7 +331,7 @@ def solve_on_manifold(
     report : SolverReport
     """
     if method not in ("gauss_newton", "levenberg_marquardt"):
-        raise ValueError(f"method must be 'gauss_newton' or 'levenberg_marquardt', got {method!r}")
+        raise InputError(f"method must be 'gauss_newton' or 'levenberg_marquardt', got {method!r}")
     x = np.asarray(x0, dtype=float).copy()
     h, D = residual(x)
     grad = D.T @ h
@@ -377,11 +378,11 @@ def _prior_whitening(S: np.ndarray) -> np.ndarray:
     """``W`` with ``W^T W = S^-1``, via the Cholesky factor of the correlation matrix."""
     d = np.sqrt(np.diag(S))
     if np.any(~(d > 0)):
-        raise ValueError("prediction covariance has a zero or negative variance")
+        raise NumericalError("prediction covariance has a zero or negative variance")
     try:
         L = np.linalg.cholesky(S / np.outer(d, d))
     except np.linalg.LinAlgError:
-        raise ValueError("prediction covariance is not positive definite") from None
+        raise NumericalError("prediction covariance is not positive definite") from None
     return np.linalg.solve(L, np.eye(S.shape[0])) / d
 
 
@@ -539,7 +540,7 @@ class QuaternionSpaceFilter:
 
     def __post_init__(self):
         if not (self.a >= 0 and self.alpha >= 0):
-            raise ValueError(f"a and alpha must be >= 0, got {self.a}, {self.alpha}")
+            raise InputError(f"a and alpha must be >= 0, got {self.a}, {self.alpha}")
 
     def initial_state(
         self, time: float, position, quaternion, pose_covariance, velocity_variance: float = 1e2,

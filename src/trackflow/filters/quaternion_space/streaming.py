@@ -25,6 +25,7 @@ from trackflow.math import (
     so3_right_jacobian_inverse,
 )
 
+from ...errors import InputError
 from ..pose_history import GatedPoseFilter
 from .gauss_newton import QuaternionSpaceFilter, QuaternionSpaceState
 
@@ -131,7 +132,7 @@ class QuaternionSpacePoseFilter(GatedPoseFilter):
             max_iterations=max_iterations,
         )
         if not (velocity_variance > 0 and angular_velocity_variance > 0):
-            raise ValueError("initial velocity variances must be > 0")
+            raise InputError("initial velocity variances must be > 0")
         self._init_var = (float(velocity_variance), float(angular_velocity_variance))
         self.state: QuaternionSpaceState | None = None
         super().__init__(history, gate_probability, reset_after)

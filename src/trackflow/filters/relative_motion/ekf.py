@@ -41,6 +41,8 @@ import numpy as np
 
 from trackflow.math import Pose, UncertainPose, quat_exp, quat_multiply, skew, so3_right_jacobian
 
+from ...errors import InputError
+
 __all__ = [
     "RelativeMotionEKF",
     "RelativeMotionState",
@@ -172,7 +174,7 @@ def motion_matrices(omega, dt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     omega = np.asarray(omega, dtype=float)
     if omega.shape[-1:] != (3,):
-        raise ValueError(f"omega must have shape (..., 3), got {omega.shape}")
+        raise InputError(f"omega must have shape (..., 3), got {omega.shape}")
     c, _ = _matrix_coefficients(omega, dt)
     k = skew(omega)
     k2 = k @ k
@@ -288,7 +290,7 @@ def process_noise(dt, omega_sigma, velocity_sigma, accel_sigma) -> np.ndarray:
     """
     sig = np.repeat([omega_sigma, velocity_sigma, accel_sigma], 3).astype(float)
     if np.any(sig < 0) or not np.all(np.isfinite(sig)) or not dt > 0:
-        raise ValueError("process noise sigmas must be finite and >= 0, dt > 0")
+        raise InputError("process noise sigmas must be finite and >= 0, dt > 0")
     return np.diag(sig**2 * float(dt))
 
 
@@ -321,7 +323,7 @@ def residual(state, points_prev, points_curr, dt, jacobians: bool = False):
     prev = np.asarray(points_prev, dtype=float)
     curr = np.asarray(points_curr, dtype=float)
     if s.shape != (9,) or prev.shape != (3, 3) or curr.shape != (3, 3):
-        raise ValueError(
+        raise InputError(
             f"state must be (9,), points (3, 3); got {s.shape}, {prev.shape}, {curr.shape}"
         )
     omega, v, a = s[0:3], s[3:6], s[6:9]
@@ -371,9 +373,9 @@ def points_from_poses(pose_prev: UncertainPose, pose_curr: UncertainPose, origin
         Jacobian of ``x`` with respect to ``(e_prev, e_curr)`` (6 + 6 pose errors).
     """
     if origin not in ("world", "body"):
-        raise ValueError(f"origin must be 'world' or 'body', got {origin!r}")
+        raise InputError(f"origin must be 'world' or 'body', got {origin!r}")
     if pose_prev.shape != () or pose_curr.shape != ():
-        raise ValueError("points_from_poses takes single poses")
+        raise InputError("points_from_poses takes single poses")
     Rp, Rc = pose_prev.pose.rotation_matrix, pose_curr.pose.rotation_matrix
     c = pose_prev.position if origin == "body" else np.zeros(3)
     prev = UNIT_POINTS @ Rp.T + pose_prev.position - c
@@ -416,11 +418,11 @@ class RelativeMotionState:
         m = np.array(self.mean, dtype=float)
         c = np.array(self.covariance, dtype=float)
         if m.shape != (9,) or c.shape != (9, 9):
-            raise ValueError(
+            raise InputError(
                 f"state mean (9,) and covariance (9, 9) expected, got {m.shape}, {c.shape}"
             )
         if not (np.all(np.isfinite(m)) and np.all(np.isfinite(c))):
-            raise ValueError("state mean and covariance must be finite")
+            raise InputError("state mean and covariance must be finite")
         m.flags.writeable = False
         c.flags.writeable = False
         object.__setattr__(self, "mean", m)
@@ -523,7 +525,7 @@ def update(
     f, J_f_s, J_f_x = residual(state.mean, points_prev, points_curr, dt, jacobians=True)
     Cx = np.asarray(points_covariance, dtype=float)
     if Cx.shape != (18, 18):
-        raise ValueError(f"points_covariance must be (18, 18), got {Cx.shape}")
+        raise InputError(f"points_covariance must be (18, 18), got {Cx.shape}")
     R = J_f_x @ Cx @ J_f_x.T
     if motion_noise is not None:
         R = R + J_f_s @ np.asarray(motion_noise, dtype=float) @ J_f_s.T
@@ -536,7 +538,7 @@ def update(
     lam, U = np.linalg.eigh(S)
     keep = lam > _RANK_TOLERANCE * max(lam[-1], 0.0)
     if not np.any(keep):
-        raise ValueError("residual covariance is zero: give the points or the state a covariance")
+        raise InputError("residual covariance is zero: give the points or the state a covariance")
     S_pinv = (U[:, keep] / lam[keep]) @ U[:, keep].T
     K = P @ J_f_s.T @ S_pinv
     mean = state.mean - K @ f
@@ -587,7 +589,7 @@ def predict_pose(
     UncertainPose (and the Jacobians if asked)
     """
     if origin not in ("world", "body"):
-        raise ValueError(f"origin must be 'world' or 'body', got {origin!r}")
+        raise InputError(f"origin must be 'world' or 'body', got {origin!r}")
     h = float(horizon)
     omega, v, a = state.omega, state.velocity, state.acceleration
     W, V, A = motion_matrices(omega, h)
@@ -644,7 +646,7 @@ class RelativeMotionEKF:
 
     def __init__(self, initial, process_noise_cov, origin: Origin = "world", motion_noise=None):
         if origin not in ("world", "body"):
-            raise ValueError(f"origin must be 'world' or 'body', got {origin!r}")
+            raise InputError(f"origin must be 'world' or 'body', got {origin!r}")
         self.state: RelativeMotionState = initial
         self.Q = np.asarray(process_noise_cov, dtype=float)
         self.origin: Origin = origin
@@ -664,7 +666,7 @@ class RelativeMotionEKF:
             return None
         dt = time - self.last_time
         if not dt > 0:
-            raise ValueError(f"time stamps must increase: {time} after {self.last_time}")
+            raise InputError(f"time stamps must increase: {time} after {self.last_time}")
         prev, curr, Cx, _ = points_from_poses(self.last_pose, pose, self.origin)
         post, info = update(self.state, prev, curr, Cx, dt, self.motion_noise)
         shift = pose.position - self.last_pose.position if self.origin == "body" else None
@@ -676,5 +678,5 @@ class RelativeMotionEKF:
     def predicted_pose(self, horizon) -> UncertainPose:
         """Pose ``horizon`` seconds after the last one fed (F4); see :func:`predict_pose`."""
         if self.last_pose is None:
-            raise ValueError("no pose has been fed yet")
+            raise InputError("no pose has been fed yet")
         return predict_pose(self.state, self.last_pose, horizon, self.origin)

@@ -16,6 +16,7 @@ import numpy as np
 
 from trackflow.math import UncertainPose, quat_rminus
 
+from ...errors import InputError, NumericalError
 from ..pose_history import GatedPoseFilter
 from .ekf import RelativeMotionEKF, RelativeMotionState, process_noise
 
@@ -65,9 +66,9 @@ class RelativeMotionPoseFilter(GatedPoseFilter):
         omega_prior_sigma: float = 10.0,
     ):
         if not (q_a >= 0 and q_alpha >= 0 and math.isfinite(q_a) and math.isfinite(q_alpha)):
-            raise ValueError(f"q_a and q_alpha must be finite and >= 0, got {q_a}, {q_alpha}")
+            raise InputError(f"q_a and q_alpha must be finite and >= 0, got {q_a}, {q_alpha}")
         if origin not in ("body", "world"):
-            raise ValueError(f"origin must be 'body' or 'world', got {origin!r}")
+            raise InputError(f"origin must be 'body' or 'world', got {origin!r}")
         self._sigmas = (math.sqrt(q_alpha), math.sqrt(q_a))
         self._origin = origin
         var = [omega_prior_sigma**2] * 3 + [velocity_prior_sigma**2] * 3 + [1e-12] * 3
@@ -102,7 +103,7 @@ class RelativeMotionPoseFilter(GatedPoseFilter):
         self.ekf.Q = process_noise(dt, self._sigmas[0], self._sigmas[1], 0.0)
         self.ekf.step(t, z)
         if not np.all(np.isfinite(self.ekf.state.covariance)):
-            raise ValueError("non-finite EKF state")
+            raise NumericalError("non-finite EKF state")
         return z  # the EKF has no pose state: its pose at time t is the measurement
 
     def _forward(self, t: float) -> UncertainPose:

@@ -48,6 +48,7 @@ from trackflow.math import (
     quat_rotate,
 )
 
+from ...errors import InputError
 from ..gating import GatePolicy
 from . import kernels as _source
 
@@ -202,24 +203,24 @@ class TwistARModel:
 
     def __post_init__(self):
         if not (np.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f"dt must be a positive number of seconds, got {self.dt!r}")
+            raise InputError(f"dt must be a positive number of seconds, got {self.dt!r}")
         a = np.array(self.coefficients, dtype=float)
         if a.ndim != 3 or a.shape[1:] != (6, 6) or a.shape[0] < 1:
-            raise ValueError(f"coefficients must have shape (L, 6, 6), L >= 1; got {a.shape}")
+            raise InputError(f"coefficients must have shape (L, 6, 6), L >= 1; got {a.shape}")
         q = np.array(self.noise, dtype=float)
         if q.shape != (6, 6):
-            raise ValueError(f"noise must have shape (6, 6), got {q.shape}")
+            raise InputError(f"noise must have shape (6, 6), got {q.shape}")
         c = 100.0 * q if self.twist_covariance is None else np.array(self.twist_covariance)
         if c.shape != (6, 6):
-            raise ValueError(f"twist_covariance must have shape (6, 6), got {c.shape}")
+            raise InputError(f"twist_covariance must have shape (6, 6), got {c.shape}")
         for name, m in (("coefficients", a), ("noise", q), ("twist_covariance", c)):
             if not np.all(np.isfinite(m)):
-                raise ValueError(f"{name} must be finite")
+                raise InputError(f"{name} must be finite")
         for name, m in (("noise", q), ("twist_covariance", c)):
             if not np.allclose(m, m.T, rtol=1e-9, atol=1e-300):
-                raise ValueError(f"{name} must be symmetric")
+                raise InputError(f"{name} must be symmetric")
             if np.min(np.linalg.eigvalsh(m)) < -1e-12 * max(np.max(np.abs(m)), 1e-300):
-                raise ValueError(f"{name} must be positive semi-definite")
+                raise InputError(f"{name} must be positive semi-definite")
         for name, m in (("coefficients", a), ("noise", q), ("twist_covariance", c)):
             m.setflags(write=False)
             object.__setattr__(self, name, m)
@@ -308,19 +309,19 @@ class TwistARModel:
         """
         order = int(order)
         if order < 1:
-            raise ValueError(f"order must be >= 1, got {order}")
+            raise InputError(f"order must be >= 1, got {order}")
         t, p, q = _recording(t, position, quaternion)
         step = float(np.median(np.diff(t))) if dt is None and t.shape[0] > 1 else dt
         if step is None or not (np.isfinite(step) and step > 0):
-            raise ValueError(f"dt must be a positive number of seconds, got {step!r}")
+            raise InputError(f"dt must be a positive number of seconds, got {step!r}")
         if structure not in ("full", "isotropic"):
-            raise ValueError(f"structure must be 'full' or 'isotropic', got {structure!r}")
+            raise InputError(f"structure must be 'full' or 'isotropic', got {structure!r}")
         xi = body_increments(p, q)
         regular = _regular(t, step)
         if use is not None:
             use = np.asarray(use, dtype=bool).reshape(-1)
             if use.shape != t.shape:
-                raise ValueError(f"use must have shape {t.shape}, got {use.shape}")
+                raise InputError(f"use must have shape {t.shape}, got {use.shape}")
             regular[1:] &= use[1:] & use[:-1]
         if robust:
             regular &= ~_spiky(xi, regular)
@@ -332,7 +333,7 @@ class TwistARModel:
         # window giving three equations, so the floor of 24 L is the binding one)
         need = 60 * order if structure == "full" else 24 * order
         if rows.size < need:
-            raise ValueError(
+            raise InputError(
                 f"too few regular samples to fit an order-{order} {structure} model: "
                 f"{rows.size} windows, need at least {need}"
             )
@@ -399,7 +400,7 @@ class TwistARModel:
         hz = sorted({float(v) for v in horizons})
         for v in hz:
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"horizon must be >= 0 seconds, got {v!r}")
+                raise InputError(f"horizon must be >= 0 seconds, got {v!r}")
         p, q, h = np.array(position, dtype=float), np.array(quaternion, dtype=float), history
         done, out = 0, {}
         for v in hz:
@@ -520,10 +521,10 @@ def run_twist_ar(
     n_s = t.shape[0]
     for name, v in (("pos_sigma", pos_sigma), ("ori_sigma", ori_sigma)):
         if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+            raise InputError(f"{name} must be finite and > 0, got {v!r}")
     hz = np.asarray(horizons, dtype=float).reshape(-1)
     if np.any(~np.isfinite(hz)) or np.any(hz < 0):
-        raise ValueError(f"horizons must be >= 0 seconds, got {hz.tolist()}")
+        raise InputError(f"horizons must be >= 0 seconds, got {hz.tolist()}")
     gap = np.inf if max_gap is None else float(max_gap)
 
     policy = gate if gate is not None else GatePolicy(gate_probability=None)
