@@ -149,7 +149,8 @@ def _records(b: _Batch, zp, zo, r) -> np.ndarray:
 
 
 def _bankable(f) -> bool:
-    """Whether the bank runs ``f``'s pose steps in its kernel (:attr:`~PoseKalmanFilter.batchable`)."""
+    """Whether the bank runs ``f``'s pose steps in its kernel
+    (:attr:`PoseKalmanFilter.batchable`)."""
     return isinstance(f, PoseKalmanFilter) and f.batchable
 
 
@@ -381,8 +382,8 @@ class PoseFilterBank:
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
         rows), then the filters' bookkeeping (:meth:`settle`; at once unless ``defer``). A
         diverged step re-initialises its filter (:meth:`PoseKalmanFilter.commit_step`): the
-        bookkeeping of every filter of the call is then done at once. Returns whether none diverged (every filter's
-        state is still its row).
+        bookkeeping of every filter of the call is then done at once. Returns whether none
+        diverged (every filter's state is still its row).
 
         With ``at`` [s] (finite, not before any step's time ``b.ts``), the same call also
         predicts the filters' poses at ``at`` from the rows it has just written
