@@ -124,15 +124,15 @@ def step_records(x, p, zp, zo, r) -> np.ndarray:
     """The log records (m, size) of ``m`` pose steps, as the filter keeps them
     (:meth:`PoseKalmanFilter.commit_step`): the state after the step ``x`` (m, nx), its
     covariance ``p`` (m, nc, nc) row by row, the measured position ``zp`` (m, 3) [m],
-    quaternion ``zo`` (m, 4) ``(x, y, z, w)`` and noise ``r`` (m, 6, 6) row by row."""
+    quaternion ``zo`` (m, 4) ``(x, y, z, w)`` and noise ``r`` (m, 6, 6) row by row (arrays)."""
     m, nx = x.shape
     o = nx + p.shape[1] * p.shape[2]
-    logs = np.empty((m, o + 7 + 36))
+    logs = np.empty((m, o + 43))
     logs[:, :nx] = x
     logs[:, nx:o] = p.reshape(m, -1)
     logs[:, o : o + 3] = zp
     logs[:, o + 3 : o + 7] = zo
-    logs[:, o + 7 :] = np.reshape(r, (m, -1))
+    logs[:, o + 7 :] = r.reshape(m, -1)
     return logs
 
 
@@ -260,6 +260,7 @@ class PoseKalmanFilter(FilterClock):
         self._history = float(history)
         self._policy = GatePolicy(gate_probability, reset_after)
         self._gates = {m: self._policy.threshold(m) for m in (3, 6)}
+        self._reset_after = self._policy.reset_after
         self._wmax = float(max_angular_velocity)
         self._x0, self._p0 = self._prior()
         n_dp, n_do, add = self._params[:3]
@@ -367,7 +368,7 @@ class PoseKalmanFilter(FilterClock):
         if (
             t0 is None
             or not t0 <= t < math.inf
-            or gating.reset_due(True, self._gated_run, self._policy.reset_after)
+            or self._gated_run >= self._reset_after  # gating.reset_due, initialised
             or (x is not None and (self._x is not x or self._p is not p))
         ):
             return None
@@ -679,16 +680,10 @@ class PoseKalmanFilter(FilterClock):
         if status == gating.DIVERGED:
             self._reinit(e, "singular innovation covariance or non-finite state")
             e.store_state(self._x, self._p)
-        e.gated_run = self._advance(status, e.t)
-
-    def _advance(self, status: int, t: float) -> int:
-        """The filter's time and run of gated measurements after a kernel step at ``t`` that
-        did not diverge; returns the new run length (the step's log entry records it)."""
         if self._smooth_cache:  # smoothed past states change with a newer measurement
             self._smooth_cache = {}
-        self._gated_run = run = gating.next_gated_run(status, self._gated_run)
-        self._t = t
-        return run
+        self._gated_run = e.gated_run = gating.next_gated_run(status, self._gated_run)
+        self._t = e.t
 
     def _append(self, e: _Entry) -> None:
         """Entry ``e``, the newest, into the log; entries older than the history go."""
