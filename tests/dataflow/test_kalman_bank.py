@@ -179,3 +179,48 @@ def test_bank_block_push_and_pull_equal_one_by_one(backend, answer):
         assert [_answer(m) for m in out_a] == [_answer(m) for m in out_b] and out_a
         assert net_b.stats()["kf0"]["rejections"].get("filter rejected update", 0) > 0
         assert (answered > 0) == answer
+
+
+class _Labelled(KalmanFilter):
+    """A subclass keeping KalmanFilter's push and pull: batched."""
+
+    kind = "labelled kalman"
+
+
+class _Counting(KalmanFilter):
+    """A subclass with a push of its own: pushed through it, never batched."""
+
+    def push(self, m, port: int = 0) -> None:
+        self.pushed = getattr(self, "pushed", 0) + 1
+        super().push(m, port)
+
+
+def test_subclasses_are_batched_by_capability_not_by_type():
+    """``bankable`` follows the class's push and pull: a subclass keeping them is batched
+    (its filter is run by the bank's kernel) with a plain component's results and counts;
+    one with its own push has it called for every measurement."""
+    from trackflow.dataflow import InertialKalmanFilter
+    from trackflow.distributed.replica import RemoteFilter, RemoteGet
+
+    assert KalmanFilter.bankable and _Labelled.bankable
+    assert not any(c.bankable for c in (_Counting, InertialKalmanFilter, RemoteFilter, RemoteGet))
+    classes = (KalmanFilter, _Labelled, _Counting)
+    plain, lab, cnt = (cls(f"kf{i}", MOTION) for i, cls in enumerate(classes))
+    bank = KalmanBank([lab, cnt])
+    q = quat_exp(np.array([0.1, 0.2, 0.3]))
+    for k in range(6):
+        t = 1_000_000_000 + k * 4_166_667
+        pos = np.array([[0.01 * k, 0.3, 0.5]] * 2)
+        plain.push(Measurement(t, UncertainPose._trusted(pos[0], q, C), t))
+        bank.push_block([0, 1], t, pos, np.stack([q, q]), np.stack([C, C]))
+    assert lab.filter._x.base is not None  # a view of the bank's row: the kernel ran it
+    assert cnt.pushed == 6
+    for c in (lab, cnt):
+        assert _log(c) == _log(plain)
+        assert c.stats.events_in == plain.stats.events_in == 6
+        assert c.stats.events_out == plain.stats.events_out
+        assert (c.first_t, c.last_t, c.last_origin) == (
+            plain.first_t,
+            plain.last_t,
+            plain.last_origin,
+        )

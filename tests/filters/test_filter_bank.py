@@ -260,3 +260,64 @@ def test_layouts_are_made_once_each_and_bounded():
     lay((4,))
     assert lay((5,)) == 5 and made[-1] == (5,) and (1, 2) not in lay  # the fourth: afresh
     assert lay((1, 2)) == 3 and made[-1] == (1, 2)
+
+
+class _Labelled(PoseKalmanFilter):
+    """A subclass that keeps the filter's update: banked like its base class."""
+
+
+class _Unbatched(PoseKalmanFilter):
+    """A subclass that does more in its update: it says so, and the bank calls it."""
+
+    calls = 0
+
+    @property
+    def batchable(self) -> bool:
+        return False
+
+    def update_pose(self, t, measurement):
+        type(self).calls += 1
+        return super().update_pose(t, measurement)
+
+
+def test_subclasses_are_banked_by_capability_not_by_type():
+    """A subclass of the filter runs in the bank's kernel (its state is a row of the bank)
+    with the plain filter's results to the bit; one that is not ``batchable`` takes its own
+    ``update_pose`` for every measurement."""
+    m = MotionModel(1, 1, noise=NOISE)
+    alone = PoseKalmanFilter(m)
+    filters = [_Labelled(m), _Unbatched(m)]
+    bank = PoseFilterBank(filters)
+    assert bank.kinds == 1
+    q = np.array([0.0, 0.0, 0.6, 0.8])
+    for k in range(8):
+        t = 0.01 * k
+        u = UncertainPose._trusted(np.array([0.01 * k, 0.0, 0.0]), q, C_POSE)
+        want = alone.update_pose(t, u)
+        assert bank.update_poses([0, 1], [t, t], [u, u]) == [want, want]
+    assert filters[0]._x.base is not None  # a view of the bank's row: the kernel ran it
+    assert _Unbatched.calls == 8
+    for f in filters:
+        assert _log(f) == _log(alone) and f.stats == alone.stats
+
+
+def test_step_api_refuses_what_update_pose_does_otherwise():
+    """``step_time`` gives a step only where ``update_pose`` is one plain kernel step: not
+    before the first measurement, not for an older time or a non-finite one, not with a
+    reset due, and not on arrays the filter does not hold."""
+    m = MotionModel(1, 1, noise=NOISE)
+    f = PoseKalmanFilter(m, reset_after=2)
+    u = UncertainPose(Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), C_POSE)
+    assert f.step_time(0.0) is None
+    f.update_pose(0.0, u)
+    assert f.step_time(0.01) == 0.01
+    assert f.step_time(-0.01) is None and f.step_time(math.nan) is None
+    assert f.step_time(math.inf) is None
+    x, p = np.empty(f.kernel_settings.x0.shape), np.empty(f.kernel_settings.p0.shape)
+    assert f.step_time(0.01, x, p) is None
+    f.bind_state(x, p)
+    assert f.holds_state(x, p) and f.step_time(0.01, x, p) == 0.01
+    assert np.array_equal(f.state[0], x)
+    far = UncertainPose(Pose(np.full(3, 5.0), np.array([0.0, 0.0, 0.0, 1.0])), C_POSE)
+    assert not f.update_pose(0.01, far) and not f.update_pose(0.02, far)  # gated twice
+    assert f.step_time(0.03) is None  # the next one resets the filter

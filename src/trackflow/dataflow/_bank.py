@@ -28,27 +28,20 @@ def _same(a: list, b: list) -> bool:
     return len(a) == len(b) and all(map(operator.is_, a, b))
 
 
-def _timestamps(c: KalmanFilter, t: int, origin: int) -> None:
-    """A component's first and last measurement times and newest origin [ns] after an
-    accepted measurement at ``t`` (corrected by its stamp offset) of origin ``origin``."""
-    if c.first_t is None or t < c.first_t:
-        c.first_t = t
-    if c.last_t is None or t > c.last_t:
-        c.last_t = t
-    if origin > c.last_origin:
-        c.last_origin = origin
-
-
 class KalmanBank:
     """Several :class:`KalmanFilter` components driven together (module docstring).
 
     Parameters
     ----------
     components : sequence of KalmanFilter
-        Addressed by their index in :meth:`push` and :meth:`pull`. A component that pushes
-        its accepted measurements on (it has push consumers), has a prior, or is a subclass
-        (such as :class:`InertialKalmanFilter`) is pushed through its own :meth:`push`, in
-        order, so that its consumers see every other filter as they would have.
+        Addressed by their index in :meth:`push` and :meth:`pull`. A component that is not
+        :attr:`~KalmanFilter.batchable` (it pushes its accepted measurements on to push
+        consumers, has a prior, or its class has a push or pull of its own, such as
+        :class:`InertialKalmanFilter`) is pushed and pulled through its own methods, in
+        order, so that its consumers see every other filter as they would have. The
+        bookkeeping of the batched ones is the components' own
+        (:meth:`KalmanFilter.measurement_time`, :meth:`~KalmanFilter.accepted`,
+        :meth:`~KalmanFilter.count_update`, :meth:`~KalmanFilter.count_answer`).
     """
 
     def __init__(self, components: Sequence[KalmanFilter]):
@@ -69,7 +62,7 @@ class KalmanBank:
     @staticmethod
     def _plain(c: KalmanFilter) -> bool:
         """Whether a component only keeps its state (its updates can be batched)."""
-        return not c.consumers and c.prior is None and type(c) is KalmanFilter
+        return c.batchable
 
     def push(self, items: Sequence[tuple[int, Measurement]]) -> None:
         """``components[i].push(m)`` for every ``(i, m)``, in order, with the updates of the
@@ -154,11 +147,11 @@ class KalmanBank:
 
     def _make_lane(self, key: tuple) -> list | None:
         """The components of an index list pushed again and again (a tracker's packet),
-        looked up once (:class:`Layouts`); ``None`` unless each is a :class:`KalmanFilter`
-        (not a subclass) and comes once."""
+        looked up once (:class:`Layouts`); ``None`` unless each is of a
+        :attr:`~KalmanFilter.bankable` class and comes once."""
         cs = [self.components[i] for i in key]
         once = len(set(key)) == len(key)
-        return cs if once and all(type(c) is KalmanFilter for c in cs) else None
+        return cs if once and all(c.bankable for c in cs) else None
 
     def _lane_times(self, cs: list, index: Sequence[int], t_ns: int) -> list[float] | None:
         """The filter times [s] of a block at ``t_ns`` for the components ``cs`` (at
@@ -170,9 +163,9 @@ class KalmanBank:
         filters = bank.filters
         times = []
         for c, i in zip(cs, index):
-            if c.consumers or c.prior is not None or c.filter is not filters[i]:
+            if not c.batchable or c.filter is not filters[i]:
                 return None
-            times.append((t_ns - c.stamp_offset_ns) * 1e-9)
+            times.append(c.measurement_time(t_ns) * 1e-9)
         return times
 
     def _timed(self, cs: list, t_ns: int, accepted: list, at_ns: int) -> bool:
@@ -180,28 +173,20 @@ class KalmanBank:
         (:meth:`_account`'s), then whether each answers at ``at_ns`` (no refusal)."""
         for c, ok in zip(cs, accepted):
             if ok:
-                _timestamps(c, t_ns - c.stamp_offset_ns, t_ns)
+                c.accepted(c.measurement_time(t_ns), t_ns)
         return all(c.refusal(at_ns) is None for c in cs)
 
     @staticmethod
     def _counted(cs: list, accepted: list) -> None:
         """The components' counts after their updates (:meth:`_account`'s)."""
         for c, ok in zip(cs, accepted):
-            stats = c.stats
-            stats.events_in += 1
-            if ok:
-                stats.events_out += 1  # emitted, to no consumer
-            else:
-                stats.reject("filter rejected update")
+            c.count_update(ok)
 
     @staticmethod
     def _answers_counted(cs: list, ok: list) -> None:
         """The components' counts after answering (``ok[k]``) or failing to predict."""
         for c, good in zip(cs, ok):
-            if good:
-                c.stats.events_out += 1
-            else:
-                c.stats.reject("prediction failed")
+            c.count_answer(good)
 
     def _push_objects(self, index, t_ns, position, quaternion, covariance, answer) -> None:
         """:meth:`push_block` of components not all plain: their measurements as objects,
@@ -225,7 +210,7 @@ class KalmanBank:
     def _times(self, index: Sequence[int], t_ns: Sequence[int]) -> list[float]:
         """The filter times [s] of measurements stamped ``t_ns`` for components ``index``."""
         comps = self.components
-        return [(t - comps[i].stamp_offset_ns) * 1e-9 for i, t in zip(index, t_ns)]
+        return [comps[i].measurement_time(t) * 1e-9 for i, t in zip(index, t_ns)]
 
     def _account(self, index, stamps, accepted) -> None:
         """Each component's bookkeeping after its batched update (measurements in and out,
@@ -235,7 +220,7 @@ class KalmanBank:
         for i, (t_ns, origin), ok in zip(index, stamps, accepted):
             c = comps[i]
             if ok:
-                _timestamps(c, t_ns - c.stamp_offset_ns, origin)
+                c.accepted(c.measurement_time(t_ns), origin)
         self._counted([comps[i] for i in index], accepted)
 
     def pull(self, items: Sequence[tuple[int, int]]) -> list[Measurement | None]:
@@ -245,7 +230,7 @@ class KalmanBank:
         index, times, where = [], [], []
         for k, (i, t_ns) in enumerate(items):
             c = self.components[i]
-            if type(c) is not KalmanFilter:
+            if not c.bankable:
                 out[k] = c.pull(t_ns)
             else:
                 index.append(i)
@@ -265,7 +250,7 @@ class KalmanBank:
     def pull_block(self, index: Sequence[int], t_ns: Sequence[int]) -> PredictedPoses:
         """The poses of ``components[index[k]].pull(t_ns[k])`` for every ``k`` as arrays
         (``ok[k]`` is ``False`` for a counted rejection), the predictions batched; every
-        component is a plain :class:`KalmanFilter`."""
+        component is of a :attr:`~KalmanFilter.bankable` class."""
         return self._pulled(index, t_ns, None)
 
     def _pulled(self, index, t_ns, ahead: PredictedPoses | None) -> PredictedPoses:
@@ -275,8 +260,8 @@ class KalmanBank:
         index_ok, times, where = [], [], []
         for k, (i, t) in enumerate(zip(index, t_ns)):
             c = comps[i]
-            if type(c) is not KalmanFilter:
-                raise TypeError(f"{c.name}: pull_block takes plain KalmanFilter components")
+            if not c.bankable:
+                raise TypeError(f"{c.name}: pull_block takes bankable KalmanFilter components")
             why = c.refusal(t)
             if why is None:
                 index_ok.append(i)

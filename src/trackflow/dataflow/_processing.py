@@ -114,6 +114,17 @@ class KalmanFilter(Component):
     push_out = True
     pull_out = True
     kind = "kalman"
+    #: whether a :class:`~trackflow.dataflow.KalmanBank` may run this class's pushes and
+    #: pulls in a batch: true for every class keeping :class:`KalmanFilter`'s ``push``,
+    #: ``pull`` and ``refusal`` (worked out per subclass)
+    bankable: bool = True
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        cls.bankable = all(
+            getattr(cls, name) is getattr(KalmanFilter, name)
+            for name in ("push", "pull", "refusal")
+        )
 
     def __init__(
         self,
@@ -158,26 +169,62 @@ class KalmanFilter(Component):
             and other.prior is None
         )
 
+    @property
+    def batchable(self) -> bool:
+        """Whether the component only keeps its filter's state, so that a
+        :class:`~trackflow.dataflow.KalmanBank` may batch its updates: a :attr:`bankable`
+        class, no push consumers and no prior."""
+        return self.bankable and not self.consumers and self.prior is None
+
+    # -- the bookkeeping of one measurement or answer (push, pull and KalmanBank) --------------
+    def measurement_time(self, t_ns: int) -> int:
+        """The filter's time [ns] of a measurement stamped ``t_ns``: ``stamp - offset``."""
+        return t_ns - self.stamp_offset_ns
+
+    def accepted(self, t: int, origin_ns: int) -> None:
+        """Note a measurement the filter took at (corrected) time ``t`` [ns] of origin
+        ``origin_ns``: the first and last measurement times and the newest origin."""
+        if self.first_t is None or t < self.first_t:
+            self.first_t = t
+        if self.last_t is None or t > self.last_t:
+            self.last_t = t
+        if origin_ns > self.last_origin:
+            self.last_origin = origin_ns
+
+    def count_update(self, ok: bool) -> None:
+        """Count one pushed measurement in, and out if the filter took it (it is pushed on,
+        to the push consumers if any), else as a rejection."""
+        stats = self.stats
+        stats.events_in += 1
+        if ok:
+            stats.events_out += 1
+        else:
+            stats.reject("filter rejected update")
+
+    def count_answer(self, ok: bool) -> None:
+        """Count one answer to a pull that was not refused (:meth:`refusal`), or the
+        failure of its prediction."""
+        if ok:
+            self.stats.events_out += 1
+        else:
+            self.stats.reject("prediction failed")
+
     def push(self, m: Measurement, port: int = 0) -> None:
-        self.stats.events_in += 1
-        t = m.t_ns - self.stamp_offset_ns
-        if self.prior is not None and self.first_t is None and self.stats.events_in == 1:
+        t = self.measurement_time(m.t_ns)
+        if self.prior is not None and self.first_t is None and self.stats.events_in == 0:
             if not self.filter.update_pose(t * 1e-9, self.prior):
                 self.stats.reject("filter rejected prior")
         try:
             ok = self.filter.update_pose(t * 1e-9, m.pose)
         except ValueError:
             ok = False
+        self.count_update(ok)
         if not ok:
-            self.stats.reject("filter rejected update")
             return
-        if self.first_t is None or t < self.first_t:
-            self.first_t = t
-        if self.last_t is None or t > self.last_t:
-            self.last_t = t
-        if m.origin_ns > self.last_origin:
-            self.last_origin = m.origin_ns
-        self.emit(m if t == m.t_ns else Measurement(t, m.pose, m.origin_ns))
+        self.accepted(t, m.origin_ns)
+        out = m if t == m.t_ns else Measurement(t, m.pose, m.origin_ns)
+        for consumer, port_in in self.consumers:  # pushed on (counted above)
+            consumer.push(out, port_in)
 
     def refusal(self, t_ns: int) -> str | None:
         """Why a pull at ``t_ns`` gets no answer (the rejection's reason), or ``None``."""
@@ -202,9 +249,10 @@ class KalmanFilter(Component):
         try:
             pose = self.filter.predict(t_ns * 1e-9)
         except ValueError:
-            self.stats.reject("prediction failed")
+            pose = None
+        self.count_answer(pose is not None)
+        if pose is None:
             return None
-        self.stats.events_out += 1
         return Measurement(int(t_ns), pose, self.last_origin)
 
     def describe(self) -> str:

@@ -138,9 +138,7 @@ class RemoteFilter(KalmanFilter):
             self.stats.reject("older than the newest state")
             return False
         origin = s.origin_ns - offset_ns
-        self.first_t = t if self.first_t is None else min(self.first_t, t)
-        self.last_t = t if self.last_t is None else max(self.last_t, t)
-        self.last_origin = max(self.last_origin, origin)
+        self.accepted(t, origin)
         self.time_sigma_s = float(sigma_s)
         if self.consumers:  # a trigger (push-mode inference reads the time only)
             self.emit(Measurement(t, f.predict(t * 1e-9), origin))

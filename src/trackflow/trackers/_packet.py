@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 
 from ..errors import FormatError
+from .wire_checks import MAX_COUNT, MAX_NAME_BYTES, count_fits
 
 __all__ = ["MAX_DATAGRAM", "PacketError", "Reader"]
 
@@ -71,7 +72,7 @@ class Reader:
         self.need(n, what)
         self.pos += n
 
-    def cstring(self, what: str, limit: int = 256) -> str:
+    def cstring(self, what: str, limit: int = MAX_NAME_BYTES) -> str:
         """A NUL-terminated UTF-8 string of at most ``limit`` bytes (plus the NUL)."""
         stop = min(self.end, self.pos + limit + 1)
         raw = bytes(self.data[self.pos : stop])
@@ -85,9 +86,10 @@ class Reader:
         self.pos += k + 1
         return text
 
-    def count(self, what: str, item_bytes: int, limit: int = 100_000) -> int:
-        """A u32/i32 element count, checked against the bytes left (no huge allocations)."""
+    def count(self, what: str, item_bytes: int, limit: int = MAX_COUNT) -> int:
+        """A u32/i32 element count, checked against the bytes left (no huge allocations;
+        :func:`~trackflow.trackers.wire_checks.count_fits`)."""
         (n,) = self.unpack("i", what)
-        if n < 0 or n > limit or n * item_bytes > self.remaining():
+        if not count_fits(n, item_bytes, self.remaining(), limit):
             raise PacketError("bad count", f"{what} = {n} at offset {self.pos - 4}")
         return n

@@ -12,6 +12,22 @@ import math
 
 import numpy as np
 
+from .wire_checks import (
+    ASSET_BYTES,
+    CHANNEL_BYTES,
+    DEVICE_BYTES,
+    MARKER_BYTES,
+    MARKER_SET_BYTES,
+    MAX_COUNT,
+    MAX_NAME_BYTES,
+    SKELETON_BODY_BYTES,
+    SKELETON_BYTES,
+    count_fits,
+    labeled_marker_bytes,
+    rigid_body_bytes,
+    sized_sections,
+)
+
 KERNELS = ("pose_row", "block_poses", "natnet_frame", "_i32", "_u32", "_count", "_section_end")
 
 #: :func:`natnet_frame`'s answers: the block is made; the frame decodes (as
@@ -19,7 +35,7 @@ KERNELS = ("pose_row", "block_poses", "natnet_frame", "_i32", "_u32", "_count", 
 #: ask ``decode_frame`` (an error, or a layout this pass does not take); the frame decodes
 #: but its rigid-body ids are not the plan's
 FRAME_BLOCK, FRAME_DECODED, FRAME_SLOW, FRAME_NEW_IDS = 0, 1, 2, 3
-KERNEL_SOURCES = ()
+KERNEL_SOURCES = ("trackflow.trackers.wire_checks",)
 
 
 def pose_row(x, y, z, q0, q1, q2, q3, err, s, lo, hi, pos, quat, k):
@@ -96,11 +112,11 @@ def _u32(buf, o):
 
 def _count(buf, p, end, item):
     """:meth:`trackflow.trackers._packet.Reader.count` at ``p``: the count, or -1 where the
-    reader raises (truncated, negative, above 100 000 or more items than bytes left)."""
+    reader raises (truncated, or refused by :func:`~trackflow.trackers.wire_checks.count_fits`)."""
     if p + 4 > end:
         return -1
     n = _i32(buf, p)
-    if n < 0 or n > 100_000 or n * item > end - p - 4:
+    if not count_fits(n, item, end - p - 4, MAX_COUNT):
         return -1
     return n
 
@@ -168,18 +184,18 @@ def natnet_frame(buf, version, ids, rows, bounds, want, pos, quat, out):
     end = 4 + int(buf[2]) + 256 * int(buf[3])
     if end > nbytes:
         return FRAME_SLOW
-    sized = version >= 4 * 256 + 1
+    sized = sized_sections(version)
     head = np.zeros(2, np.int64)
     if end < 8:
         return FRAME_SLOW
     p = 8  # after the frame number
     # marker sets: a name (NUL-terminated, at most 256 bytes) and positions each
-    p = _section_end(buf, p, end, 5, sized, head)
+    p = _section_end(buf, p, end, MARKER_SET_BYTES, sized, head)
     if p < 0:
         return FRAME_SLOW
     start = p
     for _ in range(head[0]):
-        stop = min(end, p + 257)
+        stop = min(end, p + MAX_NAME_BYTES + 1)
         k = -1
         for j in range(p, stop):
             c = buf[j]
@@ -190,63 +206,65 @@ def natnet_frame(buf, version, ids, rows, bounds, want, pos, quat, out):
                 return FRAME_SLOW  # not ASCII: UTF-8 is for decode_frame to judge
         if k < 0:
             return FRAME_SLOW
-        nm = _count(buf, k + 1, end, 12)
+        nm = _count(buf, k + 1, end, MARKER_BYTES)
         if nm < 0:
             return FRAME_SLOW
-        p = k + 5 + 12 * nm
+        p = k + 5 + MARKER_BYTES * nm
     if sized and p - start != head[1]:
         return FRAME_SLOW
     # legacy unlabeled markers (a 4.1 size is read, not checked)
-    p = _section_end(buf, p, end, 12, sized, head)
-    if p < 0 or p + 12 * head[0] > end:
+    p = _section_end(buf, p, end, MARKER_BYTES, sized, head)
+    if p < 0 or p + MARKER_BYTES * head[0] > end:
         return FRAME_SLOW
-    p += 12 * head[0]
+    p += MARKER_BYTES * head[0]
     # rigid bodies: the table
-    p = _section_end(buf, p, end, 38, sized, head)
+    rb = rigid_body_bytes(version)
+    p = _section_end(buf, p, end, rb, sized, head)
     n = head[0]
-    if p < 0 or p + 38 * n > end or (sized and head[1] != 38 * n):
+    if p < 0 or p + rb * n > end or (sized and head[1] != rb * n):
         return FRAME_SLOW
     table = p
-    p += 38 * n
+    p += rb * n
     # skeletons: an id and rigid bodies each
-    p = _section_end(buf, p, end, 8, sized, head)
+    p = _section_end(buf, p, end, SKELETON_BYTES, sized, head)
     if p < 0:
         return FRAME_SLOW
     start = p
     for _ in range(head[0]):
-        nb = _count(buf, p + 4, end, 32)
+        nb = _count(buf, p + 4, end, SKELETON_BODY_BYTES)
         if p + 4 > end or nb < 0:
             return FRAME_SLOW
         p += 8
         for _ in range(nb):
-            if p + 38 > end:
+            if p + rb > end:
                 return FRAME_SLOW
-            p += 38
+            p += rb
     if sized and p - start != head[1]:
         return FRAME_SLOW
     if sized:  # assets: skipped by size
-        p = _section_end(buf, p, end, 12, sized, head)
+        p = _section_end(buf, p, end, ASSET_BYTES, sized, head)
         if p < 0:
             return FRAME_SLOW
         p += head[1]
     # labeled markers: 26 bytes each from 3.0
-    p = _section_end(buf, p, end, 26, sized, head)
-    if p < 0 or (sized and head[1] != 26 * head[0]) or p + 26 * head[0] > end:
+    lab = labeled_marker_bytes(version)
+    p = _section_end(buf, p, end, lab, sized, head)
+    if p < 0 or (sized and head[1] != lab * head[0]) or p + lab * head[0] > end:
         return FRAME_SLOW
-    p += 26 * head[0]
+    p += lab * head[0]
     # force plates, devices: an id and channels of counted f32 each
     for _ in range(2):
-        p = _section_end(buf, p, end, 8, sized, head)
+        p = _section_end(buf, p, end, DEVICE_BYTES, sized, head)
         if p < 0:
             return FRAME_SLOW
         start = p
         for _ in range(head[0]):
-            nch = _count(buf, p + 4, end, 4)
+            nch = _count(buf, p + 4, end, CHANNEL_BYTES)
             if p + 4 > end or nch < 0:
                 return FRAME_SLOW
             p += 8
             for _ in range(nch):
-                nf = _count(buf, p, end, 4)
+                nf = _count(buf, p, end, CHANNEL_BYTES)
                 if nf < 0:
                     return FRAME_SLOW
                 p += 4 + 4 * nf

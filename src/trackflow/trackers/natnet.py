@@ -29,6 +29,19 @@ import numpy as np
 
 from ..errors import InputError
 from ._packet import MAX_DATAGRAM, PacketError, Reader
+from .wire_checks import (
+    ASSET_BYTES,
+    CHANNEL_BYTES,
+    DEVICE_BYTES,
+    MARKER_BYTES,
+    MARKER_SET_BYTES,
+    SKELETON_BODY_BYTES,
+    SKELETON_BYTES,
+    labeled_marker_bytes,
+    natnet_version_code,
+    rigid_body_bytes,
+    sized_sections,
+)
 
 __all__ = [
     "CONNECT",
@@ -78,9 +91,14 @@ _HEAD = struct.Struct("<HH")
 _RB3 = struct.Struct("<i3f4ffh")  # >= 3.0 rigid body: 38 bytes
 #: the same 38 bytes as a NumPy record: the rigid bodies of a frame in one array
 RIGID_BODY_DTYPE = np.dtype(
-    [("id", "<i4"), ("position", "<f4", (3,)), ("quaternion", "<f4", (4,)),
-     ("mean_error", "<f4"), ("params", "<i2")]
-)  # fmt: skip
+    [
+        ("id", "<i4"),
+        ("position", "<f4", (3,)),
+        ("quaternion", "<f4", (4,)),
+        ("mean_error", "<f4"),
+        ("params", "<i2"),
+    ]
+)
 assert RIGID_BODY_DTYPE.itemsize == _RB3.size
 
 
@@ -261,7 +279,7 @@ def encode_server_info(info: ServerInfo) -> bytes:
 def _section(r: Reader, v, what: str, item_bytes: int) -> tuple[int, int | None]:
     n = r.count(f"{what} count", item_bytes)
     size = None
-    if v >= (4, 1):
+    if sized_sections(natnet_version_code(*v)):
         (size,) = r.unpack("I", f"{what} size")
         r.need(size, what)
     return n, size
@@ -271,7 +289,7 @@ def _rigid_body(r: Reader, v) -> NatNetRigidBody:
     bid, px, py, pz, qx, qy, qz, qw = r.unpack("i3f4f", "rigid body")
     markers: tuple = ()
     if v < (3, 0):
-        nm = r.count("rigid body marker count", 12)
+        nm = r.count("rigid body marker count", MARKER_BYTES)
         flat = r.unpack(f"{3 * nm}f", "rigid body markers")
         markers = tuple(tuple(flat[3 * i : 3 * i + 3]) for i in range(nm))
         if v >= (2, 0):
@@ -283,9 +301,9 @@ def _rigid_body(r: Reader, v) -> NatNetRigidBody:
 
 def _vec_floats(r: Reader, what: str) -> None:
     """Skip channels: count, then per channel a frame count and that many f32."""
-    nch = r.count(f"{what} channels", 4)
+    nch = r.count(f"{what} channels", CHANNEL_BYTES)
     for _ in range(nch):
-        nf = r.count(f"{what} frames", 4)
+        nf = r.count(f"{what} frames", CHANNEL_BYTES)
         r.skip(4 * nf, what)
 
 
@@ -306,20 +324,21 @@ def decode_frame(payload, version, *, table: bool = False) -> NatNetFrame:
     r = Reader(payload)
     (frame,) = r.unpack("i", "frame number")
     # marker sets
-    n, size = _section(r, v, "marker sets", 5)
+    code = natnet_version_code(*v)
+    n, size = _section(r, v, "marker sets", MARKER_SET_BYTES)
     start = r.pos
     msets = []
     for _ in range(n):
         name = r.cstring("marker set name")
-        nm = r.count("marker count", 12)
+        nm = r.count("marker count", MARKER_BYTES)
         flat = r.unpack(f"{3 * nm}f", "marker set")
         msets.append((name, tuple(tuple(flat[3 * i : 3 * i + 3]) for i in range(nm))))
     _check_size(r, start, size, "marker sets")
     # legacy unlabeled markers
-    n, size = _section(r, v, "unlabeled markers", 12)
-    r.skip(12 * n, "unlabeled markers")
+    n, size = _section(r, v, "unlabeled markers", MARKER_BYTES)
+    r.skip(MARKER_BYTES * n, "unlabeled markers")
     # rigid bodies
-    n, size = _section(r, v, "rigid bodies", 38 if v >= (3, 0) else 32)
+    n, size = _section(r, v, "rigid bodies", rigid_body_bytes(code))
     start = r.pos
     tab = None
     if v >= (3, 0) and table:
@@ -338,26 +357,26 @@ def decode_frame(payload, version, *, table: bool = False) -> NatNetFrame:
         bodies = tuple(_rigid_body(r, v) for _ in range(n))
     _check_size(r, start, size, "rigid bodies")
     if v >= (2, 1):  # skeletons: id, rigid bodies
-        n, size = _section(r, v, "skeletons", 8)
+        n, size = _section(r, v, "skeletons", SKELETON_BYTES)
         start = r.pos
         for _ in range(n):
             r.unpack("i", "skeleton id")
-            for _ in range(r.count("skeleton bodies", 32)):
+            for _ in range(r.count("skeleton bodies", SKELETON_BODY_BYTES)):
                 _rigid_body(r, v)
         _check_size(r, start, size, "skeletons")
     if v >= (4, 1):  # assets: skipped by size
-        n, size = _section(r, v, "assets", 12)
+        n, size = _section(r, v, "assets", ASSET_BYTES)
         r.skip(size, "assets")
     nlab = 0
     if v >= (2, 3):
-        item = 20 + (2 if v >= (2, 6) else 0) + (4 if v >= (3, 0) else 0)
+        item = labeled_marker_bytes(code)
         nlab, size = _section(r, v, "labeled markers", item)
         if size is not None and size != nlab * item:
             raise PacketError("bad size", f"labeled markers: {size} bytes for {nlab}")
         r.skip(item * nlab, "labeled markers")
     for minv, what in (((2, 9), "force plates"), ((2, 11), "devices")):
         if v >= minv:
-            n, size = _section(r, v, what, 8)
+            n, size = _section(r, v, what, DEVICE_BYTES)
             start = r.pos
             for _ in range(n):
                 r.unpack("i", f"{what} id")
@@ -429,7 +448,7 @@ def encode_frame(
         raw, n = assets if assets is not None else (b"", 0)
         out.append(_pack_section(v, n, raw))
     if v >= (2, 3):
-        item = 20 + (2 if v >= (2, 6) else 0) + (4 if v >= (3, 0) else 0)
+        item = labeled_marker_bytes(natnet_version_code(*v))
         out.append(_pack_section(v, frame.labeled_markers, b"\0" * item * frame.labeled_markers))
     if v >= (2, 9):
         out.append(_pack_section(v, 0, b""))

@@ -10,12 +10,13 @@ one packet in one compiled call) and ``offline`` (:func:`run_filter` and the smo
 from .bank import Layouts, PoseFilterBank, PredictedPoses
 from .model import FORMULATIONS, MotionModel
 from .offline import FilterResult, run_filter, smooth_filter
-from .streaming import FilterSnapshot, PoseKalmanFilter
+from .streaming import FilterSnapshot, KernelSettings, PoseKalmanFilter
 
 __all__ = [
     "FORMULATIONS",
     "FilterResult",
     "FilterSnapshot",
+    "KernelSettings",
     "Layouts",
     "MotionModel",
     "PoseFilterBank",

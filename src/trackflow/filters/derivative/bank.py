@@ -32,34 +32,28 @@ from trackflow.math import UncertainPose, frozen
 
 from .. import gating
 from . import kernels as _source
-from .streaming import PoseKalmanFilter, _Entry, kernels
+from .streaming import PoseKalmanFilter, kernels, step_records
 
 __all__ = ["Layouts", "PoseFilterBank", "PredictedPoses"]
 
 
 class _Kind:
-    """The filters of one kind: their states as rows of ``xs`` (n, nx) and ``ps`` (n, nc,
-    nc), the packed constants, the gate of a pose measurement and the record length."""
+    """The filters of one kind (equal :class:`KernelSettings`): their states as rows of
+    ``xs`` (n, nx) and ``ps`` (n, nc, nc), the packed constants and the gate of a pose
+    measurement."""
 
     def __init__(self, f: PoseKalmanFilter, n: int):
-        self.const = frozen(f._const)  # kernel inputs read-only: one specialisation
-        self.gate = f._gates[6]
-        self.reset_after = f._policy.reset_after
-        self.nx, self.nc = f._nx, f._nc
-        self.size = f._log_sizes[6]
+        self.settings = s = f.kernel_settings
+        self.const = frozen(s.const)  # kernel inputs read-only: one specialisation
+        self.gate = s.gate
+        self.nx, self.nc = s.x0.shape[0], s.p0.shape[0]
         self.xs = np.zeros((n, self.nx))
         self.ps = np.zeros((n, self.nc, self.nc))
         self.xv = list(self.xs)  # row views: the filters' state arrays while banked
         self.pv = list(self.ps)
 
     def fits(self, f: PoseKalmanFilter) -> bool:
-        return (
-            f._nx == self.nx
-            and f._nc == self.nc
-            and f._gates[6] == self.gate
-            and f._policy.reset_after == self.reset_after
-            and np.array_equal(f._const, self.const)
-        )
+        return self.settings.same_kernel(f.kernel_settings)
 
 
 class _Batch:
@@ -148,22 +142,16 @@ def _kernel_out(m: int) -> tuple:
 
 def _records(b: _Batch, zp, zo, r) -> np.ndarray:
     """The log records (m, size) of the kernel steps of batch ``b`` with the measurements
-    ``zp`` (m, 3), ``zo`` (m, 4), ``r`` (m, 6, 6), as :func:`kernels.step_into` writes them
-    (``x``, ``P`` row by row, ``zp``, ``zo``, ``r`` row by row), copied from the rows the
-    kernel left: it writes none itself, so that the copies come after an answer."""
-    kind, m = b.kind, len(b.rows)
-    nx, o = kind.nx, kind.nx + kind.nc * kind.nc
-    logs = np.empty((m, kind.size))
-    logs[:, :nx] = kind.xs[b.sel_array]
-    logs[:, nx:o] = kind.ps[b.sel_array].reshape(m, -1)
-    logs[:, o : o + 3] = zp
-    logs[:, o + 3 : o + 7] = zo
-    logs[:, o + 7 :] = r.reshape(m, -1)
-    return logs
+    ``zp`` (m, 3), ``zo`` (m, 4), ``r`` (m, 6, 6) (:func:`step_records`), copied from the
+    rows the kernel left: it writes none itself, so that the copies come after an answer."""
+    kind = b.kind
+    return step_records(kind.xs[b.sel_array], kind.ps[b.sel_array], zp, zo, r)
 
 
 def _bankable(f) -> bool:
-    return type(f) is PoseKalmanFilter and f._pose_model
+    """Whether the bank runs ``f``'s pose steps in its kernel
+    (:attr:`PoseKalmanFilter.batchable`)."""
+    return isinstance(f, PoseKalmanFilter) and f.batchable
 
 
 class PoseFilterBank:
@@ -205,45 +193,38 @@ class PoseFilterBank:
         """Number of filter kinds run by the bank's kernels (one kernel call each)."""
         return len(self._kinds)
 
-    def _take(self, f: PoseKalmanFilter, kind: _Kind, row: int) -> None:
+    @staticmethod
+    def _take(f: PoseKalmanFilter, kind: _Kind, row: int) -> None:
         """Make the filter's state arrays the bank's row (copying its state in if it
         replaced them since)."""
         x, p = kind.xv[row], kind.pv[row]
-        if f._x is not x:
-            x[:] = f._x
-            f._x = x
-        if f._p is not p:
-            p[:, :] = f._p
-            f._p = p
+        if not f.holds_state(x, p):
+            f.bind_state(x, p)
 
     # -- updates -----------------------------------------------------------------------------
-    def _ready(self, f, slot, tk: float) -> bool:
-        """Whether the kernel can take a measurement at ``tk`` of filter ``f`` (in bank slot
-        ``slot``): a banked filter with a state not after ``tk`` and no reset due; its state
-        arrays are made the bank's row. Otherwise the filter's own method takes it."""
-        t0 = f._t
-        if (
-            slot is None
-            or t0 is None
-            or not tk >= t0
-            or not math.isfinite(tk)
-            or f._gated_run >= slot[0].reset_after  # a reset is due
-        ):
-            return False
-        kind, row = slot
-        if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
-            self._take(f, kind, row)
-        return True
+    def _ready(self, f, slot, tk: float) -> float | None:
+        """The time step when the kernel can take a measurement at ``tk`` of filter ``f`` (in
+        bank slot ``slot``): a banked filter whose own update would be one plain kernel step
+        (:meth:`PoseKalmanFilter.step_time`); its state arrays are made the bank's row.
+        Otherwise ``None``: the filter's own method takes it."""
+        if slot is None:
+            return None
+        dt = f.step_time(tk)
+        if dt is not None:
+            self._take(f, *slot)
+        return dt
 
-    def _batch(self, batch: dict, slot, k: int, f, tk: float) -> _Batch:
-        """Measurement ``k`` of filter ``f`` at ``tk`` added to its kind's batch."""
+    @staticmethod
+    def _batch(batch: dict, slot, k: int, f, tk: float, dt: float) -> _Batch:
+        """Measurement ``k`` of filter ``f`` at ``tk`` (``dt`` after its state) added to
+        its kind's batch."""
         kind, row = slot
         b = batch.get(id(kind))
         if b is None:
             b = batch[id(kind)] = _Batch(kind)
         b.rows.append((k, f, tk))
         b.sel.append(row)
-        b.dts.append(tk - f._t)
+        b.dts.append(dt)
         return b
 
     def update_poses(self, index: Sequence[int], t: Sequence[float], poses: Sequence) -> list:
@@ -275,14 +256,13 @@ class PoseFilterBank:
             slot = slots[i]
             tk = float(t[k])
             pose = poses[k]
-            if (
-                not isinstance(pose, UncertainPose)
-                or pose.covariance.ndim != 2  # a batch of poses
-                or not self._ready(f, slot, tk)
-            ):
+            dt = None
+            if isinstance(pose, UncertainPose) and pose.covariance.ndim == 2:  # not a batch
+                dt = self._ready(f, slot, tk)
+            if dt is None:
                 out[k] = self._one(f, tk, pose)
                 continue
-            b = self._batch(batch, slot, k, f, tk)
+            b = self._batch(batch, slot, k, f, tk, dt)
             p = pose.pose
             b.zp.append(p.position)
             b.zo.append(p.quaternion)
@@ -340,8 +320,9 @@ class PoseFilterBank:
         for k, i in enumerate(index):
             f = filters[i]
             tk = float(t[k])
-            if self._ready(f, slots[i], tk):
-                self._batch(batch, slots[i], k, f, tk).at.append(k)
+            dt = self._ready(f, slots[i], tk)
+            if dt is not None:
+                self._batch(batch, slots[i], k, f, tk, dt).at.append(k)
             else:
                 trusted = UncertainPose._trusted(position[k], quaternion[k], covariance[k])
                 out[k] = self._one(f, tk, trusted)
@@ -358,21 +339,14 @@ class PoseFilterBank:
         lane = self._lanes(tuple(index))
         if lane is None:
             return None
-        reset = lane.kind.reset_after
         ts = list(map(float, t))
         b = _Batch(lane.kind)
         dts = b.dts
         for f, x, p, tk in zip(lane.filters, lane.xv, lane.pv, ts):
-            t0 = f._t
-            if (
-                t0 is None
-                or not t0 <= tk < math.inf
-                or f._gated_run >= reset
-                or f._x is not x
-                or f._p is not p
-            ):
+            dt = f.step_time(tk, x, p)
+            if dt is None:
                 return None
-            dts.append(tk - t0)
+            dts.append(dt)
         b.rows = list(zip(lane.ks, lane.filters, ts))
         b.sel_array, b.out, b.ts = lane.sel, lane.out, ts
         return b
@@ -407,9 +381,9 @@ class PoseFilterBank:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
         rows), then the filters' bookkeeping (:meth:`settle`; at once unless ``defer``). A
-        diverged step takes the filter's own ``_stepped`` (it re-initialises the filter), at
-        once, for every filter of the call. Returns whether none diverged (every filter's
-        state is still its row).
+        diverged step re-initialises its filter (:meth:`PoseKalmanFilter.commit_step`): the
+        bookkeeping of every filter of the call is then done at once. Returns whether none
+        diverged (every filter's state is still its row).
 
         With ``at`` [s] (finite, not before any step's time ``b.ts``), the same call also
         predicts the filters' poses at ``at`` from the rows it has just written
@@ -433,12 +407,9 @@ class PoseFilterBank:
         gated = gating.GATED
         codes = status.tolist()
         if gating.DIVERGED in codes:
-            nx, nc = kind.nx, kind.nc
             logs = _records(b, zp, zo, r)
             for (k, f, tk), buf, st, v in zip(b.rows, logs, codes, nis.tolist()):
-                e = _Entry(tk, 0, 0, buf, nx, nc, 6)
-                f._stepped(e, st, v)
-                f._append(e)
+                f.commit_step(tk, buf, st, v)
                 out[k] = st != gated
             return False
         for (k, _, _), st in zip(b.rows, codes):
@@ -451,19 +422,16 @@ class PoseFilterBank:
     def settle(self) -> None:
         """The bookkeeping of the kernel steps an update left pending
         (``update_block(..., defer=True)``): each filter's time and run of gated
-        measurements (:meth:`PoseKalmanFilter._advance`) and its log entry (the record of
-        the measurement and the state after it (:func:`_records`), gate decision and NIS),
-        as its own update would have recorded them. Until then only the filters' states
+        measurements and its log entry (the record of the measurement and the state after
+        it (:func:`_records`), gate decision and NIS), as its own update would have recorded
+        them (:meth:`PoseKalmanFilter.commit_step`). Until then only the filters' states
         (the bank's rows) are current: the bank's own calls settle first, and nothing else
         may call into the filters."""
         pending, self._unlogged = self._unlogged, []
         for b, zp, zo, r, codes, nis in pending:
-            nx, nc = b.kind.nx, b.kind.nc
             logs = _records(b, zp, zo, r)
             for (_, f, tk), buf, st, v in zip(b.rows, logs, codes, nis):
-                e = _Entry(tk, 0, 0, buf, nx, nc, 6)
-                e.status, e.nis, e.gated_run = st, v, f._advance(st, tk)
-                f._append(e)
+                f.commit_step(tk, buf, st, v)
 
     # -- predictions -------------------------------------------------------------------------
     def predict_poses(self, index: Sequence[int], t: Sequence[float]) -> list:
@@ -497,7 +465,8 @@ class PoseFilterBank:
             f = filters[i]
             slot = slots[i]
             tk = float(t[k])
-            if slot is None or f._t is None or not tk >= f._t or not math.isfinite(tk):
+            t0 = f.time
+            if slot is None or t0 is None or not t0 <= tk < math.inf:
                 try:
                     pose = f.predict(tk)
                 except ValueError:
@@ -510,11 +479,10 @@ class PoseFilterBank:
             b = batch.get(id(kind))
             if b is None:
                 b = batch[id(kind)] = (kind, [], [], [])
-            if f._x is not kind.xv[row] or f._p is not kind.pv[row]:
-                self._take(f, kind, row)
+            self._take(f, kind, row)
             b[1].append(k)
             b[2].append(row)
-            b[3].append(tk - f._t)
+            b[3].append(tk - t0)
             ok[k] = True
         for kind, ks, rows, dts in batch.values():
             whole = len(ks) == m  # every request, in order: straight into the result

@@ -151,8 +151,19 @@ class MotionModel:
     def __hash__(self) -> int:
         return hash((self._n_dp, self._n_do, self._noise, self._kind))
 
-    # -- internal parameter tuple for the kernels --------------------------------------------
-    def _params(self, formulation: str) -> tuple:
+    # -- parameter tuple for the kernels -----------------------------------------------------
+    def kernel_params(self, formulation: str) -> tuple:
+        """The model as the derivative-model kernels take it: ``(n_dp, n_do, additive, kind,
+        sigma_p, sigma_o)``: derivative orders of position and orientation (-1: not
+        estimated), ``additive`` 1 for the ``"additive"`` formulation (0 for
+        ``"error_state"``), the noise kind's code and the noise densities (arrays) of the
+        position and orientation chains.
+
+        Raises
+        ------
+        ValueError
+            If ``formulation`` is not one of :data:`FORMULATIONS`.
+        """
         return (
             self._n_dp,
             self._n_do,
@@ -187,7 +198,7 @@ class MotionModel:
             ``"error_state"``: ``t_true = t + dt``, ``R_true = R Exp(dtheta)``, derivatives
             additive; ``n = state_size`` for ``"additive"``: ``x_true = x + dx``).
         """
-        n_dp, n_do, add, _, _, _ = self._params(formulation)
+        n_dp, n_do, add, _, _, _ = self.kernel_params(formulation)
         return kernels_for(_source).transition(self._check_state(x), float(dt), n_dp, n_do, add)
 
     def process_noise(self, dt: float, x=None, formulation: str = "error_state") -> np.ndarray:
@@ -196,7 +207,7 @@ class MotionModel:
         ``x`` (the nominal state) is needed only by the additive formulation, whose quaternion
         block depends on ``q``.
         """
-        n_dp, n_do, add, kind, sp, so = self._params(formulation)
+        n_dp, n_do, add, kind, sp, so = self.kernel_params(formulation)
         x = self.initial_state() if x is None else self._check_state(x)
         if not (math.isfinite(dt) and dt >= 0):
             raise InputError(f"dt must be finite and >= 0, got {dt}")
@@ -204,7 +215,7 @@ class MotionModel:
 
     def retract(self, x, delta, formulation: str = "error_state") -> np.ndarray:
         """``x [+] delta``: apply a covariance-coordinate correction (quaternion re-normalised)."""
-        n_dp, n_do, add, _, _, _ = self._params(formulation)
+        n_dp, n_do, add, _, _, _ = self.kernel_params(formulation)
         out = self._check_state(x).copy()
         kernels_for(_source).inject(
             out,
@@ -220,7 +231,7 @@ class MotionModel:
 
     def local(self, x1, x0, formulation: str = "error_state") -> np.ndarray:
         """``x1 [-] x0`` in the covariance coordinates (``Log(q0^* q1)`` for the error state)."""
-        n_dp, n_do, add, _, _, _ = self._params(formulation)
+        n_dp, n_do, add, _, _, _ = self.kernel_params(formulation)
         return kernels_for(_source).local(
             self._check_state(x1), self._check_state(x0), n_dp, n_do, add
         )
@@ -246,7 +257,7 @@ class MotionModel:
         H : ndarray (m, n)
             With ``z = h(x [+] e) + v`` the innovation is ``y ~ H e + v`` to first order.
         """
-        n_dp, n_do, add, _, _, _ = self._params(formulation)
+        n_dp, n_do, add, _, _, _ = self.kernel_params(formulation)
         zp = np.zeros(3) if z_position is None else np.ascontiguousarray(z_position, dtype=float)
         zo = (
             np.array([0.0, 0.0, 0.0, 1.0])

@@ -166,7 +166,7 @@ def smooth_filter(
             "state on"
         )  # fmt: skip
     *_, status, xs, ps = _run_segments(kf, rows, frozen(()), False, max_gap, states=True)
-    n_dp, n_do, add, kind, sp, so = kf._params
+    n_dp, n_do, add, kind, sp, so = kf.kernel_settings.params
     out_t, out_q, out_c = np.zeros((tq.size, 3)), np.zeros((tq.size, 4)), np.zeros((tq.size, 6, 6))
     kernels().smooth_run(
         rows[0], xs, ps, status, tq_sorted, n_dp, n_do, add, kind, sp, so, out_t, out_q, out_c
@@ -223,9 +223,9 @@ def _run_segments(kf, rows, h, covariance, max_gap, states=False):
     filtered from scratch); returns the output arrays in time order, and with ``states`` the
     filter states after each row (:func:`smooth_filter`)."""
     ts, pos, quat, cov = rows
-    n_dp, n_do, add, kind, sp, so = kf._params
-    gate = kf._gates[3 if (n_dp < 0 or n_do < 0) else 6]
-    wmax, reset_after = kf._wmax, kf._policy.reset_after
+    settings = kf.kernel_settings
+    n_dp, n_do, add, kind, sp, so = settings.params
+    gate, wmax, reset_after = settings.gate, settings.max_angular_velocity, settings.reset_after
     n, nh = ts.size, h.size
     out_t, out_q = np.zeros((n, 3)), np.zeros((n, 4))
     pred_t, pred_q = np.zeros((nh, n, 3)), np.zeros((nh, n, 4))
@@ -234,13 +234,13 @@ def _run_segments(kf, rows, h, covariance, max_gap, states=False):
     nis = np.full(n, math.nan)
     status = np.zeros(n, dtype=np.int8)
     ns = n if states else 0
-    out_x, out_p = np.zeros((ns, kf._x0.size)), np.zeros((ns, *kf._p0.shape))
+    out_x, out_p = np.zeros((ns, settings.x0.size)), np.zeros((ns, *settings.p0.shape))
     cuts = [0, n]
     if max_gap is not None and n > 1:
         cuts = [0, *(np.flatnonzero(np.diff(ts) > max_gap) + 1).tolist(), n]
     k = kernels()
     for a, b in zip(cuts[:-1], cuts[1:]):
-        x, p = kf._x0.copy(), kf._p0.copy()
+        x, p = settings.x0.copy(), settings.p0.copy()
         seg = slice(a, b)
         cseg = seg if covariance else slice(0, 0)
         sseg = seg if states else slice(0, 0)

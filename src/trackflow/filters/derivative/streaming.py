@@ -15,9 +15,9 @@ from .. import gating
 from ..contract import FilterClock, FilterStatus, MeasurementFunction
 from ..gating import GatePolicy, chi2_gate
 from . import kernels as _source
-from .model import MotionModel, _additive
+from .model import MotionModel
 
-__all__ = ["FilterSnapshot", "PoseKalmanFilter", "chi2_gate"]
+__all__ = ["FilterSnapshot", "KernelSettings", "PoseKalmanFilter", "chi2_gate", "step_records"]
 
 
 def kernels():
@@ -68,6 +68,72 @@ class FilterSnapshot(NamedTuple):
     x: np.ndarray
     p: np.ndarray
     segment_start: bool
+
+
+class KernelSettings(NamedTuple):
+    """A filter's constant inputs to the derivative-model kernels
+    (:attr:`PoseKalmanFilter.kernel_settings`): what a compiled loop over its measurements
+    (:mod:`.offline`) or a batched step of many filters (:class:`~.bank.PoseFilterBank`)
+    needs of it. Two filters with equal settings (:meth:`same_kernel`) compute the same
+    step from the same state and measurement.
+
+    Parameters
+    ----------
+    params : tuple
+        :meth:`MotionModel.kernel_params` of the filter's formulation: ``(n_dp, n_do,
+        additive, kind, sigma_p, sigma_o)``.
+    const : ndarray
+        The same parameters and the angular-velocity bound packed in one read-only array
+        (:func:`kernels.constants`).
+    gate : float
+        NIS threshold of a measurement of the pose parts the model estimates (6 degrees of
+        freedom for a model of position and orientation, else 3).
+    reset_after : int
+        Consecutive gated measurements after which the next absolute one re-initialises.
+    max_angular_velocity : float
+        Bound on the estimated angular velocity [rad/s] (0: none).
+    x0 : ndarray (nx,)
+        The prior state (read-only): the state's length is ``x0.size``.
+    p0 : ndarray (nc, nc)
+        Its covariance (read-only), over the formulation's error state.
+    record_size : int
+        Length of a pose measurement's log record (:func:`step_records`).
+    """
+
+    params: tuple
+    const: np.ndarray
+    gate: float
+    reset_after: int
+    max_angular_velocity: float
+    x0: np.ndarray
+    p0: np.ndarray
+    record_size: int
+
+    def same_kernel(self, other: KernelSettings) -> bool:
+        """Whether a filter with ``other`` settings computes what one with these does."""
+        return (
+            self.x0.shape == other.x0.shape
+            and self.p0.shape == other.p0.shape
+            and self.gate == other.gate
+            and self.reset_after == other.reset_after
+            and np.array_equal(self.const, other.const)
+        )
+
+
+def step_records(x, p, zp, zo, r) -> np.ndarray:
+    """The log records (m, size) of ``m`` pose steps, as the filter keeps them
+    (:meth:`PoseKalmanFilter.commit_step`): the state after the step ``x`` (m, nx), its
+    covariance ``p`` (m, nc, nc) row by row, the measured position ``zp`` (m, 3) [m],
+    quaternion ``zo`` (m, 4) ``(x, y, z, w)`` and noise ``r`` (m, 6, 6) row by row (arrays)."""
+    m, nx = x.shape
+    o = nx + p.shape[1] * p.shape[2]
+    logs = np.empty((m, o + 43))
+    logs[:, :nx] = x
+    logs[:, nx:o] = p.reshape(m, -1)
+    logs[:, o : o + 3] = zp
+    logs[:, o + 3 : o + 7] = zo
+    logs[:, o + 7 :] = r.reshape(m, -1)
+    return logs
 
 
 class _Entry:
@@ -189,11 +255,12 @@ class PoseKalmanFilter(FilterClock):
             raise ValueError(f"max_angular_velocity must be >= 0, got {max_angular_velocity}")
         self._model = model
         self._formulation = formulation
-        self._params = model._params(formulation)
-        self._additive = _additive(formulation)
+        self._params = model.kernel_params(formulation)
+        self._additive = self._params[2]
         self._history = float(history)
         self._policy = GatePolicy(gate_probability, reset_after)
         self._gates = {m: self._policy.threshold(m) for m in (3, 6)}
+        self._reset_after = self._policy.reset_after
         self._wmax = float(max_angular_velocity)
         self._x0, self._p0 = self._prior()
         n_dp, n_do, add = self._params[:3]
@@ -202,6 +269,13 @@ class PoseKalmanFilter(FilterClock):
         self._last_r = (None, None)  # (caller's read-only noise, its writable copy)
         self._pose_model = n_dp >= 0 and n_do >= 0
         self._const = _source.constants(*self._params, self._wmax)
+        x0, p0, const = self._x0.copy(), self._p0.copy(), self._const.copy()
+        for a in (x0, p0, const):
+            a.flags.writeable = False
+        self._settings = KernelSettings(
+            self._params, const, self._gates[6 if self._pose_model else 3],
+            self._policy.reset_after, self._wmax, x0, p0, self._log_sizes[6],
+        )  # fmt: skip
         self.reset()
 
     # -- state -----------------------------------------------------------------------------
@@ -269,6 +343,67 @@ class PoseKalmanFilter(FilterClock):
             "rejected_invalid": c[FilterStatus.INVALID],
             "rejected_uninitialized": self._counts["rejected_uninitialized"],
         }
+
+    # -- batched steps (PoseFilterBank) -------------------------------------------------------
+    @property
+    def kernel_settings(self) -> KernelSettings:
+        """The filter's constant kernel inputs (:class:`KernelSettings`)."""
+        return self._settings
+
+    @property
+    def batchable(self) -> bool:
+        """Whether :meth:`update_pose` of a plain pose measurement is one kernel step that a
+        batch of filters may take for it (:meth:`step_time`, :meth:`commit_step`): ``True``
+        for a model of both position and orientation. A subclass whose ``update_pose`` does
+        more returns ``False``."""
+        return self._pose_model
+
+    def step_time(self, t: float, x=None, p=None) -> float | None:
+        """The time step [s] from the filter's newest state to a pose measurement at ``t``
+        [s] when :meth:`update_pose` would integrate it in one plain kernel step (the filter
+        is initialised, ``t`` is finite and not before its newest state, and no reset is
+        due), else ``None``. With ``x`` and ``p``, also ``None`` unless the filter's state
+        is held in these very arrays (:meth:`bind_state`)."""
+        t0 = self._t
+        if (
+            t0 is None
+            or not t0 <= t < math.inf
+            or self._gated_run >= self._reset_after  # gating.reset_due, initialised
+            or (x is not None and (self._x is not x or self._p is not p))
+        ):
+            return None
+        return t - t0
+
+    def holds_state(self, x: np.ndarray, p: np.ndarray) -> bool:
+        """Whether the filter's newest state and covariance are held in the arrays ``x``
+        (nx,) and ``p`` (nc, nc) (:meth:`bind_state`)."""
+        return self._x is x and self._p is p
+
+    def bind_state(self, x: np.ndarray, p: np.ndarray) -> None:
+        """Hold the newest state in the caller's arrays ``x`` (nx,) and ``p`` (nc, nc) from
+        now on (its values copied in unless they are held there already): a kernel stepping
+        many filters at once writes the states in place (:class:`~.bank.PoseFilterBank`'s
+        rows), and :meth:`commit_step` records the step. The filter replaces them with
+        arrays of its own when it re-initialises or re-filters out of order; bind them
+        again then (:meth:`holds_state`)."""
+        if self._x is not x:
+            x[:] = self._x
+            self._x = x
+        if self._p is not p:
+            p[:, :] = self._p
+            self._p = p
+
+    def commit_step(self, t: float, record: np.ndarray, status: int, nis: float) -> None:
+        """Record a pose measurement at ``t`` [s] that a kernel integrated into the state
+        arrays (:meth:`bind_state`) after :meth:`step_time` said it may, as
+        :meth:`update_pose` records its own step: its log entry (``record``, a row of
+        :func:`step_records`: the measurement and the state after it), its gate decision
+        ``status`` (:class:`FilterStatus`) and NIS, the filter's time and run of gated
+        measurements; a diverged step re-initialises the filter from the measurement. Older
+        entries than the history go."""
+        e = _Entry(t, 0, 0, record, self._nx, self._nc, 6)
+        self._stepped(e, status, nis)
+        self._append(e)
 
     # -- replication -------------------------------------------------------------------------
     def snapshot(self) -> FilterSnapshot:
@@ -538,23 +673,17 @@ class PoseKalmanFilter(FilterClock):
         e.gated_run = self._gated_run
 
     def _stepped(self, e: _Entry, status: int, nis: float) -> None:
-        """Bookkeeping after a kernel (``step_packed``, or ``step_bank`` for a
-        :class:`PoseFilterBank`) integrated entry ``e`` and wrote its state into ``e``'s record:
+        """Bookkeeping after a kernel (``step_packed``, or ``step_bank`` through
+        :meth:`commit_step`) integrated entry ``e`` and wrote its state into ``e``'s record:
         a diverged step re-initialises the filter from ``e``'s measurement."""
         e.status, e.nis = status, nis
         if status == gating.DIVERGED:
             self._reinit(e, "singular innovation covariance or non-finite state")
             e.store_state(self._x, self._p)
-        e.gated_run = self._advance(status, e.t)
-
-    def _advance(self, status: int, t: float) -> int:
-        """The filter's time and run of gated measurements after a kernel step at ``t`` that
-        did not diverge; returns the new run length (the step's log entry records it)."""
         if self._smooth_cache:  # smoothed past states change with a newer measurement
             self._smooth_cache = {}
-        self._gated_run = run = gating.next_gated_run(status, self._gated_run)
-        self._t = t
-        return run
+        self._gated_run = e.gated_run = gating.next_gated_run(status, self._gated_run)
+        self._t = e.t
 
     def _append(self, e: _Entry) -> None:
         """Entry ``e``, the newest, into the log; entries older than the history go."""
