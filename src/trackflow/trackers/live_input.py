@@ -25,9 +25,9 @@ import numpy as np
 
 from ..dataflow import NETWORK_PROTOCOLS, InputSpec
 from ..math import check_covariance
+from ..timesync import ClockMapper
 from ._packet import PacketError
 from .axes import BoundaryConversion
-from .clock import ClockMapper
 from .status import SensorStatus, StatusGroup
 from .waiting import DueWait
 
