@@ -34,6 +34,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Protocol, runtime_checkable
 
+from .errors import InputError
+
 __all__ = [
     "SAMPLE",
     "TICK",
@@ -125,7 +127,7 @@ class Ticker(TimedSource):
         delay_ns: int = 0,
     ):
         if period_ns <= 0:
-            raise ValueError(f"ticker {name!r}: period must be > 0 ns")
+            raise InputError(f"ticker {name!r}: period must be > 0 ns")
         self.name = name
         self.tick = tick
         self.period_ns = int(period_ns)
@@ -179,7 +181,7 @@ class WallTime:
 
     def __init__(self, now=time.time_ns, t0_ns: int | None = None, speed=1.0):
         if not speed > 0:
-            raise ValueError("speed must be > 0")
+            raise InputError("speed must be > 0")
         self._now = now
         self.speed = float(speed)
         self._wall0 = now()

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import (
     Pose,
@@ -82,7 +83,7 @@ def fit_alignment(pa: np.ndarray, pb: np.ndarray, with_scale: bool = False) -> U
     pb = np.asarray(pb, dtype=float)
     sv = np.linalg.svd(pb - pb.mean(axis=0), compute_uv=False)
     if sv[1] < 0.01 * sv[0]:
-        raise ValueError(
+        raise InputError(
             "degenerate trajectory for alignment: the positions lie on a line (spread "
             f"{sv[1] / max(sv[0], 1e-300):.4f} of the main direction); rotation about it is "
             "unobservable"
@@ -90,7 +91,7 @@ def fit_alignment(pa: np.ndarray, pb: np.ndarray, with_scale: bool = False) -> U
     fit = umeyama(pa, pb, with_scale=with_scale)
     d = fit.singular_values
     if fit.reflected and d[2] > 0.2 * d[1]:
-        raise ValueError(
+        raise InputError(
             "the trajectories have opposite handedness: only a reflection aligns them (is "
             "one in a left-handed frame such as Unity's? mirror it first, docs/formats.md)"
         )
@@ -135,7 +136,7 @@ def align_trajectories(
     t = ta.t if ta.period_s >= tb.period_s else tb.t + offset_s
     grid = t[(t >= lo) & (t <= hi)]
     if len(grid) < 10:
-        raise ValueError(f"the trajectories overlap for {max(hi - lo, 0):.2f} s only")
+        raise InputError(f"the trajectories overlap for {max(hi - lo, 0):.2f} s only")
     A = ta.sample(grid)
     B0 = tb.sample(grid - offset_s)
     ok = A.valid & B0.valid

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import quat_exp, quat_from_matrix, quat_multiply, quat_to_matrix, skew, umeyama
 from ..timesync import CorrelationOffset, correlation_offset
@@ -104,7 +105,7 @@ class StreamClockOffset:
 def _grid(a: Trajectory, b: Trajectory, step: float, max_offset_s: float) -> np.ndarray:
     lo, hi = max(a.t[0], b.t[0] - max_offset_s), min(a.t[-1], b.t[-1] + max_offset_s)
     if hi - lo < 4 * max(a.period_s, b.period_s):
-        raise ValueError(
+        raise InputError(
             f"streams {a.name} and {b.name} do not overlap in time "
             f"(a: {a.t[0]:.3f}..{a.t[-1]:.3f} s, b: {b.t[0]:.3f}..{b.t[-1]:.3f} s "
             f"from the common epoch, searching offsets up to {max_offset_s} s)"
@@ -134,9 +135,9 @@ def coarse_offset(
     if signal == "auto":
         signal = "angular" if rotates else "linear"
     if signal not in ("angular", "linear"):
-        raise ValueError(f"signal must be 'auto', 'angular' or 'linear', got {signal!r}")
+        raise InputError(f"signal must be 'auto', 'angular' or 'linear', got {signal!r}")
     if (signal == "angular" and not rotates) or (signal == "linear" and not moves):
-        raise ValueError(
+        raise InputError(
             "no motion to find a clock offset from: angular-speed spread "
             f"{np.degrees(stats['a'][0]):.2f} / {np.degrees(stats['b'][0]):.2f} deg/s and "
             f"linear-speed spread {stats['a'][1] * 1e3:.1f} / {stats['b'][1] * 1e3:.1f} mm/s "
@@ -153,7 +154,7 @@ def coarse_offset(
             max_offset_s=max_offset_s, step_s=step, correlation_time_s=2 * hw,
         )  # fmt: skip
     except ValueError as e:
-        raise ValueError(f"the {signal} speeds of {a.name} and {b.name}: {e}") from e
+        raise InputError(f"the {signal} speeds of {a.name} and {b.name}: {e}") from e
     return r, signal
 
 

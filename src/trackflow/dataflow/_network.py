@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time as _time
 
+from ..errors import InputError
 from ..scheduler import Scheduler, Ticker, WallTime
 from ._component import Component, _Clock
 from ._processing import Sampler
@@ -44,7 +45,7 @@ class Network:
     def add(self, component: Component) -> Component:
         """Add a component (names must be unique); returns it."""
         if component.name in self.components:
-            raise ValueError(f"duplicate component name {component.name!r}")
+            raise InputError(f"duplicate component name {component.name!r}")
         component.clock = self.clock
         self.components[component.name] = component
         return component
@@ -53,7 +54,7 @@ class Network:
         try:
             return self.components[name]
         except KeyError:
-            raise ValueError(f"no component {name!r} in the network") from None
+            raise InputError(f"no component {name!r} in the network") from None
 
     def connect(
         self, src: Component, dst: Component, mode: str | None = None, port: int | None = None
@@ -69,26 +70,26 @@ class Network:
         """
         for c in (src, dst):
             if self.components.get(c.name) is not c:
-                raise ValueError(f"component {c.name!r} is not part of this network")
+                raise InputError(f"component {c.name!r} is not part of this network")
         pull_ok = src.pull_out and dst.pull_in != 0
         push_ok = src.push_out and dst.push_in != 0
         if mode is None:
             mode = "pull" if pull_ok else "push"
         if mode not in ("pull", "push") or not (pull_ok if mode == "pull" else push_ok):
-            raise ValueError(
+            raise InputError(
                 f"cannot connect {src.describe()} to {dst.describe()} by {mode}: no matching ports"
             )
         self._check_acyclic(src, dst)
         if mode == "push":
             n = sum(1 for e in self._edges if e[1] == dst.name and e[2] == "push")
             if 0 < dst.push_in <= n:
-                raise ValueError(f"{dst.name!r} accepts only {dst.push_in} push input(s)")
+                raise InputError(f"{dst.name!r} accepts only {dst.push_in} push input(s)")
             p = n if port is None else int(port)
             src.consumers.append((dst, p))
             self._edges.append((src.name, dst.name, "push", p))
         else:
             if 0 < dst.pull_in <= len(dst.inputs):
-                raise ValueError(f"{dst.name!r} accepts only {dst.pull_in} pull input(s)")
+                raise InputError(f"{dst.name!r} accepts only {dst.pull_in} pull input(s)")
             dst.inputs.append(src)
             self._edges.append((src.name, dst.name, "pull", len(dst.inputs) - 1))
 
@@ -101,7 +102,7 @@ class Network:
         while stack:
             n = stack.pop()
             if n == src.name:
-                raise ValueError(f"connecting {src.name!r} -> {dst.name!r} would create a cycle")
+                raise InputError(f"connecting {src.name!r} -> {dst.name!r} would create a cycle")
             if n not in seen:
                 seen.add(n)
                 stack.extend(succ.get(n, []))
@@ -128,10 +129,10 @@ class Network:
         """``(first arrival, until_ns or last arrival)`` of the recordings [ns]."""
         players = self.players()
         if not players:
-            raise ValueError("the network has no sensor or recording to run")
+            raise InputError("the network has no sensor or recording to run")
         arrivals = [p.arrivals() for p in players if len(p.t_ns)]
         if not arrivals:
-            raise ValueError("every recording in the network is empty")
+            raise InputError("every recording in the network is empty")
         start = min(int(a.min()) for a in arrivals)
         end = max(int(a.max()) for a in arrivals) if until_ns is None else int(until_ns)
         return start, end

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import plan_query
+from ..errors import StateError
 from ..graph import Query
 from ..math import Pose, UncertainPose, quat_angle
 from . import simulation as sim
@@ -65,7 +66,7 @@ def _estimate_static_edge(world: _World, filter_factory) -> tuple[UncertainPose,
     est = sink.get(int(world.t1 * 1e9))
     rejections = {n: st["rejections"] for n, st in net.stats().items() if st["rejections"]}
     if est is None:
-        raise RuntimeError("the static edge could not be estimated: no accepted measurements")
+        raise StateError("the static edge could not be estimated: no accepted measurements")
     return est.pose, rejections
 
 

@@ -53,7 +53,7 @@ from ..dataflow import (
     warm_up,
 )
 from ..dataflow._component import _Clock
-from ..errors import ServiceError
+from ..errors import InputError, ServiceError
 from ..graph import Edge
 from ..math import UncertainPose
 from ..optional import require
@@ -381,7 +381,7 @@ class Agent:
         """Push a live measurement of an own sensor (stamped ``t_ns`` on this agent's clock)."""
         src = self._sources.get(edge)
         if not isinstance(src, RemoteSource) or edge not in self._own:
-            raise ValueError(f"agent {self.name!r} has no live sensor {edge!r}")
+            raise InputError(f"agent {self.name!r} has no live sensor {edge!r}")
         with self.sched.arrival(self.now_ns()) as arr:
             if arr is not None:
                 src.deliver(Measurement(int(t_ns), pose, int(t_ns)))
@@ -391,7 +391,7 @@ class Agent:
         the status says why)."""
         st = self.queries.get(query)
         if st is None:
-            raise ValueError(f"agent {self.name!r} has no query {query!r}")
+            raise InputError(f"agent {self.name!r} has no query {query!r}")
         with self._lock:
             if not isinstance(st.sink, PullSink):
                 return None
@@ -514,7 +514,7 @@ class Agent:
             if node.kind == "kalman" and "imu" in node.params and edge not in self._own:
                 line = self.setup.lines.get(f"imus.{node.params['imu']}", 0)
                 where = f"{self.setup.source}:{line}" if line else self.setup.source
-                raise ValueError(
+                raise InputError(
                     f"{where}: imus: {node.params['imu']!r} is on the body of sensor {edge!r} "
                     "of another agent; an IMU aids only this agent's own sensors"
                 )

@@ -19,6 +19,7 @@ import collections
 from dataclasses import dataclass
 
 from ..dataflow import SAMPLE, Component, Measurement, Scheduler
+from ..errors import InputError
 from ..graph import Edge
 from ..math import UncertainPose
 from . import wire
@@ -343,4 +344,4 @@ def remote_get(session, realm: str, key: str, t_ns: int, timeout_s: float = 2.0)
         if reply.ok is not None:
             return wire.decode(reply.ok.payload.to_bytes())
         errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
-    raise ValueError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))
+    raise InputError(f"{key} at t={t_ns}: " + ("; ".join(errors) or "no reply"))

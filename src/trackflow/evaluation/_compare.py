@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import PoseStream
 from ..math import quat_from_matrix, quat_to_matrix, umeyama
 
@@ -82,9 +83,9 @@ def associate(
         Added to the estimate's times before matching [s].
     """
     if not (np.isfinite(t_max_diff) and t_max_diff >= 0):
-        raise ValueError(f"t_max_diff must be >= 0 s, got {t_max_diff}")
+        raise InputError(f"t_max_diff must be >= 0 s, got {t_max_diff}")
     if not np.isfinite(t_offset):
-        raise ValueError(f"t_offset must be finite, got {t_offset}")
+        raise InputError(f"t_offset must be finite, got {t_offset}")
     est_longer = len(t_est) > len(t_ref)
     short, long_ = (t_ref, t_est) if est_longer else (t_est, t_ref)
     long_ = long_ + (t_offset if est_longer else -t_offset)
@@ -258,14 +259,14 @@ def compare_trajectories(
         No associated pairs, fewer than 3 for an alignment, or bad settings.
     """
     if align not in ALIGNMENTS:
-        raise ValueError(f"align must be one of {ALIGNMENTS}, got {align!r}")
+        raise InputError(f"align must be one of {ALIGNMENTS}, got {align!r}")
     if int(delta) != delta or delta < 1:
-        raise ValueError(f"delta must be an integer >= 1, got {delta}")
+        raise InputError(f"delta must be an integer >= 1, got {delta}")
     tr = np.asarray(ref.t_ns) * 1e-9
     te = np.asarray(est.t_ns) * 1e-9
     ir, ie = associate(tr, te, t_max_diff, t_offset)
     if not len(ir):
-        raise ValueError(
+        raise InputError(
             f"no associated poses: reference {tr[0]:.9g}..{tr[-1]:.9g} s, estimate "
             f"{te[0]:.9g}..{te[-1]:.9g} s (+ offset {t_offset:g} s) with --t-max-diff "
             f"{t_max_diff:g} s"

@@ -31,7 +31,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, StateError
 
 __all__ = ["STDIO", "atomic_output", "remove_stale_temporaries"]
 
@@ -117,7 +117,7 @@ def atomic_output(path, *, overwrite: bool = False, directory: bool = False) -> 
     try:
         yield tmp
         if not tmp.exists():
-            raise RuntimeError(f"{path}: the writer produced nothing")
+            raise StateError(f"{path}: the writer produced nothing")
         _publish(tmp, path, overwrite, directory)
     finally:
         _remove(holder)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ._backend import frozen
 from ._backend import kernels as _kernels
 
@@ -125,7 +126,7 @@ def umeyama(
     b = np.asarray(points_b, dtype=float)
     need = 3 if with_translation else 2
     if a.shape != b.shape or a.ndim < 2 or a.shape[-1] != 3 or a.shape[-2] < need:
-        raise ValueError(
+        raise InputError(
             f"need two (M, 3) point sets of the same shape with M >= {need}, got {a.shape} "
             f"and {b.shape}"
         )
@@ -136,7 +137,7 @@ def umeyama(
         w = np.broadcast_to(np.asarray(weights, dtype=float), a.shape[:-1])
         total = w.sum(axis=-1)
         if np.any(w < 0) or not np.all(total > 0) or not np.all(np.isfinite(w)):
-            raise ValueError("weights must be (M,) non-negative and finite, with a positive sum")
+            raise InputError("weights must be (M,) non-negative and finite, with a positive sum")
     n = int(np.prod(batch))
     rotation = np.empty((n, 3, 3))
     translation = np.empty((n, 3))
@@ -153,7 +154,7 @@ def umeyama(
     )
     sv = info[:, 2:5]
     if not allow_collinear and np.any(sv[:, 1] <= _RANK_TOLERANCE * sv[:, 0]):
-        raise ValueError(
+        raise InputError(
             "the points are collinear (or all equal): the rotation about their line is unknown"
         )
     if not batch:  # one fit: plain numbers

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..math import Pose, UncertainPose, kernels_for
 from . import _kernels
 
@@ -65,19 +66,19 @@ def fit_pose(model, measured, covariance, iterations: int = 2) -> PoseFit:
     x = np.asarray(measured, dtype=float)
     C = np.asarray(covariance, dtype=float)
     if C.shape != m.shape + (3,) or x.shape != m.shape:
-        raise ValueError(
+        raise InputError(
             f"model (M, 3), measured (M, 3) and covariance (M, 3, 3) must agree, got "
             f"{m.shape}, {x.shape}, {C.shape}"
         )
     if not (np.all(np.isfinite(m)) and np.all(np.isfinite(x)) and np.all(np.isfinite(C))):
-        raise ValueError("model, measured points and covariances must be finite")
+        raise InputError("model, measured points and covariances must be finite")
     if len(m) < 3:
-        raise ValueError(f"need at least 3 points, got {len(m)}")
+        raise InputError(f"need at least 3 points, got {len(m)}")
     sv = np.linalg.svd(m - m.mean(axis=0), compute_uv=False)
     if sv[1] <= 1e-9 * sv[0]:
-        raise ValueError("the points are collinear: the rotation about their line is unknown")
+        raise InputError("the points are collinear: the rotation about their line is unknown")
     if np.any(np.linalg.eigvalsh(C)[:, 0] <= 0):
-        raise ValueError("a point covariance is not positive definite")
+        raise InputError("a point covariance is not positive definite")
     t, q, cov, point_chi2 = kernels_for(_kernels).fit_pose_cov(
         np.ascontiguousarray(m), np.ascontiguousarray(x), np.ascontiguousarray(C), int(iterations)
     )

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["CorrelationOffset", "correlation_offset"]
 
 #: Fewest grid points valid in both recordings for a lag to count.
@@ -67,9 +69,9 @@ def _sampled(t, s):
     t = np.asarray(t, dtype=float).reshape(-1)
     s = np.asarray(s, dtype=float).reshape(-1)
     if t.shape != s.shape or t.shape[0] < 2:
-        raise ValueError("a recording needs matching times and values, at least two")
+        raise InputError("a recording needs matching times and values, at least two")
     if not np.all(np.diff(t) > 0):
-        raise ValueError("a recording's times must increase")
+        raise InputError("a recording's times must increase")
     return t, s
 
 
@@ -126,7 +128,7 @@ def correlation_offset(
     lo, hi = max(th[0], tr[0] - m), min(th[-1], tr[-1] + m)
     grid = np.arange(lo, hi, step) if hi > lo else np.empty(0)
     if grid.shape[0] < MIN_COMMON:
-        raise ValueError(
+        raise InputError(
             f"the recordings overlap too little to find a clock offset (host {th[0]:.3f}.."
             f"{th[-1]:.3f} s, remote {tr[0]:.3f}..{tr[-1]:.3f} s, offsets up to {m} s)"
         )
@@ -142,7 +144,7 @@ def correlation_offset(
         d = math.sqrt(float(x @ x) * float(y @ y))
         corr[k] = float(x @ y) / d if d > 0 else np.nan
     if not np.any(np.isfinite(corr)):
-        raise ValueError("the recordings share too few valid samples at every lag")
+        raise InputError("the recordings share too few valid samples at every lag")
     k = int(np.nanargmax(corr))
     peak = float(corr[k])
     coarse = float(lags[k])
@@ -152,12 +154,12 @@ def correlation_offset(
         if den < 0:
             coarse += float(0.5 * (c0 - c2) / den * step)
     if peak < min_peak:
-        raise ValueError(
+        raise InputError(
             f"the recordings do not correlate (peak {peak:.2f} within +-{m} s): do they show "
             "one signal, is the offset larger?"
         )
     if k in (0, lags.shape[0] - 1):
-        raise ValueError(
+        raise InputError(
             f"correlation peak at the edge of the search range +-{m} s: increase max_offset_s"
         )
     if not refine:
@@ -178,7 +180,7 @@ def _fit(a, grid, tr, sr, offset, step, tau, slow) -> tuple[float, float]:
         b = _at(tr, sr, grid - x[2])
         ok = np.isfinite(a) & np.isfinite(b)
         if ok.sum() < MIN_COMMON:
-            raise ValueError("the recordings share too few valid samples at the offset")
+            raise InputError("the recordings share too few valid samples at the offset")
         if it == 0:  # the linear parameters at the peak
             x[1], x[0] = np.polyfit(b[ok], a[ok], 1)
         db = slope(grid - x[2])

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError, StateError
 from ..math import frozen, kernels_for
 from . import _kernels
 from ._round_trip import round_trip_offset
@@ -100,7 +101,7 @@ def lower_envelope(x, y) -> tuple[float, float]:
     (:func:`trackflow.timesync._kernels.lower_envelope`).
     """
     if len(x) == 0:
-        raise ValueError("no points")
+        raise InputError("no points")
     a, b = kernels_for(_kernels).lower_envelope(frozen(x), frozen(y))
     return float(a), float(b)
 
@@ -144,7 +145,7 @@ class ClockMapper:
         max_rtt_s: float = 0.1,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
-            raise ValueError("clock mapper: need window_s > bin_s > 0")
+            raise InputError("clock mapper: need window_s > bin_s > 0")
         self.window_ns = int(window_s * 1e9)
         self.bin_ns = int(bin_s * 1e9)
         self.min_span_ns = int(min_span_s * 1e9)
@@ -226,7 +227,7 @@ class ClockMapper:
         for k in range(6):
             c.add(k * 100_000_000, k * 100_000_000 + 5_000)
         if c.estimate is None or c.estimate.points < 2:
-            raise RuntimeError("the clock fit made no estimate")
+            raise StateError("the clock fit made no estimate")
 
     def _close_bin(self, remote_ns: int) -> None:
         """The open bin's minimum into the window; the bins older than the window go."""
@@ -311,5 +312,5 @@ class ClockMapper:
     def to_host(self, remote_ns: int) -> int:
         """Host time [ns] of a remote time [ns] (the latest estimate)."""
         if self.estimate is None:
-            raise ValueError("clock mapper: no samples yet")
+            raise InputError("clock mapper: no samples yet")
         return self.estimate.to_host(remote_ns)

@@ -17,6 +17,8 @@ import math
 import threading
 from collections import deque
 
+from ..errors import InputError
+
 __all__ = ["RoundTripOffset", "round_trip_offset"]
 
 
@@ -45,7 +47,7 @@ def round_trip_offset(send_host_ns: int, remote_ns: int, recv_host_ns: int) -> t
     """
     rtt = int(recv_host_ns) - int(send_host_ns)
     if rtt < 0:
-        raise ValueError(f"round trip ends before it starts ({rtt} ns)")
+        raise InputError(f"round trip ends before it starts ({rtt} ns)")
     offset = (int(send_host_ns) + int(recv_host_ns)) // 2 - int(remote_ns)
     return offset, rtt / (2.0 * math.sqrt(3.0))
 
@@ -82,7 +84,7 @@ class RoundTripOffset:
     def _best(self) -> tuple[int, int]:
         best = self._best_trip
         if best is None:
-            raise ValueError("no clock round trip yet")
+            raise InputError("no clock round trip yet")
         return best
 
     @property

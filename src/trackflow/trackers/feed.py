@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataflow import InputSpec, feed_factory
+from ..errors import InputError
 from ._packet import PacketError
 from .live_input import Body, LiveInput, Sample, host_ns
 
@@ -31,14 +32,14 @@ class FeedInput(LiveInput):
         self.feed = feed_factory(spec.protocol)(spec.options)
         t = np.asarray(self.feed.t_ns, dtype=np.int64)
         if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0):
-            raise ValueError(f"input.{spec.protocol}: frame times must be strictly increasing")
+            raise InputError(f"input.{spec.protocol}: frame times must be strictly increasing")
         self.offsets = t - t[0]  # exposure of frame i after the start [ns]
         self.feed.warm_up()
 
     def add_body(self, name: str, spec: InputSpec, covariance) -> Body:
         body = spec.options["body"]
         if not self.feed.has_body(body):
-            raise ValueError(
+            raise InputError(
                 f"sensor {name!r}: input.{spec.protocol}.body {body!r} is not measured by "
                 f"{spec.options.get('config', spec.protocol)}"
             )

@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..dataflow import NETWORK_PROTOCOLS, InputSpec
+from ..errors import InputError
 from ..math import check_covariance
 from ..timesync import ClockMapper
 from ._packet import PacketError
@@ -227,7 +228,7 @@ class LiveInput:
 
     def add_body(self, name: str, spec: InputSpec, covariance) -> Body:
         if self.connection_key(spec) != self.connection_key(self.spec):
-            raise ValueError(f"sensor {name!r}: another connection than {self.spec.options}")
+            raise InputError(f"sensor {name!r}: another connection than {self.spec.options}")
         b = Body(name, spec, covariance)
         self.bodies.append(b)
         self.statuses.add(b.status)

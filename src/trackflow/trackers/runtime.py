@@ -45,6 +45,7 @@ from ..dataflow import (
     collect_due,
     warm_up,
 )
+from ..errors import InputError
 from ..filters import Layouts
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
@@ -159,7 +160,7 @@ class LiveSources:
     """The live sources of a network delivering the samples of a packet together.
 
     :meth:`deliver` does what ``sources[name].deliver(sample)`` one after the other does;
-    the measurements of sources whose only consumer is a plain :class:`KalmanFilter` go to
+    the measurements of sources whose only consumer is a bankable :class:`KalmanFilter` go to
     the filters in one batched call (:class:`trackflow.dataflow.KalmanBank`), the others
     one by one, in order (the batch so far is pushed first).
 
@@ -174,7 +175,8 @@ class LiveSources:
         kfs: list[KalmanFilter] = []
         self._row: dict[str, tuple[int, list]] = {}
         for name, src in sources.items():
-            if len(src.consumers) == 1 and type(src.consumers[0][0]) is KalmanFilter:
+            dst = src.consumers[0][0] if len(src.consumers) == 1 else None
+            if isinstance(dst, KalmanFilter) and dst.bankable:  # its updates may be batched
                 self._row[name] = (len(kfs), list(src.consumers))
                 kfs.append(src.consumers[0][0])
         #: the filters fed directly by a source, in one bank (pull answers through it)
@@ -271,7 +273,7 @@ class LiveSources:
             if row is None or srcs[name].consumers != row[1]:
                 lone = [n for n in names if n not in rows]
                 if answer is not None and lone:
-                    raise ValueError(f"{lone[0]}: answers need a source that feeds one filter")
+                    raise InputError(f"{lone[0]}: answers need a source that feeds one filter")
                 items = _dispatched(names, block, arrival_ns)
                 ok = [pose is not None for pose in self.deliver(items, clock)]
                 if answer is not None:
@@ -343,7 +345,7 @@ class RunResult:
 def _push_query(setup: Setup, query: str | None):
     q = setup.query(query)
     if q.mode != "push" or not q.rate_hz:
-        raise ValueError(
+        raise InputError(
             f"{setup.source}: query {q.name!r} must be a push query with rate_hz to run live"
         )
     return q
@@ -460,7 +462,7 @@ def _require_inputs(setup: Setup, edges: list[str]) -> None:
     if missing:
         line = setup.lines.get(f"sensors.{missing[0]}", 0)
         where = f"{setup.source}:{line}" if line else setup.source
-        raise ValueError(
+        raise InputError(
             f"{where}: sensor(s) {missing} have no 'input:' (a live tracker); trackflow run "
             "opens and records every sensor of the setup: add one, or replay a recording "
             "with --replay"
@@ -684,18 +686,18 @@ def replay(setup: Setup, record, *, query: str | None = None, history_s: float =
     for e in _sensor_edges(plan):
         exp_path, arr_path = input_paths(record, e)
         if not exp_path.exists() or not arr_path.exists():
-            raise ValueError(f"{record}: no recorded input of sensor {e!r} ({exp_path.name})")
+            raise InputError(f"{record}: no recorded input of sensor {e!r} ({exp_path.name})")
         exp, _ = read_stream(exp_path, format="native")
         arr, _ = read_stream(arr_path, format="native")
         n = min(len(exp), len(arr))  # a killed run may have written one file further
         exp, arr = exp[:n], arr[:n]
         if not np.array_equal(exp.position, arr.position):
-            raise ValueError(f"{arr_path}: records do not match {exp_path.name}")
+            raise InputError(f"{arr_path}: records do not match {exp_path.name}")
         players[e] = _ArrivalPlayer(e, exp, arr)
     net, sink = plan.build(players, history_s=history_s)
     sampler = next(c for c in net.components.values() if isinstance(c, Sampler))
     if len(recorded) == 0:
-        raise ValueError(f"{record}: the run recorded no answers")
+        raise InputError(f"{record}: the run recorded no answers")
     offset = int(round(q.time_offset_s * 1e9))
     sampler.start_ns = int(recorded.t_ns[0]) - offset
     net.run(until_ns=int(recorded.t_ns[-1]) - offset)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..dataflow import Network, Plan, Setup, load_setup
+from ..errors import InputError, ServiceError
 from .live import LiveView, attach_view
 from .simulate import setup_sources
 
@@ -65,7 +66,7 @@ class SetupRun:
             plan.build(sources, network=self.network, prefix=prefix)
             plans[name] = (plan, prefix)
         if not plans and not sources:
-            raise ValueError(f"{setup.source}: nothing to show (no sensors and no queries)")
+            raise InputError(f"{setup.source}: nothing to show (no sensors and no queries)")
         for name, player in sources.items():  # sensors no query uses still run and show
             if name not in self.network.components:
                 self.network.add(player)
@@ -75,7 +76,7 @@ class SetupRun:
         )  # fmt: skip
         if opts.query:
             if opts.query not in plans:
-                raise ValueError(f"{setup.source}: no plannable query {opts.query!r}")
+                raise InputError(f"{setup.source}: no plannable query {opts.query!r}")
             self.view.selected_query = opts.query
         self.view.set_sigma(opts.sigma)
         self.view.set_offset(opts.offset_s)
@@ -97,9 +98,9 @@ class SetupRun:
         end = time.monotonic() + timeout_s
         while self.network.clock.now_ns * 1e-9 < t_s:
             if self.error is not None:
-                raise RuntimeError(f"the network stopped: {self.error}")
+                raise ServiceError(f"the network stopped: {self.error}")
             if time.monotonic() > end:
-                raise RuntimeError(f"the network did not reach t = {t_s} s in {timeout_s} s")
+                raise ServiceError(f"the network did not reach t = {t_s} s in {timeout_s} s")
             time.sleep(0.02)
 
     def close(self, timeout_s: float = 10.0) -> None:
@@ -150,7 +151,7 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
             view.magnify.value = float(opts.magnify)
         at = 0.0 if opts.at_s is None else float(opts.at_s)
         if not 0.0 <= at <= view.track.duration:
-            raise ValueError(
+            raise InputError(
                 f"--at {at} s is outside the recording (0 to {view.track.duration:.3f} s)"
             )
         view.show(at)
@@ -184,6 +185,6 @@ def _block(url: str, what) -> None:
             time.sleep(0.5)
             err = getattr(what, "error", None)
             if err is not None:
-                raise RuntimeError(f"the network stopped: {err}")
+                raise ServiceError(f"the network stopped: {err}")
     except KeyboardInterrupt:
         return None

@@ -11,6 +11,7 @@ import numpy as np
 
 from trackflow.math import Pose, UncertainPose, check_covariance, check_quaternion, kernels_for
 
+from ...errors import InputError
 from .. import gating
 from ..contract import FilterClock, FilterStatus, MeasurementFunction
 from ..gating import GatePolicy, chi2_gate
@@ -248,11 +249,11 @@ class PoseKalmanFilter(FilterClock):
         reset_after: int = 10,
     ):
         if not isinstance(model, MotionModel):
-            raise ValueError(f"model must be a MotionModel, got {type(model).__name__}")
+            raise InputError(f"model must be a MotionModel, got {type(model).__name__}")
         if not (math.isfinite(history) and history >= 0):
-            raise ValueError(f"history must be finite and >= 0 seconds, got {history}")
+            raise InputError(f"history must be finite and >= 0 seconds, got {history}")
         if not (math.isfinite(max_angular_velocity) and max_angular_velocity >= 0):
-            raise ValueError(f"max_angular_velocity must be >= 0, got {max_angular_velocity}")
+            raise InputError(f"max_angular_velocity must be >= 0, got {max_angular_velocity}")
         self._model = model
         self._formulation = formulation
         self._params = model.kernel_params(formulation)
@@ -410,7 +411,7 @@ class PoseKalmanFilter(FilterClock):
         """The newest state (after the newest logged measurement), for :meth:`adopt` by a copy
         of this filter elsewhere (read-only arrays; the filter never changes them)."""
         if not self._log:
-            raise ValueError("the filter has no measurement yet; nothing to snapshot")
+            raise InputError("the filter has no measurement yet; nothing to snapshot")
         e = self._log[-1]
         return FilterSnapshot(e.t, e.x, e.p, e.status in _SEGMENT_START)
 
@@ -432,7 +433,7 @@ class PoseKalmanFilter(FilterClock):
         x = np.asarray(snap.x, dtype=float)  # copied into the entry's record
         p = np.asarray(snap.p, dtype=float)
         if x.shape != self._x0.shape or p.shape != self._p0.shape or not math.isfinite(t):
-            raise ValueError(
+            raise InputError(
                 f"state of shape {x.shape} / {p.shape} at t={t} does not fit this filter "
                 f"({self._x0.shape} / {self._p0.shape})"
             )
@@ -466,7 +467,7 @@ class PoseKalmanFilter(FilterClock):
             window (both counted in :attr:`stats`).
         """
         if not isinstance(measurement, UncertainPose) or measurement.shape != ():
-            raise ValueError("update_pose needs a single UncertainPose")
+            raise InputError("update_pose needs a single UncertainPose")
         pose = measurement.pose
         zp, zo, c = pose.position, pose.quaternion, measurement.covariance
         if self._pose_model:
@@ -482,10 +483,10 @@ class PoseKalmanFilter(FilterClock):
     def update_orientation(self, t: float, quaternion, covariance) -> bool:
         """Orientation ``q_a_b`` with 3x3 covariance of ``dtheta`` (``R_true = R Exp(dtheta)``)."""
         if self._params[1] < 0:
-            raise ValueError("this motion model does not estimate orientation (n_do = -1)")
+            raise InputError("this motion model does not estimate orientation (n_do = -1)")
         q = check_quaternion(quaternion)
         if q.shape != (4,):
-            raise ValueError(f"quaternion must have shape (4,), got {q.shape}")
+            raise InputError(f"quaternion must have shape (4,), got {q.shape}")
         return self._measure(t, -1, 0, np.zeros(3), q, check_covariance(covariance, size=3))
 
     def update_velocity(self, t: float, velocity, covariance) -> bool:
@@ -504,13 +505,13 @@ class PoseKalmanFilter(FilterClock):
         level, have = (lp, self._params[0]) if lp >= 0 else (lo, self._params[1])
         if have < level:
             part = "position" if lp >= 0 else "orientation"
-            raise ValueError(
+            raise InputError(
                 f"cannot integrate a {name} measurement: the motion model estimates "
                 f"{max(have, -1)} {part} derivatives (needs >= {level})"
             )
         v = np.asarray(value, dtype=float)
         if v.shape != (3,) or not np.all(np.isfinite(v)):
-            raise ValueError(f"{name} must be finite with shape (3,), got {v.shape}")
+            raise InputError(f"{name} must be finite with shape (3,), got {v.shape}")
         c = check_covariance(covariance, name=f"{name} covariance", size=3)
         if lp >= 0:
             return self._measure(t, lp, -1, v, np.zeros(4), c)
@@ -534,14 +535,14 @@ class PoseKalmanFilter(FilterClock):
             covariance (``rejected_invalid``; the state stays the prediction).
         """
         if not isinstance(measurement, MeasurementFunction):
-            raise ValueError(
+            raise InputError(
                 "measurement must have residual(pose) -> (y, J_h_pose) and covariance, got "
                 f"{type(measurement).__name__}"
             )
         if self._additive:
-            raise ValueError("measurement functions need the error_state formulation")
+            raise InputError("measurement functions need the error_state formulation")
         if self._params[0] < 0 or self._params[1] < 0:
-            raise ValueError(
+            raise InputError(
                 "measurement functions need a model estimating position and orientation"
             )
         if self._t is None:
@@ -552,7 +553,7 @@ class PoseKalmanFilter(FilterClock):
     def _measure(self, t, lp, lo, zp, zo, r, fn=None) -> bool:
         t = float(t)
         if not math.isfinite(t):
-            raise ValueError(f"measurement time must be finite, got {t}")
+            raise InputError(f"measurement time must be finite, got {t}")
         if self._smooth_cache:
             self._smooth_cache = {}
         if type(r) is np.ndarray and not r.flags.writeable and r.base is None:
@@ -616,7 +617,7 @@ class PoseKalmanFilter(FilterClock):
         m = y.size
         J = np.asarray(J, dtype=float)
         if J.shape != (m, 6) or not (np.all(np.isfinite(y)) and np.all(np.isfinite(J))):
-            raise ValueError(
+            raise InputError(
                 f"measurement residual must be finite y (m,) and J_h_pose (m, 6); got y "
                 f"{y.shape}, J {J.shape}"
             )
@@ -713,10 +714,10 @@ class PoseKalmanFilter(FilterClock):
     def predict_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Nominal state and covariance at time ``t`` (see :meth:`predict`)."""
         if self._t is None:
-            raise ValueError("the filter has no measurement yet; cannot predict")
+            raise InputError("the filter has no measurement yet; cannot predict")
         t = float(t)
         if not math.isfinite(t):
-            raise ValueError(f"prediction time must be finite, got {t}")
+            raise InputError(f"prediction time must be finite, got {t}")
         n_dp, n_do, add, kind, sp, so = self._params
         k = kernels()
         if t >= self._t:
@@ -725,7 +726,7 @@ class PoseKalmanFilter(FilterClock):
         off = 1 if self._base is not None else 0
         oldest = self._node(0).t
         if t < oldest:
-            raise ValueError(
+            raise InputError(
                 f"t={t:.6f} s is older than the stored history (oldest state at "
                 f"{oldest:.6f} s; history={self._history} s)"
             )

@@ -25,6 +25,7 @@ from trackflow.math import (
 )
 from trackflow.timesync import correlation_offset
 
+from ...errors import InputError
 from .model import GRAVITY, ImuNoise
 
 __all__ = [
@@ -58,7 +59,7 @@ def allan_deviation(samples, rate_hz: float, taus=None) -> tuple[np.ndarray, np.
     x = x.reshape(x.shape[0], -1)
     n = x.shape[0]
     if n < 20:
-        raise ValueError(f"Allan deviation needs at least 20 samples, got {n}")
+        raise InputError(f"Allan deviation needs at least 20 samples, got {n}")
     dt = 1.0 / float(rate_hz)
     if taus is None:
         m = np.unique(np.logspace(0, np.log10(max(n // 9, 2)), 30).astype(int))
@@ -137,7 +138,7 @@ def estimate_clock_offset(
     if step is None:
         step = min(0.5 * float(np.median(np.diff(pose_t))), 0.005)
     if min(ti[-1], tp_mid[-1]) - max(ti[0], tp_mid[0]) < 12 * max_offset:
-        raise ValueError("IMU and pose recordings overlap too little to estimate a clock offset")
+        raise InputError("IMU and pose recordings overlap too little to estimate a clock offset")
     speed_imu = np.linalg.norm(np.asarray(gyro, float), axis=1)
     r = correlation_offset(
         tp_mid, np.linalg.norm(w_pose, axis=1), ti, speed_imu, max_offset_s=max_offset,
@@ -176,7 +177,7 @@ def estimate_imu_rotation(
     w_s = (c1 - c0) / np.diff(t)[:, None]
     use = inside & (np.linalg.norm(w_b, axis=1) > min_speed) & np.all(np.isfinite(w_b), axis=1)
     if np.count_nonzero(use) < 10:
-        raise ValueError("too little rotation to estimate the IMU-to-body rotation")
+        raise InputError("too little rotation to estimate the IMU-to-body rotation")
     a, b = w_s[use], w_b[use]
     # w_b = R_b_s (w_s - bias): T_b_s's rotation, its translation is -R_b_s bias
     fit = umeyama(b, a, allow_collinear=True)
@@ -197,7 +198,7 @@ def estimate_gravity(imu_t, accel, pose_t, quaternion, imu_quaternion=None) -> n
     q = quat_make_continuous(np.asarray(quaternion, float))
     inside = (ti >= tp[0]) & (ti <= tp[-1])
     if np.count_nonzero(inside) < 10:
-        raise ValueError("IMU and pose recordings do not overlap")
+        raise InputError("IMU and pose recordings do not overlap")
     tq = ti[inside]
     j = np.clip(np.searchsorted(tp, tq, side="right") - 1, 0, tp.shape[0] - 2)
     s = (tq - tp[j]) / (tp[j + 1] - tp[j])
