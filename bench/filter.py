@@ -220,9 +220,9 @@ def stability(steps: int) -> dict:
     """Run ``steps`` pose updates at 1 kHz in chunks, checking P and q after each chunk."""
     k = kernels()
     model = MotionModel(2, 1, noise=NOISE)
-    n_dp, n_do, add, kind, sp, so = model.kernel_params("error_state")
-    kf = PoseKalmanFilter(model)
-    x, p = kf._x0.copy(), kf._p0.copy()
+    settings = PoseKalmanFilter(model).kernel_settings
+    n_dp, n_do, add, kind, sp, so = settings.params
+    x, p = settings.x0.copy(), settings.p0.copy()
     rng = np.random.default_rng(3)
     chunk = min(steps, 100_000)
     done = 0

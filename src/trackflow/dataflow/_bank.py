@@ -85,9 +85,9 @@ class KalmanBank:
         """The batched updates of ``run``, counted and accounted for as
         :meth:`KalmanFilter.push` does."""
         index = [i for i, _ in run]
-        times = self._times(index, [m.t_ns for _, m in run])
+        times, ns = self._times(index, [m.t_ns for _, m in run])
         accepted = self._filters().update_poses(index, times, [m.pose for _, m in run])
-        self._account(index, [(m.t_ns, m.origin_ns) for _, m in run], accepted)
+        self._account(index, ns, [m.origin_ns for _, m in run], accepted)
 
     def push_block(
         self,
@@ -111,19 +111,21 @@ class KalmanBank:
         components. A list of components pushed again and again (a tracker's packet) is
         looked up once (:class:`Layouts`) and checked per call for what may have changed."""
         cs = self._lanes(tuple(index))
-        times = None if cs is None else self._lane_times(cs, index, t_ns)
-        if times is None:  # not a lane, or a component changed since: the general checks
+        lane = None if cs is None else self._lane_times(cs, index, t_ns)
+        if lane is None:  # not a lane, or a component changed since: the general checks
             comps = self.components
             cs = [comps[i] for i in index]
             if not all(map(self._plain, cs)):
                 self._push_objects(index, t_ns, position, quaternion, covariance, answer)
                 return
-            times = self._times(index, [t_ns] * len(index))
+            times, ns = self._times(index, [t_ns] * len(index))
             self._filters()
+        else:
+            times, ns = lane
         bank = self._bank
         if answer is None:
             accepted = bank.update_block(index, times, position, quaternion, covariance)
-            self._account(index, [(t_ns, t_ns)] * len(index), accepted)
+            self._account(index, ns, [t_ns] * len(index), accepted)
             return
         at_ns, deliver = answer
         accepted, ahead = bank.update_block(
@@ -131,7 +133,7 @@ class KalmanBank:
         )
         answered = None
         try:  # answers first; the counts, the answers' and the filters' bookkeeping after
-            if self._timed(cs, t_ns, accepted, at_ns):
+            if self._timed(cs, ns, t_ns, accepted, at_ns):
                 answered = ahead.ok
                 deliver(ahead)
             else:  # a refusal: counted as pull_block counts it
@@ -153,27 +155,31 @@ class KalmanBank:
         once = len(set(key)) == len(key)
         return cs if once and all(c.bankable for c in cs) else None
 
-    def _lane_times(self, cs: list, index: Sequence[int], t_ns: int) -> list[float] | None:
-        """The filter times [s] of a block at ``t_ns`` for the components ``cs`` (at
-        ``index``) when each only keeps its state (:meth:`_plain`) and the bank holds its
-        current filter, else ``None`` (the general path)."""
+    def _lane_times(self, cs: list, index: Sequence[int], t_ns: int) -> tuple | None:
+        """The filter times of a block stamped ``t_ns`` for the components ``cs`` (at
+        ``index``), in seconds and in nanoseconds (:meth:`KalmanFilter.bank_time`), when
+        each only keeps its state and the bank holds its current filter, else ``None`` (the
+        general path)."""
         bank = self._bank
         if bank is None:
             return None
         filters = bank.filters
-        times = []
+        times, ns = [], []
         for c, i in zip(cs, index):
-            if not c.batchable or c.filter is not filters[i]:
+            t = c.bank_time(t_ns)
+            if t is None or c.filter is not filters[i]:
                 return None
-            times.append(c.measurement_time(t_ns) * 1e-9)
-        return times
+            ns.append(t)
+            times.append(t * 1e-9)
+        return times, ns
 
-    def _timed(self, cs: list, t_ns: int, accepted: list, at_ns: int) -> bool:
-        """The components' first/last times and origin after their updates at ``t_ns``
-        (:meth:`_account`'s), then whether each answers at ``at_ns`` (no refusal)."""
-        for c, ok in zip(cs, accepted):
+    def _timed(self, cs: list, ns: list, t_ns: int, accepted: list, at_ns: int) -> bool:
+        """The components' first/last times and origin after their updates at ``ns`` (the
+        stamp ``t_ns`` corrected; :meth:`_account`'s), then whether each answers at
+        ``at_ns`` (no refusal)."""
+        for c, t, ok in zip(cs, ns, accepted):
             if ok:
-                c.accepted(c.measurement_time(t_ns), t_ns)
+                c.accepted(t, t_ns)
         return all(c.refusal(at_ns) is None for c in cs)
 
     @staticmethod
@@ -207,20 +213,21 @@ class KalmanBank:
         at_ns, deliver = answer
         deliver(self.pull_block(index, [at_ns] * len(index)))
 
-    def _times(self, index: Sequence[int], t_ns: Sequence[int]) -> list[float]:
-        """The filter times [s] of measurements stamped ``t_ns`` for components ``index``."""
+    def _times(self, index: Sequence[int], t_ns: Sequence[int]) -> tuple[list, list]:
+        """The filter times of measurements stamped ``t_ns`` for components ``index``, in
+        seconds and in nanoseconds (:meth:`KalmanFilter.measurement_time`)."""
         comps = self.components
-        return [comps[i].measurement_time(t) * 1e-9 for i, t in zip(index, t_ns)]
+        ns = [comps[i].measurement_time(t) for i, t in zip(index, t_ns)]
+        return [t * 1e-9 for t in ns], ns
 
-    def _account(self, index, stamps, accepted) -> None:
+    def _account(self, index, ns, origins, accepted) -> None:
         """Each component's bookkeeping after its batched update (measurements in and out,
-        rejections, first/last times and origin), as :meth:`KalmanFilter.push` keeps it;
-        ``stamps`` are ``(t_ns, origin_ns)``."""
+        rejections, first/last times and origin), as :meth:`KalmanFilter.push` keeps it,
+        for updates at filter times ``ns`` [ns] of origins ``origins``."""
         comps = self.components
-        for i, (t_ns, origin), ok in zip(index, stamps, accepted):
-            c = comps[i]
+        for i, t, origin, ok in zip(index, ns, origins, accepted):
             if ok:
-                c.accepted(c.measurement_time(t_ns), origin)
+                comps[i].accepted(t, origin)
         self._counted([comps[i] for i in index], accepted)
 
     def pull(self, items: Sequence[tuple[int, int]]) -> list[Measurement | None]:

@@ -173,13 +173,22 @@ class KalmanFilter(Component):
     def batchable(self) -> bool:
         """Whether the component only keeps its filter's state, so that a
         :class:`~trackflow.dataflow.KalmanBank` may batch its updates: a :attr:`bankable`
-        class, no push consumers and no prior."""
-        return self.bankable and not self.consumers and self.prior is None
+        class, no push consumers and no prior (:meth:`bank_time`)."""
+        return self.bank_time(0) is not None
 
     # -- the bookkeeping of one measurement or answer (push, pull and KalmanBank) --------------
     def measurement_time(self, t_ns: int) -> int:
         """The filter's time [ns] of a measurement stamped ``t_ns``: ``stamp - offset``."""
         return t_ns - self.stamp_offset_ns
+
+    def bank_time(self, t_ns: int) -> int | None:
+        """:meth:`measurement_time` of a stamp ``t_ns`` when the component only keeps its
+        filter's state (a :attr:`bankable` class, no push consumers, no prior: it is
+        :attr:`batchable`), else ``None``: the check and the time in one call, for a bank's
+        per-packet path."""
+        if self.bankable and not self.consumers and self.prior is None:
+            return t_ns - self.stamp_offset_ns  # measurement_time, without a second call
+        return None
 
     def accepted(self, t: int, origin_ns: int) -> None:
         """Note a measurement the filter took at (corrected) time ``t`` [ns] of origin

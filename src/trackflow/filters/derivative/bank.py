@@ -62,12 +62,15 @@ class _Batch:
     the measurement, or (:meth:`update_block`) its index in the block's arrays."""
 
     __slots__ = (
-        "kind", "rows", "sel", "dts", "zp", "zo", "r", "at", "sel_array", "out", "ts", "ahead"
+        "kind", "ks", "fs", "sel", "dts", "zp", "zo", "r", "at", "sel_array", "out", "ts",
+        "ahead",
     )  # fmt: skip
 
     def __init__(self, kind: _Kind):
         self.kind = kind
-        self.rows: list = []
+        self.ks: Sequence[int] = []  # per step: its index in the call
+        self.fs: list = []  # its filter
+        self.ts: list = []  # its time [s]
         self.sel: list = []
         self.dts: list = []
         self.zp: list = []
@@ -76,7 +79,6 @@ class _Batch:
         self.at: list = []
         self.sel_array = None  # sel as the kernel took it
         self.out = None  # the kernel's status (m,) int, NIS (m,) and (m, 0) (no records)
-        self.ts = None  # the steps' times (a lane's), [s]
         self.ahead = None  # PredictedPoses made with the steps (_step's ``at``)
 
 
@@ -222,7 +224,9 @@ class PoseFilterBank:
         b = batch.get(id(kind))
         if b is None:
             b = batch[id(kind)] = _Batch(kind)
-        b.rows.append((k, f, tk))
+        b.ks.append(k)
+        b.fs.append(f)
+        b.ts.append(tk)
         b.sel.append(row)
         b.dts.append(dt)
         return b
@@ -347,8 +351,8 @@ class PoseFilterBank:
             if dt is None:
                 return None
             dts.append(dt)
-        b.rows = list(zip(lane.ks, lane.filters, ts))
-        b.sel_array, b.out, b.ts = lane.sel, lane.out, ts
+        b.ks, b.fs, b.ts = lane.ks, lane.filters, ts
+        b.sel_array, b.out = lane.sel, lane.out
         return b
 
     def _make_lane(self, key: tuple) -> _Lane | None:
@@ -381,7 +385,7 @@ class PoseFilterBank:
         """One kernel call for the measurements of ``b`` (their positions ``zp`` (m, 3),
         quaternions ``zo`` (m, 4) and covariances ``r`` (m, 6, 6), arrays or sequences of
         rows), then the filters' bookkeeping (:meth:`settle`; at once unless ``defer``). A
-        diverged step re-initialises its filter (:meth:`PoseKalmanFilter.commit_step`): the
+        diverged step re-initialises its filter (:meth:`PoseKalmanFilter.commit_steps`): the
         bookkeeping of every filter of the call is then done at once. Returns whether none
         diverged (every filter's state is still its row).
 
@@ -392,13 +396,13 @@ class PoseFilterBank:
         kind = b.kind
         if b.sel_array is None:
             b.sel_array = frozen(b.sel, np.int64)
-        status, nis, no_records = b.out or _kernel_out(len(b.rows))
+        status, nis, no_records = b.out or _kernel_out(len(b.fs))
         zp, zo, r = frozen(zp), frozen(zo), frozen(r)
         args = (kind.xs, kind.ps, b.sel_array, frozen(b.dts), kind.const, zp, zo, r, kind.gate)
         if at is None:  # no records: _records writes them from the rows, later
             kernels().step_bank(*args, no_records, status, nis)
         else:
-            m = len(b.rows)
+            m = len(b.fs)
             res = np.empty((m, _source.POSE_OUT))
             kernels().step_predict_bank(*args, no_records, status, nis, at, frozen(b.ts), res)
             b.ahead = PredictedPoses(
@@ -406,14 +410,11 @@ class PoseFilterBank:
             )
         gated = gating.GATED
         codes = status.tolist()
-        if gating.DIVERGED in codes:
-            logs = _records(b, zp, zo, r)
-            for (k, f, tk), buf, st, v in zip(b.rows, logs, codes, nis.tolist()):
-                f.commit_step(tk, buf, st, v)
-                out[k] = st != gated
-            return False
-        for (k, _, _), st in zip(b.rows, codes):
+        for k, st in zip(b.ks, codes):
             out[k] = st != gated
+        if gating.DIVERGED in codes:
+            PoseKalmanFilter.commit_steps(b.fs, b.ts, _records(b, zp, zo, r), codes, nis.tolist())
+            return False
         self._unlogged.append((b, zp, zo, r, codes, nis.tolist()))
         if not defer:
             self.settle()
@@ -424,14 +425,12 @@ class PoseFilterBank:
         (``update_block(..., defer=True)``): each filter's time and run of gated
         measurements and its log entry (the record of the measurement and the state after
         it (:func:`_records`), gate decision and NIS), as its own update would have recorded
-        them (:meth:`PoseKalmanFilter.commit_step`). Until then only the filters' states
+        them (:meth:`PoseKalmanFilter.commit_steps`). Until then only the filters' states
         (the bank's rows) are current: the bank's own calls settle first, and nothing else
         may call into the filters."""
         pending, self._unlogged = self._unlogged, []
         for b, zp, zo, r, codes, nis in pending:
-            logs = _records(b, zp, zo, r)
-            for (_, f, tk), buf, st, v in zip(b.rows, logs, codes, nis):
-                f.commit_step(tk, buf, st, v)
+            PoseKalmanFilter.commit_steps(b.fs, b.ts, _records(b, zp, zo, r), codes, nis)
 
     # -- predictions -------------------------------------------------------------------------
     def predict_poses(self, index: Sequence[int], t: Sequence[float]) -> list:

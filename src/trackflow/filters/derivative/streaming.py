@@ -123,7 +123,7 @@ class KernelSettings(NamedTuple):
 
 def step_records(x, p, zp, zo, r) -> np.ndarray:
     """The log records (m, size) of ``m`` pose steps, as the filter keeps them
-    (:meth:`PoseKalmanFilter.commit_step`): the state after the step ``x`` (m, nx), its
+    (:meth:`PoseKalmanFilter.commit_steps`): the state after the step ``x`` (m, nx), its
     covariance ``p`` (m, nc, nc) row by row, the measured position ``zp`` (m, 3) [m],
     quaternion ``zo`` (m, 4) ``(x, y, z, w)`` and noise ``r`` (m, 6, 6) row by row (arrays)."""
     m, nx = x.shape
@@ -354,7 +354,7 @@ class PoseKalmanFilter(FilterClock):
     @property
     def batchable(self) -> bool:
         """Whether :meth:`update_pose` of a plain pose measurement is one kernel step that a
-        batch of filters may take for it (:meth:`step_time`, :meth:`commit_step`): ``True``
+        batch of filters may take for it (:meth:`step_time`, :meth:`commit_steps`): ``True``
         for a model of both position and orientation. A subclass whose ``update_pose`` does
         more returns ``False``."""
         return self._pose_model
@@ -384,7 +384,7 @@ class PoseKalmanFilter(FilterClock):
         """Hold the newest state in the caller's arrays ``x`` (nx,) and ``p`` (nc, nc) from
         now on (its values copied in unless they are held there already): a kernel stepping
         many filters at once writes the states in place (:class:`~.bank.PoseFilterBank`'s
-        rows), and :meth:`commit_step` records the step. The filter replaces them with
+        rows), and :meth:`commit_steps` records the step. The filter replaces them with
         arrays of its own when it re-initialises or re-filters out of order; bind them
         again then (:meth:`holds_state`)."""
         if self._x is not x:
@@ -394,17 +394,21 @@ class PoseKalmanFilter(FilterClock):
             p[:, :] = self._p
             self._p = p
 
-    def commit_step(self, t: float, record: np.ndarray, status: int, nis: float) -> None:
-        """Record a pose measurement at ``t`` [s] that a kernel integrated into the state
-        arrays (:meth:`bind_state`) after :meth:`step_time` said it may, as
-        :meth:`update_pose` records its own step: its log entry (``record``, a row of
-        :func:`step_records`: the measurement and the state after it), its gate decision
-        ``status`` (:class:`FilterStatus`) and NIS, the filter's time and run of gated
-        measurements; a diverged step re-initialises the filter from the measurement. Older
-        entries than the history go."""
-        e = _Entry(t, 0, 0, record, self._nx, self._nc, 6)
-        self._stepped(e, status, nis)
-        self._append(e)
+    @staticmethod
+    def commit_steps(filters, t, records, status, nis) -> None:
+        """Record, for every ``k``, the pose measurement at ``t[k]`` [s] that a kernel
+        integrated into the state arrays of ``filters[k]`` (:meth:`bind_state`) after its
+        :meth:`step_time` said it may, as :meth:`update_pose` records its own step: the log
+        entry (``records[k]``, a row of :func:`step_records`: the measurement and the state
+        after it), the gate decision ``status[k]`` (:class:`FilterStatus`) and NIS
+        ``nis[k]``, the filter's time and run of gated measurements; a diverged step
+        re-initialises the filter from the measurement. Older entries than the history go.
+        (One call for a batch: the bank's bookkeeping costs no call per filter more than
+        the filter's own.)"""
+        for f, tk, record, st, v in zip(filters, t, records, status, nis):
+            e = _Entry(tk, 0, 0, record, f._nx, f._nc, 6)
+            f._stepped(e, st, v)
+            f._append(e)
 
     # -- replication -------------------------------------------------------------------------
     def snapshot(self) -> FilterSnapshot:
@@ -675,7 +679,7 @@ class PoseKalmanFilter(FilterClock):
 
     def _stepped(self, e: _Entry, status: int, nis: float) -> None:
         """Bookkeeping after a kernel (``step_packed``, or ``step_bank`` through
-        :meth:`commit_step`) integrated entry ``e`` and wrote its state into ``e``'s record:
+        :meth:`commit_steps`) integrated entry ``e`` and wrote its state into ``e``'s record:
         a diverged step re-initialises the filter from ``e``'s measurement."""
         e.status, e.nis = status, nis
         if status == gating.DIVERGED:
