@@ -83,7 +83,7 @@ SMALL_ANGLE = 1e-4  # rad: below it every map uses its series (see the module no
 def exp_coefficients(t2):
     """``(sin(t/2)/t, cos(t/2))`` of ``t2 = t^2``: ``Exp(v) = (k v, w)``."""
     if t2 < SMALL_ANGLE * SMALL_ANGLE:
-        return 0.5 - t2 / 48.0 + t2 * t2 / 3840.0, 1.0 - t2 / 8.0 + t2 * t2 / 384.0
+        return 0.5 - t2 / 48.0, 1.0 - t2 / 8.0 + t2 * t2 / 384.0
     t = math.sqrt(t2)
     return math.sin(0.5 * t) / t, math.cos(0.5 * t)
 
@@ -91,9 +91,8 @@ def exp_coefficients(t2):
 def log_coefficient(n, w):
     """``k`` with ``Log(q) = k (x, y, z)`` for ``n = |(x, y, z)|`` and ``w >= 0``."""
     if n < 0.5 * SMALL_ANGLE:
-        # 2 atan(n / w) / n, series in (n / w)^2
-        r2 = n * n / (w * w)
-        return 2.0 / w * (1.0 - r2 / 3.0 + r2 * r2 / 5.0)
+        # 2 atan(n / w) / n, series in (n / w)^2 (to the order whose error is below rounding)
+        return 2.0 / w * (1.0 - n * n / (3.0 * w * w))
     return 2.0 * math.atan2(n, w) / n
 
 
@@ -104,14 +103,15 @@ def jacobian_coefficients(t2):
     ``a = (1 - cos t)/t^2``, ``b = (t - sin t)/t^3``, ``c = 1/t^2 - (1 + cos t)/(2 t sin t)``.
     """
     if t2 < SMALL_ANGLE * SMALL_ANGLE:
-        a = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
-        b = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
+        a = 0.5 - t2 / 24.0
+        b = 1.0 / 6.0 - t2 / 120.0
         c = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
         return a, b, c
     t = math.sqrt(t2)
     sh = math.sin(0.5 * t)
-    h = sh / t
-    a = 2.0 * h * h
+    # (1 - cos t) / t^2 as recorded runs were computed (bit for bit; 2 sin^2(t/2) / t^2 would
+    # avoid the cancellation, whose relative error is below 1e-8 just above the threshold)
+    a = (1.0 - math.cos(t)) / t2
     b = (t - math.sin(t)) / (t2 * t)
     # (1 + cos t) / (2 t sin t) written as cos(t/2) / (2 t sin(t/2)): exact near pi
     c = 1.0 / t2 - math.cos(0.5 * t) / (2.0 * t * sh)
