@@ -21,7 +21,7 @@ import yaml
 
 from .errors import ConfigError
 
-__all__ = ["YamlMap", "config_error", "line_of", "parse_yaml", "read_yaml"]
+__all__ = ["YamlMap", "config_error", "dump_yaml", "line_of", "parse_yaml", "read_yaml"]
 
 
 class YamlMap(dict):
@@ -130,3 +130,16 @@ def read_yaml(path, tags: Mapping[str, Callable] | None = None):
     except UnicodeDecodeError as exc:
         raise ConfigError(f"not a UTF-8 text file ({exc.reason})", path) from None
     return parse_yaml(text, path, tags)
+
+
+class _Dumper(yaml.SafeDumper):
+    """The safe dumper, writing :class:`YamlMap` as the plain mapping it is."""
+
+
+_Dumper.add_representer(YamlMap, _Dumper.represent_dict)
+
+
+def dump_yaml(doc) -> str:
+    """YAML text of ``doc`` (plain data, mappings read by :func:`read_yaml` included), keys
+    in their order."""
+    return yaml.dump(doc, Dumper=_Dumper, sort_keys=False)

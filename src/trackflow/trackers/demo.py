@@ -24,11 +24,11 @@ import threading
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import ServiceError
 from ..io import PoseStream, read_stream
 from ..math import Pose, quat_angle, quat_slerp
+from ..yamlfile import dump_yaml, read_yaml
 
 __all__ = ["run_live_demo"]
 
@@ -76,12 +76,12 @@ def _at(stream: PoseStream, t_ns: np.ndarray) -> Pose:
 def run_live_demo(data: Path, seconds: float, out: Path, setup_file: Path) -> dict:
     """Run the demo; returns the figures (module docstring)."""
     out.mkdir(parents=True, exist_ok=True)
-    doc = yaml.safe_load(setup_file.read_text())
+    doc = read_yaml(setup_file)
     nn, dt = _free_port(), _free_port()
     doc["sensors"][0]["input"]["natnet"]["command_port"] = nn
     doc["sensors"][1]["input"]["dtrack"]["port"] = dt
     setup = out / "live_demo.yaml"
-    setup.write_text(yaml.safe_dump(doc, sort_keys=False))
+    setup.write_text(dump_yaml(doc))
     rec = out / "live.tfrec"
     run = _cmd("run", setup, "--duration", seconds + 8, "--record", rec, "--json")
     first: list[str] = []
