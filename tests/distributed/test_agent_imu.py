@@ -57,11 +57,19 @@ def test_an_agent_plays_its_imu_and_answers_at_its_rate(euroc):
     cfg = AgentConfig("imu_host", setup, realm=f"imu{free_port()}", start_ns=start_ns,
                       zenoh={"listen": {"endpoints": [endpoint(free_port())]}})  # fmt: skip
     with Agent(cfg) as agent:
-        st = wait_for(lambda: agent.queries["now"].state == "running" and agent.queries["now"], 30)
-        assert any(isinstance(c, InertialKalmanFilter) for c in agent.net.components.values())
+        st = agent.queries["now"]
+
+        def planned() -> bool:  # the plan fuses the IMU behind the body's own sensor
+            with agent.sched.lock:
+                return any(
+                    isinstance(c, InertialKalmanFilter) for c in agent.net.components.values()
+                )
+
+        wait_for(planned, 30)
         agent.wait(timeout_s=lead_ns * 1e-9 + 60)
         done, status, last = agent.recordings_done(), agent.status(), st.last
     assert done, status
+    assert last is not None, (status, agent.net.stats())
     published = status["queries"]["now"]["published"]
     # the IMU's rate from a 20 Hz tracker: 6 s at 200 Hz (a stalled agent skips ticks)
     assert published + status["missed_ticks"] > 0.9 * 6 * 200, status["queries"]["now"]
