@@ -194,7 +194,12 @@ def test_an_agent_with_a_natnet_input_answers_as_trackflow_run_does(tmp_path, sh
     # first half second or so both runs stamp exposures with a provisional offset, and the
     # round trips that replace it come at other times in the two runs
     both = (t_agent > 1.0) & (t_agent < min(t_run[-1], 3.9))
-    assert both.sum() > 50, (len(t_agent), t_agent[:3], t_run[:3])
+    # where the single process answered on both sides within a period and a half (a gap in
+    # its answers, a stalled tick, is not interpolated across)
+    k = np.clip(np.searchsorted(t_run, t_agent), 1, len(t_run) - 1)
+    both &= t_run[k] - t_run[k - 1] <= 1.5 / RATE_HZ
+    assert both.sum() > 100, (len(t_agent), t_agent[:3], t_run[:3])
     ref = np.stack([np.interp(t_agent[both], t_run, p_run[:, k]) for k in range(3)], axis=1)
     err_mm = np.linalg.norm(p_agent[both] - ref, axis=1) * 1e3
-    assert err_mm.max() < 1.0, (err_mm.max(), np.median(err_mm))
+    worst = int(np.argmax(err_mm))
+    assert err_mm.max() < 1.0, (err_mm.max(), np.median(err_mm), t_agent[both][worst])

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..math import quat_conjugate, quat_log, quat_multiply
+from ..math import quat_rminus
 
 __all__ = ["time_error_covariance", "twist_between"]
 
@@ -29,7 +29,7 @@ def twist_between(p0, q0, p1, q1, dt_s: float) -> np.ndarray:
     if not dt_s > 0:
         return np.zeros(6)
     v = (np.asarray(p1, float) - np.asarray(p0, float)) / dt_s
-    w = quat_log(quat_multiply(quat_conjugate(np.asarray(q0, float)), np.asarray(q1, float)))
+    w = quat_rminus(np.asarray(q1, float), np.asarray(q0, float))
     return np.concatenate([v, np.asarray(w) / dt_s])
 
 
