@@ -159,10 +159,9 @@ def _run(args) -> int:
         # `trackflow ... | head`: the reader is gone; that is not an error of ours
         _quiet_stdout()
         return 0
-    except (TrackflowError, OSError, ValueError) as exc:
+    except (TrackflowError, OSError) as exc:
         # The one error boundary: a clear message and exit code 1 (the traceback with --debug).
-        # A plain ValueError is still a user's mistake here: the raises of a few modules
-        # (the schedulers and clock code being rewritten beside this change) are not typed yet.
+        # Anything else is a bug of trackflow and leaves with its traceback.
         if getattr(args, "debug", False):
             traceback.print_exc()
         print(f"trackflow: error: {_message(exc)}", file=sys.stderr)
