@@ -35,3 +35,14 @@ def wait_line(lines: queue.Queue, accept: str | Callable[[str], bool], timeout_s
             return line.strip()
         seen.append(line)
     raise AssertionError(f"no such line ({accept!r}) within {timeout_s} s: {seen[-5:]}")
+
+
+def stop_when_stale(run, lines: queue.Queue, sensors: int, timeout_s: float = 60.0) -> str:
+    """Wait for a status line with ``sensors`` STALE sensors (every sent packet has been
+    received), then end ``trackflow run`` with SIGTERM; its stdout (the summary)."""
+    import signal
+
+    wait_line(lines, lambda line: line.count("STALE") == sensors, timeout_s)
+    run.send_signal(signal.SIGTERM)
+    out, _ = run.communicate(timeout=60)
+    return out

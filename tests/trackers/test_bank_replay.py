@@ -6,7 +6,6 @@ sequential dataflow of the replay."""
 from __future__ import annotations
 
 import json
-import signal
 import time
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from trackflow.dataflow import Component, load_setup
 from trackflow.math import numba_available, use_backend
 from trackflow.trackers.runtime import replay, run_live
 
-from ._lines import read_lines, wait_line
+from ._lines import read_lines, stop_when_stale, wait_line
 from .test_live_e2e import _finish, _free_port, _trackflow
 
 BEFORE = Path(__file__).resolve().parent / "data" / "before_bank"
@@ -50,9 +49,8 @@ def test_a_live_run_of_two_bodies_per_packet_replays_bit_for_bit(shared_data, tm
         )  # fmt: skip
         sent = json.loads(_finish(sim, 90))["sent"]
         # both stale: every frame sent has been received (no run length to guess)
-        wait_line(lines, lambda line: line.count("STALE") == 2, 60)
-        run.send_signal(signal.SIGTERM)
-        out = json.loads(_finish(run, 90))
+        out = json.loads(stop_when_stale(run, lines, 2))
+        assert run.returncode == 0
     finally:
         if run.poll() is None:
             run.kill()

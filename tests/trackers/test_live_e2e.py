@@ -23,7 +23,7 @@ from trackflow.io import read_stream
 from trackflow.trackers.inputs import host_ns, make_input
 from trackflow.trackers.vrpn_server import VrpnTrackerServer
 
-from ._lines import read_lines, wait_line
+from ._lines import read_lines, stop_when_stale, wait_line
 
 ROOT = Path(__file__).resolve().parents[2]
 COV = np.diag([1e-7] * 3 + [1e-5] * 3)
@@ -364,10 +364,7 @@ def test_run_records_and_replay_reproduces_bit_for_bit(room1, tmp_path):
         s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common)
         s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, "--start", 0.5, *common)
         sent = [json.loads(_finish(s, 90))["sent"] for s in (s1, s2)]
-        # both stale: every packet sent has been received (a status line a second)
-        wait_line(lines, lambda line: line.count("STALE") == 2, 60)
-        run.send_signal(signal.SIGTERM)
-        out, _ = run.communicate(timeout=60)
+        out = stop_when_stale(run, lines, 2)  # both stale: every packet sent received
     finally:
         if run.poll() is None:
             run.kill()

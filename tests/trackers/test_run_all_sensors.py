@@ -4,14 +4,13 @@ only those on the main query's path (real processes: a NatNet sender of three bo
 from __future__ import annotations
 
 import json
-import signal
 
 import pytest
 
 from trackflow.io import read_stream
 from trackflow.trackers.runtime import input_paths, query_record_path
 
-from ._lines import read_lines, wait_line
+from ._lines import read_lines, stop_when_stale, wait_line
 from .test_live_e2e import _finish, _free_port, _trackflow
 
 SETUP = """frames: [W, A, B, C]
@@ -47,9 +46,7 @@ def test_three_bodies_one_path_all_recorded(shared_data, tmp_path):
             "--duration", 1.5, "--wait", 30,
         )  # fmt: skip
         sent = json.loads(_finish(sim, 90))["sent"]
-        wait_line(lines, lambda line: line.count("STALE") == 3, 60)  # everything received
-        run.send_signal(signal.SIGTERM)
-        out, _ = run.communicate(timeout=60)
+        out = stop_when_stale(run, lines, 3)  # everything received
     finally:
         if run.poll() is None:
             run.kill()
