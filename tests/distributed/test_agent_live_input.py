@@ -80,6 +80,11 @@ def _natnet(port: int) -> dict:
     return {"natnet": {"server": "127.0.0.1", "command_port": port, "body": "rig"}}
 
 
+def _sigma_mm(cov) -> np.ndarray:
+    """Each answer's position sigma [mm] (root of the trace of the translation block)."""
+    return np.sqrt(np.trace(np.asarray(cov)[:, :3, :3], axis1=1, axis2=2)) * 1e3
+
+
 def _on_recording_axis(t_ns, truth) -> np.ndarray:
     """Answer times [s] on the recording's time axis: since the sender's first exposure."""
     return (np.asarray(t_ns, dtype=np.int64) - int(truth.t_ns[0])) * 1e-9
@@ -87,7 +92,7 @@ def _on_recording_axis(t_ns, truth) -> np.ndarray:
 
 def _single_process(tmp_path: Path, room1: Path):
     """``trackflow run`` of the sensor and the query: answers (times on the recording axis,
-    positions)."""
+    positions, position sigmas [mm])."""
     port = _udp_port()
     setup = tmp_path / "single.yaml"
     doc = {"frames": ["room", "head"], "sensors": [{**SENSOR, "input": _natnet(port)}],
@@ -116,12 +121,13 @@ def _single_process(tmp_path: Path, room1: Path):
             run.communicate()
     answers, _ = read_stream(rec)
     truth, _ = read_stream(truth_path)
-    return _on_recording_axis(answers.t_ns, truth), answers.position
+    return _on_recording_axis(answers.t_ns, truth), answers.position, _sigma_mm(answers.covariance)
 
 
 def _distributed(tmp_path: Path, room1: Path):
     """The sensor in agent ``tracker`` (its ``input:``), the query in agent ``app``: the
-    app's published answers (times on the recording axis, positions, raw times [ns])."""
+    app's published answers (times on the recording axis, positions, position sigmas [mm],
+    raw times [ns])."""
     port, realm = _udp_port(), f"live{free_port()}"
     ea, eb = endpoint(free_port()), endpoint(free_port())
     tracker = write_agent(
@@ -175,15 +181,16 @@ def _distributed(tmp_path: Path, room1: Path):
     truth, _ = read_stream(truth_path)
     t_ns = np.array([w.exposure_ns for w in got], dtype=np.int64)
     pos = np.array([w.pose.position for w in got])
-    return _on_recording_axis(t_ns, truth), pos, t_ns, st
+    sigma = _sigma_mm([w.pose.covariance for w in got])
+    return _on_recording_axis(t_ns, truth), pos, sigma, t_ns, st
 
 
 def test_an_agent_with_a_natnet_input_answers_as_trackflow_run_does(tmp_path, shared_data):
     room1 = shared_data / "tumvi" / "dataset-room1_512_16.txt"
     if not room1.exists():
         pytest.skip(f"{room1} not present")
-    t_run, p_run = _single_process(tmp_path, room1)
-    t_agent, p_agent, raw_ns, tracker = _distributed(tmp_path, room1)
+    t_run, p_run, s_run = _single_process(tmp_path, room1)
+    t_agent, p_agent, s_agent, raw_ns, tracker = _distributed(tmp_path, room1)
     assert tracker["inputs"]["head"]["measurements"] > 0, tracker  # the agent opened it
     assert tracker["published_states"] > 200, tracker
     # at the query's rate: answers on the query's tick grid, one per period
@@ -198,6 +205,11 @@ def test_an_agent_with_a_natnet_input_answers_as_trackflow_run_does(tmp_path, sh
     # its answers, a stalled tick, is not interpolated across)
     k = np.clip(np.searchsorted(t_run, t_agent), 1, len(t_run) - 1)
     both &= t_run[k] - t_run[k - 1] <= 1.5 / RATE_HZ
+    # and where both answers come from measurements around the answered time: a tick whose
+    # measurements were late (a loaded machine delays a packet past the 40 ms offset) predicts
+    # past the newest one, and its covariance says so (between measurements the position sigma
+    # stays near 0.5 mm; 10 ms of prediction past the newest takes it past 2 mm)
+    both &= (s_agent < 1.0) & (s_run[k - 1] < 1.0) & (s_run[k] < 1.0)
     assert both.sum() > 100, (len(t_agent), t_agent[:3], t_run[:3])
     ref = np.stack([np.interp(t_agent[both], t_run, p_run[:, k]) for k in range(3)], axis=1)
     err_mm = np.linalg.norm(p_agent[both] - ref, axis=1) * 1e3

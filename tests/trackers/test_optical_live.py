@@ -103,18 +103,31 @@ def _trackflow(*args, timeout: float) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_run_records_and_replays_the_optical_tracker(tmp_path, shared_data):
-    cfg = _optical_config(tmp_path, shared_data, duration_s=6.0)
+    from ._lines import read_lines, stop_when_stale, wait_line
+    from .test_live_e2e import _trackflow as _start
+
+    cfg = _optical_config(tmp_path, shared_data, duration_s=3.0)
     setup, record = tmp_path / "live.yaml", tmp_path / "out.tfrec"
-    run = _trackflow("run", setup, "--duration", 3, "--record", record, "--json", timeout=240)
-    assert run.returncode == 0, run.stderr
-    summary = json.loads(run.stdout)
-    assert "tracker_wand (optical):" in run.stderr  # the status line per sensor
-    # counts, not rates: a loaded 2-core machine renders and tracks fewer frames in 3 s
+    run = _start("run", setup, "--record", record, "--json")
+    try:  # until both bodies are stale: the tracker has rendered its last frame
+        lines = read_lines(run.stderr)
+        wait_line(lines, "tracker_wand (optical):", 240)  # the status line per sensor
+        summary = json.loads(stop_when_stale(run, lines, 2, timeout_s=120))
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0
+    # counts, not rates: a loaded 2-core machine renders fewer frames in real time (it drops
+    # the frames it cannot keep up with), and a body is lost more often across the gaps
     assert summary["answers"] > 20
     for name in ("tracker_wand", "tracker_tool"):
         st = summary["sensors"][name]
         assert st["protocol"] == "optical"
-        assert st["measurements"] > 0.5 * st["packets"] > 20, st
+        assert st["measurements"] > 20, st
+        # every processed frame is a measurement or a counted rejection of this body
+        assert st["measurements"] + sum(st["rejections"].values()) == st["packets"], st
+        assert set(st["rejections"]) <= {"not tracked"}, st
     again = _trackflow("run", setup, "--replay", record, "--json", timeout=120)
     assert again.returncode == 0, again.stdout + again.stderr
     assert json.loads(again.stdout)["identical"] is True
