@@ -185,8 +185,12 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
 
         # a late joiner learns the static edge and answers pull queries over Zenoh
         procs(files["d"]).wait_ready()
-        st = wait_for(lambda: (s := status(session, realm, "d")) and "yx" in s["statics"] and s, 30)
-        assert _query(st, "qd")["state"] == "running"
+
+        def joined():  # it has learnt the static edge and its query runs (in either order)
+            s = status(session, realm, "d")
+            return s and "yx" in s["statics"] and _query(s, "qd").get("state") == "running"
+
+        wait_for(joined, 30)
 
         def pulled():
             try:

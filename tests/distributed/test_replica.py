@@ -93,7 +93,7 @@ def test_replica_rejects_other_models_and_old_states_and_maps_clocks():
         rep.push(_measurement(0, rng))
     # a sender clock 250 ms ahead: the state is 250 ms earlier on the receiver's clock
     ahead = RemoteFilter("kf_s", MOTION)
-    ahead.adopt(states[2], offset_ns=250_000_000)
+    ahead.adopt(states[2], offset_ns=-250_000_000)
     assert ahead.last_t == rep.last_t - 250_000_000
     a, b = ahead.pull(ahead.last_t + 5_000_000), rep.pull(rep.last_t + 5_000_000)
     # equal up to the filters' float seconds (Unix time resolves 2.4e-7 s)

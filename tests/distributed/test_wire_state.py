@@ -65,7 +65,7 @@ def test_golden_bytes():
     assert (s.seq, s.stamp_ns, s.host_ns, s.origin_ns) == (7, 10**9, 1_000_500_000, 999_000_000)
     assert (s.n_dp, s.n_do, s.formulation, s.segment_start) == (0, 0, "error_state", True)
     assert np.array_equal(s.x, SNAP.x) and np.array_equal(s.p, P6)
-    snap = s.snapshot(offset_ns=250_000_000)  # the sender's clock is 250 ms ahead
+    snap = s.snapshot(offset_ns=-250_000_000)  # the sender's clock is 250 ms ahead
     assert snap.t == pytest.approx(0.75) and snap.segment_start
 
 

@@ -15,8 +15,8 @@ from trackflow.filters import (
 )
 from trackflow.filters.inertial import (
     allan_deviation,
-    estimate_clock_offset,
     estimate_imu_rotation,
+    imu_clock_offset,
     noise_from_static,
 )
 from trackflow.filters.inertial import kernel as K
@@ -325,5 +325,5 @@ def test_clock_offset_is_recovered_on_euroc(shared_data, shift):
     t0 = int(gt.t_ns[0])
     tp = (gt.t_ns - t0) * 1e-9
     ti = (imu.t_ns - t0) * 1e-9 - shift  # an IMU clock behind by `shift`
-    d = estimate_clock_offset(ti, imu.gyro, tp, gt.quaternion, max_offset=0.1)
+    d = imu_clock_offset(ti, imu.gyro, tp, gt.quaternion, max_offset=0.1)
     assert abs(d - shift) < 1e-3  # the two share a clock: the offset is the shift

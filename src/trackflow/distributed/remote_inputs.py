@@ -130,12 +130,12 @@ class RemoteInputs:
         return {e: frozenset(p) for e, p in periods.items() if e not in raw}
 
     def offset_ns(self, edge: str) -> int:
-        """Remote minus this agent's clock [ns] for a live remote sensor's agent (the
-        negative of the :mod:`trackflow.timesync` offset)."""
+        """This agent's clock minus the remote sensor's agent's [ns] (the
+        :mod:`trackflow.timesync` offset: ``host = remote + offset``); 0 while unknown."""
         rem = self.discovery.agent_of(edge)
         if rem is None or self.cfg.clock_sync != "estimate" or not rem.clock.known:
             return 0
-        return -rem.clock.offset_ns
+        return rem.clock.offset_ns
 
     def subscribe_thin(self, edge: Edge, periods: frozenset) -> None:
         """A replica fed by a thinned stream: one demand token per tick period (the grid
@@ -161,7 +161,7 @@ class RemoteInputs:
         old = inp.tokens
         inp.tokens = [
             self.session.liveliness().declare_token(
-                demand_key(self.agent.realm, edge, self.agent.name, Grid(p, offset_ns % p))
+                demand_key(self.agent.realm, edge, self.agent.name, Grid(p, -offset_ns % p))
             )
             for p in sorted(inp.periods)
         ]
@@ -204,25 +204,25 @@ class RemoteInputs:
         if self.cfg.clock_sync == "estimate":
             if not rem.clock.known:
                 return None
-            offset, sigma = -rem.clock.offset_ns, rem.clock.sigma_s  # remote minus this
+            offset, sigma = rem.clock.offset_ns, rem.clock.sigma_s  # this minus remote
         realm = self.agent.realm
         try:
-            w = remote_get(self.session, realm, f"get/{edge}", t_ns + offset, 0.5)
+            w = remote_get(self.session, realm, f"get/{edge}", t_ns - offset, 0.5)
             pose = w.pose
             if sigma > 0:
-                b = remote_get(self.session, realm, f"get/{edge}", t_ns + offset - 10**6, 0.5)
+                b = remote_get(self.session, realm, f"get/{edge}", t_ns - offset - 10**6, 0.5)
                 xi = twist_between(
                     b.pose.position, b.pose.quaternion, pose.position, pose.quaternion, 1e-3
                 )
                 pose = UncertainPose(pose.pose, pose.covariance + time_error_covariance(xi, sigma))
         except (ValueError, zenoh.ZError):  # error reply, no reply, undecodable, session gone
             return None
-        return Measurement(w.exposure_ns - offset, pose, w.origin_ns - offset)
+        return Measurement(w.exposure_ns + offset, pose, w.origin_ns + offset)
 
     # -- data path ------------------------------------------------------------------------------
     def mapping(self, edge: str) -> tuple[int, float] | None:
-        """Remote minus this agent's clock [ns] and its sigma [s] for a remote sensor's stamps
-        (None: counted)."""
+        """This agent's clock minus the remote sensor's agent's [ns] (the timesync offset)
+        and its sigma [s], mapping the sensor's stamps onto this clock (None: counted)."""
         rem = self.discovery.agent_of(edge)
         if rem is None:
             self.rejections.add("sensor not live")
@@ -232,7 +232,7 @@ class RemoteInputs:
         if not rem.clock.known:
             self.rejections.add("clock offset not yet estimated")
             return None
-        return -rem.clock.offset_ns, rem.clock.sigma_s
+        return rem.clock.offset_ns, rem.clock.sigma_s
 
     def on_thin(self, edge: str, sample) -> None:
         """A message of a thinned stream: the tick it completes (attachment) and a state of
@@ -261,7 +261,7 @@ class RemoteInputs:
             inp = self.thin.get(edge)
             if inp is None:
                 return  # withdrawn meanwhile
-            covered = int.from_bytes(tick, "little", signed=True) - inp.offset_ns
+            covered = int.from_bytes(tick, "little", signed=True) + inp.offset_ns
             self.thin_arrivals.append(self.agent.now_ns() - covered)
             if inp.covered_ns is None or covered > inp.covered_ns:
                 inp.covered_ns = covered
@@ -296,13 +296,13 @@ class RemoteInputs:
             return
         with self.sched.lock:
             if self.cfg.thin:  # every state sent before it has come (thin: ticks wait for it)
-                self.covered[edge] = max(self.covered.get(edge, -1), s.host_ns - offset - 1)
+                self.covered[edge] = max(self.covered.get(edge, -1), s.host_ns + offset - 1)
             self._schedule(edge, s, offset, sigma, 0 if self.cfg.thin else self._reorder_ns)
 
     def _schedule(self, edge, s: wire.StateSample, offset: int, sigma: float, delay: int) -> None:
         """(Holding the lock.) To the scheduler at the state's arrival stamp, released
         ``delay`` after it (the jitter buffer)."""
-        arrival = s.host_ns - offset
+        arrival = s.host_ns + offset
         if self.agent.now_ns() > arrival + self._reorder_ns:
             self.late_events += 1  # later than the jitter buffer: delivered out of order
         self.sched.post(arrival, lambda _t: self.deliver(edge, s, offset, sigma), SAMPLE, delay)

@@ -105,7 +105,8 @@ class RemoteFilter(KalmanFilter):
 
     Built with the edge's motion model and stamp offset exactly as the sensor's agent builds
     its filter, so a plan sharing the sensor's filter node (``same_filter``) uses it. Stamps
-    arrive on the sender's clock and are mapped by ``stamp - offset_ns``; ``time_sigma_s``
+    arrive on the sender's clock and are mapped by ``stamp + offset_ns`` (receiver minus
+    sender, the :mod:`trackflow.timesync` sign); ``time_sigma_s``
     (the clock offset's uncertainty) enters every answer's covariance through the
     relationship's velocity, ``C += sigma_t^2 xi xi^T``
     (:func:`trackflow.distributed.time_error_covariance`).
@@ -133,11 +134,11 @@ class RemoteFilter(KalmanFilter):
         if (s.n_dp, s.n_do, s.formulation) != self._model_key:
             self.stats.reject("another motion model")
             return False
-        t = s.stamp_ns - offset_ns
+        t = s.stamp_ns + offset_ns
         if not f.adopt(s.snapshot(offset_ns)):
             self.stats.reject("older than the newest state")
             return False
-        origin = s.origin_ns - offset_ns
+        origin = s.origin_ns + offset_ns
         self.accepted(t, origin)
         self.time_sigma_s = float(sigma_s)
         if self.consumers:  # a trigger (push-mode inference reads the time only)

@@ -190,9 +190,10 @@ class StateSample(NamedTuple):
 
     def snapshot(self, offset_ns: int = 0) -> FilterSnapshot:
         """The state for :meth:`trackflow.filters.PoseKalmanFilter.adopt`, its time mapped by
-        ``stamp - offset_ns`` onto the receiver's clock [s]."""
+        ``stamp + offset_ns`` onto the receiver's clock [s] (``offset_ns`` = receiver minus
+        sender, the :mod:`trackflow.timesync` sign)."""
         return FilterSnapshot(
-            (self.stamp_ns - offset_ns) * 1e-9, self.x, self.p, self.segment_start
+            (self.stamp_ns + offset_ns) * 1e-9, self.x, self.p, self.segment_start
         )
 
 

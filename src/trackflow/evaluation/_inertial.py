@@ -26,10 +26,10 @@ from ..filters.inertial import (
     ImuExtrinsics,
     ImuNoise,
     InertialModel,
-    estimate_clock_offset,
     estimate_gravity,
     estimate_imu_rotation,
     fit_gyro_extrapolation,
+    imu_clock_offset,
     run_inertial,
     world_acceleration,
 )
@@ -254,7 +254,7 @@ def _calibrate(truth: Trajectory, imu: ImuSamples, mode, noise, clock_offset_s, 
     """Clock offset, IMU rotation, gravity and pose sigma from the (tuning) recording."""
     t, q = truth.t, truth.quaternion
     if clock_offset_s is None:
-        clock_offset_s = estimate_clock_offset(imu.t, imu.gyro, t, q)
+        clock_offset_s = imu_clock_offset(imu.t, imu.gyro, t, q)
     imu = imu.shifted(float(clock_offset_s))
     if extrinsics is None:
         q_bs, _ = estimate_imu_rotation(imu.t, imu.gyro, t, q)

@@ -24,6 +24,7 @@ from .wire_checks import (
     SKELETON_BYTES,
     count_fits,
     labeled_marker_bytes,
+    near_unit,
     rigid_body_bytes,
     sized_sections,
 )
@@ -42,16 +43,17 @@ def pose_row(x, y, z, q0, q1, q2, q3, err, s, lo, hi, pos, quat, k):
     """Row ``k`` of a block from one rigid body's numbers, when it is plainly valid.
 
     Plainly valid: a finite position (also summed, and after the unit scale ``s``), a
-    quaternion of norm within 10 % of 1 (``0.81 < |q|^2 < 1.21``) and a mean marker error
-    ``err`` [wire unit] whose scaled value lies in ``[lo, hi]``. The arithmetic is that of
-    :meth:`trackflow.trackers.inputs.LiveInput._sample`, so the results are the same bits:
+    quaternion of norm within 10 % of 1 (:func:`~trackflow.trackers.wire_checks.near_unit`)
+    and a mean marker error ``err`` [wire unit] whose scaled value lies in ``[lo, hi]``. The
+    arithmetic is that of :meth:`trackflow.trackers.live_input.LiveInput._sample`, so the
+    results are the same bits:
     ``p = s * position``, ``q = q / sqrt(|q|^2)``, written to ``pos[k]`` and ``quat[k]``.
     Returns ``False`` (nothing written) when the body is not plainly valid.
     """
     if not math.isfinite(x + y + z):
         return False
     n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
-    if not (0.81 < n2 and n2 < 1.21):
+    if not near_unit(n2):
         return False
     e = err * s
     if not (lo <= e and e <= hi):

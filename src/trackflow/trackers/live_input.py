@@ -31,6 +31,7 @@ from ._packet import PacketError
 from .axes import BoundaryConversion
 from .status import SensorStatus, StatusGroup
 from .waiting import DueWait
+from .wire_checks import near_unit
 
 __all__ = [
     "Body",
@@ -290,7 +291,7 @@ class LiveInput:
         n2 = qx * qx + qy * qy + qz * qz + qw * qw
         if not (math.isfinite(x + y + z) and math.isfinite(n2)):
             raise PacketError("non-finite pose", b.name)
-        if not 0.81 < n2 < 1.21:
+        if not near_unit(n2):
             raise PacketError("non-unit quaternion", f"|q|^2 = {n2:.4g}")
         n = math.sqrt(n2)
         if b.conv.up == "z":

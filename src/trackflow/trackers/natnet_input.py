@@ -13,6 +13,7 @@ from . import kernels as _kernels
 from . import natnet
 from ._packet import PacketError
 from .live_input import Body, CheckedSample, LiveInput, Sample, SampleBlock, host_ns, recv_stamped
+from .wire_checks import near_unit
 
 __all__ = ["NatNetInput"]
 
@@ -279,7 +280,7 @@ class NatNetInput(LiveInput):
             q0, q1, q2, q3 = quat.T
             n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
             finite = np.isfinite(pos[:, 0] + pos[:, 1] + pos[:, 2]) & np.isfinite(n2)
-            unit = (0.81 < n2) & (n2 < 1.21)
+            unit = near_unit(n2)
             qn = quat / np.sqrt(np.where(unit, n2, 1.0))[:, None]
         finite, unit = finite.tolist(), unit.tolist()
         scaled: dict[float, tuple[np.ndarray, list]] = {}  # unit scale -> positions, finite

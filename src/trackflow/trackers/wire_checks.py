@@ -5,7 +5,8 @@ The plain decoders (:class:`trackflow.trackers._packet.Reader`,
 (:func:`trackflow.trackers.kernels.natnet_frame`) refuse exactly the same packets because they
 ask the same functions here: whether an announced count fits the bytes left, how many bytes
 an item of a NatNet frame section takes in a given version, and from which version the
-sections announce their sizes.
+sections announce their sizes. Every input accepts a pose's quaternion by the same
+:func:`near_unit`.
 
 A kernel source (:mod:`trackflow.math._backend`): plain Python on integers, numba-compatible.
 NatNet versions are given as one integer, :func:`natnet_version_code`.
@@ -14,7 +15,7 @@ NatNet versions are given as one integer, :func:`natnet_version_code`.
 from __future__ import annotations
 
 KERNELS = ("count_fits", "natnet_version_code", "sized_sections", "rigid_body_bytes",
-           "labeled_marker_bytes")  # fmt: skip
+           "labeled_marker_bytes", "near_unit")  # fmt: skip
 KERNEL_SOURCES = ()
 
 #: the largest element count a packet may announce (no huge allocations)
@@ -58,3 +59,10 @@ def labeled_marker_bytes(code):
     """Bytes of a labeled marker: 20 (id, position, size), with params from 2.6 (+2) and
     a residual from 3.0 (+4)."""
     return 20 + (2 if code >= 2 * 256 + 6 else 0) + (4 if code >= 3 * 256 else 0)
+
+
+def near_unit(n2):
+    """Whether a wire quaternion of squared norm ``n2`` is taken (and normalised): within
+    10 % of unit norm, ``0.81 < n2 < 1.21``; a NaN is not. Works on a float or, element by
+    element, on an array of them."""
+    return (0.81 < n2) & (n2 < 1.21)

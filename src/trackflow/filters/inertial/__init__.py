@@ -15,9 +15,9 @@ See ``docs/inertial.md``.
 from .calibration import (
     allan_deviation,
     angular_velocity_from_poses,
-    estimate_clock_offset,
     estimate_gravity,
     estimate_imu_rotation,
+    imu_clock_offset,
     noise_from_static,
     world_acceleration,
 )
@@ -54,7 +54,7 @@ __all__ = [
     "InertialState",
     "allan_deviation",
     "angular_velocity_from_poses",
-    "estimate_clock_offset",
+    "imu_clock_offset",
     "estimate_gravity",
     "estimate_imu_rotation",
     "heading_inclination_errors",

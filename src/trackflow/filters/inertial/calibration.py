@@ -3,7 +3,7 @@
 * :func:`allan_deviation` and :func:`noise_from_static`: white-noise densities and bias
   instability from a static segment (IEEE 952 overlapping Allan deviation).
 * :func:`angular_velocity_from_poses`: body-frame angular velocity of a pose recording.
-* :func:`estimate_clock_offset`: IMU-to-tracker clock offset from the cross-correlation of the
+* :func:`imu_clock_offset`: IMU-to-tracker clock offset from the cross-correlation of the
   angular speeds ``|omega|`` (independent of the unknown mounting rotation;
   :func:`trackflow.timesync.correlation_offset`).
 * :func:`estimate_imu_rotation`: ``R_b_s`` from gyro and pose angular velocities (Wahba's
@@ -32,7 +32,7 @@ __all__ = [
     "world_acceleration",
     "allan_deviation",
     "angular_velocity_from_poses",
-    "estimate_clock_offset",
+    "imu_clock_offset",
     "estimate_gravity",
     "estimate_imu_rotation",
     "noise_from_static",
@@ -113,7 +113,7 @@ def angular_velocity_from_poses(t, quaternion) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (t[1:] + t[:-1]), inc / dt[:, None]
 
 
-def estimate_clock_offset(
+def imu_clock_offset(
     imu_t, gyro, pose_t, quaternion, max_offset: float = 0.5, step: float | None = None
 ) -> float:
     """Clock offset ``d`` [s] such that IMU time ``t_imu + d`` is tracker time.
