@@ -36,6 +36,15 @@ def shared_data() -> Path:
 
 
 @pytest.fixture
+def room1(shared_data) -> Path:
+    """TUM-VI room1's motion-capture recording (the simulated trackers' usual source)."""
+    path = shared_data / "tumvi" / "dataset-room1_512_16.txt"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    return path
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     """A fresh, seeded generator per test: no shared hidden RNG state between tests."""
     return np.random.default_rng(20261121)

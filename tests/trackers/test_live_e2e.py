@@ -30,14 +30,6 @@ COV = np.diag([1e-7] * 3 + [1e-5] * 3)
 F32 = 2.0**-24  # float32 rounding, relative
 
 
-@pytest.fixture
-def room1(shared_data) -> Path:
-    path = shared_data / "tumvi" / "dataset-room1_512_16.txt"
-    if not path.exists():
-        pytest.skip(f"{path} not present")
-    return path
-
-
 def _free_port(kind=socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 import urllib.error
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,14 +222,35 @@ def test_the_view_runs_in_its_own_lower_priority_process():
     assert live.process.returncode is not None  # closed means ended
     with pytest.raises(ValueError, match="duplicate"):  # one view per network
         attach_view(net, port=0)
-    net = Network()
-    net.add(RecordingPlayer("cam", stamps, np.zeros((len(t), 3)), quats, np.eye(6) * 1e-6))
-    live = attach_view(net, port=0, rate_hz=10, priority="idle")
+
+
+def test_the_idle_priority_puts_the_view_process_in_the_idle_class():
+    """``priority="idle"`` as the view process applies it (:func:`lower_priority`, first
+    thing it does). Watched from outside: on a machine whose cores are busy, an idle-class
+    process gets no CPU at all, so it could not report back (nor serve a view)."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    code = (
+        "from trackflow.viewer.live_process import lower_priority; import time; "
+        "print(lower_priority('idle'), flush=True); time.sleep(120)"
+    )
+    src = str(Path(__file__).resolve().parents[2] / "src")
+    env = {**os.environ, "PYTHONPATH": src}
+    child = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env
+    )
     try:
-        assert os.sched_getscheduler(live.pid) == os.SCHED_IDLE
-        assert os.sched_getscheduler(0) != os.SCHED_IDLE  # the dataflow keeps its class
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and os.sched_getscheduler(child.pid) != os.SCHED_IDLE:
+            time.sleep(0.05)
+        assert os.sched_getscheduler(child.pid) == os.SCHED_IDLE
+        assert os.sched_getscheduler(0) != os.SCHED_IDLE  # the caller keeps its class
     finally:
-        live.close()
+        child.kill()
+        child.communicate()
 
 
 def test_the_view_process_places_frames_and_bodies_like_pose_algebra():

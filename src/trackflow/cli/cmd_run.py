@@ -124,6 +124,8 @@ def _queries(setup, res) -> dict:
                          "answers": res.sinks[name].stats.events_in}  # fmt: skip
         else:
             out[name] = {"mode": q.mode, "served": True}
+        if name in res.switches:  # failover: the path it ends on, answers per path, switches
+            out[name].update(res.switches[name].summary())
     return out
 
 

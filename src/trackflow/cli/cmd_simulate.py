@@ -42,6 +42,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--command-port", type=int, default=None, help="DTrack TCP command port")
     p.add_argument("--wait", type=float, default=10.0, help="wait this long for a client [s]")
     p.add_argument("--seed", type=int, default=0, help="seed of loss and jitter")
+    p.add_argument(
+        "--outage",
+        action="append",
+        default=[],
+        metavar="A:B",
+        help="send no frames from A to B s after the first (repeatable)",
+    )
+    p.add_argument(
+        "--freeze",
+        action="append",
+        default=[],
+        metavar="A:B",
+        help="hold the frames from A to B s, then send them at once (repeatable)",
+    )
     p.add_argument("--truth", type=Path, default=None, help="write exposure times + poses")
     p.set_defaults(func=run)
     return p
@@ -54,6 +68,8 @@ def run(args) -> int:
         raise InputError(f"--natnet-version must be like 4.1, got {args.natnet_version!r}") from exc
     from ..trackers.simulate import SimConfig, simulate
 
+    outages = tuple(_window("--outage", w) for w in args.outage)
+    freezes = tuple(_window("--freeze", w) for w in args.freeze)
     cfg = SimConfig(
         args.protocol,
         host=args.host,
@@ -75,7 +91,20 @@ def run(args) -> int:
         command_port=args.command_port,
         multicast_group=args.multicast,
         data_port=args.data_port,
+        outages=outages,
+        freezes=freezes,
     )
     out = simulate(args.recording, cfg, truth_path=args.truth, wait_for_client_s=args.wait)
     print(json.dumps(out))
     return 0
+
+
+def _window(option: str, text: str) -> tuple[float, float]:
+    """``A:B`` [s] as a pair of floats (a typed error naming the option otherwise)."""
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise InputError(f"{option} must be START:END in seconds, got {text!r}") from None
+    if not 0 <= a < b:
+        raise InputError(f"{option} {text}: need 0 <= START < END")
+    return a, b

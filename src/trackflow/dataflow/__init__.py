@@ -23,6 +23,7 @@ from ..scheduler import (
 from ._bank import KalmanBank
 from ._component import Component
 from ._events import ComponentStats, Measurement
+from ._failover import PathSwitch, SwitchEvent
 from ._inertial import ImuPlayer, ImuSample, ImuSpec, InertialKalmanFilter
 from ._inputs import (
     NETWORK_PROTOCOLS,
@@ -76,6 +77,7 @@ __all__ = [
     "LookupResult",
     "Measurement",
     "Network",
+    "PathSwitch",
     "Plan",
     "PlanNode",
     "PullSink",
@@ -85,6 +87,7 @@ __all__ = [
     "Setup",
     "SimulatedSensor",
     "StaticPose",
+    "SwitchEvent",
     "load_setup",
     "lookup",
     "rpy_deg",

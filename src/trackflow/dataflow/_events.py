@@ -25,11 +25,15 @@ class Measurement(NamedTuple):
     origin_ns : int
         Sensor timestamp of the newest raw measurement that contributed; delivery latency is
         measured from it.
+    path : int
+        Which of the query's candidate paths produced an answer: 0 the preferred one, ``k``
+        its ``k``-th fallback (:class:`trackflow.dataflow.PathSwitch`); 0 everywhere else.
     """
 
     t_ns: int
     pose: UncertainPose
     origin_ns: int
+    path: int = 0
 
 
 @dataclass

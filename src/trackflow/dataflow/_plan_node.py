@@ -11,7 +11,8 @@ __all__ = ["PlanNode"]
 @dataclass
 class PlanNode:
     """One component of a plan: ``kind`` in {source, kalman, latest, static, inversion,
-    inference, sampler, recorder, pull sink}; ``inputs`` are ``(node_id, "push"|"pull")``."""
+    inference, switch, sampler, recorder, pull sink}; ``inputs`` are ``(node_id,
+    "push"|"pull")``."""
 
     id: str
     kind: str
@@ -29,4 +30,6 @@ class PlanNode:
             return f"sampler ({p['rate_hz']:g} Hz, offset {p['offset_ns'] * 1e-6:+g} ms)"
         if self.kind == "source":
             return f"source ({p['edge']})"
+        if self.kind == "switch":
+            return f"switch ({len(p['sensors'])} paths, hold {p['hold_ns'] * 1e-9:g} s)"
         return self.kind

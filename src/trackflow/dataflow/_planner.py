@@ -17,17 +17,23 @@ Construction rules (thesis 7.4, figures 7.2-7.4):
    inference pushes into a Kalman filter with a static motion model: a static estimator.
 7. Push delivery appends a sampler at the query's rate and time offset; pull delivery a
    ``get(t)`` sink.
+8. Failover (a query's ``failover``, not with ``fuse`` or a static relationship): the best
+   path found without the sensors of the better ones is a fallback, up to
+   :data:`MAX_FALLBACKS`; the paths meet in a :class:`~trackflow.dataflow.PathSwitch` that
+   answers from the best live one (thesis 2.4.4). A sensor's filter is shared by every path
+   using it, so a fallback's filters are warm when it is switched to.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from os import PathLike
 
 from ..errors import InputError, PlanError
 from ..graph import MotionSpec, Path, Query, SpatialRelationshipGraph, infer_motion, select_paths
 from ..math import UncertainPose
+from ._failover import PathSwitch
 from ._inertial import InertialKalmanFilter
 from ._network import Network
 from ._plan_node import PlanNode
@@ -35,7 +41,12 @@ from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sample
 from ._sinks import PullSink, Recorder
 from ._sources import RecordingPlayer, StaticPose
 
-__all__ = ["Plan", "PlanNode", "plan_query"]
+__all__ = ["MAX_FALLBACKS", "Plan", "PlanNode", "plan_query"]
+
+#: the most fallback paths a query's failover plans (rule 8)
+MAX_FALLBACKS = 3
+#: a sensor is down after this long without data when its input names no ``stale_ms`` [ns]
+DEFAULT_STALE_NS = 500_000_000
 
 
 @dataclass
@@ -48,12 +59,20 @@ class Plan:
     nodes: list[PlanNode]
     output: str
     relationship_static: bool
+    #: failover's fallback paths (rule 8), best first, and their evaluations
+    fallbacks: list[Path] = field(default_factory=list)
+    fallback_scores: list[float] = field(default_factory=list)
 
     def node(self, node_id: str) -> PlanNode:
         for n in self.nodes:
             if n.id == node_id:
                 return n
         raise PlanError(f"no node {node_id!r} in the plan")
+
+    @property
+    def sensors(self) -> frozenset[str]:
+        """Every sensor (measured edge) the plan reads: its paths' and its fallbacks'."""
+        return frozenset(n.params["edge"] for n in self.nodes if n.kind == "source")
 
     def count(self, kind: str) -> int:
         """Number of nodes of a kind."""
@@ -71,6 +90,8 @@ class Plan:
         ]
         for i, (p, s) in enumerate(zip(self.paths, self.scores), 1):
             lines.append(f"path {i} (score {s:.6g}): {p}")
+        for i, (p, s) in enumerate(zip(self.fallbacks, self.fallback_scores), 1):
+            lines.append(f"fallback {i} (score {s:.6g}): {p}")
         lines.append("dataflow:")
         for n in self.nodes:
             src = ", ".join(f"{i} ({m})" for i, m in n.inputs)
@@ -102,6 +123,7 @@ class Plan:
         network: Network | None = None,
         prefix: str = "",
         record: str | PathLike | None = None,
+        on_switch: Callable | None = None,
     ) -> tuple[Network, Recorder | PullSink]:
         """Instantiate the plan.
 
@@ -121,6 +143,9 @@ class Plan:
         record : path, optional
             Push delivery: the application recorder also writes every result to this
             ``.tfrec`` file (``T_source_target`` of the query, with covariance).
+        on_switch : callable, optional
+            Failover: called with every :class:`~trackflow.dataflow.SwitchEvent` of the
+            query's path switch.
 
         Returns
         -------
@@ -185,6 +210,15 @@ class Plan:
                 c = net.add(Recorder(name, callback, path=record, source=q.source, target=q.target))
             elif n.kind == "pull sink":
                 c = net.add(PullSink(name))
+            elif n.kind == "switch":
+                sensors = [
+                    [(e, made[kf], p["stale_ns"].get(e, DEFAULT_STALE_NS)) for e, kf in path]
+                    for path in p["sensors"]
+                ]
+                c = net.add(
+                    PathSwitch(name, sensors, hold_ns=p["hold_ns"],
+                               refused_down=p["refused_down"], on_switch=on_switch)
+                )  # fmt: skip
             else:  # pragma: no cover - plan nodes are made by plan_query only
                 raise InputError(f"unknown plan node kind {n.kind!r}")
             made[n.id] = c
@@ -221,7 +255,34 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
     b = _PlanBuilder(query, align, rel_static)
     path_nodes = [b.path(p, f"p{i + 1}" if len(paths) > 1 else "path") for i, p in enumerate(paths)]
     end = b.meeting(paths, path_nodes)
-    return Plan(query, paths, scores, b.nodes, b.delivery(end), rel_static)
+    fallbacks = []
+    if query.failover and align and not query.fuse and not rel_static:
+        fallbacks = _fallbacks(graph, query, paths[0])
+    if fallbacks:
+        ends = [end] + [b.path(p, f"fallback{k}") for k, p in enumerate(fallbacks, 1)]
+        end = b.switch([paths[0], *fallbacks], ends)
+    return Plan(
+        query, paths, scores, b.nodes, b.delivery(end), rel_static,
+        fallbacks, [query.evaluate(p) for p in fallbacks],
+    )  # fmt: skip
+
+
+def _fallbacks(graph: SpatialRelationshipGraph, query: Query, best: Path) -> list[Path]:
+    """Rule 8: the best path without the sensors of ``best`` and of the fallbacks before,
+    while there is one (at most :data:`MAX_FALLBACKS`; a path of static edges only, always
+    live, ends the list)."""
+    out: list[Path] = []
+    used = set(best.sensors)
+    while used and len(out) < MAX_FALLBACKS:
+        try:
+            p = select_paths(graph, replace(query, exclude=(*query.exclude, *sorted(used))))[0]
+        except (PlanError, InputError):
+            break
+        out.append(p)
+        if not p.sensors:
+            break
+        used |= p.sensors
+    return out
 
 
 def _compose(edges) -> UncertainPose:
@@ -441,6 +502,22 @@ class _PlanBuilder:
         return self.add(
             PlanNode(node_id, "kalman", {"motion": motion, "role": role}, inputs, why=why)
         )
+
+    def switch(self, paths: list[Path], ends: list[str]) -> str:
+        """Rule 8: the path switch over the preferred path's end and its fallbacks'."""
+        sensors = [[(e, self.sensor_term[e]) for e in sorted(p.sensors)] for p in paths]
+        q = self.query
+        params = {
+            "sensors": sensors,
+            "stale_ns": {},  # per sensor, from its input's stale_ms (Setup.plan)
+            "hold_ns": int(round(q.hold_s * 1e9)),
+            "refused_down": q.refused_down,
+        }
+        why = (
+            f"failover: {len(paths) - 1} fallback path(s) sharing no sensor with a better one; "
+            "answers from the best live path (rule 8)"
+        )
+        return self.add(PlanNode("switch", "switch", params, [(n, "pull") for n in ends], why))
 
     def delivery(self, end: str) -> str:
         """Rule 7: a sampler and the application's recorder (push), or a pull sink."""

@@ -155,6 +155,10 @@ class KalmanFilter(Component):
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
+        #: the network clock when the newest measurement was taken [ns] (liveness)
+        self.last_taken_ns: int | None = None
+        #: measurements the filter refused since the last one it took (liveness)
+        self.refused_in_a_row = 0
 
     def same_filter(self, other: KalmanFilter) -> bool:
         """Whether ``other`` would compute exactly what this filter computes (motion model,
@@ -199,6 +203,7 @@ class KalmanFilter(Component):
             self.last_t = t
         if origin_ns > self.last_origin:
             self.last_origin = origin_ns
+        self.last_taken_ns = self.clock.now_ns
 
     def count_update(self, ok: bool) -> None:
         """Count one pushed measurement in, and out if the filter took it (it is pushed on,
@@ -207,8 +212,10 @@ class KalmanFilter(Component):
         stats.events_in += 1
         if ok:
             stats.events_out += 1
+            self.refused_in_a_row = 0
         else:
             stats.reject("filter rejected update")
+            self.refused_in_a_row += 1
 
     def count_answer(self, ok: bool) -> None:
         """Count one answer to a pull that was not refused (:meth:`refusal`), or the

@@ -87,6 +87,12 @@ class Setup:
             from ._inertial import attach_imus
 
             attach_imus(plan, graph, self.imus)
+        for node in plan.nodes:  # failover: each sensor is down after its input's stale_ms
+            if node.kind == "switch":
+                for path in node.params["sensors"]:
+                    for e, _ in path:
+                        if e in self.inputs:
+                            node.params["stale_ns"][e] = int(round(self.inputs[e].stale_s * 1e9))
         return plan
 
     def players(self) -> dict[str, RecordingPlayer]:
@@ -224,7 +230,32 @@ _QUERY_KEYS = {
     "static",
     "exclude",
     "evaluation",
+    "failover",
 }
+_FAILOVER_KEYS = {"hold_ms", "refused_down"}
+
+
+def _failover(src, q, what) -> dict:
+    """A query's ``failover:`` (``false``, ``true`` or ``{hold_ms, refused_down}``) as
+    :class:`~trackflow.graph.Query` keywords."""
+    spec = q.get("failover", True)
+    if isinstance(spec, bool):
+        return {"failover": spec}
+    if not isinstance(spec, dict):
+        raise _err(src, q, f"{what}.failover: expected true, false or a mapping")
+    unknown = set(spec) - _FAILOVER_KEYS
+    if unknown:
+        raise _err(src, q, f"{what}.failover: unknown keys {sorted(unknown, key=str)} "
+                           f"(allowed: {sorted(_FAILOVER_KEYS)})")  # fmt: skip
+    out: dict = {"failover": True}
+    if "hold_ms" in spec:
+        out["hold_s"] = float(spec["hold_ms"]) * 1e-3
+    if "refused_down" in spec:
+        n = spec["refused_down"]
+        if isinstance(n, bool) or not isinstance(n, int):
+            raise _err(src, q, f"{what}.failover.refused_down: expected an integer, got {n!r}")
+        out["refused_down"] = n
+    return out
 
 
 def _check_keys(src, item, allowed, what):
@@ -401,6 +432,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 static=bool(q.get("static", False)),
                 exclude=tuple(str(e) for e in q.get("exclude", ())),
                 name=str(q["name"]),
+                **_failover(source, q, what),
             )
         except (TypeError, ValueError) as exc:
             raise _err(source, q, f"{what}: {exc}") from exc

@@ -474,11 +474,12 @@ class Agent:
                         st.events.append(self._event(reason, t_event_ns, st))
                     continue
                 plans[name] = plan
-                sensors = {s for p in plan.paths for s in p.sensors}
-                used |= sensors
+                used |= plan.sensors  # a fallback's sensors too: its replicas stay warm
                 if q.mode == "push":
-                    pushed |= sensors
-                    st.inputs = frozenset(sensors - self._own)
+                    pushed |= plan.sensors
+                    # thinned ticks wait for the preferred path's inputs only
+                    preferred = {s for p in plan.paths for s in p.sensors}
+                    st.inputs = frozenset(preferred - self._own)
                 paths = [str(p) for p in plan.paths]
                 if st.state == "running" and paths == st.paths:
                     continue

@@ -121,7 +121,7 @@ class RemoteInputs:
         raw: set[str] = set()
         for plan in plans.values():
             q = plan.query
-            sensors = {s for p in plan.paths for s in p.sensors} - own
+            sensors = plan.sensors - own  # a fallback path's too (failover)
             if q.mode == "push" and q.time_offset_s >= 0:
                 for e in sensors:
                     periods.setdefault(e, set()).add(int(round(1e9 / q.rate_hz)))

@@ -41,6 +41,13 @@ class Query:
     exclude : tuple of str
         Edge names the path search must not use (such as the very edge being estimated).
     name : str
+    failover : bool
+        Plan fallback paths (sharing no sensor with the better ones) and answer from the best
+        live one (:class:`trackflow.dataflow.PathSwitch`); not with ``fuse`` or ``static``.
+    hold_s : float
+        Failover: how long a better path must have been live before the answers return to it.
+    refused_down : int
+        Failover: a sensor whose filter refused this many measurements in a row is down.
     """
 
     source: str
@@ -53,6 +60,9 @@ class Query:
     static: bool = False
     exclude: tuple[str, ...] = ()
     name: str = "query"
+    failover: bool = True
+    hold_s: float = 2.0
+    refused_down: int = 5
     evaluate: EvaluationFunction = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -63,6 +73,10 @@ class Query:
                 raise InputError(f"query {self.name!r}: push delivery needs a rate_hz > 0")
         if not math.isfinite(self.time_offset_s):
             raise InputError(f"query {self.name!r}: time_offset_s must be finite")
+        if not (0 <= self.hold_s < math.inf):
+            raise InputError(f"query {self.name!r}: hold_s must be finite and >= 0")
+        if not (isinstance(self.refused_down, int) and self.refused_down >= 1):
+            raise InputError(f"query {self.name!r}: refused_down must be an integer >= 1")
         object.__setattr__(self, "exclude", tuple(self.exclude))
         object.__setattr__(self, "evaluate", resolve_evaluation(self.evaluation))
 

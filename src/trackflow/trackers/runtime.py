@@ -14,7 +14,9 @@ answers therefore depend only on the recorded inputs and their dispatch times, a
 Recording (``record=out.tfrec``): ``out.tfrec`` holds the answers (``T_source_target`` of the
 query with covariance, as :class:`trackflow.dataflow.Recorder` writes them); for every
 sensor ``out.<sensor>.tfrec`` holds its measurements stamped with the mapped exposure time,
-and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch time.
+and ``out.<sensor>.arrival.tfrec`` the same records stamped with their dispatch time;
+``out.switches.jsonl`` every move of a query between its paths (failover,
+:mod:`trackflow.trackers.switch_log`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from ..dataflow import (
     KalmanFilter,
     Measurement,
     Network,
+    PathSwitch,
     Plan,
     RecordingPlayer,
     Sampler,
@@ -58,6 +61,7 @@ from .inputs import (
     make_inputs,
     warm_up_inputs,
 )
+from .switch_log import SwitchLog, read_switch_log, switch_log_path
 
 __all__ = [
     "LiveSource",
@@ -340,6 +344,8 @@ class RunResult:
     sinks: dict[str, Component] = field(default_factory=dict, repr=False)
     #: queries of the setup that could not be planned, with the planner's reason
     unplanned: dict[str, str] = field(default_factory=dict)
+    #: failover: each query's path switch (queries with fallback paths only)
+    switches: dict[str, PathSwitch] = field(default_factory=dict, repr=False)
 
 
 def _push_query(setup: Setup, query: str | None):
@@ -479,17 +485,20 @@ class _Served:
     sink: Component
     sinks: dict[str, Component]
     unplanned: dict[str, str]
+    switches: dict[str, PathSwitch]
 
 
-def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out) -> _Served:
+def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log) -> _Served:
     """Build every query of the setup into one network: ``main`` answers to ``on_answer``
     and ``record``; other push queries to ``out.query.<name>.tfrec`` (and VRPN sensor
-    1, 2, ... in setup order); pull queries to :class:`PullSink` objects."""
+    1, 2, ... in setup order); pull queries to :class:`PullSink` objects. Path switches
+    report to ``log`` (a :class:`SwitchLog`)."""
     net = Network()
     plan = setup.plan(main)
     net, sink = plan.build(
-        sources, callback=on_answer, record=record, history_s=history_s, network=net
-    )
+        sources, callback=on_answer, record=record, history_s=history_s, network=net,
+        on_switch=log.callback(main.name),
+    )  # fmt: skip
     sinks, unplanned, vrpn_index = {main.name: sink}, {}, 0
     for name, q in setup.queries.items():
         if name == main.name:
@@ -509,12 +518,17 @@ def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out) -> 
         path = None if record is None or q.mode != "push" else query_record_path(record, name)
         _, sinks[name] = other.build(
             sources, callback=callback, record=path, history_s=history_s, network=net,
-            prefix=f"{name}:",
+            prefix=f"{name}:", on_switch=log.callback(name),
         )  # fmt: skip
     for name, src in sources.items():  # sensors no query uses are still opened and recorded
         if name not in net.components:
             net.add(src)
-    return _Served(net, plan, sink, sinks, unplanned)
+    switches = {}
+    for name in sinks:
+        c = net.components.get("switch" if name == main.name else f"{name}:switch")
+        if isinstance(c, PathSwitch):
+            switches[name] = c
+    return _Served(net, plan, sink, sinks, unplanned, switches)
 
 
 def run_live(
@@ -571,7 +585,8 @@ def run_live(
         if callback is not None:
             callback(m)
 
-    served = _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out)
+    log = SwitchLog(None if record is None else switch_log_path(record))
+    served = _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log)
     net = served.net
     net.reset()
     warm_up(net)
@@ -587,7 +602,7 @@ def run_live(
         sched.add(InputSource(inp, delivery, writers))
     main_ticks = _main_ticker(sched, net, served.sink)
     bodies = [b for i in inputs for b in i.bodies]
-    status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s)
+    status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s, log)
     deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
     interrupted = False
     try:
@@ -596,6 +611,7 @@ def run_live(
         interrupted = True
     finally:
         net.finish()
+        log.close()
         for pair in writers.values():
             for w in pair:
                 w.close()
@@ -611,6 +627,7 @@ def run_live(
         inputs=inputs,
         sinks=served.sinks,
         unplanned=served.unplanned,
+        switches=served.switches,
     )
 
 
@@ -624,9 +641,10 @@ def _main_ticker(sched: Scheduler, net: Network, sink: Component) -> Ticker:
     return next(s for s in sched.sources if isinstance(s, Ticker) and s.name == name)
 
 
-def _status_printer(on_status, bodies, inputs, unplanned, period_s):
+def _status_printer(on_status, bodies, inputs, unplanned, period_s, log):
     """The run's idle callback: once the inputs are listening, ``listening: ...`` (and the
-    queries not served, with why), then a status line per sensor every ``period_s``."""
+    queries not served, with why), then a status line per sensor every ``period_s`` and a
+    line per path switch of ``log`` (a :class:`SwitchLog`) as soon as it happens."""
     state = {"next": None}
 
     def status(now: int) -> None:
@@ -640,8 +658,12 @@ def _status_printer(on_status, bodies, inputs, unplanned, period_s):
             on_status(lines)
             state["next"] = now + int(period_s * 1e9)
         elif now >= state["next"]:
-            on_status([b.status.line(now, b.spec.stale_s) for b in bodies])
+            on_status([b.status.line(now, b.spec.stale_s) for b in bodies] + log.new_lines())
             state["next"] = now + int(period_s * 1e9)
+        else:
+            lines = log.new_lines()
+            if lines:
+                on_status(lines)
 
     return status
 
@@ -672,7 +694,8 @@ class ReplayResult:
 def replay(setup: Setup, record, *, query: str | None = None, history_s: float = 1.0):
     """Replay a live run recorded at ``record``: feed every sensor's recorded inputs at
     their dispatch times through the same dataflow (virtual clock) and compare the answers
-    with the recorded ones, bit for bit.
+    with the recorded ones, bit for bit, and the query's path switches with the recorded
+    ones (``out.switches.jsonl``, when the run recorded it).
 
     Raises
     ------
@@ -694,12 +717,18 @@ def replay(setup: Setup, record, *, query: str | None = None, history_s: float =
         if not np.array_equal(exp.position, arr.position):
             raise InputError(f"{arr_path}: records do not match {exp_path.name}")
         players[e] = _ArrivalPlayer(e, exp, arr)
-    net, sink = plan.build(players, history_s=history_s)
+    switched = []
+    net, sink = plan.build(players, history_s=history_s, on_switch=switched.append)
     sampler = next(c for c in net.components.values() if isinstance(c, Sampler))
     if len(recorded) == 0:
         raise InputError(f"{record}: the run recorded no answers")
     offset = int(round(q.time_offset_s * 1e9))
-    sampler.start_ns = int(recorded.t_ns[0]) - offset
+    # the live run ticked from its start on this grid: from the first tick after the first
+    # recorded arrival on, so that a path switch starts judging where the live one did
+    first_tick = int(recorded.t_ns[0]) - offset
+    period = sampler.period_ns
+    first_arrival = min(int(p.arrivals()[0]) for p in players.values() if len(p.t_ns))
+    sampler.start_ns = first_tick - max(first_tick - first_arrival, 0) // period * period
     net.run(until_ns=int(recorded.t_ns[-1]) - offset)
     got = sink.to_stream(q.source, q.target)
     mismatch = None
@@ -712,4 +741,10 @@ def replay(setup: Setup, record, *, query: str | None = None, history_s: float =
                 bad = np.flatnonzero((a != b).reshape(len(a), -1).any(axis=1))
                 mismatch = f"{field_name} differs at answer {int(bad[0])} ({len(bad)} answers)"
                 break
+    log = switch_log_path(record)
+    if mismatch is None and log.exists():
+        wanted = read_switch_log(log).get(q.name, [])
+        moves = [(e.t_ns, e.from_path, e.to_path) for e in switched]
+        if moves != [(e.t_ns, e.from_path, e.to_path) for e in wanted]:
+            mismatch = f"path switches differ: {len(switched)} replayed, {len(wanted)} recorded"
     return ReplayResult(got, recorded, mismatch is None, mismatch)

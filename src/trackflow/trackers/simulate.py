@@ -4,8 +4,11 @@ A sample recorded at time ``t_i`` is exposed at host time ``start + (t_i - t_0) 
 the tracker's clock reads ``host + clock_offset`` (plus ``drift``); the packet is stamped
 ``latency`` after the exposure (NatNet transmit tick, DTrack ``ts2`` latency), then waits a
 random ``U(0, jitter)`` in the "network" and is sent; a fraction ``loss`` of the frames is
-never sent (their frame numbers are skipped, as a real loss). ``truth`` receives the exposure
-host times and poses as sent, so a receiver's mapped times can be checked.
+never sent (their frame numbers are skipped, as a real loss). In an ``outage`` window
+``(a, b)`` [s after the first frame] no frame is sent (occluded markers, a tracker that
+stopped); in a ``freeze`` window the frames are held and leave together at ``b`` (a sender
+process that was stopped and continued). ``truth`` receives the exposure host times and
+poses as sent, so a receiver's mapped times can be checked.
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ class SimConfig:
     command_port: int | None = None
     multicast_group: str | None = None  # NatNet: stream to this group ...
     data_port: int = 1511  # ... on this port (through the interface ``host``)
+    outages: tuple[tuple[float, float], ...] = ()  # no frames sent in [a, b) [s]
+    freezes: tuple[tuple[float, float], ...] = ()  # frames of [a, b) held, sent at b [s]
 
 
 class Simulator:
@@ -72,6 +77,9 @@ class Simulator:
             raise InputError("speed must be > 0")
         if not 1 <= cfg.bodies <= 1000:
             raise InputError("bodies must be 1 .. 1000")
+        for a, b in (*cfg.outages, *cfg.freezes):
+            if not 0 <= a < b:
+                raise InputError(f"an outage or freeze window needs 0 <= start < end, got {a}:{b}")
         if cfg.protocol == "natnet" and not (2, 0) <= tuple(cfg.version) <= (4, 1):
             raise InputError(f"NatNet {cfg.version[0]}.{cfg.version[1]} is not supported (2.0-4.1)")
         t = (stream.t_ns - stream.t_ns[0]).astype(np.float64) * 1e-9
@@ -90,6 +98,7 @@ class Simulator:
         self.stop = threading.Event()
         self.sent = 0
         self.lost = 0
+        self.withheld = 0  # frames of the outage windows
         self.truth_t: list[int] = []
         self.truth_i: list[int] = []
         self._clients: set = set()
@@ -283,11 +292,21 @@ class Simulator:
         jit = np.round(rng.uniform(0.0, c.jitter_ms * 1e6, len(exp))).astype(np.int64)
         lost = rng.random(len(exp)) < c.loss
         # (stamp time, index): stamped `lat` after exposure; sent `jitter` after the stamp
-        heap = [(int(exp[i] + lat + jit[i]), i) for i in range(len(exp))]
+        send = exp + lat + jit
+        withheld = np.zeros(len(exp), bool)
+        for a, b in c.outages:
+            withheld |= (self.rel_s >= a) & (self.rel_s < b)
+        for a, b in c.freezes:
+            held = (self.rel_s >= a) & (self.rel_s < b)
+            send[held] = np.maximum(send[held], start + int(round(b * 1e9)))
+        heap = [(int(send[i]), i) for i in range(len(exp))]
         heapq.heapify(heap)
         try:
             while heap and not self.stop.is_set():
                 send_at, i = heapq.heappop(heap)
+                if withheld[i]:
+                    self.withheld += 1
+                    continue
                 if lost[i]:
                     self.lost += 1
                     continue
@@ -305,7 +324,8 @@ class Simulator:
             for t in threads:
                 t.join(2.0)
             self.close()
-        return {"sent": self.sent, "lost": self.lost, "frames": len(exp)}
+        return {"sent": self.sent, "lost": self.lost, "withheld": self.withheld,
+                "frames": len(exp)}  # fmt: skip
 
     def truth(self) -> PoseStream:
         """Exposure host times and poses of the sent samples, in time order."""

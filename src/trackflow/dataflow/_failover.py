@@ -1,0 +1,179 @@
+"""Failover between a query's candidate paths (thesis 2.4.4: the setup adapts to the trackers
+that are present).
+
+The planner gives a query its best path and, where the graph has them, fallback paths that
+share no sensor with the better ones (:func:`trackflow.dataflow.plan_query`). A
+:class:`PathSwitch` pulls the query's answer from one of them:
+
+* A path is **live** while every sensor filter on it took a measurement within its sensor's
+  ``stale`` time (on the network's clock: the dispatch time of the pull) and refused fewer
+  than ``refused_down`` measurements in a row since it last took one. Nothing is judged
+  until some sensor of the switch has delivered (the start); a sensor that has not
+  delivered yet counts as live for its ``stale`` time after the start (the trackers of a
+  starting setup come up at slightly different times), then as down.
+* The switch answers from the path it is on while that path is live. When it is not, it
+  moves at once to the best live path (lowest index); when none is live it stays.
+* It returns to a better path once that path has been live for ``hold`` without a break, so
+  a sensor that flickers does not make the answers flap.
+* Every move is a :class:`SwitchEvent` with its time and reason (in :attr:`PathSwitch.events`
+  and given to ``on_switch``); every answer carries the index of the path that produced it
+  (:attr:`Measurement.path`).
+
+Liveness is judged from the dispatch times the scheduler gives the network, so a replay of
+recorded arrivals switches exactly where the live run did.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from ._component import Component
+from ._events import Measurement
+
+__all__ = ["PathSwitch", "SwitchEvent"]
+
+
+@dataclass(frozen=True)
+class SwitchEvent:
+    """A move of a query's answers from one path to another.
+
+    Parameters
+    ----------
+    t_ns : int
+        The network clock when it happened (the dispatch time of the pull that moved).
+    from_path, to_path : int
+        Path indices (0 = the preferred path).
+    reason : str
+        Why: the sensor that went down and how ("sensor natnet: no data for 212 ms"), or
+        that the better path is back ("path 0 live for 2.00 s").
+    """
+
+    t_ns: int
+    from_path: int
+    to_path: int
+    reason: str
+
+    def as_dict(self) -> dict:
+        return {"t_ns": self.t_ns, "from": self.from_path, "to": self.to_path,
+                "reason": self.reason}  # fmt: skip
+
+
+class PathSwitch(Component):
+    """Answers a pull from the query's current live path (module docstring).
+
+    Parameters
+    ----------
+    name : str
+    sensors : sequence of sequence of (str, Component, int)
+        Per candidate path (input ``k`` is path ``k``): its sensors as ``(sensor name, filter
+        component, stale time [ns])``. The filter components are
+        :class:`~trackflow.dataflow.KalmanFilter` objects (``last_taken_ns`` and
+        ``refused_in_a_row`` tell their liveness).
+    hold_ns : int
+        How long a better path must have been live before the answers return to it.
+    refused_down : int
+        A sensor whose filter refused this many measurements in a row is down.
+    on_switch : callable, optional
+        Called with every :class:`SwitchEvent` as it happens.
+    """
+
+    pull_in = -1
+    pull_out = True
+    kind = "switch"
+
+    def __init__(
+        self,
+        name: str,
+        sensors: Sequence[Sequence[tuple[str, Component, int]]],
+        *,
+        hold_ns: int = 2_000_000_000,
+        refused_down: int = 5,
+        on_switch: Callable[[SwitchEvent], None] | None = None,
+    ):
+        super().__init__(name)
+        self.sensors = [list(s) for s in sensors]
+        self.hold_ns = int(hold_ns)
+        self.refused_down = int(refused_down)
+        self.on_switch = on_switch
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self.current = 0
+        self.events: list[SwitchEvent] = []
+        self._live_since: list[int | None] = [None] * len(self.sensors)
+        self.answers_by_path = [0] * len(self.sensors)
+        self._start_ns: int | None = None
+
+    def down(self, path: int, now_ns: int) -> str | None:
+        """Why path ``path`` is not live at ``now_ns`` (its first sensor that is down), or
+        ``None``."""
+        for sensor, kf, stale_ns in self.sensors[path]:
+            taken = kf.last_taken_ns
+            if taken is None:
+                if now_ns - self._start_ns > stale_ns:
+                    waited = (now_ns - self._start_ns) * 1e-6
+                    return f"sensor {sensor}: no data since the start ({waited:.0f} ms)"
+                continue
+            if now_ns - taken > stale_ns:
+                return f"sensor {sensor}: no data for {(now_ns - taken) * 1e-6:.0f} ms"
+            if kf.refused_in_a_row >= self.refused_down:
+                return f"sensor {sensor}: {kf.refused_in_a_row} measurements refused in a row"
+        return None
+
+    def _started(self) -> bool:
+        """Whether some sensor of the switch has delivered."""
+        return any(kf.last_taken_ns is not None for path in self.sensors for _, kf, _ in path)
+
+    def _move(self, now_ns: int, to: int, reason: str) -> None:
+        event = SwitchEvent(now_ns, self.current, to, reason)
+        self.current = to
+        self.events.append(event)
+        if self.on_switch is not None:
+            self.on_switch(event)
+
+    def choose(self, now_ns: int) -> int:
+        """The path to answer from at ``now_ns`` (moving, with an event, if it changes)."""
+        why = [self.down(k, now_ns) for k in range(len(self.sensors))]
+        since = self._live_since
+        for k, w in enumerate(why):
+            if w is not None:
+                since[k] = None
+            elif since[k] is None:
+                since[k] = now_ns
+        cur = self.current
+        if why[cur] is not None:
+            live = [k for k, w in enumerate(why) if w is None]
+            if live:
+                self._move(now_ns, live[0], why[cur])
+            return self.current
+        for k in range(cur):  # a better path, live for the hold time
+            if since[k] is not None and now_ns - since[k] >= self.hold_ns:
+                self._move(now_ns, k, f"path {k} live for {(now_ns - since[k]) * 1e-9:.2f} s")
+                break
+        return self.current
+
+    def pull(self, t_ns: int) -> Measurement | None:
+        now = self.clock.now_ns
+        if self._start_ns is None and self._started():
+            self._start_ns = now
+        k = self.choose(now) if self._start_ns is not None else self.current
+        m = self.inputs[k].pull(t_ns)
+        if m is None:
+            self.stats.reject(f"path {k} did not answer")
+            return None
+        self.stats.events_out += 1
+        self.answers_by_path[k] += 1
+        return m if k == 0 else Measurement(m.t_ns, m.pose, m.origin_ns, k)
+
+    def summary(self) -> dict:
+        """The current path, answers per path and every switch (plain data, for status)."""
+        return {
+            "path": self.current,
+            "answers_by_path": list(self.answers_by_path),
+            "switches": [e.as_dict() for e in self.events],
+        }
+
+    def describe(self) -> str:
+        return f"switch {self.name} ({len(self.sensors)} paths, hold {self.hold_ns * 1e-9:g} s)"

@@ -1,0 +1,181 @@
+"""Failover between a query's paths (rule 8 of the planner, dataflow/_failover.py): the plan,
+the move to a fallback when the preferred sensor stops or is refused, the hold before the
+return, and that the answers after a move are honest (NEES against the truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _scenario import MOTION, tracker_truth
+
+from trackflow.dataflow import PathSwitch, RecordingPlayer, plan_query
+from trackflow.graph import Query, SpatialRelationshipGraph
+from trackflow.math import quat_exp, quat_multiply
+
+RATE_Q = 50  # answers per second
+GOOD_HZ, BACKUP_HZ = 60, 30
+SIGMA = {"good": (2e-4, 5e-4), "backup": (1e-3, 2e-3)}  # position [m], rotation [rad]
+OUTAGE = (1.5e9, 2.7e9)  # the good tracker sends nothing then [ns]
+STALE_NS, HOLD_NS = 100_000_000, 400_000_000
+
+
+def _graph() -> SpatialRelationshipGraph:
+    g = SpatialRelationshipGraph()
+    for name, rate in (("good", GOOD_HZ), ("backup", BACKUP_HZ)):
+        sp, so = SIGMA[name]
+        g.add_measured(
+            name, "W", "B", latency_s=0.01, rate_hz=rate, motion=MOTION,
+            covariance=np.diag([sp**2] * 3 + [so**2] * 3),
+        )  # fmt: skip
+    return g
+
+
+def _player(name: str, rate: float, rng, gap=None, end_s: float = 4.0) -> RecordingPlayer:
+    t_ns = np.arange(0, int(end_s * 1e9), int(1e9 / rate), dtype=np.int64)
+    if gap is not None:
+        t_ns = t_ns[(t_ns < gap[0]) | (t_ns >= gap[1])]
+    truth = tracker_truth(t_ns * 1e-9)
+    sp, so = SIGMA[name]
+    pos = truth.position + rng.normal(0, sp, (len(t_ns), 3))
+    quat = quat_multiply(truth.quaternion, quat_exp(rng.normal(0, so, (len(t_ns), 3))))
+    cov = np.diag([sp**2] * 3 + [so**2] * 3)
+    return RecordingPlayer(name, t_ns, pos, quat, cov, latency_ns=10_000_000)
+
+
+def _run(query: Query, players: dict, stale_ns: int = STALE_NS):
+    plan = plan_query(_graph(), query)
+    plan.node("switch").params["stale_ns"].update({e: stale_ns for e in players})
+    got, events = [], []
+    net, _ = plan.build(players, callback=got.append, on_switch=events.append)
+    net.run()
+    return plan, net, got, events
+
+
+def test_the_plan_has_a_fallback_path_meeting_in_a_switch():
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q")
+    plan = plan_query(_graph(), q)
+    assert [str(p) for p in plan.paths] == [str(plan.paths[0])] and plan.paths[0].sensors == {
+        "good"
+    }
+    assert [p.sensors for p in plan.fallbacks] == [{"backup"}]
+    assert "fallback 1" in plan.explain()
+    switch = plan.node("switch")
+    assert switch.params["sensors"] == [[("good", "kf_good")], [("backup", "kf_backup")]]
+    # no failover when the query says so, or when it fuses the paths
+    for other in (Query("W", "B", failover=False), Query("W", "B", fuse=True)):
+        p = plan_query(_graph(), other)
+        assert p.fallbacks == [] and p.count("switch") == 0
+
+
+def test_an_outage_moves_the_answers_to_the_fallback_and_back_after_the_hold():
+    rng = np.random.default_rng(7)
+    players = {
+        "good": _player("good", GOOD_HZ, rng, gap=OUTAGE),
+        "backup": _player("backup", BACKUP_HZ, rng),
+    }
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", hold_s=HOLD_NS * 1e-9)
+    _, net, got, events = _run(q, players)
+    assert [(e.from_path, e.to_path) for e in events] == [(0, 1), (1, 0)], events
+    away, back = events
+    # down once the newest measurement is older than stale (it arrived 10 ms after exposure)
+    last_arrival = int(players["good"].t_ns[players["good"].t_ns < OUTAGE[0]][-1]) + 10_000_000
+    tick = 10**9 // RATE_Q
+    assert last_arrival + STALE_NS < away.t_ns <= last_arrival + STALE_NS + tick
+    assert away.reason.startswith("sensor good: no data for")
+    # back once the good sensor has been live for the hold time, not before
+    first_back = int(players["good"].t_ns[players["good"].t_ns >= OUTAGE[1]][0]) + 10_000_000
+    assert first_back + HOLD_NS <= back.t_ns <= first_back + HOLD_NS + tick
+    assert back.reason.startswith("path 0 live for")
+    # every answer says which path made it: the fallback's between the two moves
+    t = np.array([m.t_ns for m in got])
+    path = np.array([m.path for m in got])
+    assert np.all(path[(t > away.t_ns) & (t < back.t_ns)] == 1)
+    assert np.all(path[(t < away.t_ns) | (t >= back.t_ns)] == 0)
+    switch = next(c for c in net.components.values() if isinstance(c, PathSwitch))
+    assert switch.answers_by_path == [int((path == 0).sum()), int((path == 1).sum())]
+    # the fallback's answers are honest: position NEES against the truth (3 dof)
+    on_backup = [m for m in got if m.path == 1]
+    truth = tracker_truth(np.array([m.t_ns for m in on_backup]) * 1e-9)
+    nees = []
+    for m, p in zip(on_backup, truth.position):
+        e = m.pose.position - p
+        nees.append(e @ np.linalg.solve(m.pose.covariance[:3, :3], e))
+    assert len(nees) > 40
+    assert np.mean(nees) < 3 * 1.5 and np.mean(np.array(nees) < 11.34) > 0.95, np.mean(nees)
+
+
+def test_a_flickering_sensor_does_not_make_the_answers_flap():
+    rng = np.random.default_rng(3)
+    good = _player("good", GOOD_HZ, rng, end_s=6.0)
+    keep = np.ones(len(good.t_ns), bool)
+    for k in range(4):  # four outages of 0.3 s, 0.2 s apart
+        a = 1.0e9 + k * 0.5e9
+        keep &= (good.t_ns < a) | (good.t_ns >= a + 0.3e9)
+    flicker = RecordingPlayer(
+        "good", good.t_ns[keep], good.position[keep], good.quaternion[keep], good.covariance[0],
+        latency_ns=10_000_000,
+    )  # fmt: skip
+    players = {"good": flicker, "backup": _player("backup", BACKUP_HZ, rng, end_s=6.0)}
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", hold_s=HOLD_NS * 1e-9)
+    _, _, _, events = _run(q, players)
+    # away at the first outage, back only once the flicker has stopped for the hold time
+    assert [(e.from_path, e.to_path) for e in events] == [(0, 1), (1, 0)], events
+    assert events[1].t_ns >= 1.0e9 + 3 * 0.5e9 + 0.3e9 + HOLD_NS
+
+
+def test_a_sensor_whose_measurements_are_refused_is_down():
+    rng = np.random.default_rng(5)
+    good = _player("good", GOOD_HZ, rng)
+    bad = (good.t_ns >= 1.5e9) & (good.t_ns < 2.0e9)
+    position = good.position.copy()
+    position[bad] += 0.5  # half a metre off: the filter's gate refuses them
+    players = {
+        "good": RecordingPlayer("good", good.t_ns, position, good.quaternion,
+                                good.covariance[0], latency_ns=10_000_000),
+        "backup": _player("backup", BACKUP_HZ, rng),
+    }  # fmt: skip
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", refused_down=3)
+    _, _, _, events = _run(q, players, stale_ns=10**9)
+    assert events and events[0].to_path == 1, events
+    assert events[0].reason == "sensor good: 3 measurements refused in a row"
+    assert 1.5e9 < events[0].t_ns < 1.5e9 + 4 * 1e9 / GOOD_HZ + 10**9 / RATE_Q + 10_000_000
+
+
+@pytest.mark.parametrize(("spec", "message"), [
+    ({"failover": "yes"}, "failover: expected true, false or a mapping"),
+    ({"failover": {"hold": 1}}, "failover: unknown keys ['hold']"),
+    ({"failover": {"refused_down": 1.5}}, "failover.refused_down: expected an integer"),
+    ({"failover": {"refused_down": 0}}, "refused_down must be an integer >= 1"),
+    ({"failover": {"hold_ms": -1}}, "hold_s must be finite and >= 0"),
+])  # fmt: skip
+def test_bad_failover_keys_name_the_query(spec, message):
+    from trackflow.dataflow import parse_setup
+
+    doc = {
+        "frames": ["W", "B"],
+        "sensors": [{"name": "s", "source": "W", "target": "B", "rate_hz": 10}],
+        "queries": [{"name": "q", "source": "W", "target": "B", **spec}],
+    }
+    with pytest.raises(ValueError, match="queries\\[0\\]") as err:
+        parse_setup(doc, "lab.yaml")
+    assert message in str(err.value)
+
+
+def test_a_sensor_that_never_delivers_is_down_after_its_stale_time():
+    rng = np.random.default_rng(11)
+    backup = _player("backup", BACKUP_HZ, rng)
+    silent = RecordingPlayer(
+        "good", np.array([10**10]), np.zeros((1, 3)), np.array([[0.0, 0, 0, 1]]), np.eye(6) * 1e-6
+    )  # one sample long after the run: the good tracker never sends during it
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q")
+    _, _, got, events = _run(q, {"good": silent, "backup": backup})
+    assert events[0].to_path == 1, events
+    assert events[0].reason.startswith("sensor good: no data since the start")
+    # down once stale has passed since the switch's first pull (the first tick, within a
+    # period of the first arrival at 10 ms); the first answer comes with the move
+    tick = 10**9 // RATE_Q
+    assert STALE_NS < events[0].t_ns <= STALE_NS + 10_000_000 + 2 * tick
+    assert got[0].t_ns == events[0].t_ns and got[0].path == 1
+    # the late sample: the backup has long ended, so the good path is the live one again
+    assert [(e.from_path, e.to_path) for e in events[1:]] == [(1, 0)], events
+    assert events[1].reason.startswith("sensor backup: no data for")

@@ -1,0 +1,101 @@
+"""Failover in a live run (real processes and sockets): two simulated trackers of one body,
+NatNet (preferred) and DTrack, replay one real recording; the NatNet one has an outage
+(``trackflow simulate --outage``). ``trackflow run`` moves the query to the DTrack path once
+NatNet has sent nothing for its ``stale_ms``, answers honestly from it (NEES against the
+truth the sender wrote), returns after the hold time, records every switch, and its replay
+makes the same switches."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from trackflow.io import read_stream
+from trackflow.trackers.runtime import input_paths
+from trackflow.trackers.switch_log import read_switch_log, switch_log_path
+
+from ._lines import read_lines, stop_when_stale, wait_line
+from .test_live_e2e import _finish, _free_port, _trackflow
+
+pytestmark = pytest.mark.slow
+
+STALE_MS, HOLD_MS, RATE_HZ, FRAME_HZ = 100, 500, 100, 120
+OUTAGE = (1.5, 2.5)  # s after the NatNet tracker's first frame
+SETUP = """frames: [W, B]
+sensors:
+  - {{name: natnet, source: W, target: B, rate_hz: 120, latency_ms: 5, sigma_pos_mm: 0.5,
+     sigma_ori_deg: 0.2, motion: {{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}},
+     input: {{natnet: {{command_port: {nn}, body: rig}}, stale_ms: {stale}}}}}
+  - {{name: dtrack, source: W, target: B, rate_hz: 120, latency_ms: 20, sigma_pos_mm: 0.5,
+     sigma_ori_deg: 0.2, motion: {{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}},
+     input: {{dtrack: {{port: {dt}, body: 1}}, stale_ms: {stale}}}}}
+queries:
+  - {{name: q, source: W, target: B, mode: push, rate_hz: {rate}, failover: {{hold_ms: {hold}}}}}
+"""
+
+
+def test_an_outage_of_the_preferred_tracker_fails_over_and_back(room1, tmp_path):
+    nn, dt = _free_port(), _free_port()
+    setup = tmp_path / "live.yaml"
+    setup.write_text(SETUP.format(nn=nn, dt=dt, stale=STALE_MS, hold=HOLD_MS, rate=RATE_HZ))
+    rec = tmp_path / "out.tfrec"
+    run = _trackflow("run", setup, "--record", rec, "--json")
+    try:
+        lines = read_lines(run.stderr)
+        wait_line(lines, "listening", 180)
+        common = ("--duration", 4, "--wait", 20, "--start", 5)
+        s1 = _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig",
+                        "--outage", f"{OUTAGE[0]}:{OUTAGE[1]}", *common)  # fmt: skip
+        s2 = _trackflow("simulate", "dtrack", room1, "--port", dt, *common,
+                        "--truth", tmp_path / "truth.tfrec")  # fmt: skip
+        sent = [json.loads(_finish(s, 90)) for s in (s1, s2)]
+        out = json.loads(stop_when_stale(run, lines, 2))
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0
+    assert sent[0]["withheld"] > 0.9 * (OUTAGE[1] - OUTAGE[0]) * FRAME_HZ, sent[0]
+    query = out["queries"]["q"]
+    events = query["switches"]
+    recorded = [e.as_dict() for e in read_switch_log(switch_log_path(rec))["q"]]
+    assert events == recorded and events, events
+
+    # the outage as the run saw it: the longest gap between NatNet arrivals
+    arrivals, _ = read_stream(input_paths(rec, "natnet")[1], format="native")
+    gaps = np.diff(arrivals.t_ns)
+    k = int(np.argmax(gaps))
+    went, came = int(arrivals.t_ns[k]), int(arrivals.t_ns[k + 1])
+    assert came - went > 0.8e9
+    away = next(e for e in events if e["to"] == 1 and e["t_ns"] > went)
+    back = next(e for e in events if e["to"] == 0 and e["t_ns"] > came)
+    assert away["reason"].startswith("sensor natnet: no data for"), away
+    tick, frame = 10**9 // RATE_HZ, 10**9 // FRAME_HZ
+    # the answer gap: from the newest NatNet data to the first answer of the fallback
+    gap_ms = (away["t_ns"] - went) * 1e-6
+    print(f"failover gap {gap_ms:.1f} ms; back {(back['t_ns'] - came) * 1e-9:.3f} s after")
+    assert STALE_MS < gap_ms <= STALE_MS + (2 * frame) * 1e-6 + tick * 1e-6
+    # back once NatNet has been live for the hold time (not before)
+    assert HOLD_MS * 1e6 <= back["t_ns"] - came <= HOLD_MS * 1e6 + tick + 2 * frame
+
+    # the fallback's answers are honest: position NEES against the DTrack sender's truth
+    answers, _ = read_stream(rec, format="native")
+    truth, _ = read_stream(tmp_path / "truth.tfrec")
+    on = (answers.t_ns >= away["t_ns"]) & (answers.t_ns < back["t_ns"])
+    on &= (answers.t_ns > truth.t_ns[0]) & (answers.t_ns < truth.t_ns[-1])
+    assert on.sum() > 0.8 * (back["t_ns"] - away["t_ns"]) / tick
+    t = answers.t_ns[on]
+    ref = np.stack([np.interp(t, truth.t_ns, truth.position[:, i]) for i in range(3)], axis=1)
+    err = answers.position[on] - ref
+    nees = np.einsum(
+        "ni,ni->n", err, np.linalg.solve(answers.covariance[on][:, :3, :3], err[..., None])[..., 0]
+    )
+    print(f"NEES after the switch: mean {nees.mean():.2f}, p99 {np.percentile(nees, 99):.2f}")
+    assert np.mean(nees < 11.34) > 0.95, np.percentile(nees, [50, 90, 99])  # chi2(3) 99 %
+    assert query["answers_by_path"][1] >= on.sum()
+
+    replay = _trackflow("run", setup, "--replay", rec, "--json")
+    rep_out, rep_err = replay.communicate(timeout=90)
+    assert json.loads(rep_out)["identical"] is True, rep_out + rep_err[-2000:]
