@@ -1,0 +1,226 @@
+"""Failover of a live run, measured with real processes and sockets (issue 28's figures).
+
+Two simulated trackers of one body replay TUM-VI room1 (``trackflow simulate``): NatNet, the
+preferred path, and DTrack, the fallback (declared 15 ms slower). ``trackflow run`` answers
+a 100 Hz push query with ``stale_ms: 100`` on both inputs and ``failover: {hold_ms: 500}``.
+The NatNet tracker fails once both stream, three ways:
+
+* ``outage``: it sends nothing for 1 s (``simulate --outage 6:7``), then goes on;
+* ``kill``: its process is killed (SIGKILL) 1.5 s after DTrack streams and a new one started
+  1 s later (the run's NatNet input connects to it again);
+* ``freeze``: its process is stopped (SIGSTOP) 1.5 s after DTrack streams, for 1 s, then
+  continued (SIGCONT): it sends the held frames at once, then goes on.
+
+Per mode, from the run's recordings: ``failover_gap_ms`` (from the last NatNet arrival before
+the failure to the switch to DTrack: the time the answers were not backed by fresh data),
+``switch_back_s`` (from the first NatNet arrival after it to the switch back) and the answers'
+position NEES on the fallback against the DTrack sender's truth. Printed as a table, or one
+JSON object with ``--json``: ``{"failover_gap_ms": {"outage", "kill", "freeze"},
+"post_switch_nees": mean over the modes' fallback answers, "post_switch_nees_p99",
+"switch_back_s": worst mode, "modes": {...}}``.
+
+Usage: ``python bench/adaptive.py [--json]`` (needs ``../shared/data/tumvi``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trackflow.io import read_stream
+from trackflow.trackers.runtime import input_paths
+from trackflow.trackers.switch_log import read_switch_log, switch_log_path
+
+ROOT = Path(__file__).resolve().parents[1]
+ROOM1 = ROOT.parent / "shared" / "data" / "tumvi" / "dataset-room1_512_16.txt"
+STALE_MS, HOLD_MS, RATE_HZ = 100, 500, 100
+FAIL_AT_S, FAIL_FOR_S, START_S, DURATION_S = 1.5, 1.0, 5.0, 12.0
+OUTAGE_AT_S = 6.0  # s into the NatNet replay (it streams from the run's start, DTrack later)
+MOTION = "{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}"
+SETUP = f"""frames: [W, B]
+sensors:
+  - {{name: natnet, source: W, target: B, rate_hz: 120, latency_ms: 5, sigma_pos_mm: 0.5,
+     sigma_ori_deg: 0.2, motion: {MOTION},
+     input: {{natnet: {{command_port: NN, body: rig}}, stale_ms: {STALE_MS}}}}}
+  - {{name: dtrack, source: W, target: B, rate_hz: 120, latency_ms: 20, sigma_pos_mm: 0.5,
+     sigma_ori_deg: 0.2, motion: {MOTION},
+     input: {{dtrack: {{port: DT, body: 1}}, stale_ms: {STALE_MS}}}}}
+queries:
+  - {{name: q, source: W, target: B, mode: push, rate_hz: {RATE_HZ},
+     failover: {{hold_ms: {HOLD_MS}}}}}
+"""
+
+
+def _port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _trackflow(*args) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    return subprocess.Popen(
+        [sys.executable, "-m", "trackflow.cli.main", *map(str, args)],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+
+
+def _lines(stream) -> queue.Queue:
+    out: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [out.put(x) for x in stream], daemon=True).start()
+    return out
+
+
+def _wait(lines: queue.Queue, accept, timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        try:
+            if accept(lines.get(timeout=max(end - time.monotonic(), 0.01))):
+                return
+        except queue.Empty:
+            break
+    raise TimeoutError(f"no status line as expected within {timeout_s} s")
+
+
+def _dtrack_streams(line: str) -> bool:
+    """Whether a status line (one segment per sensor, `` | `` between) says DTrack streams."""
+    for seg in line.strip().split(" | "):
+        if seg.startswith("dtrack (dtrack): "):
+            rate = float(seg.split()[2])
+            return rate > 0 and not seg.endswith("STALE")
+    return False
+
+
+def _natnet(room1: Path, nn: int, mode: str, start_s: float, duration_s: float):
+    args = ["simulate", "natnet", room1, "--port", nn, "--wait", 200, "--body", "rig"]
+    if mode == "outage":
+        args += ["--outage", f"{OUTAGE_AT_S}:{OUTAGE_AT_S + FAIL_FOR_S}"]
+    return _trackflow(*args, "--start", start_s, "--duration", duration_s)
+
+
+def _fail(mode, natnet, room1: Path, nn: int, streaming_since: float) -> subprocess.Popen:
+    """Fail the streaming NatNet sender as ``mode`` says; the sender that goes on. A killed
+    one is restarted where its replay would be by then (``streaming_since``: monotonic time
+    it began), as a tracker that comes back sees the body where it is."""
+    if mode == "outage":
+        return natnet  # it withholds its frames itself
+    time.sleep(FAIL_AT_S)
+    if mode == "kill":
+        natnet.kill()
+        natnet.communicate()
+        time.sleep(FAIL_FOR_S)
+        resumed = time.monotonic() - streaming_since
+        return _natnet(room1, nn, "kill", START_S + resumed, DURATION_S - resumed)
+    natnet.send_signal(signal.SIGSTOP)
+    time.sleep(FAIL_FOR_S)
+    natnet.send_signal(signal.SIGCONT)
+    return natnet
+
+
+def measure(mode: str, room1: Path, folder: Path) -> dict:
+    """One run of ``mode``: the failover figures from its recordings."""
+    nn, dt = _port(), _port()
+    setup = folder / "live.yaml"
+    setup.write_text(SETUP.replace("NN", str(nn)).replace("DT", str(dt)))
+    rec, truth_path = folder / "out.tfrec", folder / "truth.tfrec"
+    # the NatNet sender first: the run connects to it as it opens its inputs, and it streams
+    # from then on; the DTrack sender once the run listens
+    natnet = _natnet(room1, nn, mode, START_S, DURATION_S)
+    run = _trackflow("run", setup, "--record", rec, "--json")
+    senders = [natnet]
+    try:
+        lines = _lines(run.stderr)
+        _wait(lines, lambda x: x.startswith("listening"), 180)
+        streaming_since = time.monotonic()  # NatNet streams once the run has connected
+        senders.append(_trackflow("simulate", "dtrack", room1, "--port", dt, "--body-id", 1,
+                                  "--start", START_S, "--duration", DURATION_S,
+                                  "--truth", truth_path))  # fmt: skip
+        # both stream (a DTrack status line with a rate, not stale) before NatNet fails
+        _wait(lines, _dtrack_streams, 60)
+        senders.append(_fail(mode, natnet, room1, nn, streaming_since))
+        for p in senders[1:]:
+            p.communicate(timeout=120)
+        _wait(lines, lambda x: x.count("STALE") == 2, 60)
+        run.send_signal(signal.SIGTERM)
+        summary = json.loads(run.communicate(timeout=60)[0])
+    finally:
+        for p in (run, *senders):
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    events = read_switch_log(switch_log_path(rec)).get("q", [])
+    arrivals, _ = read_stream(input_paths(rec, "natnet")[1], format="native")
+    k = int(np.argmax(np.diff(arrivals.t_ns)))
+    went, came = int(arrivals.t_ns[k]), int(arrivals.t_ns[k + 1])
+    away = next(e for e in events if e.to_path == 1 and e.t_ns > went)
+    # the return because NatNet is back (not because DTrack ended meanwhile)
+    back = next(e for e in events if e.to_path == 0 and e.t_ns > came)
+    if not back.reason.startswith("path 0 live"):
+        raise RuntimeError(f"{mode}: no return to NatNet before DTrack ended: {events}")
+    answers, _ = read_stream(rec, format="native")
+    truth, _ = read_stream(truth_path)
+    on = (answers.t_ns >= away.t_ns) & (answers.t_ns < back.t_ns)
+    on &= (answers.t_ns > truth.t_ns[0]) & (answers.t_ns < truth.t_ns[-1])
+    t = answers.t_ns[on]
+    ref = np.stack([np.interp(t, truth.t_ns, truth.position[:, i]) for i in range(3)], axis=1)
+    err = answers.position[on] - ref
+    cov = answers.covariance[on][:, :3, :3]
+    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+    return {
+        "failover_gap_ms": (away.t_ns - went) * 1e-6,
+        "switch_back_s": (back.t_ns - came) * 1e-9,
+        "nees": nees.tolist(),
+        "switches": [e.as_dict() for e in events],
+        "natnet_gap": [went, came],
+        "reason": away.reason,
+        "answers_by_path": summary["queries"]["q"]["answers_by_path"],
+        "natnet": {k: summary["sensors"]["natnet"][k] for k in ("measurements", "rejections")},
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    if not ROOM1.exists():
+        print(f"needs {ROOM1}", file=sys.stderr)
+        return 2
+    modes = {}
+    for mode in ("outage", "kill", "freeze"):
+        with tempfile.TemporaryDirectory() as d:
+            print(f"{mode} ...", file=sys.stderr, flush=True)
+            modes[mode] = measure(mode, ROOM1, Path(d))
+    nees = np.concatenate([m.pop("nees") for m in modes.values()])
+    out = {
+        "failover_gap_ms": {m: round(v["failover_gap_ms"], 1) for m, v in modes.items()},
+        "post_switch_nees": round(float(nees.mean()), 3),
+        "post_switch_nees_p99": round(float(np.percentile(nees, 99)), 3),
+        "switch_back_s": round(max(v["switch_back_s"] for v in modes.values()), 3),
+        "bound_ms": STALE_MS + 2 * 1000 / 120,
+        "modes": modes,
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"{'mode':8} {'gap ms':>8} {'back s':>7}  reason")
+        for m, v in modes.items():
+            print(f"{m:8} {v['failover_gap_ms']:8.1f} {v['switch_back_s']:7.3f}  {v['reason']}")
+        print(f"NEES on the fallback: mean {out['post_switch_nees']}, "
+              f"p99 {out['post_switch_nees_p99']} (3 dof: 99 % bound 11.34)")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
