@@ -11,8 +11,9 @@ The NatNet tracker fails once both stream, three ways:
 * ``freeze``: its process is stopped (SIGSTOP) 1.5 s after DTrack streams, for 1 s, then
   continued (SIGCONT): it sends the held frames at once, then goes on.
 
-Per mode, from the run's recordings: ``failover_gap_ms`` (from the last NatNet arrival before
-the failure to the switch to DTrack: the time the answers were not backed by fresh data),
+Per mode, from the run's recordings: ``failover_gap_ms`` (from the exposure of the last NatNet
+frame before the failure to the switch to DTrack: how long the answers were not backed by
+fresh data),
 ``switch_back_s`` (from the first NatNet arrival after it to the switch back) and the answers'
 position NEES on the fallback against the DTrack sender's truth. Printed as a table, or one
 JSON object with ``--json``: ``{"failover_gap_ms": {"outage", "kill", "freeze"},
@@ -161,9 +162,11 @@ def measure(mode: str, room1: Path, folder: Path) -> dict:
                 p.kill()
                 p.communicate()
     events = read_switch_log(switch_log_path(rec)).get("q", [])
+    exposures, _ = read_stream(input_paths(rec, "natnet")[0], format="native")
     arrivals, _ = read_stream(input_paths(rec, "natnet")[1], format="native")
     k = int(np.argmax(np.diff(arrivals.t_ns)))
     went, came = int(arrivals.t_ns[k]), int(arrivals.t_ns[k + 1])
+    newest = int(exposures.t_ns[k])  # the exposure of NatNet's last frame before the gap
     away = next(e for e in events if e.to_path == 1 and e.t_ns > went)
     # the return because NatNet is back (not because DTrack ended meanwhile)
     back = next(e for e in events if e.to_path == 0 and e.t_ns > came)
@@ -179,7 +182,7 @@ def measure(mode: str, room1: Path, folder: Path) -> dict:
     cov = answers.covariance[on][:, :3, :3]
     nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
     return {
-        "failover_gap_ms": (away.t_ns - went) * 1e-6,
+        "failover_gap_ms": (away.t_ns - newest) * 1e-6,
         "switch_back_s": (back.t_ns - came) * 1e-9,
         "nees": nees.tolist(),
         "switches": [e.as_dict() for e in events],

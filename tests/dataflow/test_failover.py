@@ -77,12 +77,13 @@ def test_an_outage_moves_the_answers_to_the_fallback_and_back_after_the_hold():
     _, net, got, events = _run(q, players)
     assert [(e.from_path, e.to_path) for e in events] == [(0, 1), (1, 0)], events
     away, back = events
-    # down once the newest measurement is older than stale (it arrived 10 ms after exposure)
-    last_arrival = int(players["good"].t_ns[players["good"].t_ns < OUTAGE[0]][-1]) + 10_000_000
+    # down once the newest measurement's exposure is older than stale
+    newest = int(players["good"].t_ns[players["good"].t_ns < OUTAGE[0]][-1])
     tick = 10**9 // RATE_Q
-    assert last_arrival + STALE_NS < away.t_ns <= last_arrival + STALE_NS + tick
+    assert newest + STALE_NS < away.t_ns <= newest + STALE_NS + tick
     assert away.reason.startswith("sensor good: no data for")
-    # back once the good sensor has been live for the hold time, not before
+    # back once the good sensor has been live for the hold time (from the arrival of its
+    # first measurement, 10 ms after the exposure), not before
     first_back = int(players["good"].t_ns[players["good"].t_ns >= OUTAGE[1]][0]) + 10_000_000
     assert first_back + HOLD_NS <= back.t_ns <= first_back + HOLD_NS + tick
     assert back.reason.startswith("path 0 live for")
@@ -179,3 +180,35 @@ def test_a_sensor_that_never_delivers_is_down_after_its_stale_time():
     # the late sample: the backup has long ended, so the good path is the live one again
     assert [(e.from_path, e.to_path) for e in events[1:]] == [(1, 0)], events
     assert events[1].reason.startswith("sensor backup: no data for")
+
+
+class _LatePlayer(RecordingPlayer):
+    """A player whose samples arrive at given times (a backlog delivered late)."""
+
+    def __init__(self, name, t_ns, position, quaternion, covariance, arrival_ns):
+        self._arrival = np.asarray(arrival_ns, dtype=np.int64)
+        super().__init__(name, t_ns, position, quaternion, covariance, 0)
+
+    def arrivals(self) -> np.ndarray:
+        return self._arrival
+
+
+def test_a_late_backlog_of_old_measurements_does_not_make_a_sensor_live():
+    rng = np.random.default_rng(9)
+    good = _player("good", GOOD_HZ, rng)
+    kept = good.t_ns < 2.0e9  # it stops at 2.0 s ...
+    arrival = good.t_ns[kept] + 10_000_000
+    arrival[good.t_ns[kept] >= 1.5e9] = 2.7e9  # ... its last 0.5 s held and flushed at 2.7 s
+    late = _LatePlayer(
+        "good", good.t_ns[kept], good.position[kept], good.quaternion[kept],
+        good.covariance[0], arrival,
+    )  # fmt: skip
+    players = {"good": late, "backup": _player("backup", BACKUP_HZ, rng)}
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", hold_s=0.0)
+    _, _, got, events = _run(q, players)
+    # down 100 ms after the newest exposure it had (before 1.5 s), and never back: the backlog that
+    # came at 2.7 s was 0.7 s old and older
+    assert [(e.from_path, e.to_path) for e in events] == [(0, 1)], events
+    newest = int(good.t_ns[good.t_ns < 1.5e9][-1])
+    assert newest + STALE_NS < events[0].t_ns <= newest + STALE_NS + 10**9 // RATE_Q
+    assert all(m.path == 1 for m in got if m.t_ns > events[0].t_ns)

@@ -5,9 +5,11 @@ The planner gives a query its best path and, where the graph has them, fallback 
 share no sensor with the better ones (:func:`trackflow.dataflow.plan_query`). A
 :class:`PathSwitch` pulls the query's answer from one of them:
 
-* A path is **live** while every sensor filter on it took a measurement within its sensor's
-  ``stale`` time (on the network's clock: the dispatch time of the pull) and refused fewer
-  than ``refused_down`` measurements in a row since it last took one. Nothing is judged
+* A path is **live** while every sensor filter on it took a measurement of an exposure
+  within its sensor's ``stale`` time (the newest measurement's time against the network's
+  clock at the pull: a backlog of old measurements that arrives late does not make a sensor
+  live) and refused fewer than ``refused_down`` measurements in a row since it last took
+  one. Nothing is judged
   until some sensor of the switch has delivered (the start); a sensor that has not
   delivered yet counts as live for its ``stale`` time after the start (the trackers of a
   starting setup come up at slightly different times), then as down.
@@ -68,8 +70,8 @@ class PathSwitch(Component):
     sensors : sequence of sequence of (str, Component, int)
         Per candidate path (input ``k`` is path ``k``): its sensors as ``(sensor name, filter
         component, stale time [ns])``. The filter components are
-        :class:`~trackflow.dataflow.KalmanFilter` objects (``last_taken_ns`` and
-        ``refused_in_a_row`` tell their liveness).
+        :class:`~trackflow.dataflow.KalmanFilter` objects (``last_t``, the newest
+        measurement's time, and ``refused_in_a_row`` tell their liveness).
     hold_ns : int
         How long a better path must have been live before the answers return to it.
     refused_down : int
@@ -110,7 +112,7 @@ class PathSwitch(Component):
         """Why path ``path`` is not live at ``now_ns`` (its first sensor that is down), or
         ``None``."""
         for sensor, kf, stale_ns in self.sensors[path]:
-            taken = kf.last_taken_ns
+            taken = kf.last_t
             if taken is None:
                 if now_ns - self._start_ns > stale_ns:
                     waited = (now_ns - self._start_ns) * 1e-6
@@ -124,7 +126,7 @@ class PathSwitch(Component):
 
     def _started(self) -> bool:
         """Whether some sensor of the switch has delivered."""
-        return any(kf.last_taken_ns is not None for path in self.sensors for _, kf, _ in path)
+        return any(kf.last_t is not None for path in self.sensors for _, kf, _ in path)
 
     def _move(self, now_ns: int, to: int, reason: str) -> None:
         event = SwitchEvent(now_ns, self.current, to, reason)

@@ -155,8 +155,6 @@ class KalmanFilter(Component):
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
-        #: the network clock when the newest measurement was taken [ns] (liveness)
-        self.last_taken_ns: int | None = None
         #: measurements the filter refused since the last one it took (liveness)
         self.refused_in_a_row = 0
 
@@ -203,7 +201,6 @@ class KalmanFilter(Component):
             self.last_t = t
         if origin_ns > self.last_origin:
             self.last_origin = origin_ns
-        self.last_taken_ns = self.clock.now_ns
 
     def count_update(self, ok: bool) -> None:
         """Count one pushed measurement in, and out if the filter took it (it is pushed on,
