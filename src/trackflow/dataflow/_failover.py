@@ -17,9 +17,9 @@ share no sensor with the better ones (:func:`trackflow.dataflow.plan_query`). A
   moves at once to the best live path (lowest index); when none is live it stays.
 * It returns to a better path once that path has been live for ``hold`` without a break, so
   a sensor that flickers does not make the answers flap.
-* Every move is a :class:`SwitchEvent` with its time and reason (in :attr:`PathSwitch.events`
-  and given to ``on_switch``); every answer carries the index of the path that produced it
-  (:attr:`Measurement.path`).
+* Every move is a :class:`SwitchEvent` with its time and reason (the newest
+  :data:`KEPT_EVENTS` in :attr:`PathSwitch.events`, every one given to ``on_switch``); every
+  answer carries the index of the path that produced it (:attr:`Measurement.path`).
 
 Liveness is judged from the dispatch times the scheduler gives the network, so a replay of
 recorded arrivals switches exactly where the live run did.
@@ -27,13 +27,17 @@ recorded arrivals switches exactly where the live run did.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from ._component import Component
 from ._events import Measurement
 
-__all__ = ["PathSwitch", "SwitchEvent"]
+__all__ = ["KEPT_EVENTS", "PathSwitch", "SwitchEvent"]
+
+#: the switches a :class:`PathSwitch` keeps (the newest; ``on_switch`` sees every one)
+KEPT_EVENTS = 1000
 
 
 @dataclass(frozen=True)
@@ -103,7 +107,8 @@ class PathSwitch(Component):
     def reset(self) -> None:
         super().reset()
         self.current = 0
-        self.events: list[SwitchEvent] = []
+        self.events: deque[SwitchEvent] = deque(maxlen=KEPT_EVENTS)
+        self.switch_count = 0
         self._live_since: list[int | None] = [None] * len(self.sensors)
         self.answers_by_path = [0] * len(self.sensors)
         self._start_ns: int | None = None
@@ -132,6 +137,7 @@ class PathSwitch(Component):
         event = SwitchEvent(now_ns, self.current, to, reason)
         self.current = to
         self.events.append(event)
+        self.switch_count += 1
         if self.on_switch is not None:
             self.on_switch(event)
 
@@ -169,12 +175,14 @@ class PathSwitch(Component):
         self.answers_by_path[k] += 1
         return m if k == 0 else Measurement(m.t_ns, m.pose, m.origin_ns, k)
 
-    def summary(self) -> dict:
-        """The current path, answers per path and every switch (plain data, for status)."""
+    def summary(self, last: int = 20) -> dict:
+        """The current path, answers per path, the number of switches and the ``last``
+        newest (plain data, for status)."""
         return {
             "path": self.current,
             "answers_by_path": list(self.answers_by_path),
-            "switches": [e.as_dict() for e in self.events],
+            "switch_count": self.switch_count,
+            "switches": [e.as_dict() for e in list(self.events)[-last:]],
         }
 
     def describe(self) -> str:

@@ -42,6 +42,7 @@ from ..dataflow import (
     KalmanFilter,
     Measurement,
     Network,
+    PathSwitch,
     PlayerSource,
     PullSink,
     Recorder,
@@ -671,6 +672,9 @@ class Agent:
                     "published": st.published,
                     "events": st.events[-20:],
                 }
+                switch = self.net.components.get(f"{n}_g{st.generation}_switch")
+                if isinstance(switch, PathSwitch):  # failover: current path, its switches
+                    out["queries"][n].update(switch.summary())
             return out
 
 

@@ -28,6 +28,10 @@ from .discovery import Discovery, realm_key
 from .replica import RemoteFilter, RemoteGet
 from .thinning import Grid, demand_key, thin_key
 
+#: a remote filter state stamped longer ago than this when it arrives is dropped and counted
+#: (the backlog a stalled sender flushes when it continues), not replayed [ns]
+BACKLOG_NS = 500_000_000
+
 __all__ = ["RemoteInputs", "RemoteSource", "remote_get"]
 
 
@@ -289,6 +293,10 @@ class RemoteInputs:
         if last is not None and s.seq > last + 1:
             self.lost_messages += s.seq - last - 1
         self._last_seq[edge] = s.seq
+        if self.agent.now_ns() - (s.stamp_ns + offset) > BACKLOG_NS:
+            # a sender that stalled and now flushes what it held: no use for any answer
+            self.rejections.add("older than the backlog window")
+            return
         if self._reorder_ns <= 0:
             with self.sched.arrival(self.agent.now_ns()) as arr:
                 if arr is not None:
