@@ -212,3 +212,63 @@ def test_a_late_backlog_of_old_measurements_does_not_make_a_sensor_live():
     newest = int(good.t_ns[good.t_ns < 1.5e9][-1])
     assert newest + STALE_NS < events[0].t_ns <= newest + STALE_NS + 10**9 // RATE_Q
     assert all(m.path == 1 for m in got if m.t_ns > events[0].t_ns)
+
+
+# -- requirements (a query's require:) ---------------------------------------------------------
+def test_the_planner_keeps_to_paths_that_meet_the_requirements():
+    from trackflow.errors import PlanError
+    from trackflow.graph import Requirements
+
+    # the backup's 1 mm per axis is 1.7 mm radial RMS: only the good path meets 0.5 mm
+    q = Query("W", "B", name="q", require=Requirements(max_sigma_pos_m=0.5e-3))
+    plan = plan_query(_graph(), q)
+    assert plan.paths[0].sensors == {"good"} and plan.fallbacks == []
+    assert plan.count("switch") == 1  # it checks the answers all the same
+    # 40 Hz: the backup's 30 Hz does not make it a fallback either
+    plan = plan_query(_graph(), Query("W", "B", name="q", require=Requirements(min_rate_hz=40)))
+    assert plan.paths[0].sensors == {"good"} and plan.fallbacks == []
+    # nothing meets 100 Hz: the error names the requirement and the best path's figure
+    with pytest.raises(PlanError) as err:
+        plan_query(_graph(), Query("W", "B", name="q", require=Requirements(min_rate_hz=100)))
+    assert "no path meets require.min_rate_hz 100 (path W->B[good]: 60 Hz)" in str(err.value)
+    with pytest.raises(PlanError, match="require.max_latency_ms 5 .*10 ms"):
+        plan_query(_graph(), Query("W", "B", name="q", require=Requirements(max_latency_s=0.005)))
+
+
+def test_a_path_whose_answers_keep_breaking_a_requirement_is_left_for_one_that_meets_it():
+    from trackflow.graph import Requirements
+
+    rng = np.random.default_rng(13)
+    players = {
+        "good": _player("good", GOOD_HZ, rng, gap=(1.5e9, 4.0e9)),  # it stops at 1.5 s
+        "backup": _player("backup", BACKUP_HZ, rng),
+    }
+    # stale 1 s: liveness alone would keep the good path for a second of extrapolation; its
+    # answers' position sigma (under 5 mm while it measures, with this motion model and a
+    # 50 Hz sampler) grows past 15 mm well before that; the backup's stays under 12 mm
+    need = Requirements(max_sigma_pos_m=15e-3)
+    q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", require=need)
+    _, net, got, events = _run(q, players, stale_ns=10**9)
+    assert events and events[0].to_path == 1, events
+    assert events[0].reason.startswith("path 0 kept breaking require.max_sigma_pos_mm 15 ("), events
+    # the answers that broke it before the move are flagged, five in a row (refused_down;
+    # none before, once the starting filter has settled: its first answer is flagged too)
+    assert got[0].broken and not any(m.broken for m in got if 0.5e9 < m.t_ns < 1.45e9)
+    flagged = [m for m in got if m.broken and 1.45e9 < m.t_ns <= events[0].t_ns]
+    assert len(flagged) == 5 and all(m.path == 0 for m in flagged)
+    assert flagged[0].broken.startswith("require.max_sigma_pos_mm 15 (answer: ")
+    assert events[0].t_ns - 1.5e9 < 1e9  # within a second of the degradation
+    switch = next(c for c in net.components.values() if isinstance(c, PathSwitch))
+    assert switch.summary()["broken"]["require.max_sigma_pos_mm"] >= 5
+    # the fallback meets it: no flags after the move
+    assert not any(m.broken for m in got if m.t_ns > events[0].t_ns and m.path == 1)
+
+
+@pytest.mark.parametrize(("spec", "message"), [
+    ({"require": {"max_sigma": 1}}, "require: unknown keys ['max_sigma']"),
+    ({"require": {"max_latency_ms": "fast"}}, "require.max_latency_ms: expected a number"),
+    ({"require": {"min_rate_hz": 0}}, "min_rate_hz must be finite and > 0"),
+    ({"require": [1]}, "require: expected a mapping"),
+])  # fmt: skip
+def test_bad_requirements_name_the_query(spec, message):
+    test_bad_failover_keys_name_the_query(spec, message)

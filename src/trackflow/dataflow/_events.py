@@ -28,12 +28,16 @@ class Measurement(NamedTuple):
     path : int
         Which of the query's candidate paths produced an answer: 0 the preferred one, ``k``
         its ``k``-th fallback (:class:`trackflow.dataflow.PathSwitch`); 0 everywhere else.
+    broken : str
+        The query requirement an answer does not meet, with its figure ("" if it meets them
+        all or the query requires nothing; :class:`trackflow.graph.Requirements`).
     """
 
     t_ns: int
     pose: UncertainPose
     origin_ns: int
     path: int = 0
+    broken: str = ""
 
 
 @dataclass

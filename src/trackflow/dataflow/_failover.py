@@ -17,6 +17,10 @@ share no sensor with the better ones (:func:`trackflow.dataflow.plan_query`). A
   moves at once to the best live path (lowest index); when none is live it stays.
 * It returns to a better path once that path has been live for ``hold`` without a break, so
   a sensor that flickers does not make the answers flap.
+* With the query's ``require`` (:class:`~trackflow.graph.Requirements`), every answer is
+  checked: one that does not meet it is flagged (:attr:`Measurement.broken`, counted in
+  :attr:`PathSwitch.broken`), and a path whose answers break it ``refused_down`` times in a
+  row is left for a live path, if there is one, and not taken again for ``hold``.
 * Every move is a :class:`SwitchEvent` with its time and reason (the newest
   :data:`KEPT_EVENTS` in :attr:`PathSwitch.events`, every one given to ``on_switch``); every
   answer carries the index of the path that produced it (:attr:`Measurement.path`).
@@ -31,8 +35,10 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from ..graph import Requirements
 from ._component import Component
 from ._events import Measurement
+from ._sources import NO_ORIGIN
 
 __all__ = ["KEPT_EVENTS", "PathSwitch", "SwitchEvent"]
 
@@ -82,6 +88,8 @@ class PathSwitch(Component):
         A sensor whose filter refused this many measurements in a row is down.
     on_switch : callable, optional
         Called with every :class:`SwitchEvent` as it happens.
+    require : Requirements, optional
+        What the answers need (module docstring).
     """
 
     pull_in = -1
@@ -96,12 +104,14 @@ class PathSwitch(Component):
         hold_ns: int = 2_000_000_000,
         refused_down: int = 5,
         on_switch: Callable[[SwitchEvent], None] | None = None,
+        require: Requirements | None = None,
     ):
         super().__init__(name)
         self.sensors = [list(s) for s in sensors]
         self.hold_ns = int(hold_ns)
         self.refused_down = int(refused_down)
         self.on_switch = on_switch
+        self.require = require
         self.reset()
 
     def reset(self) -> None:
@@ -112,10 +122,17 @@ class PathSwitch(Component):
         self._live_since: list[int | None] = [None] * len(self.sensors)
         self.answers_by_path = [0] * len(self.sensors)
         self._start_ns: int | None = None
+        #: answers that broke a requirement, by the requirement's name
+        self.broken: dict[str, int] = {}
+        self._breaking = 0  # answers of the current path breaking one in a row
+        self._barred: list[tuple[int, str]] = [(0, "")] * len(self.sensors)  # (until, why)
 
     def down(self, path: int, now_ns: int) -> str | None:
-        """Why path ``path`` is not live at ``now_ns`` (its first sensor that is down), or
-        ``None``."""
+        """Why path ``path`` is not live at ``now_ns`` (its first sensor that is down, or the
+        requirement it kept breaking within the hold time), or ``None``."""
+        until, why = self._barred[path]
+        if now_ns < until:
+            return why
         for sensor, kf, stale_ns in self.sensors[path]:
             taken = kf.last_t
             if taken is None:
@@ -173,7 +190,31 @@ class PathSwitch(Component):
             return None
         self.stats.events_out += 1
         self.answers_by_path[k] += 1
-        return m if k == 0 else Measurement(m.t_ns, m.pose, m.origin_ns, k)
+        broken = "" if self.require is None else self._check(m, now, k)
+        if k == 0 and not broken:
+            return m
+        return Measurement(m.t_ns, m.pose, m.origin_ns, k, broken)
+
+    def _check(self, m: Measurement, now_ns: int, k: int) -> str:
+        """The requirement answer ``m`` of path ``k`` breaks (counted), and the move away
+        from a path that keeps breaking one."""
+        age = None if m.origin_ns == NO_ORIGIN else now_ns - m.origin_ns
+        broken = self.require.answer_broken(m.pose.covariance, age) or ""
+        if not broken:
+            self._breaking = 0
+            return ""
+        key = broken.split(" ", 1)[0]
+        self.broken[key] = self.broken.get(key, 0) + 1
+        self._breaking += 1
+        if self._breaking >= self.refused_down:
+            why = f"path {k} kept breaking {broken}"
+            live = [j for j in range(len(self.sensors)) if j != k and self.down(j, now_ns) is None]
+            if live:
+                self._barred[k] = (now_ns + self.hold_ns, why)
+                self._live_since[k] = None
+                self._breaking = 0
+                self._move(now_ns, live[0], why)
+        return broken
 
     def summary(self, last: int = 20) -> dict:
         """The current path, answers per path, the number of switches and the ``last``
@@ -182,6 +223,7 @@ class PathSwitch(Component):
             "path": self.current,
             "answers_by_path": list(self.answers_by_path),
             "switch_count": self.switch_count,
+            "broken": dict(self.broken),
             "switches": [e.as_dict() for e in list(self.events)[-last:]],
         }
 

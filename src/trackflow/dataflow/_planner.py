@@ -217,7 +217,8 @@ class Plan:
                 ]
                 c = net.add(
                     PathSwitch(name, sensors, hold_ns=p["hold_ns"],
-                               refused_down=p["refused_down"], on_switch=on_switch)
+                               refused_down=p["refused_down"], on_switch=on_switch,
+                               require=self.query.require)
                 )  # fmt: skip
             else:  # pragma: no cover - plan nodes are made by plan_query only
                 raise InputError(f"unknown plan node kind {n.kind!r}")
@@ -258,7 +259,7 @@ def plan_query(graph: SpatialRelationshipGraph, query: Query, *, align: bool = T
     fallbacks = []
     if query.failover and align and not query.fuse and not rel_static:
         fallbacks = _fallbacks(graph, query, paths[0])
-    if fallbacks:
+    if fallbacks or (query.require is not None and not query.fuse and not rel_static):
         ends = [end] + [b.path(p, f"fallback{k}") for k, p in enumerate(fallbacks, 1)]
         end = b.switch([paths[0], *fallbacks], ends)
     return Plan(
@@ -517,6 +518,8 @@ class _PlanBuilder:
             f"failover: {len(paths) - 1} fallback path(s) sharing no sensor with a better one; "
             "answers from the best live path (rule 8)"
         )
+        if q.require is not None:
+            why += "; checks every answer against the query's requirements"
         return self.add(PlanNode("switch", "switch", params, [(n, "pull") for n in ends], why))
 
     def delivery(self, end: str) -> str:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, PlanError
-from ..graph import MotionSpec, Query, SpatialRelationshipGraph
+from ..graph import MotionSpec, Query, Requirements, SpatialRelationshipGraph
 from ..math import Pose
 from ..yamlfile import YamlMap, line_of, read_yaml
 from ._planner import Plan, plan_query
@@ -231,8 +231,23 @@ _QUERY_KEYS = {
     "exclude",
     "evaluation",
     "failover",
+    "require",
 }
 _FAILOVER_KEYS = {"hold_ms", "refused_down"}
+
+
+def _require(src, q, what) -> Requirements | None:
+    """A query's ``require:`` (``{max_latency_ms, max_sigma_pos_mm, max_sigma_ori_deg,
+    min_rate_hz}``) as :class:`~trackflow.graph.Requirements`."""
+    doc = q.get("require")
+    if doc is None:
+        return None
+    if not isinstance(doc, dict):
+        raise _err(src, q, f"{what}.require: expected a mapping")
+    try:
+        return Requirements.from_units(doc)
+    except ValueError as exc:
+        raise _err(src, q, f"{what}.{exc}") from None
 
 
 def _failover(src, q, what) -> dict:
@@ -433,6 +448,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 exclude=tuple(str(e) for e in q.get("exclude", ())),
                 name=str(q["name"]),
                 **_failover(source, q, what),
+                require=_require(source, q, what),
             )
         except (TypeError, ValueError) as exc:
             raise _err(source, q, f"{what}: {exc}") from exc

@@ -8,6 +8,7 @@ follow the thesis: eq. 2.5 (latency and update rate) and eq. 6.26 (propagated co
 from ._evaluation import EvaluationFunction, covariance_trace, latency_rate, resolve_evaluation
 from ._paths import Path, PathStep, find_paths, infer_motion
 from ._query import Query, select_paths
+from ._requirements import Requirements
 from ._search import best_paths, shortest_path
 from ._srg import Edge, MotionSpec, SpatialRelationshipGraph
 from ._synthetic import random_graph
@@ -19,6 +20,7 @@ __all__ = [
     "Path",
     "PathStep",
     "Query",
+    "Requirements",
     "SpatialRelationshipGraph",
     "best_paths",
     "covariance_trace",

@@ -5,9 +5,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..errors import InputError
+from ..errors import InputError, PlanError
 from ._evaluation import EvaluationFunction, resolve_evaluation
 from ._paths import Path
+from ._requirements import Requirements
 from ._search import best_paths
 from ._srg import SpatialRelationshipGraph
 
@@ -48,6 +49,9 @@ class Query:
         Failover: how long a better path must have been live before the answers return to it.
     refused_down : int
         Failover: a sensor whose filter refused this many measurements in a row is down.
+    require : Requirements, optional
+        What the answers need (latency, sigmas, rate): only paths meeting it are planned, and
+        a running query checks its answers against it.
     """
 
     source: str
@@ -63,6 +67,7 @@ class Query:
     failover: bool = True
     hold_s: float = 2.0
     refused_down: int = 5
+    require: Requirements | None = None
     evaluate: EvaluationFunction = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -91,11 +96,35 @@ def select_paths(graph: SpatialRelationshipGraph, query: Query) -> list[Path]:
     evaluation function where it is additive and a pruned search where it is not
     (:func:`trackflow.graph.best_paths`).
     """
-    return best_paths(
-        graph,
-        query.source,
-        query.target,
-        query.evaluate,
-        exclude=query.exclude,
-        fuse=query.fuse,
-    )
+    req = query.require
+    if req is None:
+        return best_paths(
+            graph, query.source, query.target, query.evaluate, exclude=query.exclude,
+            fuse=query.fuse,
+        )  # fmt: skip
+    paths = best_paths(
+        graph, query.source, query.target, _meeting(query.evaluate, req),
+        exclude=query.exclude, fuse=query.fuse,
+    )  # fmt: skip
+    paths = [p for p in paths if req.path_broken(p) is None]
+    if not paths:  # the best path as if nothing were required says what no path meets
+        best = best_paths(graph, query.source, query.target, query.evaluate, exclude=query.exclude)[
+            0
+        ]
+        raise PlanError(f"query {query.name!r}: no path meets {req.path_broken(best)}")
+    return paths
+
+
+def _meeting(evaluate: EvaluationFunction, req: Requirements) -> EvaluationFunction:
+    """``evaluate``, infinite for a path that does not meet ``req`` (not additive any more:
+    the search scores its candidates with it; the step costs stay a proxy)."""
+
+    def meeting(path: Path) -> float:
+        return math.inf if req.path_broken(path) is not None else evaluate(path)
+
+    meeting.__name__ = getattr(evaluate, "__name__", "evaluation")
+    step_cost = getattr(evaluate, "step_cost", None)
+    if step_cost is not None:
+        meeting.step_cost = step_cost
+    meeting.additive = False
+    return meeting
