@@ -56,6 +56,16 @@ def register(subparsers) -> argparse.ArgumentParser:
         metavar="A:B",
         help="hold the frames from A to B s, then send them at once (repeatable)",
     )
+    p.add_argument("--noise-mm", type=float, default=0.0, help="position noise sigma [mm]")
+    p.add_argument("--noise-deg", type=float, default=0.0, help="orientation noise sigma [deg]")
+    p.add_argument(
+        "--change",
+        action="append",
+        default=[],
+        metavar="T:KEY=V,...",
+        help="from T s on, set latency_ms, noise_mm and/or noise_deg "
+        "(e.g. 10:latency_ms=30,noise_mm=2; repeatable)",
+    )
     p.add_argument("--truth", type=Path, default=None, help="write exposure times + poses")
     p.set_defaults(func=run)
     return p
@@ -70,6 +80,7 @@ def run(args) -> int:
 
     outages = tuple(_window("--outage", w) for w in args.outage)
     freezes = tuple(_window("--freeze", w) for w in args.freeze)
+    changes = tuple(_change(c) for c in args.change)
     cfg = SimConfig(
         args.protocol,
         host=args.host,
@@ -93,10 +104,28 @@ def run(args) -> int:
         data_port=args.data_port,
         outages=outages,
         freezes=freezes,
+        noise_mm=args.noise_mm,
+        noise_deg=args.noise_deg,
+        changes=changes,
     )
     out = simulate(args.recording, cfg, truth_path=args.truth, wait_for_client_s=args.wait)
     print(json.dumps(out))
     return 0
+
+
+def _change(text: str) -> tuple[float, dict]:
+    """``T:latency_ms=30,noise_mm=2`` as ``(T, {"latency_ms": 30.0, "noise_mm": 2.0})``."""
+    try:
+        at, _, rest = text.partition(":")
+        change = {}
+        for item in rest.split(","):
+            key, _, value = item.partition("=")
+            change[key.strip()] = float(value)
+        return float(at), change
+    except ValueError:
+        raise InputError(
+            f"--change must be T:KEY=VALUE,... (keys latency_ms, noise_mm, noise_deg), got {text!r}"
+        ) from None
 
 
 def _window(option: str, text: str) -> tuple[float, float]:

@@ -7,8 +7,11 @@ random ``U(0, jitter)`` in the "network" and is sent; a fraction ``loss`` of the
 never sent (their frame numbers are skipped, as a real loss). In an ``outage`` window
 ``(a, b)`` [s after the first frame] no frame is sent (occluded markers, a tracker that
 stopped); in a ``freeze`` window the frames are held and leave together at ``b`` (a sender
-process that was stopped and continued). ``truth`` receives the exposure host times and
-poses as sent, so a receiver's mapped times can be checked.
+process that was stopped and continued). ``noise_mm``/``noise_deg`` add seeded Gaussian
+noise of that sigma per axis to the sent positions and orientations (``R Exp(n)``);
+``changes`` switch latency and noise at given times (a tracker that degrades mid-run).
+``truth`` receives the exposure host times and the noise-free poses of the sent frames, so a
+receiver's mapped times and errors can be checked.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import PoseStream, read_stream, write_stream
-from ..math import quat_to_matrix
+from ..math import quat_exp, quat_multiply, quat_to_matrix
 from . import dtrack, natnet
 from ._packet import PacketError
 from .vrpn_server import VrpnTrackerServer
@@ -59,6 +62,10 @@ class SimConfig:
     data_port: int = 1511  # ... on this port (through the interface ``host``)
     outages: tuple[tuple[float, float], ...] = ()  # no frames sent in [a, b) [s]
     freezes: tuple[tuple[float, float], ...] = ()  # frames of [a, b) held, sent at b [s]
+    noise_mm: float = 0.0  # position noise sigma per axis [mm]
+    noise_deg: float = 0.0  # orientation noise sigma per axis [deg]
+    #: from ``at`` [s] on: ``{"latency_ms": .., "noise_mm": .., "noise_deg": ..}`` (any of them)
+    changes: tuple[tuple[float, dict], ...] = ()
 
 
 class Simulator:
@@ -77,6 +84,15 @@ class Simulator:
             raise InputError("speed must be > 0")
         if not 1 <= cfg.bodies <= 1000:
             raise InputError("bodies must be 1 .. 1000")
+        if not (cfg.noise_mm >= 0 and cfg.noise_deg >= 0):
+            raise InputError("need noise_mm >= 0 and noise_deg >= 0")
+        for at, change in cfg.changes:
+            unknown = set(change) - {"latency_ms", "noise_mm", "noise_deg"}
+            if at < 0 or unknown or any(not v >= 0 for v in change.values()):
+                raise InputError(
+                    f"a change at {at} s needs a time >= 0 and latency_ms, noise_mm, noise_deg "
+                    f">= 0 (got {change})"
+                )
         for a, b in (*cfg.outages, *cfg.freezes):
             if not 0 <= a < b:
                 raise InputError(f"an outage or freeze window needs 0 <= start < end, got {a}:{b}")
@@ -95,6 +111,7 @@ class Simulator:
         dt = np.diff(t)
         rate = 1.0 / float(np.median(dt[dt > 0])) if len(dt) else 100.0
         self.frames = np.round(t[keep] * rate).astype(np.int64) + 1
+        self.latency_ns, self._dp, self._dq = self._per_frame(cfg)
         self.stop = threading.Event()
         self.sent = 0
         self.lost = 0
@@ -130,6 +147,26 @@ class Simulator:
             self.command_port = self._cmd.getsockname()[1]
         else:
             self._started.set()
+
+    def _per_frame(self, cfg: SimConfig):
+        """Each frame's latency [ns], position noise [m] and orientation noise (unit
+        quaternions), after ``cfg.changes``."""
+        n = len(self.rel_s)
+        lat = np.full(n, cfg.latency_ms)
+        sp, so = np.full(n, cfg.noise_mm), np.full(n, cfg.noise_deg)
+        for at, change in sorted(cfg.changes, key=lambda c: c[0]):
+            later = self.rel_s >= at
+            for key, arr in (("latency_ms", lat), ("noise_mm", sp), ("noise_deg", so)):
+                if key in change:
+                    arr[later] = change[key]
+        rng = np.random.default_rng([cfg.seed, 1])
+        dp = rng.standard_normal((n, 3)) * (sp * 1e-3)[:, None]
+        dq = quat_exp(rng.standard_normal((n, 3)) * np.radians(so)[:, None])
+        return np.round(lat * 1e6).astype(np.int64), dp, dq
+
+    def sent_quaternion(self, i: int) -> np.ndarray:
+        """The orientation sent for frame ``i`` (with its noise)."""
+        return quat_multiply(self.quaternion[i], self._dq[i])
 
     # -- tracker clock ----------------------------------------------------------------------
     def tracker_ns(self, host: int) -> int:
@@ -206,13 +243,14 @@ class Simulator:
         return self.cfg.body_name if k == 0 else f"{self.cfg.body_name}_{k + 1}"
 
     def body_position(self, i: int, k: int) -> np.ndarray:
-        """Body ``k`` moves like the recording, shifted by ``0.1 k`` m along x."""
-        p = self.position[i]
+        """Body ``k`` moves like the recording, shifted by ``0.1 k`` m along x (with frame
+        ``i``'s noise)."""
+        p = self.position[i] + self._dp[i]
         return p if k == 0 else p + np.array([0.1 * k, 0.0, 0.0])
 
     def _packet(self, i: int, exp_host: int, tx_host: int) -> bytes | None:
         c = self.cfg
-        q = self.quaternion[i]
+        q = self.sent_quaternion(i)
         exp_tr, tx_tr = self.tracker_ns(exp_host), self.tracker_ns(tx_host)
         if c.protocol == "natnet":
             f = c.clock_frequency
@@ -255,8 +293,9 @@ class Simulator:
             # the header time is the exposure on the server's clock
             for k in range(c.bodies):
                 self.vrpn.report(
-                    k, self.body_position(i, k), self.quaternion[i], self.tracker_ns(exp_host)
-                )
+                    k, self.body_position(i, k), self.sent_quaternion(i),
+                    self.tracker_ns(exp_host),
+                )  # fmt: skip
             return
         if c.protocol == "natnet":
             for addr in list(self._clients):
@@ -286,7 +325,7 @@ class Simulator:
                 break
             time.sleep(0.01)
         rng = np.random.default_rng(c.seed)
-        lat = int(round(c.latency_ms * 1e6))
+        lat = self.latency_ns
         start = time.time_ns() + 50_000_000
         exp = start + np.round(self.rel_s * 1e9).astype(np.int64)
         jit = np.round(rng.uniform(0.0, c.jitter_ms * 1e6, len(exp))).astype(np.int64)
@@ -313,7 +352,7 @@ class Simulator:
                 # the tracker stamps the frame `latency` after the exposure and it leaves
                 # `jitter` later (network delay); the packet is built before the wait so
                 # that building it does not count as transit
-                packet = self._packet(i, int(exp[i]), int(exp[i] + lat))
+                packet = self._packet(i, int(exp[i]), int(exp[i] + lat[i]))
                 _wait_until(send_at)
                 self._send(i, int(exp[i]), packet)
                 self.sent += 1
