@@ -272,3 +272,28 @@ def test_a_path_whose_answers_keep_breaking_a_requirement_is_left_for_one_that_m
 ])  # fmt: skip
 def test_bad_requirements_name_the_query(spec, message):
     test_bad_failover_keys_name_the_query(spec, message)
+
+
+# -- measured attributes (dataflow/_attributes.py) ---------------------------------------------
+def test_sensor_filters_measure_rate_latency_and_consistency_beside_the_declaration():
+    rng = np.random.default_rng(17)
+    g = _graph()
+    players = {"good": _player("good", GOOD_HZ, rng), "backup": _player("backup", BACKUP_HZ, rng)}
+    plan = plan_query(g, Query("W", "B", mode="push", rate_hz=RATE_Q, name="q"))
+    net, _ = plan.build(players)
+    net.run()
+    good = net.components["kf_good"].measured.summary(g.edge("good"))
+    # the players deliver at the declared rate, 10 ms after each exposure
+    assert good["measured"]["rate_hz"] == pytest.approx(GOOD_HZ, rel=1e-3)
+    assert good["measured"]["latency_ms"] == pytest.approx(10.0, abs=1e-6)
+    assert good["measured"]["measurements"] == len(players["good"].t_ns)
+    assert good["declared"] == {"rate_hz": GOOD_HZ, "latency_ms": 10.0}
+    assert 0 < good["measured"]["nis_mean"] < 6 * 2.25 and "rate_hz" not in good["far"]
+    # a sensor declared 3x slower than it is, with ten times the latency: both reported
+    slow = SpatialRelationshipGraph()
+    sp, so = SIGMA["good"]
+    slow.add_measured("good", "W", "B", latency_s=0.1, rate_hz=20, motion=MOTION,
+                      covariance=np.diag([sp**2] * 3 + [so**2] * 3))  # fmt: skip
+    far = net.components["kf_good"].measured.summary(slow.edge("good"))["far"]
+    assert far["rate_hz"] == "60 measured vs 20 declared"
+    assert far["latency_ms"] == "10 measured vs 100 declared"

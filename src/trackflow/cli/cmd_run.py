@@ -104,6 +104,7 @@ def run(args) -> int:
         "interrupted": res.interrupted or bool(stopped_by),
         "sensors": res.statuses,
         "queries": _queries(setup, res),
+        "attributes": res.attributes,
         "record": None if res.record is None else str(res.record),
     }
     if stopped_by:

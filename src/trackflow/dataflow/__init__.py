@@ -20,6 +20,7 @@ from ..scheduler import (
     collect_due,
     stop_signals,
 )
+from ._attributes import MeasuredAttributes
 from ._bank import KalmanBank
 from ._component import Component
 from ._events import ComponentStats, Measurement
@@ -75,6 +76,7 @@ __all__ = [
     "KalmanFilter",
     "LatestValue",
     "LookupResult",
+    "MeasuredAttributes",
     "Measurement",
     "Network",
     "PathSwitch",

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from ..errors import InputError
 from ..filters import make_filter
 from ..graph import MotionSpec
 from ..math import UncertainPose
+from ._attributes import MeasuredAttributes
 from ._component import Component
 from ._events import Measurement
 from ._sources import NO_ORIGIN
@@ -155,6 +157,8 @@ class KalmanFilter(Component):
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
+        #: the sensor's rate, latency and noise as measured (dataflow/_attributes.py)
+        self.measured = MeasuredAttributes()
         #: measurements the filter refused since the last one it took (liveness)
         self.refused_in_a_row = 0
 
@@ -194,7 +198,9 @@ class KalmanFilter(Component):
 
     def accepted(self, t: int, origin_ns: int) -> None:
         """Note a measurement the filter took at (corrected) time ``t`` [ns] of origin
-        ``origin_ns``: the first and last measurement times and the newest origin."""
+        ``origin_ns``: the first and last measurement times, the newest origin and the
+        measured attributes."""
+        self.measured.update(t, self.clock.now_ns, getattr(self.filter, "nis", math.nan))
         if self.first_t is None or t < self.first_t:
             self.first_t = t
         if self.last_t is None or t > self.last_t:

@@ -59,7 +59,7 @@ from ..graph import Edge
 from ..math import UncertainPose
 from ..optional import require
 from ..trackers.inputs import make_inputs, warm_up_inputs
-from ..trackers.runtime import InputSource, LiveSource, LiveSources
+from ..trackers.runtime import InputSource, LiveSource, LiveSources, measured_attributes
 from . import wire
 from .config import AgentConfig, zenoh_config
 from .discovery import Discovery, realm_key
@@ -661,6 +661,7 @@ class Agent:
                     for b in src.input.bodies
                 },
                 "queries": {},
+                "attributes": measured_attributes(self.net, self.setup.graph, sorted(self._own)),
             }
             if self.error is not None:
                 out["error"] = f"{type(self.error).__name__}: {self.error}"

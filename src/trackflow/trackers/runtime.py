@@ -70,6 +70,7 @@ __all__ = [
     "ReplayResult",
     "RunResult",
     "input_paths",
+    "measured_attributes",
     "replay",
     "run_live",
 ]
@@ -346,6 +347,8 @@ class RunResult:
     unplanned: dict[str, str] = field(default_factory=dict)
     #: failover: each query's path switch (queries with fallback paths only)
     switches: dict[str, PathSwitch] = field(default_factory=dict, repr=False)
+    #: each filtered sensor's measured rate, latency and NIS beside its declared figures
+    attributes: dict[str, dict] = field(default_factory=dict)
 
 
 def _push_query(setup: Setup, query: str | None):
@@ -628,7 +631,19 @@ def run_live(
         sinks=served.sinks,
         unplanned=served.unplanned,
         switches=served.switches,
+        attributes=measured_attributes(net, setup.graph, edges),
     )
+
+
+def measured_attributes(net: Network, graph, edges) -> dict[str, dict]:
+    """Each sensor of ``edges`` with a filter in ``net``: its measured and declared
+    attributes (:class:`trackflow.dataflow.MeasuredAttributes`)."""
+    out = {}
+    for e in edges:
+        kf = net.components.get(f"kf_{e}")
+        if isinstance(kf, KalmanFilter):
+            out[e] = kf.measured.summary(graph.edge(e))
+    return out
 
 
 def _main_ticker(sched: Scheduler, net: Network, sink: Component) -> Ticker:
