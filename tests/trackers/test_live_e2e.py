@@ -97,6 +97,13 @@ def receive(
 
 
 @pytest.mark.slow
+def _frames_rejected(status) -> int:
+    """The rejected frames: every counted rejection but of NatNet echo replies that came too
+    late for the clock mapping ("bad round trip", more likely on a loaded machine): those
+    are packets, not frames."""
+    return status.rejected - status.rejections.get("bad round trip", 0)
+
+
 @pytest.mark.parametrize(
     ("protocol", "spin_us"),
     [("natnet", 0), ("dtrack", 0), ("vrpn", 0), ("natnet", 500), ("dtrack", 500)],
@@ -111,7 +118,7 @@ def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, spin_us, ro
     assert report["sent"] == len(truth) and report["lost"] > 0
     # every pose sent is received or counted (NatNet frames that come before the handshake
     # and the model definitions are counted as "no handshake yet" / "unknown body name")
-    assert len(got) + status.rejected == len(truth), status.rejections
+    assert len(got) + _frames_rejected(status) == len(truth), status.rejections
     if protocol != "vrpn":  # frame counters: the injected losses are counted as dropouts
         assert status.dropouts >= report["lost"]
     # in order, each received pose is the next sent one with the same position (float32)
@@ -139,7 +146,7 @@ def test_every_pose_arrives_exactly_with_its_exposure_time(protocol, spin_us, ro
 
 def test_short_natnet_stream_and_stale(room1, tmp_path):
     got, status, truth, _, _ = receive("natnet", room1, tmp_path, seconds=1.0, jitter_ms=0.5)
-    assert got and len(got) + status.rejected == len(truth), status.rejections
+    assert got and len(got) + _frames_rejected(status) == len(truth), status.rejections
     assert status.stale(host_ns(), 0.2) and status.clock is not None
     # the simulator answers echo requests: the mapping uses round trips (loopback: < 10 ms)
     assert 0 < status.clock.transit_sigma_ns < 10_000_000
@@ -162,7 +169,7 @@ def test_natnet_multicast(room1):
         time.sleep(0.3)
     finally:
         inp.stop()
-    assert report["sent"] > 0 and len(got) + inp.status.rejected == report["sent"]
+    assert report["sent"] > 0 and len(got) + _frames_rejected(inp.status) == report["sent"]
     assert len(got) > 0.8 * report["sent"], inp.status.rejections
 
 
