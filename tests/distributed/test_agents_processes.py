@@ -105,6 +105,7 @@ def _running_on(session, realm, agent, query, sensor, min_published=0):
     def check():
         q = _query(status(session, realm, agent), query)
         ok = q.get("state") == "running" and any(sensor in p for p in q.get("paths", []))
+        ok = ok and q.get("path", 0) == 0  # answering from that path, not a fallback
         return q if ok and q.get("published", 0) >= min_published else None
 
     return check

@@ -275,6 +275,7 @@ def test_thinned_consumer_replans_after_kill9(tmp_path):
             st = status(session, realm, "c") or {}
             q = st.get("queries", {}).get("q_c", {})
             ok = q.get("state") == "running" and any(sensor in p for p in q.get("paths", []))
+            ok = ok and q.get("path", 0) == 0  # answering from that path, not a fallback
             return st if ok and q.get("published", 0) >= min_published else None
 
         st = wait_for(lambda: query("s1", 20), 60)
