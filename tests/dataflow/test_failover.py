@@ -30,7 +30,9 @@ def _graph() -> SpatialRelationshipGraph:
     return g
 
 
-def _player(name: str, rate: float, rng, gap=None, end_s: float = 4.0) -> RecordingPlayer:
+def _player(
+    name: str, rate: float, rng, gap=None, end_s: float = 4.0, latency_ns: int = 10_000_000
+) -> RecordingPlayer:
     t_ns = np.arange(0, int(end_s * 1e9), int(1e9 / rate), dtype=np.int64)
     if gap is not None:
         t_ns = t_ns[(t_ns < gap[0]) | (t_ns >= gap[1])]
@@ -39,7 +41,7 @@ def _player(name: str, rate: float, rng, gap=None, end_s: float = 4.0) -> Record
     pos = truth.position + rng.normal(0, sp, (len(t_ns), 3))
     quat = quat_multiply(truth.quaternion, quat_exp(rng.normal(0, so, (len(t_ns), 3))))
     cov = np.diag([sp**2] * 3 + [so**2] * 3)
-    return RecordingPlayer(name, t_ns, pos, quat, cov, latency_ns=10_000_000)
+    return RecordingPlayer(name, t_ns, pos, quat, cov, latency_ns=latency_ns)
 
 
 def _run(query: Query, players: dict, stale_ns: int = STALE_NS):
@@ -287,7 +289,16 @@ def test_sensor_filters_measure_rate_latency_and_consistency_beside_the_declarat
     assert good["measured"]["rate_hz"] == pytest.approx(GOOD_HZ, rel=1e-3)
     assert good["measured"]["latency_ms"] == pytest.approx(10.0, abs=1e-6)
     assert good["measured"]["measurements"] == len(players["good"].t_ns)
-    assert good["declared"] == {"rate_hz": GOOD_HZ, "latency_ms": 10.0}
+    assert good["declared"] == {
+        "rate_hz": GOOD_HZ,
+        "latency_ms": 10.0,
+        "noise_mm": 0.2,
+        "noise_deg": pytest.approx(np.degrees(5e-4), rel=1e-3),
+    }
+    # the noise sigma from third differences of the ring (white noise of SIGMA["good"])
+    assert good["measured"]["noise_mm"] == pytest.approx(0.2, rel=0.2)
+    assert good["measured"]["noise_deg"] == pytest.approx(np.degrees(5e-4), rel=0.2)
+    assert good["measured"]["dropout"] == 0
     assert 0 < good["measured"]["nis_mean"] < 6 * 2.25 and "rate_hz" not in good["far"]
     # a sensor declared 3x slower than it is, with ten times the latency: both reported
     slow = SpatialRelationshipGraph()
@@ -297,3 +308,40 @@ def test_sensor_filters_measure_rate_latency_and_consistency_beside_the_declarat
     far = net.components["kf_good"].measured.summary(slow.edge("good"))["far"]
     assert far["rate_hz"] == "60 measured vs 20 declared"
     assert far["latency_ms"] == "10 measured vs 100 declared"
+
+
+def test_the_query_moves_to_the_path_whose_measured_figures_are_truly_better():
+    """Declared: "good" 5 ms late at 60 Hz, "backup" 40 ms late at 30 Hz (eq. 2.5 prefers
+    good). Truly: good is 150 ms late, backup 10 ms: once warm, the measured scores reverse
+    the order and the answers move to backup, with both scores in the reason; with
+    ``rescore=False`` they stay."""
+    g = SpatialRelationshipGraph()
+    for name, rate, lat in (("good", GOOD_HZ, 0.005), ("backup", BACKUP_HZ, 0.04)):
+        sp, so = SIGMA[name]
+        g.add_measured(name, "W", "B", latency_s=lat, rate_hz=rate, motion=MOTION,
+                       covariance=np.diag([sp**2] * 3 + [so**2] * 3))  # fmt: skip
+    for rescore in (True, False):
+        rng = np.random.default_rng(5)
+        players = {
+            "good": _player("good", GOOD_HZ, rng, end_s=12.0, latency_ns=150_000_000),
+            "backup": _player("backup", BACKUP_HZ, rng, end_s=12.0, latency_ns=10_000_000),
+        }
+        q = Query("W", "B", mode="push", rate_hz=RATE_Q, name="q", rescore=rescore)
+        plan = plan_query(g, q)
+        plan.node("switch").params["stale_ns"].update({e: 500_000_000 for e in players})
+        events = []
+        net, _ = plan.build(players, on_switch=events.append)
+        net.run()
+        switch = net.components["switch"]
+        if not rescore:
+            assert events == [] and switch.order == [0, 1]
+            continue
+        assert [(e.from_path, e.to_path) for e in events] == [(0, 1)], events
+        assert events[0].reason.startswith("path 1 measured better: "), events[0].reason
+        good, backup = switch.measured_scores
+        assert backup < 0.9 * good
+        assert good == pytest.approx(0.150 + 1 / GOOD_HZ, rel=0.02)
+        assert backup == pytest.approx(0.010 + 1 / BACKUP_HZ, rel=0.02)
+        # not before the backup sensor is warm (256 measurements at 30 Hz: 8.5 s)
+        assert events[0].t_ns >= players["backup"].t_ns[255]
+        assert switch.summary()["order"] == [1, 0]

@@ -110,20 +110,24 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             page = browser.open(url, "100250.0 ms")
             page.close()  # a new page gets the initial camera aimed at the placed frames
             page = browser.open(url, "100250.0 ms")
-            shots = []  # two consecutive screenshots 1 s apart that both show the body
+            # the body drawn, then drawn again elsewhere: it moves with the tracker (how soon
+            # depends on the machine's load: bounded, not timed)
+            first, moved = None, 0.0
             end = time.monotonic() + 60
-            while len(shots) < 2:
-                assert time.monotonic() < end, "the body is not drawn (or never twice in view)"
-                img = browser.capture(page, tmp_path / f"live_{len(shots)}.png")
+            while moved <= 5.0:
+                assert time.monotonic() < end, (
+                    "the body is not drawn" if first is None else
+                    f"the body moved only {moved:.1f} px in 60 s"
+                )  # fmt: skip
+                img = browser.capture(page, tmp_path / "live.png")
                 m = _magenta(img[:, : int(W * 0.6)])
                 if m.sum() > 20:
                     ys, xs = np.nonzero(m)
-                    shots.append((img, np.array([xs.mean(), ys.mean()])))
-                    page.wait_for_timeout(1000)
-                else:  # not drawn yet (software WebGL lags), or it moved out of the view
-                    shots.clear()
-            moved = float(np.linalg.norm(shots[1][1] - shots[0][1]))
-            assert moved > 5.0, f"the body moved only {moved:.1f} px in 1 s"
+                    at = np.array([xs.mean(), ys.mean()])
+                    if first is None:
+                        first = at
+                    moved = float(np.linalg.norm(at - first))
+                page.wait_for_timeout(500)
             # the edge drawn live (green) while the tracker sends: on a loaded machine a late
             # redraw can show it late for a moment, so wait for it (bounded)
             panel = slice(int(W * 0.55), W)

@@ -1,85 +1,190 @@
 """What a sensor actually does, measured while it runs (thesis 6.4: attributes averaged in the
 graph at a low rate), beside what the setup declares.
 
-Each sensor filter (:class:`trackflow.dataflow.KalmanFilter`) keeps running averages over
-about the last :data:`WINDOW` measurements it took:
+Each sensor filter (:class:`trackflow.dataflow.KalmanFilter`) writes every measurement
+delivered to it, taken or refused (a filter declared too precise gates the sensor's noisier
+measurements: the figures are of the sensor, not of what the filter kept), into a ring of
+the last :data:`WINDOW` (its time, the dispatch time, the NIS of the update if taken and the
+measured pose): a few array stores per event. The figures are computed from
+the ring when they are asked for (status, the run's summary, the path switch's re-scoring,
+about once a second), not per event:
 
-* **rate**: one over the mean interval between measurement times;
-* **latency**: the mean of (dispatch time - measurement time), the time from exposure (or
-  the sensor's stamp, corrected by its known offset) to the measurement's arrival in the
-  network;
-* **consistency**: the mean normalised innovation squared (NIS) of the filter's updates. It
-  is near ``d = 6`` (a pose: position and orientation) when the declared noise and motion
-  model fit what the sensor delivers; well above, the sensor is noisier or moves harder than
-  declared; well below, the declaration is conservative. (It does not give the noise sigma
-  by itself: the innovation also holds the prediction's error, so the mean NIS of a sensor
-  with the declared noise read 2.6 with a loose motion model in a check here; a sigma
-  estimate needs the innovation covariance split into its two parts.)
+* **rate** [Hz]: measurements taken per second over the ring's span (a dropped frame lowers
+  it; the dropout fraction says how many were missed);
+* **dropout**: the fraction of frames missed, counted from the gaps between measurement times
+  that are whole multiples of the median interval;
+* **latency** [ms]: the mean of (dispatch time - measurement time), the time from exposure
+  (the tracker's stamp mapped onto the host clock) to the measurement's arrival in the
+  network. An input that maps its clock one way (DTrack, VRPN) cannot tell its latency from
+  its clock offset and subtracts the declared ``latency_ms``: what it reports is the
+  declaration plus the delivery delay. NatNet reports its latency in every frame;
+* **noise** [mm, deg]: the measurement noise sigma by the variate difference method: for
+  white noise of sigma ``s`` on a smooth motion sampled evenly, the third difference
+  ``z[k+3] - 3 z[k+2] + 3 z[k+1] - z[k]`` of each axis has variance ``20 s**2`` and the
+  motion's share is ``jerk * dt**3`` (5 um at 120 Hz for a hand-held 10 m/s^3). The median of
+  the squared differences over the ring (over ``0.455``, the median of chi-square with one
+  degree of freedom) keeps the fast moves out. Orientation: the same on the rotation vectors
+  ``Log(q[k+1]^* q[j])``. It reads high for slow sensors on fast motion (the jerk term grows
+  with ``dt**3``);
+* **consistency**: the mean normalised innovation squared (NIS) of the measurements the
+  filter took (a refused one's is above the gate and not averaged). Near
+  ``d = 6`` (a pose) when the declared noise and motion model fit what the sensor delivers;
+  the innovation holds the prediction's error too, so the NIS alone does not give the noise.
 
-A rate or latency far from the declaration (more than :data:`FAR` times off), or a mean NIS
-more than ``FAR**2`` times off ``d``, is reported.
+A rate, latency or noise more than :data:`FAR` times off the declared one, or a mean NIS more
+than ``FAR**2`` times off ``d``, is reported (``"far"`` in :meth:`MeasuredAttributes.summary`).
+:meth:`MeasuredAttributes.edge` gives the edge with its measured figures in place of the
+declared ones, for the planner's evaluation functions (thesis eq. 2.5 and 6.26).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+
+import numpy as np
+
+from ..math import quat_rminus
 
 __all__ = ["FAR", "WINDOW", "MeasuredAttributes"]
 
-#: measurements the running averages remember (about)
-WINDOW = 200
+#: measurements the ring remembers (the newest)
+WINDOW = 512
 #: a measured figure more than this many times off the declared one is reported
 FAR = 1.5
 _NIS_DOF = 6  # a pose measurement: position and orientation
+_CHI2_1_MEDIAN = 0.45493642  # the median of chi-square with one degree of freedom
+_THIRD_DIFF_VAR = 20.0  # variance of a third difference of unit white noise: 1 + 9 + 9 + 1
+_EVEN = 0.1  # intervals within 10 % of the median count as evenly sampled
+_MIN_QUADS = 16  # evenly sampled runs of four needed for a noise figure
 
 
 class MeasuredAttributes:
-    """Running averages of one sensor's rate, latency and NIS (module docstring)."""
+    """The last :data:`WINDOW` measurements of one sensor and the figures computed from
+    them (module docstring)."""
 
-    __slots__ = ("n", "interval_s", "latency_s", "nis", "_last_t")
+    __slots__ = ("n", "_t", "_now", "_nis", "_pos", "_quat")
 
     def __init__(self):
         self.n = 0
-        self.interval_s = math.nan
-        self.latency_s = math.nan
-        self.nis = math.nan
-        self._last_t: int | None = None
+        self._t = np.zeros(WINDOW, dtype=np.int64)
+        self._now = np.zeros(WINDOW, dtype=np.int64)
+        self._nis = np.full(WINDOW, np.nan)
+        self._pos = np.full((WINDOW, 3), np.nan)
+        self._quat = np.full((WINDOW, 4), np.nan)
 
-    @staticmethod
-    def _average(old: float, new: float, n: int) -> float:
-        """The mean of the first ``n`` values, then an exponential average over WINDOW."""
-        if math.isnan(old):
-            return new
-        w = 1.0 / min(n, WINDOW)
-        return old + w * (new - old)
-
-    def update(self, t_ns: int, now_ns: int, nis: float) -> None:
+    def update(self, t_ns: int, now_ns: int, nis: float, position=None, quaternion=None) -> None:
         """A measurement taken at time ``t_ns`` [ns], dispatched at ``now_ns``, with the NIS
-        of its update (NaN: none, such as a filter's first measurement)."""
+        of its update (NaN: none, such as a filter's first measurement) and its pose
+        (``position`` (3,) [m], ``quaternion`` (4,) x, y, z, w; ``None``: not known, such as
+        another agent's filter state)."""
+        k = self.n % WINDOW
         self.n += 1
-        if self._last_t is not None and t_ns > self._last_t:
-            self.interval_s = self._average(self.interval_s, (t_ns - self._last_t) * 1e-9, self.n)
-        self._last_t = t_ns
-        self.latency_s = self._average(self.latency_s, (now_ns - t_ns) * 1e-9, self.n)
-        if nis == nis:  # not NaN
-            self.nis = self._average(self.nis, nis, self.n)
+        self._t[k] = t_ns
+        self._now[k] = now_ns
+        self._nis[k] = nis
+        if position is None:
+            self._pos[k] = np.nan
+            self._quat[k] = np.nan
+        else:
+            self._pos[k] = position
+            self._quat[k] = quaternion
+
+    def _rows(self) -> np.ndarray:
+        """Ring indices of the remembered measurements, oldest first."""
+        m = min(self.n, WINDOW)
+        return np.arange(self.n - m, self.n) % WINDOW
+
+    def figures(self) -> dict:
+        """The measured figures: ``measurements`` (all taken), ``rate_hz``, ``dropout``,
+        ``latency_ms``, ``noise_mm``, ``noise_deg`` and ``nis_mean`` (NaN where not measured
+        yet)."""
+        rows = self._rows()
+        t = self._t[rows]
+        out = dict.fromkeys(("rate_hz", "dropout", "latency_ms", "noise_mm", "noise_deg",
+                             "nis_mean"), math.nan)  # fmt: skip
+        out["measurements"] = self.n
+        if len(rows) == 0:
+            return out
+        out["latency_ms"] = float(np.mean(self._now[rows] - t)) * 1e-6
+        nis = self._nis[rows]
+        if np.any(nis == nis):
+            out["nis_mean"] = float(np.nanmean(nis))
+        order = np.argsort(t, kind="stable")
+        t, rows = t[order], rows[order]
+        dt = np.diff(t)
+        dt = dt[dt > 0]
+        if len(dt) == 0:
+            return out
+        out["rate_hz"] = len(dt) / ((t[-1] - t[0]) * 1e-9)
+        step = float(np.median(dt))
+        missed = np.maximum(np.rint(dt / step) - 1, 0).sum()
+        out["dropout"] = float(missed / (missed + len(dt)))
+        noise = self._noise(t, rows, step)
+        if noise is not None:
+            out["noise_mm"], out["noise_deg"] = noise
+        return out
+
+    def _noise(self, t: np.ndarray, rows: np.ndarray, step: float) -> tuple | None:
+        """Position [mm] and orientation [deg] noise sigma by third differences of the
+        evenly sampled runs of four (module docstring), or ``None`` (too few)."""
+        if len(t) < 4:
+            return None
+        d = np.diff(t).astype(float)
+        even = np.abs(d - step) <= _EVEN * step
+        quad = even[:-2] & even[1:-1] & even[2:]  # runs t[k] .. t[k+3]
+        pos, quat = self._pos[rows], self._quat[rows]
+        k = np.flatnonzero(quad)
+        k = k[np.isfinite(pos[k]).all(1) & np.isfinite(pos[k + 3]).all(1)]
+        k = k[np.isfinite(pos[k + 1]).all(1) & np.isfinite(pos[k + 2]).all(1)]
+        if len(k) < _MIN_QUADS:
+            return None
+        d3 = pos[k + 3] - 3 * pos[k + 2] + 3 * pos[k + 1] - pos[k]
+        ref = quat[k + 1]
+        r = [quat_rminus(quat[k + j], ref) for j in range(4)]
+        r3 = r[3] - 3 * r[2] + 3 * r[1] - r[0]
+        scale = _THIRD_DIFF_VAR * _CHI2_1_MEDIAN
+        s_pos = math.sqrt(float(np.median(d3 * d3)) / scale)
+        s_ori = math.sqrt(float(np.median(r3 * r3)) / scale)
+        return s_pos * 1e3, math.degrees(s_ori)
 
     @property
-    def rate_hz(self) -> float:
-        return 1.0 / self.interval_s if self.interval_s > 0 else math.nan
+    def warm(self) -> bool:
+        """Whether the ring is full (the figures average a whole :data:`WINDOW`)."""
+        return self.n >= WINDOW
+
+    def edge(self, edge):
+        """``edge`` (a :class:`~trackflow.graph.Edge`) with its measured rate, latency and
+        noise in place of the declared ones where measured: the noise as a diagonal
+        covariance (position sigma squared on the translation block, orientation on the
+        rotation block)."""
+        f = self.figures()
+        changes = {}
+        if math.isfinite(f["rate_hz"]) and f["rate_hz"] > 0:
+            changes["rate_hz"] = f["rate_hz"]
+        if math.isfinite(f["latency_ms"]) and f["latency_ms"] >= 0:
+            changes["latency_s"] = f["latency_ms"] * 1e-3
+        if math.isfinite(f["noise_mm"]):
+            sp, so = f["noise_mm"] * 1e-3, math.radians(f["noise_deg"])
+            changes["covariance"] = np.diag([sp * sp] * 3 + [so * so] * 3)
+        return dataclasses.replace(edge, **changes) if changes else edge
 
     def summary(self, edge) -> dict:
         """Measured and declared figures of ``edge`` (a :class:`~trackflow.graph.Edge`), and
         the ones far apart (``"far"``: name -> "measured vs declared")."""
-        measured = {
-            "measurements": self.n,
-            "rate_hz": _r(self.rate_hz),
-            "latency_ms": _r(self.latency_s * 1e3),
-            "nis_mean": _r(self.nis),
+        f = self.figures()
+        measured = {"measurements": f["measurements"]}
+        measured.update((k, _r(f[k])) for k in ("rate_hz", "dropout", "latency_ms", "noise_mm",
+                                                "noise_deg", "nis_mean"))  # fmt: skip
+        c = edge.covariance
+        declared = {
+            "rate_hz": edge.rate_hz,
+            "latency_ms": _r(edge.latency_s * 1e3),
+            "noise_mm": _r(math.sqrt(max(np.trace(c[:3, :3]), 0.0) / 3) * 1e3),
+            "noise_deg": _r(math.degrees(math.sqrt(max(np.trace(c[3:, 3:]), 0.0) / 3))),
         }
-        declared = {"rate_hz": edge.rate_hz, "latency_ms": _r(edge.latency_s * 1e3)}
         far = {}
-        for key in ("rate_hz", "latency_ms"):
+        for key in ("rate_hz", "latency_ms", "noise_mm", "noise_deg"):
             m, d = measured[key], declared[key]
             if m is not None and d and not (d / FAR <= m <= d * FAR):
                 far[key] = f"{m:g} measured vs {d:g} declared"

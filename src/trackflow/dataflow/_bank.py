@@ -86,8 +86,11 @@ class KalmanBank:
         :meth:`KalmanFilter.push` does."""
         index = [i for i, _ in run]
         times, ns = self._times(index, [m.t_ns for _, m in run])
-        accepted = self._filters().update_poses(index, times, [m.pose for _, m in run])
-        self._account(index, ns, [m.origin_ns for _, m in run], accepted)
+        poses = [m.pose for _, m in run]
+        accepted = self._filters().update_poses(index, times, poses)
+        position = [p.position for p in poses]
+        quaternion = [p.quaternion for p in poses]
+        self._account(index, ns, [m.origin_ns for _, m in run], accepted, position, quaternion)
 
     def push_block(
         self,
@@ -125,7 +128,7 @@ class KalmanBank:
         bank = self._bank
         if answer is None:
             accepted = bank.update_block(index, times, position, quaternion, covariance)
-            self._account(index, ns, [t_ns] * len(index), accepted)
+            self._account(index, ns, [t_ns] * len(index), accepted, position, quaternion)
             return
         at_ns, deliver = answer
         accepted, ahead = bank.update_block(
@@ -133,7 +136,7 @@ class KalmanBank:
         )
         answered = None
         try:  # answers first; the counts, the answers' and the filters' bookkeeping after
-            if self._timed(cs, ns, t_ns, accepted, at_ns):
+            if self._timed(cs, ns, t_ns, accepted, at_ns, position, quaternion):
                 answered = ahead.ok
                 deliver(ahead)
             else:  # a refusal: counted as pull_block counts it
@@ -173,11 +176,12 @@ class KalmanBank:
             times.append(t * 1e-9)
         return times, ns
 
-    def _timed(self, cs: list, ns: list, t_ns: int, accepted: list, at_ns: int) -> bool:
+    def _timed(self, cs, ns, t_ns, accepted, at_ns, position, quaternion) -> bool:
         """The components' first/last times and origin after their updates at ``ns`` (the
-        stamp ``t_ns`` corrected; :meth:`_account`'s), then whether each answers at
-        ``at_ns`` (no refusal)."""
-        for c, t, ok in zip(cs, ns, accepted):
+        stamp ``t_ns`` corrected; :meth:`_account`'s) of the poses ``position[k]``,
+        ``quaternion[k]``, then whether each answers at ``at_ns`` (no refusal)."""
+        for k, (c, t, ok) in enumerate(zip(cs, ns, accepted)):
+            c.delivered(t, ok, position[k], quaternion[k])
             if ok:
                 c.accepted(t, t_ns)
         return all(c.refusal(at_ns) is None for c in cs)
@@ -220,12 +224,14 @@ class KalmanBank:
         ns = [comps[i].measurement_time(t) for i, t in zip(index, t_ns)]
         return [t * 1e-9 for t in ns], ns
 
-    def _account(self, index, ns, origins, accepted) -> None:
+    def _account(self, index, ns, origins, accepted, position, quaternion) -> None:
         """Each component's bookkeeping after its batched update (measurements in and out,
-        rejections, first/last times and origin), as :meth:`KalmanFilter.push` keeps it,
-        for updates at filter times ``ns`` [ns] of origins ``origins``."""
+        rejections, first/last times and origin, measured attributes), as
+        :meth:`KalmanFilter.push` keeps it, for updates at filter times ``ns`` [ns] of
+        origins ``origins`` with the poses ``position[k]``, ``quaternion[k]``."""
         comps = self.components
-        for i, t, origin, ok in zip(index, ns, origins, accepted):
+        for k, (i, t, origin, ok) in enumerate(zip(index, ns, origins, accepted)):
+            comps[i].delivered(t, ok, position[k], quaternion[k])
             if ok:
                 comps[i].accepted(t, origin)
         self._counted([comps[i] for i in index], accepted)

@@ -21,6 +21,14 @@ share no sensor with the better ones (:func:`trackflow.dataflow.plan_query`). A
   checked: one that does not meet it is flagged (:attr:`Measurement.broken`, counted in
   :attr:`PathSwitch.broken`), and a path whose answers break it ``refused_down`` times in a
   row is left for a live path, if there is one, and not taken again for ``hold``.
+* With the candidate ``paths`` and the query's evaluation function, the switch re-scores
+  the paths once a second (:data:`RESCORE_NS` of the network clock) with each sensor's
+  measured rate, latency and noise in place of the declared ones
+  (:meth:`~trackflow.dataflow.MeasuredAttributes.edge`; thesis 6.4: the planner learns
+  what the trackers actually do) once every sensor has taken :data:`WARM_MEASUREMENTS`.
+  A path that scores more than :data:`MARGIN` better than the one preferred so far becomes
+  the preferred one; the answers move to it like to any better path (once it has been live
+  for ``hold``), with the two scores in the event's reason.
 * Every move is a :class:`SwitchEvent` with its time and reason (the newest
   :data:`KEPT_EVENTS` in :attr:`PathSwitch.events`, every one given to ``on_switch``); every
   answer carries the index of the path that produced it (:attr:`Measurement.path`).
@@ -35,15 +43,22 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from ..graph import Requirements
+from ..graph import Path, PathStep, Requirements
 from ._component import Component
 from ._events import Measurement
 from ._sources import NO_ORIGIN
 
-__all__ = ["KEPT_EVENTS", "PathSwitch", "SwitchEvent"]
+__all__ = ["KEPT_EVENTS", "MARGIN", "RESCORE_NS", "WARM_MEASUREMENTS", "PathSwitch",
+           "SwitchEvent"]  # fmt: skip
 
 #: the switches a :class:`PathSwitch` keeps (the newest; ``on_switch`` sees every one)
 KEPT_EVENTS = 1000
+#: how often the paths are re-scored with the measured attributes [ns of the network clock]
+RESCORE_NS = 1_000_000_000
+#: measurements each sensor takes before its measured figures replace the declared ones
+WARM_MEASUREMENTS = 256
+#: a path must score this fraction better than the preferred one to take its place
+MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -90,6 +105,11 @@ class PathSwitch(Component):
         Called with every :class:`SwitchEvent` as it happens.
     require : Requirements, optional
         What the answers need (module docstring).
+    paths : sequence of Path, optional
+        The candidate paths (:class:`~trackflow.graph.Path`, input ``k`` is path ``k``),
+        with ``evaluate`` (the query's evaluation function, lower is better): re-score them
+        with the measured attributes (module docstring). Without them the order is the
+        planner's.
     """
 
     pull_in = -1
@@ -105,9 +125,15 @@ class PathSwitch(Component):
         refused_down: int = 5,
         on_switch: Callable[[SwitchEvent], None] | None = None,
         require: Requirements | None = None,
+        paths: Sequence[Path] | None = None,
+        evaluate: Callable[[Path], float] | None = None,
     ):
         super().__init__(name)
         self.sensors = [list(s) for s in sensors]
+        if (paths is None) != (evaluate is None) or (paths and len(paths) != len(sensors)):
+            raise ValueError("paths and evaluate go together, one path per input")
+        self.paths = None if paths is None else list(paths)
+        self.evaluate = evaluate
         self.hold_ns = int(hold_ns)
         self.refused_down = int(refused_down)
         self.on_switch = on_switch
@@ -126,6 +152,13 @@ class PathSwitch(Component):
         self.broken: dict[str, int] = {}
         self._breaking = 0  # answers of the current path breaking one in a row
         self._barred: list[tuple[int, str]] = [(0, "")] * len(self.sensors)  # (until, why)
+        #: the paths, most preferred first (the planner's order until re-scored)
+        self.order = list(range(len(self.sensors)))
+        #: the paths' scores with the measured attributes (the latest re-scoring; empty
+        #: before the sensors are warm)
+        self.measured_scores: list[float] = []
+        self._rescored_ns: int | None = None
+        self._why_better = ""  # why the preferred path changed, for the move to it
 
     def down(self, path: int, now_ns: int) -> str | None:
         """Why path ``path`` is not live at ``now_ns`` (its first sensor that is down, or the
@@ -169,21 +202,49 @@ class PathSwitch(Component):
                 since[k] = now_ns
         cur = self.current
         if why[cur] is not None:
-            live = [k for k, w in enumerate(why) if w is None]
+            live = [k for k in self.order if why[k] is None]
             if live:
                 self._move(now_ns, live[0], why[cur])
             return self.current
-        for k in range(cur):  # a better path, live for the hold time
+        for k in self.order[: self.order.index(cur)]:  # a better path, live for the hold
             if since[k] is not None and now_ns - since[k] >= self.hold_ns:
-                self._move(now_ns, k, f"path {k} live for {(now_ns - since[k]) * 1e-9:.2f} s")
+                live_for = f"path {k} live for {(now_ns - since[k]) * 1e-9:.2f} s"
+                self._move(now_ns, k, self._why_better or live_for)
                 break
         return self.current
+
+    def rescore(self, now_ns: int) -> None:
+        """Score the paths with their sensors' measured attributes, at most once per
+        :data:`RESCORE_NS`, once all are warm; prefer a path that scores more than
+        :data:`MARGIN` better than the preferred one."""
+        if self.paths is None:
+            return
+        if self._rescored_ns is not None and now_ns - self._rescored_ns < RESCORE_NS:
+            return
+        self._rescored_ns = now_ns
+        filters = {e: kf for path in self.sensors for e, kf, _ in path}
+        if any(kf.measured.n < WARM_MEASUREMENTS for kf in filters.values()):
+            return
+        scores = [self.evaluate(_measured_path(p, filters)) for p in self.paths]
+        self.measured_scores = scores
+        best = min(range(len(scores)), key=lambda k: (scores[k], k))
+        first = self.order[0]
+        if best != first and scores[best] < (1.0 - MARGIN) * scores[first]:
+            self.order = sorted(range(len(scores)), key=lambda k: (scores[k], k))
+            self._why_better = (
+                f"path {best} measured better: {scores[best]:.4g} vs {scores[first]:.4g} "
+                f"({getattr(self.evaluate, '__name__', 'evaluation')})"
+            )
 
     def pull(self, t_ns: int) -> Measurement | None:
         now = self.clock.now_ns
         if self._start_ns is None and self._started():
             self._start_ns = now
-        k = self.choose(now) if self._start_ns is not None else self.current
+        if self._start_ns is not None:
+            self.rescore(now)
+            k = self.choose(now)
+        else:
+            k = self.current
         m = self.inputs[k].pull(t_ns)
         if m is None:
             self.stats.reject(f"path {k} did not answer")
@@ -208,7 +269,7 @@ class PathSwitch(Component):
         self._breaking += 1
         if self._breaking >= self.refused_down:
             why = f"path {k} kept breaking {broken}"
-            live = [j for j in range(len(self.sensors)) if j != k and self.down(j, now_ns) is None]
+            live = [j for j in self.order if j != k and self.down(j, now_ns) is None]
             if live:
                 self._barred[k] = (now_ns + self.hold_ns, why)
                 self._live_since[k] = None
@@ -224,8 +285,21 @@ class PathSwitch(Component):
             "answers_by_path": list(self.answers_by_path),
             "switch_count": self.switch_count,
             "broken": dict(self.broken),
+            "order": list(self.order),
+            "measured_scores": [float(f"{x:.4g}") for x in self.measured_scores],
             "switches": [e.as_dict() for e in list(self.events)[-last:]],
         }
 
     def describe(self) -> str:
         return f"switch {self.name} ({len(self.sensors)} paths, hold {self.hold_ns * 1e-9:g} s)"
+
+
+def _measured_path(path: Path, filters: dict) -> Path:
+    """``path`` with each sensor edge's measured figures in place of the declared ones
+    (``filters``: sensor name -> its filter component with ``measured``)."""
+    steps = []
+    for step in path.steps:
+        kf = filters.get(step.edge.name)
+        edge = step.edge if kf is None else kf.measured.edge(step.edge)
+        steps.append(PathStep(edge, step.inverted))
+    return Path(tuple(steps))

@@ -218,7 +218,8 @@ class Plan:
                 c = net.add(
                     PathSwitch(name, sensors, hold_ns=p["hold_ns"],
                                refused_down=p["refused_down"], on_switch=on_switch,
-                               require=self.query.require)
+                               require=self.query.require, paths=p["paths"],
+                               evaluate=self.query.evaluate if p["paths"] else None)
                 )  # fmt: skip
             else:  # pragma: no cover - plan nodes are made by plan_query only
                 raise InputError(f"unknown plan node kind {n.kind!r}")
@@ -513,6 +514,8 @@ class _PlanBuilder:
             "stale_ns": {},  # per sensor, from its input's stale_ms (Setup.plan)
             "hold_ns": int(round(q.hold_s * 1e9)),
             "refused_down": q.refused_down,
+            # re-scored with the measured attributes while running (unless the query says not)
+            "paths": list(paths) if q.rescore else None,
         }
         why = (
             f"failover: {len(paths) - 1} fallback path(s) sharing no sensor with a better one; "

@@ -196,11 +196,17 @@ class KalmanFilter(Component):
             return t_ns - self.stamp_offset_ns  # measurement_time, without a second call
         return None
 
+    def delivered(self, t: int, ok: bool, position=None, quaternion=None) -> None:
+        """Note a measurement delivered at (corrected) time ``t`` [ns], taken by the filter
+        (``ok``, with the NIS of its update) or refused, with its pose (``position`` (3,)
+        [m], ``quaternion`` (4,); ``None``: not a measured pose) in the measured attributes:
+        what the sensor delivers, whether the filter takes it or not."""
+        nis = getattr(self.filter, "nis", math.nan) if ok else math.nan
+        self.measured.update(t, self.clock.now_ns, nis, position, quaternion)
+
     def accepted(self, t: int, origin_ns: int) -> None:
         """Note a measurement the filter took at (corrected) time ``t`` [ns] of origin
-        ``origin_ns``: the first and last measurement times, the newest origin and the
-        measured attributes."""
-        self.measured.update(t, self.clock.now_ns, getattr(self.filter, "nis", math.nan))
+        ``origin_ns``: the first and last measurement times and the newest origin."""
         if self.first_t is None or t < self.first_t:
             self.first_t = t
         if self.last_t is None or t > self.last_t:
@@ -238,6 +244,7 @@ class KalmanFilter(Component):
         except ValueError:
             ok = False
         self.count_update(ok)
+        self.delivered(t, ok, m.pose.position, m.pose.quaternion)
         if not ok:
             return
         self.accepted(t, m.origin_ns)

@@ -233,7 +233,7 @@ _QUERY_KEYS = {
     "failover",
     "require",
 }
-_FAILOVER_KEYS = {"hold_ms", "refused_down"}
+_FAILOVER_KEYS = {"hold_ms", "refused_down", "rescore"}
 
 
 def _require(src, q, what) -> Requirements | None:
@@ -251,8 +251,8 @@ def _require(src, q, what) -> Requirements | None:
 
 
 def _failover(src, q, what) -> dict:
-    """A query's ``failover:`` (``false``, ``true`` or ``{hold_ms, refused_down}``) as
-    :class:`~trackflow.graph.Query` keywords."""
+    """A query's ``failover:`` (``false``, ``true`` or ``{hold_ms, refused_down, rescore}``)
+    as :class:`~trackflow.graph.Query` keywords."""
     spec = q.get("failover", True)
     if isinstance(spec, bool):
         return {"failover": spec}
@@ -270,6 +270,11 @@ def _failover(src, q, what) -> dict:
         if isinstance(n, bool) or not isinstance(n, int):
             raise _err(src, q, f"{what}.failover.refused_down: expected an integer, got {n!r}")
         out["refused_down"] = n
+    if "rescore" in spec:
+        if not isinstance(spec["rescore"], bool):
+            raise _err(src, q, f"{what}.failover.rescore: expected true or false, "
+                               f"got {spec['rescore']!r}")  # fmt: skip
+        out["rescore"] = spec["rescore"]
     return out
 
 

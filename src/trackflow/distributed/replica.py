@@ -139,6 +139,7 @@ class RemoteFilter(KalmanFilter):
             self.stats.reject("older than the newest state")
             return False
         origin = s.origin_ns + offset_ns
+        self.delivered(t, True)
         self.accepted(t, origin)
         self.time_sigma_s = float(sigma_s)
         if self.consumers:  # a trigger (push-mode inference reads the time only)

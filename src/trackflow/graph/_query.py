@@ -49,6 +49,9 @@ class Query:
         Failover: how long a better path must have been live before the answers return to it.
     refused_down : int
         Failover: a sensor whose filter refused this many measurements in a row is down.
+    rescore : bool
+        Failover: re-score the candidate paths with the sensors' measured rate, latency and
+        noise while running, and prefer the one that scores best.
     require : Requirements, optional
         What the answers need (latency, sigmas, rate): only paths meeting it are planned, and
         a running query checks its answers against it.
@@ -67,6 +70,7 @@ class Query:
     failover: bool = True
     hold_s: float = 2.0
     refused_down: int = 5
+    rescore: bool = True
     require: Requirements | None = None
     evaluate: EvaluationFunction = field(init=False, repr=False, compare=False)
 
