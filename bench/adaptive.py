@@ -31,7 +31,15 @@ added sigma, the recording's own floor of about 0.09 mm / 0.045 deg not counted)
 ``rescored`` says whether the query moved from ``a`` (preferred as declared) to ``b`` (truly
 better under eq. 2.5) and when.
 
-Usage: ``python bench/adaptive.py [--json]`` (needs ``../shared/data/tumvi``).
+Online relative delay (``online_offset``): the real Quest 2 / UR5e recordings (robot tool
+30 Hz against the headset 72 Hz, runs ``calib`` and ``traj1``; the OptiTrack / headset
+example) played through a network on the wall clock, as a live run dispatches
+(:func:`trackflow.calibration.replay_online_offset`, the first 32 s; the example's 14 s),
+against the offline ``calibrate clock-offset`` of the whole recordings: per run ``online_ms``,
+``sigma_ms``, ``offline_ms`` and ``diff_ms``.
+
+Usage: ``python bench/adaptive.py [--json]`` (needs ``../shared/data/tumvi`` and
+``../shared/data/quest_ur5e``).
 """
 
 from __future__ import annotations
@@ -287,6 +295,36 @@ def measure_attributes(room1: Path, folder: Path) -> dict:
     }
 
 
+QUEST = ROOT.parent / "shared" / "data" / "quest_ur5e"
+
+
+def measure_online_offsets() -> dict:
+    """The running estimate of each real two-tracker recording against the offline one."""
+    from trackflow.calibration import estimate_clock_offset, replay_online_offset
+
+    runs = {
+        "calib": (QUEST / "quest2" / "robot_tcp_calib.tum.txt", QUEST / "quest2" / "calib.txt"),
+        "traj1": (QUEST / "quest2" / "robot_tcp_traj1.tum.txt", QUEST / "quest2" / "traj1.txt"),
+        "optitrack": (QUEST / "optitrack_unity_example" / "opti.csv",
+                      QUEST / "optitrack_unity_example" / "unity.csv"),
+    }  # fmt: skip
+    out = {}
+    for name, (ref_path, headset_path) in runs.items():
+        ref, _ = read_stream(ref_path)
+        headset, _ = read_stream(headset_path, clean=True)
+        offline = estimate_clock_offset(headset, ref)
+        got = replay_online_offset(headset, ref, play_s=32.0, realtime=True)
+        out[name] = {
+            "online_ms": got.get("offset_ms"),
+            "sigma_ms": got.get("sigma_ms"),
+            "offline_ms": round(offline.offset_s * 1e3, 3),
+            "diff_ms": None
+            if "why" in got
+            else round(got["offset_ms"] - offline.offset_s * 1e3, 3),
+        }
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true")
@@ -302,6 +340,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as d:
         print("attributes ...", file=sys.stderr, flush=True)
         attributes = measure_attributes(ROOM1, Path(d))
+    print("online offsets (32 s of each recording on the wall clock) ...", file=sys.stderr)
+    online = measure_online_offsets()
     nees = np.concatenate([m.pop("nees") for m in modes.values()])
     out = {
         "failover_gap_ms": {m: round(v["failover_gap_ms"], 1) for m, v in modes.items()},
@@ -313,6 +353,7 @@ def main(argv=None) -> int:
         "attribute_error": attributes["attribute_error"],
         "rescored": attributes["rescored"],
         "attributes": attributes["sensors"],
+        "online_offset": online,
     }
     if args.json:
         print(json.dumps(out))
@@ -324,6 +365,7 @@ def main(argv=None) -> int:
               f"p99 {out['post_switch_nees_p99']} (3 dof: 99 % bound 11.34)")  # fmt: skip
         print(f"measured attributes, largest relative error: {out['attribute_error']}")
         print(f"re-scored with the measured figures: {out['rescored']}")
+        print(f"online relative delay vs offline: {out['online_offset']}")
     return 0
 
 

@@ -16,9 +16,13 @@ from .hand_eye import (
     solve_hand_eye,
 )
 from .noise import NoiseResult, sensor_noise
+from .online_offset import OnlineClockOffset, replay_online_offset, rigid_pairs
 from .pivot import PivotResult, pivot_calibration
 
 __all__ = [
+    "OnlineClockOffset",
+    "rigid_pairs",
+    "replay_online_offset",
     "AlignmentResult",
     "HandEyeResult",
     "NoiseResult",

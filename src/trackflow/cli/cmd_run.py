@@ -37,6 +37,13 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view", action="store_true", help="show the run in the browser (viser)")
     p.add_argument("--view-host", default="127.0.0.1", help="view bind address (loopback)")
     p.add_argument("--view-port", type=int, default=8080, help="view port (0: any free one)")
+    p.add_argument(
+        "--online-offsets",
+        action="store_true",
+        help="estimate the relative delay of every two sensors of one body while running "
+        "(angular speeds over the last 30 s; a status line every 5 s, the summary's "
+        "'online_offsets')",
+    )
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
@@ -62,10 +69,12 @@ def run(args) -> int:
         from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 4 wires it)
 
     views: list = []
-    on_network = None
-    if args.view:
+    offsets = _OnlineOffsets(setup, quiet=args.quiet) if args.online_offsets else None
 
-        def on_network(net, plan, inputs) -> None:
+    def on_network(net, plan, inputs) -> None:
+        if offsets is not None:
+            offsets.attach(net)
+        if args.view:
             from ..viewer import attach_view
 
             views.append(
@@ -93,6 +102,8 @@ def run(args) -> int:
                 stop=stop,
             )
     finally:
+        if offsets is not None:
+            offsets.close()
         for view in views:
             view.close()
         if server is not None:
@@ -105,6 +116,7 @@ def run(args) -> int:
         "sensors": res.statuses,
         "queries": _queries(setup, res),
         "attributes": res.attributes,
+        **({} if offsets is None else {"online_offsets": offsets.final()}),
         "record": None if res.record is None else str(res.record),
     }
     if stopped_by:
@@ -128,6 +140,52 @@ def _queries(setup, res) -> dict:
         if name in res.switches:  # failover: the path it ends on, answers per path, switches
             out[name].update(res.switches[name].summary())
     return out
+
+
+class _OnlineOffsets:
+    """``--online-offsets``: an :class:`~trackflow.calibration.OnlineClockOffset` per pair
+    of sensors of one body (:func:`~trackflow.calibration.rigid_pairs`), estimated on a
+    thread of its own every :attr:`PERIOD_S` (off the dispatch thread), with a status line."""
+
+    PERIOD_S = 5.0
+
+    def __init__(self, setup, *, quiet: bool):
+        from ..calibration import OnlineClockOffset, rigid_pairs
+
+        self.estimators = [OnlineClockOffset(a, b) for a, b in rigid_pairs(setup.graph)]
+        self.quiet = quiet
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def attach(self, net) -> None:
+        for est in self.estimators:
+            net.components[f"kf_{est.a}"].measured.listeners.append(est.add_a)
+            net.components[f"kf_{est.b}"].measured.listeners.append(est.add_b)
+        self._thread = threading.Thread(target=self._loop, name="online-offsets", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.PERIOD_S):
+            for est in self.estimators:
+                r = est.estimate()
+                if not self.quiet:
+                    print(f"online offset {_offset_text(r)}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def final(self) -> list[dict]:
+        """The estimate of every pair over the run's last window."""
+        return [est.estimate() for est in self.estimators]
+
+
+def _offset_text(r: dict) -> str:
+    head = f"{r['a']} - {r['b']}: "
+    if "why" in r:
+        return head + r["why"]
+    return head + f"{r['offset_ms']:.1f} +- {r['sigma_ms']:.1f} ms over {r['span_s']:.0f} s"
 
 
 def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):

@@ -63,10 +63,13 @@ class MeasuredAttributes:
     """The last :data:`WINDOW` measurements of one sensor and the figures computed from
     them (module docstring)."""
 
-    __slots__ = ("n", "_t", "_now", "_nis", "_pos", "_quat")
+    __slots__ = ("n", "listeners", "_t", "_now", "_nis", "_pos", "_quat")
 
     def __init__(self):
         self.n = 0
+        #: called with ``(t_ns, position, quaternion)`` of every measured pose delivered
+        #: (such as :class:`trackflow.calibration.OnlineClockOffset`): keep them cheap
+        self.listeners: list = []
         self._t = np.zeros(WINDOW, dtype=np.int64)
         self._now = np.zeros(WINDOW, dtype=np.int64)
         self._nis = np.full(WINDOW, np.nan)
@@ -89,6 +92,8 @@ class MeasuredAttributes:
         else:
             self._pos[k] = position
             self._quat[k] = quaternion
+            for listener in self.listeners:
+                listener(t_ns, position, quaternion)
 
     def _rows(self) -> np.ndarray:
         """Ring indices of the remembered measurements, oldest first."""

@@ -157,8 +157,11 @@ class KalmanFilter(Component):
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
-        #: the sensor's rate, latency and noise as measured (dataflow/_attributes.py)
+        #: the sensor's rate, latency and noise as measured (dataflow/_attributes.py); its
+        #: listeners stay across a reset (they watch the sensor, not one run)
+        listeners = self.measured.listeners if hasattr(self, "measured") else []
         self.measured = MeasuredAttributes()
+        self.measured.listeners = listeners
         #: measurements the filter refused since the last one it took (liveness)
         self.refused_in_a_row = 0
 
