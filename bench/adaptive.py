@@ -14,7 +14,8 @@ The NatNet tracker fails once both stream, three ways:
 Per mode, from the run's recordings: ``failover_gap_ms`` (from the exposure of the last NatNet
 frame before the failure to the switch to DTrack: how long the answers were not backed by
 fresh data),
-``switch_back_s`` (from the first NatNet arrival after it to the switch back) and the answers'
+``switch_back_s`` (from the first fresh NatNet arrival after it, one at most ``stale_ms``
+after its exposure, to the switch back) and the answers'
 position NEES on the fallback against the DTrack sender's truth. Printed as a table, or one
 JSON object with ``--json``: ``{"failover_gap_ms": {"outage", "kill", "freeze"},
 "post_switch_nees": mean over the modes' fallback answers, "post_switch_nees_p99",
@@ -184,8 +185,12 @@ def measure(mode: str, room1: Path, folder: Path) -> dict:
     exposures, _ = read_stream(input_paths(rec, "natnet")[0], format="native")
     arrivals, _ = read_stream(input_paths(rec, "natnet")[1], format="native")
     k = int(np.argmax(np.diff(arrivals.t_ns)))
-    went, came = int(arrivals.t_ns[k]), int(arrivals.t_ns[k + 1])
+    went = int(arrivals.t_ns[k])
     newest = int(exposures.t_ns[k])  # the exposure of NatNet's last frame before the gap
+    # recovered: the first frame after the gap that is fresh (a continued process first
+    # sends the frames it held, each as old as the freeze: old data, not a live tracker)
+    age = arrivals.t_ns[k + 1 :] - exposures.t_ns[k + 1 :]
+    came = int(arrivals.t_ns[k + 1 + int(np.argmax(age <= STALE_MS * 1_000_000))])
     away = next(e for e in events if e.to_path == 1 and e.t_ns > went)
     # the return because NatNet is back (not because DTrack ended meanwhile)
     back = next(e for e in events if e.to_path == 0 and e.t_ns > came)

@@ -40,10 +40,18 @@ from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
-from ._sources import NO_ORIGIN, PlayerSource, RecordingPlayer, SimulatedSensor, StaticPose
+from ._sources import (
+    BACKLOG_NS,
+    NO_ORIGIN,
+    PlayerSource,
+    RecordingPlayer,
+    SimulatedSensor,
+    StaticPose,
+)
 from ._warmup import warm_up
 
 __all__ = [
+    "BACKLOG_NS",
     "NO_ORIGIN",
     "SAMPLE",
     "TICK",

@@ -12,10 +12,15 @@ from ..scheduler import TimedSource
 from ._component import Component
 from ._events import Measurement
 
-__all__ = ["RecordingPlayer", "PlayerSource", "SimulatedSensor", "StaticPose", "NO_ORIGIN"]
+__all__ = ["BACKLOG_NS", "RecordingPlayer", "PlayerSource", "SimulatedSensor", "StaticPose",
+           "NO_ORIGIN"]  # fmt: skip
 
 #: ``origin_ns`` of data that never came from a sensor (static calibrations).
 NO_ORIGIN = -(2**62)
+#: a live measurement (a tracker's sample, another agent's filter state) older than this when
+#: it arrives is dropped and counted, not replayed: the backlog a stalled sender flushes when
+#: it continues is of no use to any answer and would only hold the fresh data back [ns]
+BACKLOG_NS = 500_000_000
 
 
 class RecordingPlayer(Component):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 
-from ..dataflow import SAMPLE, Component, Measurement, Scheduler
+from ..dataflow import BACKLOG_NS, SAMPLE, Component, Measurement, Scheduler
 from ..errors import InputError
 from ..graph import Edge
 from ..math import UncertainPose
@@ -27,10 +27,6 @@ from .clock import time_error_covariance, twist_between
 from .discovery import Discovery, realm_key
 from .replica import RemoteFilter, RemoteGet
 from .thinning import Grid, demand_key, thin_key
-
-#: a remote filter state stamped longer ago than this when it arrives is dropped and counted
-#: (the backlog a stalled sender flushes when it continues), not replayed [ns]
-BACKLOG_NS = 500_000_000
 
 __all__ = ["RemoteInputs", "RemoteSource", "remote_get"]
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import (
+    BACKLOG_NS,
     SAMPLE,
     Component,
     KalmanBank,
@@ -79,8 +80,10 @@ __all__ = [
 class LiveSource(Component):
     """The push source of a live sensor: :meth:`deliver` turns a :class:`Sample` into a
     :class:`Measurement` (``t_ns`` = exposure on the host clock, ``origin_ns`` the same).
-    A sample not after the previous one ("timestamp backwards") or with an invalid pose or
-    covariance is a counted rejection, as in :class:`trackflow.dataflow.RecordingPlayer`."""
+    A sample not after the previous one ("timestamp backwards"), older than
+    :data:`~trackflow.dataflow.BACKLOG_NS` when it arrived (a stalled tracker's backlog) or
+    with an invalid pose or covariance is a counted rejection, as in
+    :class:`trackflow.dataflow.RecordingPlayer`."""
 
     push_out = True
     kind = "live"
@@ -104,7 +107,7 @@ class LiveSource(Component):
     def accept(self, s: Sample) -> UncertainPose | None:
         """The sample's pose, counted and checked as :meth:`deliver` does, not yet pushed;
         ``None`` for a counted rejection."""
-        if not self._fresh(s.t_ns):
+        if not self._fresh(s.t_ns, s.arrival_ns):
             return None
         if type(s) is CheckedSample:
             pose = UncertainPose._trusted(s.position, s.quaternion, s.covariance)
@@ -119,12 +122,16 @@ class LiveSource(Component):
         self._last_t = s.t_ns
         return pose
 
-    def _fresh(self, t_ns: int) -> bool:
+    def _fresh(self, t_ns: int, arrival_ns: int) -> bool:
         """Count a sample in; ``False`` (a counted rejection) if it is not after the last
-        accepted one."""
+        accepted one or arrived more than :data:`~trackflow.dataflow.BACKLOG_NS` after it
+        was taken."""
         self.stats.events_in += 1
         if self._last_t is not None and t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
+            return False
+        if arrival_ns - t_ns > BACKLOG_NS:
+            self.stats.reject("older than the backlog window")
             return False
         return True
 
@@ -289,7 +296,7 @@ class LiveSources:
         ok = []
         for name in names:
             src = srcs[name]
-            fresh = src._fresh(t)
+            fresh = src._fresh(t, arrival_ns)
             if fresh:
                 src._last_t = t
                 src.stats.events_out += 1
