@@ -25,7 +25,8 @@ about once a second), not per event:
   the squared differences over the ring (over ``0.455``, the median of chi-square with one
   degree of freedom) keeps the fast moves out. Orientation: the same on the rotation vectors
   ``Log(q[k+1]^* q[j])``. It reads high for slow sensors on fast motion (the jerk term grows
-  with ``dt**3``);
+  with ``dt**3``). Its standard error is by batch means (eight contiguous parts of the
+  ring);
 * **consistency**: the mean normalised innovation squared (NIS) of the measurements the
   filter took (a refused one's is above the gate and not averaged). Near
   ``d = 6`` (a pose) when the declared noise and motion model fit what the sensor delivers;
@@ -57,6 +58,9 @@ _CHI2_1_MEDIAN = 0.45493642  # the median of chi-square with one degree of freed
 _THIRD_DIFF_VAR = 20.0  # variance of a third difference of unit white noise: 1 + 9 + 9 + 1
 _EVEN = 0.1  # intervals within 10 % of the median count as evenly sampled
 _MIN_QUADS = 16  # evenly sampled runs of four needed for a noise figure
+_BATCHES = 8  # parts of the ring whose spread gives the noise figure's standard error
+_FIGURES = ("rate_hz", "dropout", "latency_ms", "noise_mm", "noise_mm_sigma", "noise_deg",
+            "noise_deg_sigma", "nis_mean")  # fmt: skip
 
 
 class MeasuredAttributes:
@@ -101,13 +105,13 @@ class MeasuredAttributes:
         return np.arange(self.n - m, self.n) % WINDOW
 
     def figures(self) -> dict:
-        """The measured figures: ``measurements`` (all taken), ``rate_hz``, ``dropout``,
-        ``latency_ms``, ``noise_mm``, ``noise_deg`` and ``nis_mean`` (NaN where not measured
+        """The measured figures: ``measurements`` (all delivered), ``rate_hz``,
+        ``dropout``, ``latency_ms``, ``noise_mm``, ``noise_deg`` with their standard errors
+        ``noise_mm_sigma``, ``noise_deg_sigma`` and ``nis_mean`` (NaN where not measured
         yet)."""
         rows = self._rows()
         t = self._t[rows]
-        out = dict.fromkeys(("rate_hz", "dropout", "latency_ms", "noise_mm", "noise_deg",
-                             "nis_mean"), math.nan)  # fmt: skip
+        out = dict.fromkeys(_FIGURES, math.nan)
         out["measurements"] = self.n
         if len(rows) == 0:
             return out
@@ -127,12 +131,13 @@ class MeasuredAttributes:
         out["dropout"] = float(missed / (missed + len(dt)))
         noise = self._noise(t, rows, step)
         if noise is not None:
-            out["noise_mm"], out["noise_deg"] = noise
+            out["noise_mm"], out["noise_deg"], out["noise_mm_sigma"], out["noise_deg_sigma"] = noise
         return out
 
     def _noise(self, t: np.ndarray, rows: np.ndarray, step: float) -> tuple | None:
         """Position [mm] and orientation [deg] noise sigma by third differences of the
-        evenly sampled runs of four (module docstring), or ``None`` (too few)."""
+        evenly sampled runs of four (module docstring) and their standard errors, or
+        ``None`` (too few)."""
         if len(t) < 4:
             return None
         d = np.diff(t).astype(float)
@@ -148,10 +153,9 @@ class MeasuredAttributes:
         ref = quat[k + 1]
         r = [quat_rminus(quat[k + j], ref) for j in range(4)]
         r3 = r[3] - 3 * r[2] + 3 * r[1] - r[0]
-        scale = _THIRD_DIFF_VAR * _CHI2_1_MEDIAN
-        s_pos = math.sqrt(float(np.median(d3 * d3)) / scale)
-        s_ori = math.sqrt(float(np.median(r3 * r3)) / scale)
-        return s_pos * 1e3, math.degrees(s_ori)
+        s_pos, e_pos = _sigma_and_error(d3)
+        s_ori, e_ori = _sigma_and_error(r3)
+        return s_pos * 1e3, math.degrees(s_ori), e_pos * 1e3, math.degrees(e_ori)
 
     @property
     def warm(self) -> bool:
@@ -179,8 +183,7 @@ class MeasuredAttributes:
         the ones far apart (``"far"``: name -> "measured vs declared")."""
         f = self.figures()
         measured = {"measurements": f["measurements"]}
-        measured.update((k, _r(f[k])) for k in ("rate_hz", "dropout", "latency_ms", "noise_mm",
-                                                "noise_deg", "nis_mean"))  # fmt: skip
+        measured.update((k, _r(f[k])) for k in _FIGURES)
         c = edge.covariance
         declared = {
             "rate_hz": edge.rate_hz,
@@ -201,6 +204,17 @@ class MeasuredAttributes:
                    "declared noise or motion larger than needed")
             )  # fmt: skip
         return {"measured": measured, "declared": declared, "far": far}
+
+
+def _sigma_and_error(d3: np.ndarray) -> tuple[float, float]:
+    """The noise sigma from third differences ``d3`` (n, 3), and its standard error by
+    batch means: the spread of the estimates of :data:`_BATCHES` contiguous parts over
+    ``sqrt(_BATCHES)`` (neighbouring differences share samples, so they are not
+    independent: the batches keep that in)."""
+    scale = _THIRD_DIFF_VAR * _CHI2_1_MEDIAN
+    sigma = math.sqrt(float(np.median(d3 * d3)) / scale)
+    parts = [np.sqrt(np.median(b * b) / scale) for b in np.array_split(d3, _BATCHES)]
+    return sigma, float(np.std(parts, ddof=1)) / math.sqrt(_BATCHES)
 
 
 def _r(x: float) -> float | None:
