@@ -53,7 +53,7 @@ class OnlineClockOffset:
     ``kf_a.measured.listeners.append(est.add_a)`` (likewise ``b``), then ``est.estimate()``.
     """
 
-    def __init__(self, a: str, b: str, *, window_s: float = 30.0, max_offset_s: float = 0.5):
+    def __init__(self, a: str, b: str, *, window_s: float = 30.0, max_offset_s: float = 1.0):
         if not (window_s > 0 and max_offset_s > 0):
             raise InputError("online clock offset: window_s and max_offset_s must be > 0")
         self.a, self.b = a, b
@@ -139,7 +139,7 @@ def replay_online_offset(
     b: PoseStream,
     *,
     window_s: float = 30.0,
-    max_offset_s: float = 0.5,
+    max_offset_s: float = 1.0,
     realtime: bool = False,
     speed: float = 1.0,
     play_s: float | None = None,

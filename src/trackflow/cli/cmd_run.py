@@ -44,6 +44,13 @@ def register(subparsers) -> argparse.ArgumentParser:
         "(angular speeds over the last 30 s; a status line every 5 s, the summary's "
         "'online_offsets')",
     )
+    p.add_argument(
+        "--online-max-offset",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="--online-offsets: the largest relative delay searched [s] (default 1)",
+    )
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
@@ -69,7 +76,9 @@ def run(args) -> int:
         from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 4 wires it)
 
     views: list = []
-    offsets = _OnlineOffsets(setup, quiet=args.quiet) if args.online_offsets else None
+    offsets = None
+    if args.online_offsets:
+        offsets = _OnlineOffsets(setup, max_offset_s=args.online_max_offset, quiet=args.quiet)
 
     def on_network(net, plan, inputs) -> None:
         if offsets is not None:
@@ -149,10 +158,12 @@ class _OnlineOffsets:
 
     PERIOD_S = 5.0
 
-    def __init__(self, setup, *, quiet: bool):
+    def __init__(self, setup, *, max_offset_s: float, quiet: bool):
         from ..calibration import OnlineClockOffset, rigid_pairs
 
-        self.estimators = [OnlineClockOffset(a, b) for a, b in rigid_pairs(setup.graph)]
+        self.estimators = [
+            OnlineClockOffset(a, b, max_offset_s=max_offset_s) for a, b in rigid_pairs(setup.graph)
+        ]
         self.quiet = quiet
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
