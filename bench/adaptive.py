@@ -70,18 +70,29 @@ STALE_MS, HOLD_MS, RATE_HZ = 100, 500, 100
 FAIL_AT_S, FAIL_FOR_S, START_S, DURATION_S = 1.5, 1.0, 5.0, 12.0
 OUTAGE_AT_S = 6.0  # s into the NatNet replay (it streams from the run's start, DTrack later)
 MOTION = "{n_dp: 1, n_do: 1, noise: [0.0, 3.0, 0.0, 10.0]}"
-SETUP = f"""frames: [W, B]
-sensors:
-  - {{name: natnet, source: W, target: B, rate_hz: 120, latency_ms: 5, sigma_pos_mm: 0.5,
-     sigma_ori_deg: 0.2, motion: {MOTION},
-     input: {{natnet: {{command_port: NN, body: rig}}, stale_ms: {STALE_MS}}}}}
-  - {{name: dtrack, source: W, target: B, rate_hz: 120, latency_ms: 20, sigma_pos_mm: 0.5,
-     sigma_ori_deg: 0.2, motion: {MOTION},
-     input: {{dtrack: {{port: DT, body: 1}}, stale_ms: {STALE_MS}}}}}
-queries:
-  - {{name: q, source: W, target: B, mode: push, rate_hz: {RATE_HZ},
-     failover: {{hold_ms: {HOLD_MS}}}}}
-"""
+
+
+def _setup(sensors: list[tuple[str, float, float, str]]) -> str:
+    """A setup of one body ``W -> B`` measured by ``(name, declared rate [Hz], declared
+    latency [ms], input)`` sensors (0.5 mm / 0.2 deg declared), with the 100 Hz push query
+    ``q`` (``failover: {hold_ms}``)."""
+    lines = ["frames: [W, B]", "sensors:"]
+    for name, rate, latency, inp in sensors:
+        lines += [
+            f"  - {{name: {name}, source: W, target: B, rate_hz: {rate}, latency_ms: {latency},",
+            f"     sigma_pos_mm: 0.5, sigma_ori_deg: 0.2, motion: {MOTION},",
+            f"     input: {{{inp}, stale_ms: {STALE_MS}}}}}",
+        ]
+    lines += [
+        "queries:",
+        f"  - {{name: q, source: W, target: B, mode: push, rate_hz: {RATE_HZ},",
+        f"     failover: {{hold_ms: {HOLD_MS}}}}}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+SETUP = _setup([("natnet", 120, 5, "natnet: {command_port: NN, body: rig}"),
+                ("dtrack", 120, 20, "dtrack: {port: DT, body: 1}")])  # fmt: skip
 
 
 def _port() -> int:
@@ -217,18 +228,8 @@ def measure(mode: str, room1: Path, folder: Path) -> dict:
     }
 
 
-ATTR_SETUP = f"""frames: [W, B]
-sensors:
-  - {{name: a, source: W, target: B, rate_hz: 60, latency_ms: 5, sigma_pos_mm: 0.5,
-     sigma_ori_deg: 0.2, motion: {MOTION},
-     input: {{natnet: {{command_port: NA, body: rig}}, stale_ms: {STALE_MS}}}}}
-  - {{name: b, source: W, target: B, rate_hz: 120, latency_ms: 30, sigma_pos_mm: 0.5,
-     sigma_ori_deg: 0.2, motion: {MOTION},
-     input: {{natnet: {{command_port: NB, body: rig}}, stale_ms: {STALE_MS}}}}}
-queries:
-  - {{name: q, source: W, target: B, mode: push, rate_hz: {RATE_HZ},
-     failover: {{hold_ms: {HOLD_MS}}}}}
-"""
+ATTR_SETUP = _setup([("a", 60, 5, "natnet: {command_port: NA, body: rig}"),
+                     ("b", 120, 30, "natnet: {command_port: NB, body: rig}")])  # fmt: skip
 #: the senders' truth: latency [ms], added noise [mm, deg]
 ATTR_TRUTH = {"a": (40.0, 2.0, 0.5), "b": (5.0, 1.0, 0.3)}
 ATTR_SECONDS = 12.0
