@@ -14,6 +14,7 @@ from trackflow.distributed import (
     edge_from_dict,
     edge_to_dict,
     fragment_json,
+    fragment_stale,
     load_agent,
     parse_fragment,
 )
@@ -94,6 +95,19 @@ def test_fragment_round_trip_and_rejections():
     del bad["motion"]
     with pytest.raises(ValueError, match="missing or malformed field"):
         edge_from_dict(bad)
+
+
+def test_a_fragment_advertises_its_live_sensors_stale_windows():
+    g = load_setup(ROOT / "examples" / "demo_setup.yaml").graph
+    data = fragment_json("host", g, stale_s={"art": 0.1})
+    assert fragment_stale(data) == {"art": 0.1}
+    assert [e.name for e in parse_fragment(data)[2]] == [e.name for e in g.edges]
+    assert fragment_stale(fragment_json("host", g)) == {}
+    # a malformed window is left out, not believed
+    doc = json.loads(data)
+    for bad in (0, -1.0, "fast", True, float("inf")):
+        doc["edges"][0]["stale_s"] = bad
+        assert fragment_stale(json.dumps(doc).encode()) == {}, bad
 
 
 def test_setup_players_read_recordings(tmp_path):

@@ -15,7 +15,13 @@ this package works without it, opening an agent does not.
 from .agent import Agent, QueryState, RemoteSource, remote_get, run_agent
 from .clock import time_error_covariance, twist_between
 from .config import AgentConfig, load_agent, zenoh_config
-from .fragment import edge_from_dict, edge_to_dict, fragment_json, parse_fragment
+from .fragment import (
+    edge_from_dict,
+    edge_to_dict,
+    fragment_json,
+    fragment_stale,
+    parse_fragment,
+)
 from .replica import RemoteFilter, RemoteGet, StatePublisher
 from .wire import (
     Rejections,
@@ -47,6 +53,7 @@ __all__ = [
     "encode",
     "encode_state",
     "fragment_json",
+    "fragment_stale",
     "load_agent",
     "parse_fragment",
     "remote_get",

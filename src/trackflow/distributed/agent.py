@@ -83,6 +83,7 @@ class QueryState:
     state: str = "waiting"  # "running", "no path"
     reason: str = ""
     paths: list[str] = field(default_factory=list)
+    fallbacks: list[str] = field(default_factory=list)  # failover: the fallback paths
     sink: object = None
     sampler: object = None
     generation: int = 0
@@ -470,6 +471,7 @@ class Agent:
                 except ValueError as exc:
                     if st.state != "no path" or st.reason != str(exc):
                         st.state, st.reason, st.paths = "no path", str(exc), []
+                        st.fallbacks = []
                         st.sink = st.sampler = None
                         changed = True
                         st.events.append(self._event(reason, t_event_ns, st))
@@ -482,9 +484,11 @@ class Agent:
                     preferred = {s for p in plan.paths for s in p.sensors}
                     st.inputs = frozenset(preferred - self._own)
                 paths = [str(p) for p in plan.paths]
-                if st.state == "running" and paths == st.paths:
-                    continue
+                fallbacks = [str(p) for p in plan.fallbacks]
+                if st.state == "running" and (paths, fallbacks) == (st.paths, st.fallbacks):
+                    continue  # a new fallback (another tracker of the body) rebuilds too
                 st.state, st.reason, st.paths = "running", "", paths
+                st.fallbacks = fallbacks
                 new_events.append(self._event(reason, t_event_ns, st))
                 st.events.append(new_events[-1])
                 changed = True
@@ -512,6 +516,12 @@ class Agent:
         next to it, and a replica's states come filtered already)."""
         plan = self.setup.plan(q, graph=graph)
         for node in plan.nodes:
+            if node.kind == "switch":  # another agent's sensor: the window it advertises
+                for path in node.params["sensors"]:
+                    for e, _ in path:
+                        stale = None if e in self._own else self.discovery.stale_s(e)
+                        if stale is not None:
+                            node.params["stale_ns"][e] = int(round(stale * 1e9))
             edge = node.params.get("edge")
             if node.kind == "kalman" and "imu" in node.params and edge not in self._own:
                 line = self.setup.lines.get(f"imus.{node.params['imu']}", 0)
@@ -540,6 +550,7 @@ class Agent:
             "state": st.state,
             "detail": st.reason,
             "paths": list(st.paths),
+            "fallbacks": list(st.fallbacks),
             "replan_ms": (time.perf_counter_ns() - t_event_ns) * 1e-6,
         }
 
@@ -565,7 +576,8 @@ class Agent:
 
     # -- queryables -----------------------------------------------------------------------------
     def _on_fragment_query(self, query) -> None:
-        query.reply(query.key_expr, fragment_json(self.name, self.setup.graph))
+        stale = {e: spec.stale_s for e, spec in self.setup.inputs.items()}
+        query.reply(query.key_expr, fragment_json(self.name, self.setup.graph, stale_s=stale))
 
     def _on_clock_query(self, query) -> None:
         query.reply(query.key_expr, self.now_ns().to_bytes(8, "little", signed=True))
@@ -670,6 +682,7 @@ class Agent:
                     "state": st.state,
                     "reason": st.reason,
                     "paths": st.paths,
+                    "fallbacks": st.fallbacks,
                     "published": st.published,
                     "events": st.events[-20:],
                 }

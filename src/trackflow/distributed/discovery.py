@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 from ..graph import Edge, SpatialRelationshipGraph
 from ..timesync import RoundTripOffset
-from .fragment import parse_fragment
+from .fragment import fragment_stale, parse_fragment
 
 __all__ = ["Discovery", "RemoteAgent", "realm_key"]
 
@@ -35,6 +35,8 @@ class RemoteAgent:
     edges: dict[str, Edge] = field(default_factory=dict)
     frames: list[str] = field(default_factory=list)
     clock: RoundTripOffset = field(default_factory=RoundTripOffset)
+    #: its live sensors' liveness windows [s] (the ``stale_ms`` of their inputs)
+    stale_s: dict[str, float] = field(default_factory=dict)
 
 
 class Discovery:
@@ -94,6 +96,12 @@ class Discovery:
         agent = self.live.get(edge)
         return self.remotes.get(agent) if agent is not None else None
 
+    def stale_s(self, edge: str) -> float | None:
+        """The liveness window [s] the agent providing the live sensor ``edge`` advertises
+        (``None``: not advertised, or not a live remote sensor)."""
+        rem = self.agent_of(edge)
+        return None if rem is None else rem.stale_s.get(edge)
+
     def union_graph(self, own: SpatialRelationshipGraph) -> SpatialRelationshipGraph:
         """Own edges, live remote sensors and every static edge learned so far."""
         g = SpatialRelationshipGraph()
@@ -152,6 +160,7 @@ class Discovery:
                 continue
             rem = self.remotes.get(agent) or RemoteAgent(agent)
             rem.edges = {e.name: e for e in edges}
+            rem.stale_s = fragment_stale(reply.ok.payload.to_bytes())
             rem.frames = frames
             with self.lock:
                 self.remotes[agent] = rem

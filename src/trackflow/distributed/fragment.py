@@ -3,7 +3,9 @@
 The fragment lists the edges an agent can provide: measured edges (its sensors) with every
 quality attribute, and static edges with their pose and covariance. It is metadata, small and
 rare, so it travels as JSON (``{"version": 1, "agent": ..., "edges": [...]}``); measurements
-use the binary encoding of :mod:`trackflow.distributed.wire`.
+use the binary encoding of :mod:`trackflow.distributed.wire`. A sensor with a live input also
+carries its ``stale_s`` (the input's ``stale_ms``): how long it may send nothing before it
+counts as down, which the agents that use it judge it by (:func:`fragment_stale`).
 """
 
 from __future__ import annotations
@@ -17,7 +19,14 @@ from ..errors import FormatError
 from ..graph import Edge, MotionSpec, SpatialRelationshipGraph
 from ..math import Pose
 
-__all__ = ["FRAGMENT_VERSION", "edge_from_dict", "edge_to_dict", "fragment_json", "parse_fragment"]
+__all__ = [
+    "FRAGMENT_VERSION",
+    "edge_from_dict",
+    "edge_to_dict",
+    "fragment_json",
+    "fragment_stale",
+    "parse_fragment",
+]
 
 FRAGMENT_VERSION = 1
 
@@ -93,15 +102,35 @@ def edge_from_dict(d: dict) -> Edge:
         raise FormatError(f"fragment edge {name!r}: {exc}") from None
 
 
-def fragment_json(agent: str, graph: SpatialRelationshipGraph, frames=()) -> bytes:
-    """The JSON fragment of ``graph`` offered by ``agent`` (UTF-8 bytes)."""
+def fragment_json(agent: str, graph: SpatialRelationshipGraph, frames=(), stale_s=None) -> bytes:
+    """The JSON fragment of ``graph`` offered by ``agent`` (UTF-8 bytes); ``stale_s``: the
+    sensors' liveness windows [s] by name (those with a live input)."""
+    stale_s = stale_s or {}
+    edges = []
+    for e in graph.edges:
+        d = edge_to_dict(e)
+        if e.name in stale_s:
+            d["stale_s"] = float(stale_s[e.name])
+        edges.append(d)
     doc = {
         "version": FRAGMENT_VERSION,
         "agent": agent,
         "frames": sorted(set(frames) | set(graph.frames)),
-        "edges": [edge_to_dict(e) for e in graph.edges],
+        "edges": edges,
     }
     return json.dumps(doc).encode()
+
+
+def fragment_stale(data: bytes) -> dict[str, float]:
+    """The liveness windows [s] a fragment advertises, by sensor name (a parsed fragment,
+    :func:`parse_fragment`; a malformed or non-positive window is left out)."""
+    out = {}
+    for d in json.loads(bytes(data).decode())["edges"]:
+        v, name = d.get("stale_s"), d.get("name")
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf:
+            if isinstance(name, str):
+                out[name] = float(v)
+    return out
 
 
 def parse_fragment(data: bytes) -> tuple[str, list[str], list[Edge]]:
