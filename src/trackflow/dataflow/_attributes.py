@@ -5,7 +5,7 @@ Each sensor filter (:class:`trackflow.dataflow.KalmanFilter`) writes every measu
 delivered to it, taken or refused (a filter declared too precise gates the sensor's noisier
 measurements: the figures are of the sensor, not of what the filter kept), into a ring of
 the last :data:`WINDOW` (its time, the dispatch time, the NIS of the update if taken and the
-measured pose): a few array stores per event. The figures are computed from
+measured pose): one list store per event. The figures are computed from
 the ring when they are asked for (status, the run's summary, the path switch's re-scoring,
 about once a second), not per event:
 
@@ -67,60 +67,58 @@ class MeasuredAttributes:
     """The last :data:`WINDOW` measurements of one sensor and the figures computed from
     them (module docstring)."""
 
-    __slots__ = ("n", "listeners", "_t", "_now", "_nis", "_pos", "_quat")
+    __slots__ = ("n", "listeners", "_ring")
 
     def __init__(self):
         self.n = 0
         #: called with ``(t_ns, position, quaternion)`` of every measured pose delivered
         #: (such as :class:`trackflow.calibration.OnlineClockOffset`): keep them cheap
         self.listeners: list = []
-        self._t = np.zeros(WINDOW, dtype=np.int64)
-        self._now = np.zeros(WINDOW, dtype=np.int64)
-        self._nis = np.full(WINDOW, np.nan)
-        self._pos = np.full((WINDOW, 3), np.nan)
-        self._quat = np.full((WINDOW, 4), np.nan)
+        # one tuple per measurement (t_ns, now_ns, nis, position, quaternion): a list store
+        # per event, the arrays made when the figures are asked for
+        self._ring: list = [None] * WINDOW
 
     def update(self, t_ns: int, now_ns: int, nis: float, position=None, quaternion=None) -> None:
         """A measurement taken at time ``t_ns`` [ns], dispatched at ``now_ns``, with the NIS
         of its update (NaN: none, such as a filter's first measurement) and its pose
         (``position`` (3,) [m], ``quaternion`` (4,) x, y, z, w; ``None``: not known, such as
-        another agent's filter state)."""
-        k = self.n % WINDOW
+        another agent's filter state). The ring keeps the pose arrays themselves, not
+        copies: pass arrays that do not change afterwards (a pose's are read-only; a
+        tracker's block is made per packet)."""
+        self._ring[self.n % WINDOW] = (t_ns, now_ns, nis, position, quaternion)
         self.n += 1
-        self._t[k] = t_ns
-        self._now[k] = now_ns
-        self._nis[k] = nis
-        if position is None:
-            self._pos[k] = np.nan
-            self._quat[k] = np.nan
-        else:
-            self._pos[k] = position
-            self._quat[k] = quaternion
+        if position is not None:
             for listener in self.listeners:
                 listener(t_ns, position, quaternion)
 
-    def _rows(self) -> np.ndarray:
-        """Ring indices of the remembered measurements, oldest first."""
+    def _arrays(self):
+        """The remembered measurements, oldest first: times, dispatch times [ns], NIS, and
+        positions (m, 3) and quaternions (m, 4) (NaN where not known)."""
         m = min(self.n, WINDOW)
-        return np.arange(self.n - m, self.n) % WINDOW
+        rows = [self._ring[k % WINDOW] for k in range(self.n - m, self.n)]
+        t = np.array([r[0] for r in rows], dtype=np.int64)
+        now = np.array([r[1] for r in rows], dtype=np.int64)
+        nis = np.array([r[2] for r in rows], dtype=float)
+        nan3, nan4 = np.full(3, np.nan), np.full(4, np.nan)
+        pos = np.array([nan3 if r[3] is None else r[3] for r in rows], dtype=float).reshape(-1, 3)
+        quat = np.array([nan4 if r[4] is None else r[4] for r in rows], dtype=float).reshape(-1, 4)
+        return t, now, nis, pos, quat
 
     def figures(self) -> dict:
         """The measured figures: ``measurements`` (all delivered), ``rate_hz``,
         ``dropout``, ``latency_ms``, ``noise_mm``, ``noise_deg`` with their standard errors
         ``noise_mm_sigma``, ``noise_deg_sigma`` and ``nis_mean`` (NaN where not measured
         yet)."""
-        rows = self._rows()
-        t = self._t[rows]
+        t, now, nis, pos, quat = self._arrays()
         out = dict.fromkeys(_FIGURES, math.nan)
         out["measurements"] = self.n
-        if len(rows) == 0:
+        if len(t) == 0:
             return out
-        out["latency_ms"] = float(np.mean(self._now[rows] - t)) * 1e-6
-        nis = self._nis[rows]
+        out["latency_ms"] = float(np.mean(now - t)) * 1e-6
         if np.any(nis == nis):
             out["nis_mean"] = float(np.nanmean(nis))
         order = np.argsort(t, kind="stable")
-        t, rows = t[order], rows[order]
+        t, pos, quat = t[order], pos[order], quat[order]
         dt = np.diff(t)
         dt = dt[dt > 0]
         if len(dt) == 0:
@@ -129,33 +127,10 @@ class MeasuredAttributes:
         step = float(np.median(dt))
         missed = np.maximum(np.rint(dt / step) - 1, 0).sum()
         out["dropout"] = float(missed / (missed + len(dt)))
-        noise = self._noise(t, rows, step)
+        noise = _noise(t, pos, quat, step)
         if noise is not None:
             out["noise_mm"], out["noise_deg"], out["noise_mm_sigma"], out["noise_deg_sigma"] = noise
         return out
-
-    def _noise(self, t: np.ndarray, rows: np.ndarray, step: float) -> tuple | None:
-        """Position [mm] and orientation [deg] noise sigma by third differences of the
-        evenly sampled runs of four (module docstring) and their standard errors, or
-        ``None`` (too few)."""
-        if len(t) < 4:
-            return None
-        d = np.diff(t).astype(float)
-        even = np.abs(d - step) <= _EVEN * step
-        quad = even[:-2] & even[1:-1] & even[2:]  # runs t[k] .. t[k+3]
-        pos, quat = self._pos[rows], self._quat[rows]
-        k = np.flatnonzero(quad)
-        k = k[np.isfinite(pos[k]).all(1) & np.isfinite(pos[k + 3]).all(1)]
-        k = k[np.isfinite(pos[k + 1]).all(1) & np.isfinite(pos[k + 2]).all(1)]
-        if len(k) < _MIN_QUADS:
-            return None
-        d3 = pos[k + 3] - 3 * pos[k + 2] + 3 * pos[k + 1] - pos[k]
-        ref = quat[k + 1]
-        r = [quat_rminus(quat[k + j], ref) for j in range(4)]
-        r3 = r[3] - 3 * r[2] + 3 * r[1] - r[0]
-        s_pos, e_pos = _sigma_and_error(d3)
-        s_ori, e_ori = _sigma_and_error(r3)
-        return s_pos * 1e3, math.degrees(s_ori), e_pos * 1e3, math.degrees(e_ori)
 
     @property
     def warm(self) -> bool:
@@ -204,6 +179,29 @@ class MeasuredAttributes:
                    "declared noise or motion larger than needed")
             )  # fmt: skip
         return {"measured": measured, "declared": declared, "far": far}
+
+
+def _noise(t: np.ndarray, pos: np.ndarray, quat: np.ndarray, step: float) -> tuple | None:
+    """Position [mm] and orientation [deg] noise sigma by third differences of the
+    evenly sampled runs of four (module docstring) and their standard errors, or
+    ``None`` (too few)."""
+    if len(t) < 4:
+        return None
+    d = np.diff(t).astype(float)
+    even = np.abs(d - step) <= _EVEN * step
+    quad = even[:-2] & even[1:-1] & even[2:]  # runs t[k] .. t[k+3]
+    k = np.flatnonzero(quad)
+    k = k[np.isfinite(pos[k]).all(1) & np.isfinite(pos[k + 3]).all(1)]
+    k = k[np.isfinite(pos[k + 1]).all(1) & np.isfinite(pos[k + 2]).all(1)]
+    if len(k) < _MIN_QUADS:
+        return None
+    d3 = pos[k + 3] - 3 * pos[k + 2] + 3 * pos[k + 1] - pos[k]
+    ref = quat[k + 1]
+    r = [quat_rminus(quat[k + j], ref) for j in range(4)]
+    r3 = r[3] - 3 * r[2] + 3 * r[1] - r[0]
+    s_pos, e_pos = _sigma_and_error(d3)
+    s_ori, e_ori = _sigma_and_error(r3)
+    return s_pos * 1e3, math.degrees(s_ori), e_pos * 1e3, math.degrees(e_ori)
 
 
 def _sigma_and_error(d3: np.ndarray) -> tuple[float, float]:
