@@ -202,9 +202,12 @@ def measure(mode: str, room1: Path, folder: Path) -> dict:
     # sends the frames it held, each as old as the freeze: old data, not a live tracker)
     age = arrivals.t_ns[k + 1 :] - exposures.t_ns[k + 1 :]
     came = int(arrivals.t_ns[k + 1 + int(np.argmax(age <= STALE_MS * 1_000_000))])
-    away = next(e for e in events if e.to_path == 1 and e.t_ns > went)
+    away = next((e for e in events if e.to_path == 1 and e.t_ns > went), None)
     # the return because NatNet is back (not because DTrack ended meanwhile)
-    back = next(e for e in events if e.to_path == 0 and e.t_ns > came)
+    back = next((e for e in events if e.to_path == 0 and e.t_ns > came), None)
+    if away is None or back is None:
+        raise RuntimeError(f"{mode}: no move away and back around the failure "
+                           f"({went}..{came}): {[e.as_dict() for e in events]}")  # fmt: skip
     if not back.reason.startswith("path 0 live"):
         raise RuntimeError(f"{mode}: no return to NatNet before DTrack ended: {events}")
     answers, _ = read_stream(rec, format="native")
