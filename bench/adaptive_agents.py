@@ -204,8 +204,8 @@ def measure(mode: str, folder: Path) -> dict:
     if age is None:
         raise RuntimeError(f"{mode}: moved for another reason: {events}")
     out = {"failover_gap_ms": float(age.group(1)), "reason": away["reason"]}
-    truth, _ = read_stream(folder / "nn_truth.tfrec")
     if mode == "outage":  # the newest frame before the outage, and the first after it
+        truth, _ = read_stream(folder / "nn_truth.tfrec")
         k = int(np.argmax(np.diff(truth.t_ns)))
         out["gap_from_truth_ms"] = round((away["t_ns"] - int(truth.t_ns[k])) * 1e-6, 1)
         recovered_ns = int(truth.t_ns[k + 1]) + 5_000_000  # sent 5 ms after its exposure
