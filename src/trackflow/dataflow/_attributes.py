@@ -13,9 +13,11 @@ about once a second), not per event:
   it; the dropout fraction says how many were missed);
 * **dropout**: the fraction of frames missed, counted from the gaps between measurement times
   that are whole multiples of the median interval;
-* **latency** [ms]: the mean of (dispatch time - measurement time), the time from exposure
+* **latency** [ms]: the median of (dispatch time - measurement time), the time from exposure
   (the tracker's stamp mapped onto the host clock) to the measurement's arrival in the
-  network. An input that maps its clock one way (DTrack, VRPN) cannot tell its latency from
+  network (the median: the late frames a stalled tracker flushes when it continues, up to
+  :data:`~trackflow.dataflow.BACKLOG_NS` old, do not make its typical latency for the next
+  few seconds). An input that maps its clock one way (DTrack, VRPN) cannot tell its latency from
   its clock offset and subtracts the declared ``latency_ms``: what it reports is the
   declaration plus the delivery delay. NatNet reports its latency in every frame;
 * **noise** [mm, deg]: the measurement noise sigma by the variate difference method: for
@@ -114,7 +116,7 @@ class MeasuredAttributes:
         out["measurements"] = self.n
         if len(t) == 0:
             return out
-        out["latency_ms"] = float(np.mean(now - t)) * 1e-6
+        out["latency_ms"] = float(np.median(now - t)) * 1e-6
         if np.any(nis == nis):
             out["nis_mean"] = float(np.nanmean(nis))
         order = np.argsort(t, kind="stable")
