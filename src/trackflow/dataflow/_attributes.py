@@ -9,8 +9,9 @@ measured pose): one list store per event. The figures are computed from
 the ring when they are asked for (status, the run's summary, the path switch's re-scoring,
 about once a second), not per event:
 
-* **rate** [Hz]: measurements taken per second over the ring's span (a dropped frame lowers
-  it; the dropout fraction says how many were missed);
+* **rate** [Hz]: one over the median interval between measurement times: the rate the
+  sensor runs at (an outage or a dropped frame does not lower it; the dropout fraction says
+  how many were missed, and liveness judges the outage);
 * **dropout**: the fraction of frames missed, counted from the gaps between measurement times
   that are whole multiples of the median interval;
 * **latency** [ms]: the median of (dispatch time - measurement time), the time from exposure
@@ -125,8 +126,8 @@ class MeasuredAttributes:
         dt = dt[dt > 0]
         if len(dt) == 0:
             return out
-        out["rate_hz"] = len(dt) / ((t[-1] - t[0]) * 1e-9)
         step = float(np.median(dt))
+        out["rate_hz"] = 1e9 / step
         missed = np.maximum(np.rint(dt / step) - 1, 0).sum()
         out["dropout"] = float(missed / (missed + len(dt)))
         noise = _noise(t, pos, quat, step)
