@@ -27,8 +27,9 @@ recording's 120 Hz, 40 ms late, with 2 mm / 0.5 deg of added noise; ``b`` is dec
 late and truly 5 ms, with 1 mm / 0.3 deg added. After 12 s of a live run, the run's summary
 gives each sensor's measured figures; ``attribute_error`` is the largest relative error over
 both sensors of each figure against the truth (rate: frames the sender sent per second;
-latency: the median of arrival minus the sender's true exposure time (the run's recordings); noise: the
-added sigma, the recording's own floor of about 0.09 mm / 0.045 deg not counted).
+latency: the median of arrival minus the sender's true exposure time, from the run's
+recordings; noise: the added sigma, the recording's own floor of about 0.09 mm / 0.045 deg
+not counted).
 ``rescored`` says whether the query moved from ``a`` (preferred as declared) to ``b`` (truly
 better under eq. 2.5) and when.
 
