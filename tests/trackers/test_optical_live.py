@@ -118,13 +118,16 @@ def test_run_records_and_replays_the_optical_tracker(tmp_path, shared_data):
             run.kill()
             run.communicate()
     assert run.returncode == 0
-    # counts, not rates: a loaded 2-core machine renders fewer frames in real time (it drops
-    # the frames it cannot keep up with), and a body is lost more often across the gaps
-    assert summary["answers"] > 20
+    # how many frames are processed depends on the machine: a tracker that cannot keep up
+    # drops camera frames (its dropouts), and a body is lost more often across the gaps (15
+    # measurements of a body beside two test suites and two burners). What must hold
+    # whatever the load: enough measurements for the accuracy check below, and every
+    # processed frame accounted for
+    assert summary["answers"] >= 5
     for name in ("tracker_wand", "tracker_tool"):
         st = summary["sensors"][name]
         assert st["protocol"] == "optical"
-        assert st["measurements"] > 20, st
+        assert st["measurements"] >= 5, st
         # every processed frame is a measurement or a counted rejection of this body
         assert st["measurements"] + sum(st["rejections"].values()) == st["packets"], st
         assert set(st["rejections"]) <= {"not tracked"}, st
