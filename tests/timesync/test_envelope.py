@@ -90,8 +90,9 @@ def test_a_stall_of_every_packet_does_not_move_the_mapping():
 
 
 def test_a_step_of_the_tracker_clock_restarts_the_fit():
-    """The tracker's clock jumps back by 5 s (a restart): the fit starts again from the new
-    stamps instead of calling every packet 5 s late; a jump forward likewise."""
+    """The tracker's clock jumps back by 5 s (a restart): once three samples agree, the fit
+    starts again from the new stamps instead of calling every packet 5 s late; a jump forward
+    likewise."""
     rng = np.random.default_rng(6)
     x, h = _stream(rng, 120 * 60, 10**12, 0.0, spikes=0.0)
     step = x - x[0] > 20e9
@@ -106,8 +107,12 @@ def test_a_step_of_the_tracker_clock_restarts_the_fit():
     assert m.steps == 1
     after = errs[step][120:] - 30  # a second after the step
     assert np.abs(after).max() < 200, np.abs(after).max()
-    m.add(int(x[-1]) + 7_000_000_000, int(h[-1]) + 8_000_000)  # forward by 7 s
-    assert m.steps == 2 and m.to_host(int(x[-1]) + 7_000_000_000) == int(h[-1]) + 8_000_000
+    # forward by 7 s: the first two samples are held as suspect, the third confirms the step
+    fwd = [(int(x[-1]) + 7_000_000_000 + k * 8_333_333, int(h[-1]) + 8_000_000 + k * 8_333_333)
+           for k in range(3)]  # fmt: skip
+    assert [m.add(*p) for p in fwd] == [False, False, True]
+    assert m.steps == 2 and m.suspects == 2 + 2  # two held at the step back too
+    assert m.to_host(fwd[0][0]) == fwd[0][1]
     m.reset()
     with pytest.raises(ValueError, match="no samples"):
         m.to_host(0)
@@ -148,3 +153,23 @@ def test_compiled_envelope_fit_equals_the_reference():
         fast = kernels_for(_kernels).envelope_fit(*args)
     np.testing.assert_allclose(fast, ref, rtol=1e-12)
     assert ref[3] > 0  # the scatter: the gap to the second lowest bin
+
+
+@pytest.mark.parametrize("shift_ns", [5_000_000, 40_000_000, 7_000_000_000, -5_000_000_000])
+def test_a_lone_corrupted_stamp_never_moves_the_mapping(shift_ns):
+    """One stamp in a stream off by ``shift_ns`` (a flipped digit, a bogus value; more than
+    ``jump_s`` plus the 2 ms delay jitter) every half second: each is refused and counted,
+    and the others are mapped exactly as the stream without those packets is."""
+    rng = np.random.default_rng(11)
+    x, h = _stream(rng, 120 * 30, 10**12, 10e-6, spikes=0.0)
+    clean, dirty = ClockMapper(), ClockMapper()
+    worst, refused = 0, 0
+    for k, (xi, hi) in enumerate(zip(x.tolist(), h.tolist())):
+        if k % 60 == 59:
+            refused += not dirty.add(xi + shift_ns, hi)
+            continue
+        clean.add(xi, hi)
+        assert dirty.add(xi, hi)
+        worst = max(worst, abs(dirty.to_host(xi) - clean.to_host(xi)))
+    assert refused == 120 * 30 // 60 and dirty.suspects == refused and dirty.steps == 0
+    assert worst == 0

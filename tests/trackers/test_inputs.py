@@ -63,9 +63,11 @@ def test_natnet_exposure_from_ticks_and_counted_rejections():
     st = inp.status
     # frames 1..19, 25 (5 missing), then 21..25 again (5 reordered or duplicate)
     assert st.dropouts == 5 and st.rejections["reordered or duplicate frame"] == 5
-    inp.handle(_frame(50, 200 * FREQ, 10, valid=False), 0)
-    inp.handle(b"\x07\x00\xff\xff", 0)
-    inp.handle(_frame(51, 200 * FREQ, -5), 0)
+    # arrivals on the same clock as before (a stamp off the fit would be refused first)
+    arrival = 40 * 10**9 // 120 + 100 * 10**9 + offset + 100_000
+    inp.handle(_frame(50, 100 * FREQ + 40 * FREQ // 120, 10, valid=False), arrival)
+    inp.handle(b"\x07\x00\xff\xff", arrival)
+    inp.handle(_frame(51, 100 * FREQ + 41 * FREQ // 120, -5), arrival + 8_333_333)
     assert st.rejections["not tracked"] == 1 and st.rejections["truncated"] == 1
     assert st.rejections["bad stamps"] == 1
 
@@ -128,10 +130,31 @@ def test_dtrack_ts2_latency_gives_the_exposure():
     assert s.t_ns == 1000_254_000_000 + 80_000 + 5 - 4_000_000
     np.testing.assert_allclose(s.position, [0.1, 0.2, 0.3])
     np.testing.assert_allclose(s.covariance, COV)
-    inp.handle(_dt_packet(2, (1000, 260_000, 4_000), quality=-1.0), 0)
+    inp.handle(_dt_packet(2, (1000, 260_000, 4_000), quality=-1.0), 1000_264_000_000 + 80_005)
     inp.handle(b"fr 3\r\n6d 1 [2 1.0][1 2 3]\r\n", 0)
     inp.handle(_dt_packet(4), 0)
     assert inp.status.rejections == {"not tracked": 1, "bad line": 1, "no timestamp": 1}
+
+
+def test_dtrack_status_names_the_ids_sent_and_hints_at_counting_from_0():
+    """A sensor told ``body: 1`` on an output that sends bodies 0 and 2: its status says so
+    and hints at the 0-based ids; the hint goes when body 1 appears."""
+    inp = make_input("s", parse_input({"dtrack": {"body": 1}}), COV)
+    R = tuple(np.eye(3).ravel())
+
+    def packet(fr, ids):
+        bodies = tuple(dtrack.DTrackBody(i, 1.0, (1.0, 2.0, 3.0), R) for i in ids)
+        frame = dtrack.DTrackFrame(fr, None, (1000 + fr, 0, 100), None, bodies, ())
+        return dtrack.encode_dtrack(frame, None, None)
+
+    assert inp.handle(packet(1, (0, 2)), 10**12 + 10**9) == []
+    st = inp.status
+    assert st.notes["seen"] == "6d ids seen: 0, 2"
+    assert "body 1 not in the output; DTrack ids count from 0" in st.notes["hint"]
+    assert "[6d ids seen: 0, 2; body 1 not in the output" in st.line(10**12, 0.5)
+    assert st.summary(10**12)["notes"] == st.notes
+    (pair,) = inp.handle(packet(2, (0, 1, 2)), 10**12 + 2 * 10**9)
+    assert st.notes == {"seen": "6d ids seen: 0, 1, 2"}
 
 
 def test_dtrack_ts_over_midnight_and_6dcov():
@@ -216,9 +239,27 @@ queries:
 
 
 def test_a_restarted_tracker_is_an_event_not_a_loss():
+    """The counter jumps back and the next frame follows the jump: a restart, confirmed by
+    that next frame (the jump's own frame is refused, as one bogus counter would be)."""
     inp = _dtrack()
-    for k, fr in enumerate([500_000, 500_001, 3, 4]):
+    for k, fr in enumerate([500_000, 500_001, 3, 4, 5]):
         inp.handle(_dt_packet(fr, (1000 + k, 0, 100)), 10**12 + k * 10**9)
     st = inp.status
     assert st.dropouts == 0 and st.connection == {"frame counter restarted": 1}
-    assert st.measurements == 4 and st.rejections == {}
+    assert st.measurements == 4 and st.rejections == {"frame counter jump not confirmed": 1}
+
+
+@pytest.mark.parametrize("bogus", [999_999_999, 0])
+def test_a_bogus_frame_counter_touches_neither_counter_nor_clock(bogus):
+    """``fr 999999999`` (or 0) between real frames, with and without a timestamp: refused
+    and counted; no restart, no dropout, and the clock fit keeps every real sample."""
+    inp = _dtrack()
+    frames = [_dt_packet(100_000 + k, (1000 + k, 0, 100)) for k in range(6)]
+    frames.insert(2, _dt_packet(bogus, (1000, 0, 100)))  # a stamp that goes back 2 s
+    frames.insert(5, f"fr {bogus}\r\n".encode())  # no timestamp at all
+    out = [inp.handle(f, 10**12 + k * 10**9) for k, f in enumerate(frames)]
+    st = inp.status
+    assert [len(o) for o in out] == [1, 1, 0, 1, 1, 0, 1, 1]
+    assert st.connection == {} and st.dropouts == 0 and st.measurements == 6
+    assert st.rejections == {"frame counter jump not confirmed": 1, "no timestamp": 1}
+    assert inp.clock.count == 6 and inp.clock.steps == 0

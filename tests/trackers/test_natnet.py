@@ -208,6 +208,25 @@ def test_model_definitions_skip_unknown_types_by_size():
     assert decode_model_definitions(older, (3, 1)).complete is False
 
 
+@pytest.mark.parametrize("bad_size", [3, 30])
+def test_one_bad_description_is_skipped_not_the_definitions(bad_size):
+    """NatNet 4.1: a rigid body description whose declared size does not fit its content
+    (too short: the name runs past it; too long: bytes left over) is skipped by that size
+    and counted; the descriptions around it still give their names."""
+
+    def rb(name, bid, size=None):
+        body = name + b"\0" + struct.pack("<ii3fi", bid, -1, 0, 0, 0, 0)
+        return (
+            struct.pack("<iI", 1, len(body) if size is None else size)
+            + body.ljust(size or len(body), b"\0")[: size or len(body)]
+        )
+
+    payload = struct.pack("<i", 3) + rb(b"head", 3) + rb(b"hand", 5, bad_size) + rb(b"foot", 9)
+    got = decode_model_definitions(payload, (4, 1))
+    assert got.id_of("head") == 3 and got.id_of("foot") == 9 and got.id_of("hand") is None
+    assert got.skipped == 1 and got.complete
+
+
 @pytest.mark.parametrize(
     "data, version, reason",
     [

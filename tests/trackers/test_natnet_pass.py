@@ -337,7 +337,7 @@ def test_plain_frames_make_blocks_through_the_pass():
                  "bodies": bodies, "skeletons": [1], "assets": 1, "labeled": 4,
                  "plates": [[2, 0]], "devices": [[1]], "ticks": (tick, tick + 20_000),
                  "eod": False}  # fmt: skip
-            out = inp.handle(build((4, 1), d), 10**18 + i)
+            out = inp.handle(build((4, 1), d), 10**18 + i * 4_166_700)  # as the ticks go
             assert isinstance(out, SampleBlock) and list(out.index) == list(range(20))
             assert out.position[0].tolist() == [np.float32(0.1).item(), 1.0, 2.0]
     finally:
@@ -361,6 +361,7 @@ def test_warm_up_compiles_what_a_live_packet_runs():
         d = {"frame": 10_000, "msets": [], "unlabeled": 0, "bodies": bodies, "skeletons": [],
              "assets": 0, "labeled": 0, "plates": [], "devices": [], "ticks": (10, 20),
              "eod": True}  # fmt: skip
+        inp = _input((4, 1), 0, 0)  # a new tracker clock (one input's would refuse the step)
         for i in range(3):  # all plainly valid: blocks
             out = inp.handle(build((4, 1), {**d, "frame": 10_000 + i}), 2 * 10**18 + i)
             assert isinstance(out, SampleBlock)

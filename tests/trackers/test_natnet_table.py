@@ -119,15 +119,15 @@ def test_all_plain_bodies_take_the_one_pass_path(mm):
     for i in range(4):
         kinds = ["ok", "slightly"] * 3 + ["missing"]
         data = _frame(rng, i, kinds)
-        out = fast.handle(data, 10**18 + i)
+        out = fast.handle(data, 10**18 + i * 4_166_667)
         assert isinstance(out, SampleBlock) and list(out.index) == list(range(6))
         assert not out.position.flags.writeable and out.covariance.shape == (6, 6, 6)
-        want = _per_body(slow, data, 10**18 + i)
+        want = _per_body(slow, data, 10**18 + i * 4_166_667)
         _same(out, want)
         assert isinstance(out[2:5], SampleBlock)  # a slice is a block too
         _same(out[2:5], want[2:5])
     assert [b.status.measurements for b in fast.bodies] == [4] * 6
     # an untracked body: the per-body path, which counts it
-    out = fast.handle(_frame(rng, 9, ["untracked"] + ["ok"] * 6), 10**18 + 9)
+    out = fast.handle(_frame(rng, 9, ["untracked"] + ["ok"] * 6), 10**18 + 9 * 4_166_667)
     assert not isinstance(out, SampleBlock) and [i for i, _ in out] == list(range(1, 6))
     assert fast.bodies[0].status.rejections == {"not tracked": 1}

@@ -17,7 +17,7 @@ from trackflow.trackers.vrpn import (
     make_cookie,
 )
 
-COOKIE = b"vrpn: ver. 07.35  0\0\0\0\0\0"
+COOKIE = b"vrpn: ver. 07.38  0\0\0\0\0\0"  # VRPN's version since 2025 (vrpn_Connection.C)
 
 
 def _golden_stream() -> bytes:
@@ -98,3 +98,76 @@ def test_report_from_undescribed_sender_is_rejected():
         d.feed(encode_message(0, 0, 5, 3, encode_pos_quat(0, (0, 0, 0), (0, 0, 0, 1))))
     with pytest.raises(PacketError, match="truncated"):
         check_cookie(b"vrpn")
+
+
+@pytest.mark.parametrize(
+    "cookie, ok",
+    [
+        (b"vrpn: ver. 07.35  0\0\0\0\0\0", True),  # an older minor version: accepted
+        (b"vrpn: ver. 07.38  1\0\0\0\0\0", True),  # a logging peer
+        (b"vrpn: ver. 08.00  0\0\0\0\0\0", False),  # another major version
+        (b"vrpn: ver. 04.00  0\0\0\0\0\0", False),  # VRPN's log-file cookie
+    ],
+)
+def test_cookie_versions(cookie, ok):
+    if ok:
+        check_cookie(cookie)
+    else:
+        with pytest.raises(PacketError, match="wrong version"):
+            check_cookie(cookie)
+
+
+def _read_exactly(conn, n: int) -> bytes:
+    out = b""
+    while len(out) < n:
+        chunk = conn.recv(n - len(out))
+        assert chunk, f"the server closed after {len(out)} of {n} bytes"
+        out += chunk
+    return out
+
+
+def _description_bytes(kind: int, local_id: int, name: bytes) -> bytes:
+    """A description written from the protocol: header (length = 24 + 4 + name + NUL),
+    u32 name length, the name and its NUL, padded to 8."""
+    body = struct.pack(">I", len(name) + 1) + name + b"\0"
+    pad = b"\0" * (-len(body) % 8)
+    return struct.pack(">IIIiiI", 24 + len(body), 0, 0, local_id, kind, 0) + body + pad
+
+
+def test_the_server_answers_a_ping_with_a_pong_on_the_device_sender():
+    """Golden bytes of the exchange a VRPN client's device makes (vrpn_BaseClass.C): the
+    client describes its sender ``Tracker0`` (id 5) and the type ``vrpn_Base ping_message``
+    (id 7) and pings; the server's greeting is its cookie and descriptions (sender 0, types
+    0 Pos_Quat and 1 pong), and its answer a 24-byte header of type 1 on sender 0, no body,
+    stamped now."""
+    import socket
+    import time
+
+    from trackflow.trackers.vrpn_server import VrpnTrackerServer
+
+    with VrpnTrackerServer("Tracker0", "127.0.0.1", 0) as server:
+        with socket.create_connection(("127.0.0.1", server.port), timeout=10) as c:
+            assert _read_exactly(c, 24) == COOKIE
+            c.sendall(b"vrpn: ver. 07.38  0\0\0\0\0\0")  # the server waits for it
+            greeting = (
+                _description_bytes(-1, 0, b"Tracker0")
+                + _description_bytes(-2, 0, b"vrpn_Tracker Pos_Quat")
+                + _description_bytes(-2, 1, b"vrpn_Base pong_message")
+            )
+            assert _read_exactly(c, len(greeting)) == greeting
+            c.sendall(
+                _description_bytes(-1, 5, b"Tracker0")
+                + _description_bytes(-2, 7, b"vrpn_Base ping_message")
+                + _description_bytes(-1, 6, b"Other0")
+            )
+            before = time.time()
+            c.sendall(struct.pack(">IIIiiI", 24, 1, 2, 5, 7, 0))  # ping Tracker0
+            c.sendall(struct.pack(">IIIiiI", 24, 1, 2, 6, 7, 0))  # ping another device
+            c.sendall(struct.pack(">IIIiiI", 24, 1, 2, 5, 7, 0))  # ping again
+            first, second = _read_exactly(c, 24), _read_exactly(c, 24)
+            after = time.time()
+    for pong in (first, second):
+        length, sec, usec, sender, kind, zero = struct.unpack(">IIIiiI", pong)
+        assert (length, sender, kind, zero) == (24, 0, 1, 0)
+        assert int(before) <= sec + usec * 1e-6 <= after + 1 and usec < 1_000_000
+    assert server.pongs == 2 and server.rejections == {"ping for another device": 1}

@@ -127,8 +127,16 @@ class ClockMapper:
         the window's envelope.
     step_s : float
         A stamp earlier than the newest one by more than this, or an offset sample below
-        the line by more than this [s], is a step of the remote clock (a restart): the fit
-        starts again from it.
+        the line by more than this [s], is a step of the remote clock (a restart): once
+        confirmed, the fit starts again from it.
+    jump_s : float
+        An offset sample below the line by more than this [s] (a packet faster than every
+        packet before it by that much) is held as suspect, like a step.
+    confirm : int
+        A step or jump enters the fit only when this many suspect samples in a row agree
+        with each other (stamps increasing, offsets within ``jump_s``); until then each is
+        refused (:meth:`add` returns False, counted in :attr:`suspects`). One corrupted
+        stamp therefore never moves the mapping. (Steps agree within ``step_s``.)
     max_rtt_s : float
         Longer round trips (and negative ones) are rejected and counted [s].
     """
@@ -142,6 +150,8 @@ class ClockMapper:
         anchor_s: float = 3.0,
         stall_s: float = 1e-4,
         step_s: float = 0.05,
+        jump_s: float = 1e-3,
+        confirm: int = 3,
         max_rtt_s: float = 0.1,
     ):
         if not (window_s > 0 and bin_s > 0 and window_s > bin_s):
@@ -152,6 +162,13 @@ class ClockMapper:
         self.anchor_ns = int(anchor_s * 1e9)
         self.stall_ns = float(stall_s * 1e9)
         self.step_ns = int(step_s * 1e9)
+        self.jump_ns = int(jump_s * 1e9)
+        if confirm < 1:
+            raise InputError("clock mapper: confirm must be at least 1")
+        self.confirm = int(confirm)
+        #: samples refused as an unconfirmed step or jump
+        self.suspects = 0
+        self._held: list[tuple[int, int]] = []  # the suspect samples in a row, in order
         self.max_rtt_ns = int(max_rtt_s * 1e9)
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
@@ -180,18 +197,54 @@ class ClockMapper:
         self._cur = self._cur_bin = self._env = self.estimate = self._published = None
         self.round_trips.clear()
         self._newest = 0
+        self._held = []
 
-    def add(self, remote_ns: int, host_ns: int) -> None:
-        """Add one (remote stamp, host receive time) pair [ns]."""
+    def add(self, remote_ns: int, host_ns: int) -> bool:
+        """Add one (remote stamp, host receive time) pair [ns]; False if it is refused as
+        an unconfirmed step or jump of the offset (``step_s``, ``jump_s``, ``confirm``)."""
         self.count += 1
+        kind = self._suspect(remote_ns, host_ns - remote_ns)
+        if kind is None:
+            self._held = []
+            self._add(remote_ns, host_ns)
+            return True
+        held = self._held
+        tol = self.step_ns if kind == "step" else self.jump_ns
+        if held and not (
+            held[-1][0] < remote_ns
+            and abs((held[-1][1] - held[-1][0]) - (host_ns - remote_ns)) <= tol
+        ):  # not the same new regime as the suspects before: start again from this one
+            held = []
+        held.append((remote_ns, host_ns))
+        if len(held) < self.confirm:
+            self._held = held
+            self.suspects += 1
+            return False
+        self._held = []
+        if kind == "step":  # a restarted remote clock: the fit starts from the new samples
+            self.reset()
+            self.steps += 1
+        for r, h in held:
+            self._add(r, h)
+        return True
+
+    def _suspect(self, remote_ns: int, y: int) -> str | None:
+        """``"step"``, ``"jump"`` or None (an ordinary sample) for offset sample ``y``."""
+        e = self._env
+        if e is None:
+            return None
+        below = e.offset_ns + e.drift * (remote_ns - e.ref_ns) - y  # the envelope at this x
+        if remote_ns < self._newest - self.step_ns or below > self.step_ns:
+            return "step"
+        return "jump" if below > self.jump_ns else None
+
+    def _add(self, remote_ns: int, host_ns: int) -> None:
+        """Add an ordinary sample to the fit."""
         y = host_ns - remote_ns
         e = self._env
         line = 0.0
         if e is not None:
-            line = e.offset_ns + e.drift * (remote_ns - e.ref_ns)  # the envelope at this x
-            if remote_ns < self._newest - self.step_ns or y < line - self.step_ns:
-                self.reset()
-                self.steps += 1
+            line = e.offset_ns + e.drift * (remote_ns - e.ref_ns)
         if self._env is None or remote_ns > self._newest:
             self._newest = remote_ns
         k = remote_ns // self.bin_ns

@@ -23,6 +23,10 @@ class DTrackInput(LiveInput):
     with its ``6dcov`` covariance when sent), ``flystick`` (``6df2``), ``tool`` (``6dmt2``:
     the tip's position covariance replaces the nominal position block) or ``hand`` (``gl``,
     the back of the hand). The newest ``st`` line is kept in :attr:`tracker_status`.
+
+    ``body`` is the id on the wire, which counts from 0; the DTrack GUI counts from 1. The
+    ids the tracker sends are in each sensor's status notes (``"6d ids seen: 0, 1"``), with a
+    hint on a sensor whose id has not been seen.
     """
 
     protocol = "dtrack"
@@ -31,24 +35,29 @@ class DTrackInput(LiveInput):
         super().__init__(spec)
         self.days = dtrack.DayUnwrapper()
         self.tracker_status: dtrack.DTrackStatus | None = None
+        #: the ids seen so far, by kind (``body``, ``flystick``, ``tool``, ``hand``)
+        self.seen: dict[str, set[int]] | None = None
 
     def _handle(self, data, arrival_ns):
         f = dtrack.decode_dtrack(data)
+        if f.ts2 is None and f.ts is None:  # refused before it touches frame counter or clock
+            raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         if f.frame is not None and not self._frame(f.frame):
             return []
         if f.ts2 is not None:
             stamp = f.ts2[0] * 1_000_000_000 + f.ts2[1] * 1000
             lat = f.ts2[2] * 1000
-        elif f.ts is not None:
+        else:
             stamp = int(round(self.days(f.ts) * 1e9))
             lat = int(round(self.options["latency_ms"] * 1e6))
-        else:
-            raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
         t = self._map(stamp + lat, lat, arrival_ns)
         if f.status is not None:
             self.tracker_status = f.status
         lines = {"body": f.bodies, "flystick": f.flysticks, "tool": f.tools, "hand": f.hands}
         by_id = {k: {x.id: x for x in v} for k, v in lines.items() if v}
+        seen = self.seen
+        if seen is None or any(not ids.keys() <= seen.get(k, ()) for k, ids in by_id.items()):
+            self._saw(by_id)
         covs = {x.id: x for x in f.covariances}
 
         def one(b: Body):
@@ -69,6 +78,26 @@ class DTrackInput(LiveInput):
             return self._sample(b, t, arrival_ns, body.position_mm, q, cov)
 
         return self._per_body(one)
+
+    _LINE = {"body": "6d", "flystick": "6df2", "tool": "6dmt2", "hand": "gl"}
+
+    def _saw(self, by_id: dict) -> None:
+        """New ids in the output: every sensor's notes say which ids are sent, and hint at
+        the 0-based ids where the sensor's own is not among them."""
+        seen = self.seen = self.seen or {}
+        for kind, ids in by_id.items():
+            seen.setdefault(kind, set()).update(ids)
+        for b in self.bodies:
+            kind, want = b.options["kind"], b.options["body"]
+            ids = sorted(seen.get(kind, ()))
+            line = self._LINE[kind]
+            notes = {"seen": f"{line} ids seen: {', '.join(map(str, ids)) or 'none'}"}
+            if want not in ids:
+                notes["hint"] = (
+                    f"{kind} {want} not in the output; DTrack ids count from 0 on the wire "
+                    f"(the DTrack GUI counts from 1)"
+                )
+            b.status.notes = notes
 
     def _run(self, sink):
         o = self.options

@@ -273,10 +273,13 @@ class LiveInput:
 
     def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
-        by the envelope fit, minus the protocol's exposure-to-send latency."""
+        by the envelope fit, minus the protocol's exposure-to-send latency. A stamp that
+        jumps off the fit is refused (PacketError) until the next ones confirm the jump
+        (:class:`~trackflow.timesync.ClockMapper`), so one corrupted stamp moves nothing."""
         clock = self.clock
-        clock.add(tx_ns, arrival_ns)
-        est = clock.estimate  # never None after add
+        if not clock.add(tx_ns, arrival_ns):
+            raise PacketError("clock jump not confirmed", f"stamp {tx_ns} ns")
+        est = clock.estimate  # never None after an accepted add
         if est is not self.bodies[0].status.clock:  # a new estimate: every body's status
             for b in self.bodies:
                 b.status.clock = est

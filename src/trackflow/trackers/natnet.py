@@ -174,11 +174,14 @@ class RigidBodyDescription:
 @dataclass(frozen=True, slots=True)
 class ModelDefinitions:
     """MODELDEF: the rigid body descriptions (names <-> ids); ``complete`` is False when a
-    description of an unsupported type before 4.1 (no sizes) stopped the decoding."""
+    description of an unsupported type before 4.1 (no sizes) stopped the decoding;
+    ``skipped`` counts the descriptions (4.1+) that were malformed within their declared
+    size and were passed over by it."""
 
     rigid_bodies: tuple[RigidBodyDescription, ...] = ()
     marker_sets: tuple[str, ...] = ()
     complete: bool = True
+    skipped: int = 0
 
     def id_of(self, name: str) -> int | None:
         for d in self.rigid_bodies:
@@ -475,36 +478,55 @@ def encode_frame(
 # -- model definitions ----------------------------------------------------------------------------
 def decode_model_definitions(payload, version) -> ModelDefinitions:
     """Decode MODELDEF: marker sets (type 0), rigid bodies (1) and skeletons' bodies (2);
-    other types are skipped by size from 4.1 on and end the decoding before."""
+    other types are skipped by size from 4.1 on and end the decoding before. From 4.1 on, a
+    description that is malformed within its declared size is skipped by that size and
+    counted (:attr:`ModelDefinitions.skipped`): one bad description loses only itself."""
     v = _ver(version)
     r = Reader(payload)
     n = r.count("descriptions", 4)
     bodies: list[RigidBodyDescription] = []
     msets: list[str] = []
+    skipped = 0
     for _ in range(n):
         (kind,) = r.unpack("i", "description type")
-        size = r.unpack("I", "description size")[0] if v >= (4, 1) else None
+        if v < (4, 1):
+            if not _description(r, kind, v, bodies, msets):
+                return ModelDefinitions(tuple(bodies), tuple(msets), complete=False)
+            continue
+        size = r.unpack("I", "description size")[0]
         start = r.pos
-        if size is not None:
-            r.need(size, "description")
-        if kind == 0:
-            msets.append(r.cstring("marker set name"))
-            for _ in range(r.count("marker names", 1)):
-                r.cstring("marker name")
-        elif kind == 1:
+        r.need(size, "description")
+        sub = Reader(r.data, "<", start, start + size)  # reads cannot pass its end
+        got_b, got_m = len(bodies), len(msets)
+        try:
+            if not _description(sub, kind, v, bodies, msets):
+                sub.pos = start + size  # a kind not decoded here: skipped by its size
+            if sub.pos != start + size:
+                raise PacketError("bad size", f"description type {kind}: size {size}")
+        except PacketError:
+            del bodies[got_b:], msets[got_m:]
+            skipped += 1
+        r.pos = start + size
+    return ModelDefinitions(tuple(bodies), tuple(msets), skipped=skipped)
+
+
+def _description(r: Reader, kind: int, v, bodies: list, msets: list) -> bool:
+    """Read one description of ``kind`` into ``bodies`` / ``msets``; False for a kind this
+    decoder does not know (the caller skips it by size, or stops without sizes)."""
+    if kind == 0:
+        msets.append(r.cstring("marker set name"))
+        for _ in range(r.count("marker names", 1)):
+            r.cstring("marker name")
+    elif kind == 1:
+        bodies.append(_rb_description(r, v))
+    elif kind == 2:
+        r.cstring("skeleton name")
+        r.unpack("i", "skeleton id")
+        for _ in range(r.count("skeleton bodies", 20)):
             bodies.append(_rb_description(r, v))
-        elif kind == 2:
-            r.cstring("skeleton name")
-            r.unpack("i", "skeleton id")
-            for _ in range(r.count("skeleton bodies", 20)):
-                bodies.append(_rb_description(r, v))
-        elif size is not None:
-            r.pos = start + size
-        else:
-            return ModelDefinitions(tuple(bodies), tuple(msets), complete=False)
-        if size is not None and r.pos != start + size:
-            raise PacketError("bad size", f"description type {kind}: size {size}")
-    return ModelDefinitions(tuple(bodies), tuple(msets))
+    else:
+        return False
+    return True
 
 
 def _rb_description(r: Reader, v) -> RigidBodyDescription:

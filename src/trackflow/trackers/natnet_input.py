@@ -25,11 +25,21 @@ class NatNetInput(LiveInput):
     From NatNet 3.0 on, ECHOREQUEST round trips (a few at the start, then one a second)
     measure the transit delay, which the clock mapping then subtracts
     (:meth:`ClockMapper.add_round_trip`); a server that does not know them (UNRECOGNIZED)
-    is not asked again."""
+    is not asked again.
+
+    While a sensor's body name is not in the model definitions (none yet, a description
+    skipped as malformed, a body added in Motive later), MODELDEF is asked for again, with
+    the wait doubling from 0.5 s to 8 s. A server that does not answer the handshake within
+    :attr:`HANDSHAKE_WAIT_S` is reported (event and status note), as is a name the
+    definitions do not hold."""
 
     protocol = "natnet"
     #: round trips at the start, then the period between them [s]
     ECHO_FIRST, ECHO_PERIOD_S = 8, 1.0
+    #: the first and the longest wait between MODELDEF requests while a name is unknown [s]
+    MODELDEF_FIRST_S, MODELDEF_MAX_S = 0.5, 8.0
+    #: a server silent this long after the first CONNECT is reported [s]
+    HANDSHAKE_WAIT_S = 2.0
 
     def __init__(self, spec):
         super().__init__(spec)
@@ -42,6 +52,7 @@ class NatNetInput(LiveInput):
         self._pass_server: natnet.ServerInfo | None = None  # the server _pass_version is of
         self._pass_version = 0  # 256 major + minor when frames take the one pass, else 0
         self._pass_out = np.zeros(5, np.uint64)  # the pass's frame number, ticks, table
+        self._missing: tuple = (False, None)  # (a name unknown, the definitions it is of)
 
     def body_id(self, b: Body) -> int:
         sel = b.options["body"]
@@ -70,6 +81,9 @@ class NatNetInput(LiveInput):
             if self.server is None:
                 raise PacketError("no handshake yet", "MODELDEF before SERVERINFO")
             self.models = natnet.decode_model_definitions(payload, self.server.version)
+            if self.models.skipped:
+                self._reject_all("model description skipped")
+            self._note_names()
             return []
         if msg == natnet.ECHORESPONSE:
             self._round_trip(payload, arrival_ns)
@@ -323,6 +337,42 @@ class NatNetInput(LiveInput):
             out.append((i, kind(t, arrival_ns, p[row], qn[row], b.nominal_converted)))
         return out
 
+    def names_missing(self) -> bool:
+        """Some sensor selects its body by a name the model definitions do not (yet) hold."""
+        known, of = self._missing
+        if of is not self.models or of is None:
+            m = self.models
+            known = any(
+                isinstance(b.options["body"], str)
+                and (m is None or m.id_of(b.options["body"]) is None)
+                for b in self.bodies
+            )
+            self._missing = (known, m)
+        return known
+
+    def _note_names(self) -> None:
+        """After new model definitions: a note on every sensor whose name is not in them."""
+        m = self.models
+        names = ", ".join(d.name for d in m.rigid_bodies) or "none"
+        for b in self.bodies:
+            sel = b.options["body"]
+            notes = {k: v for k, v in b.status.notes.items() if k != "hint"}
+            if isinstance(sel, str) and m.id_of(sel) is None:
+                notes["hint"] = f"body {sel!r} not in the model definitions (bodies: {names})"
+            if notes != b.status.notes:
+                b.status.notes = notes
+
+    def _no_handshake(self) -> None:
+        """The server has not answered CONNECT: say so, with what to check."""
+        o = self.options
+        self._event_all("handshake not answered")
+        for b in self.bodies:
+            b.status.notes = {
+                **b.status.notes,
+                "hint": f"no answer from {o['server']}:{o['command_port']} to CONNECT for "
+                f"{self.HANDSHAKE_WAIT_S:g} s: is Motive streaming, is the command port right?",
+            }
+
     def _ticks_ns(self, ticks: int) -> int:
         """Server clock ticks -> tracker time [ns] (exact integers)."""
         freq, g = self.server.clock_frequency, 1_000_000_000
@@ -364,7 +414,8 @@ class NatNetInput(LiveInput):
         sel.register(data, selectors.EVENT_READ)
         next_cmd = next_keepalive = last_echo = 0.0
         connected = None
-        need_names = any(isinstance(b.options["body"], str) for b in self.bodies)
+        modeldef_wait = self.MODELDEF_FIRST_S
+        silent_since = time.monotonic()  # the first CONNECT; None once answered or reported
         wait = self._due_wait()
         try:
             while not self._stop.is_set():
@@ -373,9 +424,13 @@ class NatNetInput(LiveInput):
                     if now >= next_cmd and self.server is None:
                         cmd.sendto(natnet.encode_connect(), server)
                         next_cmd = now + 0.5
-                    elif now >= next_cmd and need_names and self.models is None:
+                        if silent_since is not None and now - silent_since >= self.HANDSHAKE_WAIT_S:
+                            self._no_handshake()
+                            silent_since = None
+                    elif now >= next_cmd and self.names_missing():
                         cmd.sendto(natnet.encode_message(natnet.REQUEST_MODELDEF), server)
-                        next_cmd = now + 0.5
+                        next_cmd = now + modeldef_wait
+                        modeldef_wait = min(2 * modeldef_wait, self.MODELDEF_MAX_S)
                     if not mc and self.server is not None and now >= next_keepalive:
                         # after the handshake, from the command socket as the SDK does: a
                         # unicast server streams to where it comes from
@@ -401,6 +456,11 @@ class NatNetInput(LiveInput):
                         self._connected(connected)
                     if not had_server and connected:
                         next_cmd = 0.0  # ask for the model definitions at once
+                        silent_since = None
+                        for b in self.bodies:  # the handshake hint no longer holds
+                            b.status.notes = {
+                                k: v for k, v in b.status.notes.items() if k != "hint"
+                            }
         finally:
             sel.close()
 

@@ -665,9 +665,20 @@ def _main_ticker(sched: Scheduler, net: Network, sink: Component) -> Ticker:
 
 def _status_printer(on_status, bodies, inputs, unplanned, period_s, log):
     """The run's idle callback: once the inputs are listening, ``listening: ...`` (and the
-    queries not served, with why), then a status line per sensor every ``period_s`` and a
-    line per path switch of ``log`` (a :class:`SwitchLog`) as soon as it happens."""
+    queries not served, with why), then a status line per sensor every ``period_s``, and as
+    soon as they happen a line per path switch of ``log`` (a :class:`SwitchLog`) and per
+    change of a sensor's notes (``head: 6d ids seen: 0, 1``)."""
     state = {"next": None}
+    shown = {b.name: b.status.notes for b in bodies}
+
+    def new_notes() -> list[str]:
+        out = []
+        for b in bodies:
+            notes = b.status.notes  # replaced whole by the input: a new object is new
+            if notes is not shown[b.name]:
+                shown[b.name] = notes
+                out += [f"{b.name}: {text}" for text in notes.values()]
+        return out
 
     def status(now: int) -> None:
         if on_status is None:
@@ -680,10 +691,11 @@ def _status_printer(on_status, bodies, inputs, unplanned, period_s, log):
             on_status(lines)
             state["next"] = now + int(period_s * 1e9)
         elif now >= state["next"]:
+            new_notes()  # the status lines show them
             on_status([b.status.line(now, b.spec.stale_s) for b in bodies] + log.new_lines())
             state["next"] = now + int(period_s * 1e9)
         else:
-            lines = log.new_lines()
+            lines = new_notes() + log.new_lines()
             if lines:
                 on_status(lines)
 

@@ -12,6 +12,8 @@ __all__ = ["RESTART_FRAMES", "SensorStatus", "StatusGroup"]
 
 #: A frame counter jumping back (or ahead) by more than this many frames is a restart.
 RESTART_FRAMES = 10_000
+#: ... and is taken as a restart when a frame within this many after the jump follows it.
+CONFIRM_FRAMES = 10
 
 _UNKNOWN = object()  # StatusGroup.common_frame when the bodies' frame numbers may differ
 
@@ -45,6 +47,9 @@ class SensorStatus:
     last_frame, last_arrival_ns : int or None
         The tracker's last frame number; the host arrival time of the last measurement [ns].
     connected : bool
+    notes : dict
+        What the input has learnt that a user should read, by topic (``"seen"``: the ids the
+        tracker sends; ``"hint"``: why this sensor's body may be missing). Replaced whole.
     """
 
     def __init__(self, name: str, protocol: str):
@@ -55,11 +60,13 @@ class SensorStatus:
         self.connection: dict[str, int] = {}
         self.clock: ClockEstimate | None = None
         self.connected = False
+        self.notes: dict[str, str] = {}
         self._packets = 0
         self._measurements = 0
         self._latency_ns: deque = deque(maxlen=512)
         self._arrivals_ns: deque = deque(maxlen=1024)
         self._last_frame: int | None = None
+        self._jump: int | None = None  # a counter jump waiting for its confirmation
         self._last_arrival_ns: int | None = None
         self._group: StatusGroup | None = None
         self._lock = threading.Lock()
@@ -151,8 +158,11 @@ class SensorStatus:
         return sum(self.rejections.values())
 
     def frame(self, number: int) -> bool:
-        """Account for a frame counter; False (counted "reordered") if it is not new. A jump
-        of more than :data:`RESTART_FRAMES` either way is a restarted tracker (an event)."""
+        """Account for a frame counter; False (a counted rejection) if it is not new, or if
+        it jumps by more than :data:`RESTART_FRAMES` either way and is not yet confirmed. A
+        jump is a restarted tracker (an event, not a loss) once the next frame follows it
+        (within :data:`CONFIRM_FRAMES`); one bogus counter between real frames is rejected
+        and changes nothing."""
         self._own()
         last = self._last_frame
         if last is not None:
@@ -160,9 +170,15 @@ class SensorStatus:
                 self.reject("reordered or duplicate frame")
                 return False
             if number <= last or number - last > RESTART_FRAMES:
-                self.event("frame counter restarted")  # a restarted tracker, not a loss
+                jump = self._jump
+                if jump is None or not jump < number <= jump + CONFIRM_FRAMES:
+                    self._jump = number
+                    self.reject("frame counter jump not confirmed")
+                    return False
+                self.event("frame counter restarted")
             else:
                 self.dropouts += number - last - 1
+        self._jump = None
         self._last_frame = number
         return True
 
@@ -202,6 +218,7 @@ class SensorStatus:
             "rejections": dict(sorted(self.rejections.items())),
             "connection": dict(sorted(self.connection.items())),
             "stale": self.stale(now_ns, stale_s),
+            "notes": dict(self.notes),
         }
 
     def line(self, now_ns: int, stale_s: float = 0.5) -> str:
@@ -214,6 +231,8 @@ class SensorStatus:
             sig += f" (transit {s['clock_transit_us']:.0f} us)"
         rej = ", ".join(f"{k} {v}" for k, v in s["rejections"].items()) or "0"
         flag = " STALE" if s["stale"] else ""
+        if s["notes"]:
+            flag += f" [{'; '.join(s['notes'].values())}]"
         conn = ", ".join(f"{k} {v}" for k, v in s["connection"].items())
         conn = f", {conn}" if conn else ""
         return (

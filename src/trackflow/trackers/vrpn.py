@@ -1,7 +1,8 @@
 """VRPN (Virtual-Reality Peripheral Network) over TCP: cookies, messages, tracker reports.
 
-A connection starts with each side sending a 24-byte cookie (``"vrpn: ver. 07.35  0"``,
-NUL-padded); the major version must match. Then messages flow, big-endian, each a 24-byte
+A connection starts with each side sending a 24-byte cookie (``"vrpn: ver. 07.38  0"``,
+NUL-padded, the version of VRPN since 2025); the major version must match, a different minor
+version is accepted as VRPN itself does. Then messages flow, big-endian, each a 24-byte
 header ``u32 length (header + payload, unpadded), u32 tv_sec, u32 tv_usec, i32 sender,
 i32 type, u32 0`` and the payload padded to a multiple of 8 bytes. Sender and type ids are
 per side and announced by description messages: type -1 (sender description, the header's
@@ -10,6 +11,10 @@ with payload ``u32 length, name, NUL``. A tracker report ``"vrpn_Tracker Pos_Qua
 ``i32 sensor, i32 pad, 3 f64 position, 4 f64 quaternion`` with the quaternion **x, y, z, w**
 on the wire (vrpn_Tracker.C ``encode_to``); the header time is the source timestamp
 (vrpn/vrpn-rs ``Protocol.md``; vrpn/vrpn ``vrpn_Connection.C``).
+
+Liveness: a client's device sends ``"vrpn_Base ping_message"`` (empty body) on the device's
+sender once a second until the server answers ``"vrpn_Base pong_message"`` on the same
+sender; without an answer it warns after 3 s (vrpn/vrpn ``vrpn_BaseClass.C``).
 
 :class:`StreamDecoder` cuts a TCP byte stream into messages and keeps the id tables, so it
 has no I/O and can be fed any split of the bytes.
@@ -25,6 +30,8 @@ from ._packet import PacketError
 __all__ = [
     "COOKIE",
     "COOKIE_SIZE",
+    "PING",
+    "PONG",
     "POS_QUAT",
     "SENDER_DESCRIPTION",
     "TYPE_DESCRIPTION",
@@ -40,8 +47,9 @@ __all__ = [
 ]
 
 COOKIE_SIZE = 24
-COOKIE = b"vrpn: ver. 07.35"
+COOKIE = b"vrpn: ver. 07.38"
 POS_QUAT = "vrpn_Tracker Pos_Quat"
+PING, PONG = "vrpn_Base ping_message", "vrpn_Base pong_message"
 SENDER_DESCRIPTION, TYPE_DESCRIPTION = -1, -2
 _HEADER = struct.Struct(">IIIiiI")
 _POSQUAT = struct.Struct(">ii3d4d")
@@ -117,17 +125,21 @@ class StreamDecoder:
     """Cuts a VRPN TCP stream into messages and decodes tracker reports.
 
     ``feed(bytes)`` returns the :class:`PoseReport` s completed by the new bytes; id
-    descriptions update the tables; other messages are counted in ``other``. The first 24
+    descriptions update the tables; other messages are counted in ``other`` (and passed to
+    ``on_other``). The first 24
     bytes must be the peer's cookie. Garbage raises ``PacketError`` (the stream cannot be
     resynchronised: the caller closes the connection and counts it).
     """
 
-    def __init__(self, expect_cookie: bool = True):
+    def __init__(self, expect_cookie: bool = True, on_other=None):
         self.buf = bytearray()
         self.cookie_ok = not expect_cookie
         self.senders: dict[int, str] = {}
         self.types: dict[int, str] = {}
         self.other = 0
+        #: called as ``on_other(sender name, type name, message)`` for every other message
+        #: (names ``None`` when never described)
+        self.on_other = on_other
 
     def feed(self, data: bytes) -> list[PoseReport]:
         self.buf += data
@@ -170,4 +182,6 @@ class StreamDecoder:
             sensor, p, q = decode_pos_quat(m.payload)
             return PoseReport(self.senders[m.sender], sensor, p, q, m.sec, m.usec)
         self.other += 1
+        if self.on_other is not None:
+            self.on_other(self.senders.get(m.sender), self.types.get(m.type), m)
         return None

@@ -6,19 +6,25 @@ for the classic connect-back request (``"IP PORT\\0"``, after which the server c
 client's TCP port). Each connection gets the cookie, the sender and type descriptions, then
 every :meth:`VrpnTrackerServer.report` as a ``vrpn_Tracker Pos_Quat`` message whose header
 time is the pose's time (host clock, Unix seconds and microseconds). Everything goes over TCP.
-Nothing received is interpreted beyond the peer's cookie (checked) and the connect-back
-address (two numbers).
+What a client sends is read: its cookie (checked), its id descriptions, and its device's
+pings, each answered at once with a pong on the device's sender, as a VRPN server does
+(without it every VRPN client warns "No response from server" each second). Other messages
+are counted and ignored; a stream that cannot be decoded closes that client (counted).
 """
 
 from __future__ import annotations
 
+import selectors
 import socket
 import threading
+import time
 
 from . import vrpn
 from ._packet import PacketError
 
 __all__ = ["VrpnTrackerServer"]
+
+_PONG_ID = 1  # this server's type id of the pong (0 is Pos_Quat)
 
 
 class VrpnTrackerServer:
@@ -44,14 +50,17 @@ class VrpnTrackerServer:
         self._udp.bind((host, self.port))
         self._udp.settimeout(0.2)
         self._clients: list[socket.socket] = []
-        self._pending: list[tuple[socket.socket, bytearray]] = []
+        self._joining: list[socket.socket] = []  # greeted, not yet read by _read
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.rejections: dict[str, int] = {}
         self.sent = 0
+        #: pings answered (every client's device pings until answered)
+        self.pongs = 0
         self._threads = [
             threading.Thread(target=self._accept, daemon=True, name="vrpn-accept"),
             threading.Thread(target=self._lob, daemon=True, name="vrpn-udp"),
+            threading.Thread(target=self._read, daemon=True, name="vrpn-read"),
         ]
         for t in self._threads:
             t.start()
@@ -73,10 +82,12 @@ class VrpnTrackerServer:
         conn.sendall(
             vrpn.encode_description(vrpn.SENDER_DESCRIPTION, 0, self.device)
             + vrpn.encode_description(vrpn.TYPE_DESCRIPTION, 0, vrpn.POS_QUAT)
+            + vrpn.encode_description(vrpn.TYPE_DESCRIPTION, _PONG_ID, vrpn.PONG)
         )
         conn.setblocking(False)  # reports never wait for a slow reader
         with self._lock:
             self._clients.append(conn)
+            self._joining.append(conn)
 
     def _welcome(self, conn: socket.socket) -> None:
         try:
@@ -118,6 +129,65 @@ class VrpnTrackerServer:
                 self._reject("connect-back failed")
                 continue
             threading.Thread(target=self._welcome, args=(conn,), daemon=True).start()
+
+    def _read(self) -> None:
+        """Read every client: answer its device's pings; a client whose stream cannot be
+        decoded, or that closed, is dropped (counted)."""
+        sel = selectors.DefaultSelector()
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    joining, self._joining = self._joining, []
+                for conn in joining:
+                    dec = vrpn.StreamDecoder(expect_cookie=False)
+                    dec.on_other = lambda sender, kind, m, c=conn: self._other(c, sender, kind)
+                    sel.register(conn, selectors.EVENT_READ, dec)
+                if not sel.get_map():
+                    self._stop.wait(0.05)
+                    continue
+                for key, _ in sel.select(0.05):
+                    conn = key.fileobj
+                    try:
+                        data = conn.recv(65536)
+                        if not data:
+                            raise ConnectionResetError
+                        key.data.feed(data)
+                    except BlockingIOError:
+                        continue
+                    except (OSError, PacketError) as exc:
+                        sel.unregister(conn)
+                        self._drop(conn, getattr(exc, "reason", None))
+                for key in list(sel.get_map().values()):  # dropped by report(): closed
+                    if key.fileobj.fileno() == -1:
+                        sel.unregister(key.fileobj)
+        finally:
+            sel.close()
+
+    def _other(self, conn: socket.socket, sender: str | None, kind: str | None) -> None:
+        if kind != vrpn.PING:
+            return
+        if sender != self.device:
+            self._reject("ping for another device")
+            return
+        sec, rest = divmod(time.time_ns(), 1_000_000_000)
+        pong = vrpn.encode_message(sec & 0xFFFFFFFF, rest // 1000, 0, _PONG_ID, b"")
+        with self._lock:
+            if conn not in self._clients:
+                return
+            try:
+                conn.sendall(pong)
+            except OSError:  # the reader finds the closed connection next
+                return
+        self.pongs += 1
+
+    def _drop(self, conn: socket.socket, reason: str | None) -> None:
+        """Forget a client: one that closed (``reason`` None) or sent garbage (counted)."""
+        with self._lock:
+            if conn in self._clients:
+                self._clients.remove(conn)
+                if reason is not None:
+                    self._reject(reason)
+        conn.close()
 
     @property
     def clients(self) -> int:
