@@ -55,11 +55,13 @@ def test_three_bodies_one_path_all_recorded(shared_data, tmp_path):
     out = json.loads(out)
     assert sorted(out["sensors"]) == ["a", "b", "c"]
     for sensor in ("a", "b", "c"):  # every sensor opened, every frame of it recorded
-        n = out["sensors"][sensor]["measurements"]
-        assert n == sent, (sensor, out["sensors"][sensor])
+        st = out["sensors"][sensor]
+        n = st["measurements"]
+        assert n == sent, (sensor, st)
+        assert n == st["accepted"] + sum(st["dropped"].values()), st  # each one accounted
         for path in input_paths(rec, sensor):
             stream, _ = read_stream(path)
-            assert len(stream) == n, (path, len(stream), n)
+            assert len(stream) == st["accepted"], (path, len(stream), st)
     queries = out["queries"]
     assert queries["c_in_b"] == {"mode": "pull", "served": True}
     for name in ("a_in_w", "b_in_w"):

@@ -460,6 +460,16 @@ class InputSource:
         arrival.append_sample(arrival_ns, p, q, c)
 
 
+def _accounted(body, source: LiveSource, now_ns: int) -> dict:
+    """A sensor's status summary with what became of its measurements after the input:
+    ``accepted`` (handed to the dataflow, and recorded) and ``dropped`` by reason
+    (:class:`LiveSource`'s rejections), so that ``measurements == accepted + sum(dropped)``."""
+    out = body.status.summary(now_ns, body.spec.stale_s)
+    out["accepted"] = source.stats.events_out
+    out["dropped"] = dict(sorted(source.stats.rejections.items()))
+    return out
+
+
 def _writers(setup: Setup, edges: list[str], record) -> dict:
     out = {}
     if record is not None:
@@ -629,7 +639,7 @@ def run_live(
     return RunResult(
         answers=served.sink.stats.events_in,
         ticks=main_ticks.fired,
-        statuses={b.name: b.status.summary(end, b.spec.stale_s) for b in bodies},
+        statuses={b.name: _accounted(b, sources[b.name], end) for b in bodies},
         stats=net.stats(),
         record=None if record is None else Path(record),
         duration_s=(end - t_start) * 1e-9,
