@@ -42,6 +42,9 @@ from ._round_trip import round_trip_offset
 
 __all__ = ["ClockEstimate", "ClockMapper", "lower_envelope"]
 
+#: samples a fit takes before one below its line is suspect (ClockMapper's ``confirm``)
+YOUNG = 8
+
 
 @dataclass(frozen=True, slots=True)
 class ClockEstimate:
@@ -127,16 +130,20 @@ class ClockMapper:
         the window's envelope.
     step_s : float
         A stamp earlier than the newest one by more than this, or an offset sample below
-        the line by more than this [s], is a step of the remote clock (a restart): once
-        confirmed, the fit starts again from it.
+        the line by more than this [s], is a step of the remote clock (a restart). It is
+        refused (:meth:`add` returns False) until confirmed; then the fit starts again from
+        the confirming samples.
     jump_s : float
         An offset sample below the line by more than this [s] (a packet faster than every
-        packet before it by that much) is held as suspect, like a step.
+        packet before it by that much) is a jump: mapped by the current estimate, but kept
+        out of the fit until confirmed; then it enters the fit.
     confirm : int
-        A step or jump enters the fit only when this many suspect samples in a row agree
-        with each other (stamps increasing, offsets within ``jump_s``); until then each is
-        refused (:meth:`add` returns False, counted in :attr:`suspects`). One corrupted
-        stamp therefore never moves the mapping. (Steps agree within ``step_s``.)
+        A step or jump is confirmed by this many suspect samples in a row that agree with
+        each other (stamps increasing, offsets within ``jump_s``, for steps ``step_s``).
+        Suspects are counted in :attr:`suspects`. One corrupted stamp therefore never moves
+        the mapping, and one stamped far off is never mapped. During the first
+        :data:`YOUNG` samples of a fit a sample below the line is not suspect (the first
+        packets may have come slowly).
     max_rtt_s : float
         Longer round trips (and negative ones) are rejected and counted [s].
     """
@@ -169,6 +176,7 @@ class ClockMapper:
         #: samples refused as an unconfirmed step or jump
         self.suspects = 0
         self._held: list[tuple[int, int]] = []  # the suspect samples in a row, in order
+        self._fitted = 0  # samples in the fit since the last reset
         self.max_rtt_ns = int(max_rtt_s * 1e9)
         #: clock steps detected (the fit restarted from the data after the step)
         self.steps = 0
@@ -198,10 +206,12 @@ class ClockMapper:
         self.round_trips.clear()
         self._newest = 0
         self._held = []
+        self._fitted = 0
 
     def add(self, remote_ns: int, host_ns: int) -> bool:
-        """Add one (remote stamp, host receive time) pair [ns]; False if it is refused as
-        an unconfirmed step or jump of the offset (``step_s``, ``jump_s``, ``confirm``)."""
+        """Add one (remote stamp, host receive time) pair [ns]; False if the stamp is
+        refused as an unconfirmed step (``step_s``, ``jump_s``, ``confirm``): then it must
+        not be mapped."""
         self.count += 1
         kind = self._suspect(remote_ns, host_ns - remote_ns)
         if kind is None:
@@ -219,7 +229,7 @@ class ClockMapper:
         if len(held) < self.confirm:
             self._held = held
             self.suspects += 1
-            return False
+            return kind == "jump"  # mapped by the current estimate, not in the fit
         self._held = []
         if kind == "step":  # a restarted remote clock: the fit starts from the new samples
             self.reset()
@@ -233,13 +243,18 @@ class ClockMapper:
         e = self._env
         if e is None:
             return None
+        if remote_ns < self._newest - self.step_ns:
+            return "step"
+        if self._fitted < YOUNG:
+            return None
         below = e.offset_ns + e.drift * (remote_ns - e.ref_ns) - y  # the envelope at this x
-        if remote_ns < self._newest - self.step_ns or below > self.step_ns:
+        if below > self.step_ns:
             return "step"
         return "jump" if below > self.jump_ns else None
 
     def _add(self, remote_ns: int, host_ns: int) -> None:
         """Add an ordinary sample to the fit."""
+        self._fitted += 1
         y = host_ns - remote_ns
         e = self._env
         line = 0.0
