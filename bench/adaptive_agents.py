@@ -140,7 +140,7 @@ def measure(mode: str, folder: Path) -> dict:
             _wait(lambda n=n: '"ready"' in (folder / f"{n}.log").read_text(), 180, f"agent {n}")
         session = zenoh.open(conf)
         sub = session.declare_subscriber(
-            f"trackflow/{realm}/result/q", lambda s: answers.append(decode(s.payload.to_bytes()))
+            f"trackflow/{realm}/result/*/q", lambda s: answers.append(decode(s.payload.to_bytes()))
         )
         extra = (
             ("--outage", f"{OUTAGE_AT_S}:{OUTAGE_AT_S + FAIL_FOR_S}") if mode == "outage" else ()

@@ -853,7 +853,7 @@ def bench_demo(
             results[w.exposure_ns - start_ns] = w.pose  # recording time of the result
             latency.append(w.host_ns - w.exposure_ns)  # tick -> answer published (app clock)
 
-        sub = session.declare_subscriber(f"trackflow/{realm}/result/sheep", on_result)
+        sub = session.declare_subscriber(f"trackflow/{realm}/result/*/sheep", on_result)
         st = wait_for(
             lambda: (
                 (s := status(session, realm, "app"))

@@ -147,7 +147,7 @@ def _distributed(tmp_path: Path, room1: Path):
             p.wait_ready(120)
         session = observer([ea, eb])
         sub = session.declare_subscriber(
-            f"trackflow/{realm}/result/{QUERY['name']}",
+            f"trackflow/{realm}/result/*/{QUERY['name']}",
             lambda sample: got.append(decode(sample.payload.to_bytes())),
         )
         wait_for(

@@ -145,7 +145,7 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
     try:
         results = []
         sub = session.declare_subscriber(
-            f"trackflow/{realm}/result/q", lambda s: results.append(decode(s.payload.to_bytes()))
+            f"trackflow/{realm}/result/*/q", lambda s: results.append(decode(s.payload.to_bytes()))
         )
         wait_for(_running_on(session, realm, "c", "q", "s1", min_published=20), 60)
         wait_for(lambda: len(results) >= 10, 20)

@@ -111,6 +111,7 @@ def test_sensor_and_query_on_two_hosts(tmp_path, two_hosts):
             str(path),
             "--duration",
             str(seconds),
+            "--insecure",  # plain TCP between the two namespaces, said in the status
         ]
         if status is not None:
             cmd += ["--status", str(status)]
@@ -131,7 +132,7 @@ def test_sensor_and_query_on_two_hosts(tmp_path, two_hosts):
     assert status.exists(), (tmp_path / f"{ns_b}.err").read_text()
     st = json.loads(status.read_text())
     q = st["queries"]["q"]
-    assert st["live_edges"] == {"s1": "sensor_host"}
+    assert st["live_edges"] == {"s1": "sensor_host"} and st["security"] == "insecure"
     assert q["state"] == "running" and q["paths"] == ["W->X[s1]"]
     assert q["published"] > 25
     assert "sensor_host" in st["clocks"]

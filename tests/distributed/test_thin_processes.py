@@ -94,7 +94,7 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
         thin_msgs = {n: [] for n in ("c30", "c60")}
         subs = [
             session.declare_subscriber(
-                f"trackflow/{realm}/result/q_{n}",
+                f"trackflow/{realm}/result/*/q_{n}",
                 lambda s, n=n: results[n].__setitem__(
                     (w := decode(s.payload.to_bytes())).exposure_ns, w
                 ),

@@ -171,7 +171,7 @@ def test_two_agents_over_mutual_tls_with_a_denied_key(tmp_path, certs):
         session = _session(_zenoh_conf(certs, "obs", "realm_ca", None, [ps, pc]))
         results = []
         sub = session.declare_subscriber(
-            f"trackflow/{realm}/result/q", lambda s: results.append(decode(s.payload.to_bytes()))
+            f"trackflow/{realm}/result/*/q", lambda s: results.append(decode(s.payload.to_bytes()))
         )
         # discovery, fragments, clock pings and the filter's states all went over TLS
         wait_for(lambda: len(results) >= 10, 60)

@@ -24,6 +24,11 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--connect", action="append", default=None, help="Zenoh connect endpoint")
     p.add_argument("--start-ns", type=int, default=None, help="agent time of recording time 0")
     p.add_argument("--status", type=Path, default=None, help="write the final status JSON here")
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="accept links off this machine without TLS and access control (said in status)",
+    )
     p.set_defaults(func=run)
     return p
 
@@ -43,6 +48,8 @@ def run(args) -> int:
         cfg.zenoh["connect"] = {"endpoints": args.connect}
     if args.start_ns is not None:
         cfg.start_ns = args.start_ns
+    if args.insecure:
+        cfg.insecure = True
 
     def ready(agent) -> None:
         print(json.dumps({"ready": agent.name, "realm": agent.realm}), flush=True)

@@ -61,7 +61,7 @@ from ..optional import require
 from ..trackers.inputs import make_inputs, warm_up_inputs
 from ..trackers.runtime import InputSource, LiveSource, LiveSources, measured_attributes
 from . import wire
-from .config import AgentConfig, zenoh_config
+from .config import AgentConfig, security, zenoh_config
 from .discovery import Discovery, realm_key
 from .fragment import fragment_json
 from .remote_inputs import RemoteInputs, RemoteSource, remote_get
@@ -187,6 +187,7 @@ class Agent:
         self.error: BaseException | None = None
         self.net = Network(self._clock)
         self.session = None
+        self.security = "not started"  # how its Zenoh links are protected (start())
 
     # -- clock ----------------------------------------------------------------------------------
     def now_ns(self) -> int:
@@ -198,6 +199,7 @@ class Agent:
         zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
 
         conf = zenoh_config(self.cfg)
+        self.security = security(conf)[0]  # loopback, tls+acl or (told so) insecure
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as exc:
@@ -247,7 +249,7 @@ class Agent:
         ]
         self._tokens.append(s.liveliness().declare_token(realm_key(r, "agent", self.name)))
         self._results = {
-            n: s.declare_publisher(realm_key(r, "result", n))
+            n: s.declare_publisher(realm_key(r, "result", self.name, n))  # unique per agent
             for n, q in self.setup.queries.items()
             if q.mode == "push"
         }
@@ -651,6 +653,7 @@ class Agent:
             out = {
                 "agent": self.name,
                 "realm": self.realm,
+                "security": self.security,
                 "live_edges": dict(sorted(self.discovery.live.items())),
                 "statics": sorted(self.discovery.statics),
                 "rejections": dict(self.rejections.counts),

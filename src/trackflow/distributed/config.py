@@ -22,17 +22,23 @@ An agent file is a trackflow setup (``sensors``, ``statics``, ``queries``, ``fra
       thin_grace_ms: 1.0        # (sensor side, recordings) a played state is the newest
                                 # before a tick once the clock is this far past the tick
                                 # (and the player has played every sample due by the tick)
+      insecure: false           # allow links off this machine without TLS and access control
 
 The file is read by :func:`trackflow.yamlfile.read_yaml`: a key given twice is refused, and
 every mistake is a :class:`trackflow.errors.ConfigError` naming the file, the line and the key.
 
 Without ``zenoh_config`` the defaults are safe for one machine: peer mode, listening on
 ``tcp/127.0.0.1:0`` (loopback, a free port), multicast scouting off, and connection attempts
-retried every 0.25-1 s (agents may start in any order).
+retried every 0.25-1 s (agents may start in any order). An agent whose configuration would
+listen on, or connect to, another machine without TLS (mutual authentication) and access
+control is refused, unless ``insecure: true`` (its status then says ``"security":
+"insecure"``); ``trackflow realm init`` makes the secure configuration
+(:mod:`trackflow.distributed.realm`).
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import re
 from dataclasses import dataclass, field
@@ -43,7 +49,7 @@ from ..errors import ConfigError
 from ..optional import require
 from ..yamlfile import config_error, line_of, read_yaml
 
-__all__ = ["AgentConfig", "load_agent", "zenoh_config"]
+__all__ = ["AgentConfig", "link_security", "load_agent", "security", "zenoh_config"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _AGENT_KEYS = {
@@ -58,6 +64,7 @@ _AGENT_KEYS = {
     "pull_via",
     "thin",
     "thin_grace_ms",
+    "insecure",
 }
 DEFAULT_ZENOH = {
     "mode": "peer",
@@ -93,6 +100,9 @@ class AgentConfig:
     pull_via: str = "replica"
     thin: bool = False
     thin_grace_ms: float = 1.0
+    insecure: bool = False
+    #: the agent file (errors found later, opening the session, name it)
+    path: Path | None = None
 
     def __post_init__(self):
         for what, value in (("name", self.name), ("realm", self.realm)):
@@ -117,6 +127,8 @@ class AgentConfig:
                 "thin: true needs reorder_ms > 0 (thinned states come just after the tick "
                 "they serve; reorder_ms is how long a tick may wait for them)",
             )
+        if not isinstance(self.insecure, bool):
+            raise _bad("insecure", f"insecure must be true or false, got {self.insecure!r}")
         if not 0 <= self.thin_grace_ms <= 1000:
             raise _bad(
                 "thin_grace_ms", f"thin_grace_ms must be in 0..1000, got {self.thin_grace_ms}"
@@ -156,7 +168,25 @@ def zenoh_config(cfg: AgentConfig):
                 _insert(conf, str(key), value)
             except zenoh.ZError as exc:
                 raise _bad("zenoh", f"zenoh config key {key!r} = {value!r}: {exc}") from None
+    kind, weak = security(conf)
+    if kind == "insecure" and not cfg.insecure:
+        where = f"zenoh_config {cfg.zenoh_config}" if cfg.zenoh_config else "zenoh"
+        raise ConfigError(
+            f"agent: {where}: links off this machine ({', '.join(weak)}) without TLS with "
+            "mutual authentication and access control: make the realm's files with "
+            "'trackflow realm init' (docs/distributed.md), or set 'insecure: true' in the "
+            "agent section (or pass --insecure) to accept it",
+            cfg.path,
+        )
     return conf
+
+
+def security(conf) -> tuple[str, list[str]]:
+    """``(kind, endpoints)`` of a ``zenoh.Config``: ``loopback``, ``tls+acl`` or
+    ``insecure`` (:func:`trackflow.distributed.realm.link_security`)."""
+    keys = ("listen/endpoints", "connect/endpoints", "transport/link/tls/enable_mtls",
+            "access_control/enabled")  # fmt: skip
+    return link_security(*(json.loads(conf.get_json(k)) for k in keys))
 
 
 def _value(path, a, key: str, convert, default):
@@ -226,6 +256,8 @@ def load_agent(path: str | Path) -> AgentConfig:
             pull_via=_value(path, a, "pull_via", str, "replica"),
             thin=a.get("thin", False),
             thin_grace_ms=_value(path, a, "thin_grace_ms", float, 1.0),
+            insecure=a.get("insecure", False),
+            path=path,
         )
     except ConfigError as exc:  # AgentConfig's checks name the key; here the file and line
         if exc.file is not None:
@@ -233,3 +265,38 @@ def load_agent(path: str | Path) -> AgentConfig:
         if exc.key is None:  # not a key of the agent section (an edge name)
             raise ConfigError(exc.reason, path) from None
         raise ConfigError(f"agent: {exc.reason}", path, line_of(a, exc.key)) from None
+
+
+def _endpoints(value) -> list[str]:
+    """A Zenoh ``endpoints`` value: a list, or a map of lists by mode."""
+    if isinstance(value, dict):
+        return [e for v in value.values() for e in _endpoints(v)]
+    return [str(e) for e in value or ()]
+
+
+def _loopback(endpoint: str) -> bool:
+    proto, _, address = endpoint.partition("/")
+    if proto in ("unixsock-stream", "unixpipe", "vsock"):
+        return True
+    host = address.split("#", 1)[0].rsplit(":", 1)[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def link_security(listen, connect, mtls, access_control) -> tuple[str, list[str]]:
+    """How an agent's Zenoh links are protected: ``("tls+acl", [])`` when every endpoint is
+    TLS (or QUIC) with mutual authentication and access control is on, else
+    ``("loopback", [])`` when every endpoint is on this machine, else ``("insecure",
+    the endpoints off this machine that are not protected)``."""
+    every = _endpoints(listen) + _endpoints(connect)
+    weak = [e for e in every if not e.startswith(("tls/", "quic/"))]
+    if not weak and mtls is True and access_control is True:
+        return "tls+acl", []
+    off = [e for e in every if not _loopback(e)]
+    if not off:
+        return "loopback", []
+    return "insecure", [e for e in off if e in weak] or off

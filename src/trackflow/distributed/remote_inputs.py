@@ -25,6 +25,7 @@ from ..math import UncertainPose
 from . import wire
 from .clock import time_error_covariance, twist_between
 from .discovery import Discovery, realm_key
+from .plausibility import Sequences, state_problem
 from .replica import RemoteFilter, RemoteGet
 from .thinning import Grid, demand_key, thin_key
 
@@ -74,8 +75,7 @@ class RemoteInputs:
         self.subs: dict[str, object] = {}
         self.thin: dict[str, ThinInput] = {}  # remote edge -> its thinned subscription
         self.covered: dict[str, int] = {}  # thin, full stream: edge -> covered up to [ns]
-        self._last_seq: dict[str, int] = {}
-        self.lost_messages = 0
+        self.sequences = Sequences()
         self.received = [0, 0, 0]  # messages, bytes, heartbeats of remote sensors' streams
         self.thin_arrivals: collections.deque = collections.deque(maxlen=4096)
         self.late_events = 0
@@ -265,7 +265,7 @@ class RemoteInputs:
             self.thin_arrivals.append(self.agent.now_ns() - covered)
             if inp.covered_ns is None or covered > inp.covered_ns:
                 inp.covered_ns = covered
-            if s is not None:
+            if s is not None and self._plausible(edge, s, offset, sigma):
                 self._schedule(edge, s, offset, sigma, 0)
             self.sched.wake()
 
@@ -285,10 +285,8 @@ class RemoteInputs:
         if mapping is None:
             return
         offset, sigma = mapping
-        last = self._last_seq.get(edge)
-        if last is not None and s.seq > last + 1:
-            self.lost_messages += s.seq - last - 1
-        self._last_seq[edge] = s.seq
+        if not self._plausible(edge, s, offset, sigma):
+            return
         if self.agent.now_ns() - (s.stamp_ns + offset) > BACKLOG_NS:
             # a sender that stalled and now flushes what it held: no use for any answer
             self.rejections.add("older than the backlog window")
@@ -302,6 +300,21 @@ class RemoteInputs:
             if self.cfg.thin:  # every state sent before it has come (thin: ticks wait for it)
                 self.covered[edge] = max(self.covered.get(edge, -1), s.host_ns + offset - 1)
             self._schedule(edge, s, offset, sigma, 0 if self.cfg.thin else self._reorder_ns)
+
+    @property
+    def lost_messages(self) -> int:
+        """States missing from the remote sensors' sequences (gaps, not jumps)."""
+        return self.sequences.lost
+
+    def _plausible(self, edge: str, s: wire.StateSample, offset: int, sigma: float) -> bool:
+        """:mod:`.plausibility` of a decoded state; a counted rejection if not."""
+        why = state_problem(s.stamp_ns + offset, self.agent.now_ns(), sigma, s.p)
+        if why is None and not self.sequences.take(edge, s.seq):
+            why = "sequence jump"
+        if why is not None:
+            self.rejections.add(why)
+            return False
+        return True
 
     def _schedule(self, edge, s: wire.StateSample, offset: int, sigma: float, delay: int) -> None:
         """(Holding the lock.) To the scheduler at the state's arrival stamp, released
