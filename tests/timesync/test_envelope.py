@@ -188,3 +188,22 @@ def test_the_first_packets_may_be_slow():
     m = ClockMapper()
     assert all(m.add(int(a), int(b)) for a, b in zip(x, h)) and m.suspects == 0
     assert abs(m.to_host(int(x[-1])) - (int(x[-1]) + 10**12)) < 2_100_000
+
+
+def test_a_corrupted_round_trip_never_shifts_the_mapping():
+    """Round trips with a true 40 us transit take it out of the mapping; one whose remote
+    stamp was corrupted (by 1.5 ms, or 10 s) is refused and counted, and the mapping stays."""
+    rng = np.random.default_rng(13)
+    x, h = _stream(rng, 120 * 5, 10**12, 0.0, spikes=0.0)
+    m = ClockMapper()
+    for k, (a, b) in enumerate(zip(x.tolist(), h.tolist())):
+        m.add(a, b)
+        if k % 12 == 0:  # a round trip of 80 us, 40 us each way
+            send = b + 1_000_000
+            assert m.add_round_trip(send, send + 40_000 - 10**12, send + 80_000)
+    good = m.to_host(int(x[-1]))
+    assert abs(good - (int(x[-1]) + 10**12)) < 20_000  # the 30 us transit taken out
+    send = int(h[-1]) + 2_000_000
+    for bad in (1_500_000, 10_000_000_000):
+        assert not m.add_round_trip(send, send + 40_000 - 10**12 + bad, send + 60_000)
+    assert m.rejected_round_trips == 2 and m.to_host(int(x[-1])) == good

@@ -43,7 +43,7 @@ def test_natnet_needs_the_handshake_and_the_names():
     inp.handle(_frame(2, 10 * FREQ, 50_000), 5)
     assert inp.status.rejections["unknown body name"] == 1
     _handshake(inp)
-    (pair,) = inp.handle(_frame(3, 10 * FREQ, 50_000), 10_000_000_000 + 200_000)
+    (pair,) = inp.handle(_frame(3, 10 * FREQ + FREQ // 100, 50_000), 10_010_000_000 + 200_000)
     assert pair[1].position.tolist() == [1.0, 2.0, 3.0]
 
 
@@ -134,6 +134,21 @@ def test_dtrack_ts2_latency_gives_the_exposure():
     inp.handle(b"fr 3\r\n6d 1 [2 1.0][1 2 3]\r\n", 0)
     inp.handle(_dt_packet(4), 0)
     assert inp.status.rejections == {"not tracked": 1, "bad line": 1, "no timestamp": 1}
+
+
+def test_a_copy_with_a_changed_frame_number_touches_nothing():
+    """A datagram duplicated on the way with its frame number changed (``fr 100002`` ->
+    ``fr 100010``, one flipped bit): its stamp is not after the last one, so it is refused
+    before the frame counter, and the real frames after it are taken, not called old."""
+    inp = _dtrack()
+    out = [inp.handle(_dt_packet(100_000 + k, (1000 + k, 0, 100)), 10**12 + k * 10**9)
+           for k in range(3)]  # fmt: skip
+    out.append(inp.handle(_dt_packet(100_010, (1002, 0, 100)), 10**12 + 2 * 10**9 + 5))
+    out += [inp.handle(_dt_packet(100_000 + k, (1000 + k, 0, 100)), 10**12 + k * 10**9)
+            for k in range(3, 6)]  # fmt: skip
+    st = inp.status
+    assert [len(o) for o in out] == [1, 1, 1, 0, 1, 1, 1]
+    assert st.rejections == {"stamp not after the last": 1} and st.dropouts == 0
 
 
 def test_dtrack_status_names_the_ids_sent_and_hints_at_counting_from_0():

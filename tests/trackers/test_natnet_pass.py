@@ -363,7 +363,11 @@ def test_warm_up_compiles_what_a_live_packet_runs():
              "eod": True}  # fmt: skip
         inp = _input((4, 1), 0, 0)  # a new tracker clock (one input's would refuse the step)
         for i in range(3):  # all plainly valid: blocks
-            out = inp.handle(build((4, 1), {**d, "frame": 10_000 + i}), 2 * 10**18 + i)
+            ticks = (10 + 41_667 * i, 20 + 41_667 * i)  # a frame's stamps go forward
+            out = inp.handle(
+                build((4, 1), {**d, "frame": 10_000 + i, "ticks": ticks}),
+                2 * 10**18 + i * 4_166_700,
+            )
             assert isinstance(out, SampleBlock)
         after = {name: len(getattr(k, name).signatures) for name in kernels.KERNELS}
     assert before == after

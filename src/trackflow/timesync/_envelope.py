@@ -348,12 +348,20 @@ class ClockMapper:
         """Add one round trip: a request sent at host time ``send_host_ns``, answered at
         remote time ``remote_ns`` and received at ``recv_host_ns`` [ns] (module docstring).
         False (counted in :attr:`rejected_round_trips`) if its time is negative or longer
-        than ``max_rtt_s``."""
+        than ``max_rtt_s``, or, once the fit is past its first samples, if its offset lies
+        off the envelope by more than half its time plus ``jump_s`` (a corrupted stamp or
+        token: the shortest round trip would otherwise shift every mapped time by it)."""
         rtt = recv_host_ns - send_host_ns
         if not 0 <= rtt <= self.max_rtt_ns:
             self.rejected_round_trips += 1
             return False
         mid = round_trip_offset(send_host_ns, remote_ns, recv_host_ns)[0]
+        e = self._env
+        if e is not None and self._fitted >= YOUNG:
+            transit = e.offset_ns + e.drift * (remote_ns - e.ref_ns) - mid
+            if abs(transit) > rtt / 2 + self.jump_ns:
+                self.rejected_round_trips += 1
+                return False
         self.round_trips.append((remote_ns, rtt, mid))
         newest = max(t for t, _, _ in self.round_trips)
         while self.round_trips and newest - self.round_trips[0][0] > self.window_ns:

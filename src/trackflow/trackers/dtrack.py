@@ -671,6 +671,16 @@ class DayUnwrapper:
         self.day = 0
         self.last: float | None = None
 
+    def peek(self, ts: float) -> float:
+        """What :meth:`__call__` returns for ``ts``, without moving the day."""
+        day = self.day
+        if self.last is not None:
+            if ts < self.last - 43200.0:
+                day += 1
+            elif ts > self.last + 43200.0:
+                day -= 1
+        return day * 86400.0 + ts
+
     def __call__(self, ts: float) -> float:
         if self.last is not None:
             if ts < self.last - 43200.0:

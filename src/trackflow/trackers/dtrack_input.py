@@ -42,15 +42,18 @@ class DTrackInput(LiveInput):
         f = dtrack.decode_dtrack(data)
         if f.ts2 is None and f.ts is None:  # refused before it touches frame counter or clock
             raise PacketError("no timestamp", "the DTrack output has neither ts nor ts2")
-        if f.frame is not None and not self._frame(f.frame):
-            return []
         if f.ts2 is not None:
             stamp = f.ts2[0] * 1_000_000_000 + f.ts2[1] * 1000
             lat = f.ts2[2] * 1000
         else:
-            stamp = int(round(self.days(f.ts) * 1e9))
+            stamp = int(round(self.days.peek(f.ts) * 1e9))
             lat = int(round(self.options["latency_ms"] * 1e6))
+        self._new_stamp(stamp + lat)
+        if f.frame is not None and not self._frame(f.frame):
+            return []
         t = self._map(stamp + lat, lat, arrival_ns)
+        if f.ts2 is None:
+            self.days(f.ts)  # the day follows the stamps the clock took, no others
         if f.status is not None:
             self.tracker_status = f.status
         lines = {"body": f.bodies, "flystick": f.flysticks, "tool": f.tools, "hand": f.hands}

@@ -206,6 +206,7 @@ class LiveInput:
         #: the bodies' statuses, counted once per packet where a packet counts for every body
         self.statuses = StatusGroup()
         self.clock = ClockMapper()
+        self._last_tx: int | None = None  # the newest send stamp mapped [ns, tracker clock]
         self.packets = 0
         self._stop = threading.Event()
         self.ready = threading.Event()  # set once the sockets are open (or failed)
@@ -279,6 +280,8 @@ class LiveInput:
         clock = self.clock
         if not clock.add(tx_ns, arrival_ns):
             raise PacketError("clock jump not confirmed", f"stamp {tx_ns} ns")
+        if self._last_tx is None or tx_ns > self._last_tx:
+            self._last_tx = tx_ns
         est = clock.estimate  # never None after an accepted add
         if est is not self.bodies[0].status.clock:  # a new estimate: every body's status
             for b in self.bodies:
@@ -318,6 +321,15 @@ class LiveInput:
         b.status.measured(arrival_ns, t_ns)
         return kind(int(t_ns), int(arrival_ns), p, q, c)
 
+    def _new_stamp(self, tx_ns: int) -> None:
+        """Refuse a send stamp (tracker clock) not after the newest one mapped, unless it lies
+        further back than a clock step (a restart, left to the counter and clock checks): a
+        duplicated or reordered datagram, or a copy whose frame number was changed on the
+        way, never reaches the frame counter."""
+        last = self._last_tx
+        if last is not None and last - self.clock.step_ns < tx_ns <= last:
+            raise PacketError("stamp not after the last", f"{(last - tx_ns) * 1e-6:.3f} ms back")
+
     def _frame(self, number: int) -> bool:
         ok = True
         if self.bodies and self.statuses.next_frame(number):
@@ -328,6 +340,7 @@ class LiveInput:
             restarted = b.status.connection.get("frame counter restarted", 0) > before
         if self.bodies and restarted:
             self.clock.reset()  # a restarted tracker may have restarted its clock too
+            self._last_tx = None
         return ok
 
     # -- transport -------------------------------------------------------------------------------

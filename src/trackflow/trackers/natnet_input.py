@@ -98,14 +98,15 @@ class NatNetInput(LiveInput):
         if self.server is None:
             raise PacketError("no handshake yet", "frame before SERVERINFO")
         f = natnet.decode_frame(payload, self.server.version, table=True)
-        if not self._frame(f.frame):
-            return []
         freq = self.server.clock_frequency
         if natnet.exposure_and_latency(f, freq) is not None:
             tx_ns = self._ticks_ns(f.transmit)
             lat_ns = (f.transmit - f.mid_exposure) * 1_000_000_000 // freq
         else:  # before NatNet 3.0: the frame timestamp, latency unknown
             tx_ns, lat_ns = int(round(f.timestamp * 1e9)), 0
+        self._new_stamp(tx_ns)
+        if not self._frame(f.frame):
+            return []
         t = self._map(tx_ns, lat_ns, arrival_ns)
         if f.body_table is not None:
             return self._table_samples(f.body_table, t, arrival_ns)
@@ -143,11 +144,13 @@ class NatNetInput(LiveInput):
         if code == _kernels.FRAME_SLOW:
             return None
         number, mid, tx, table, n = out.tolist()
-        if not self._frame(number - (number >> 31 << 32)):  # the frame number's i32 bits
-            return []
         freq = self.server.clock_frequency
         lat_ns = natnet.latency_ticks(mid, tx, freq) * 1_000_000_000 // freq
-        t = self._map(self._ticks_ns(tx), lat_ns, arrival_ns)
+        tx_ns = self._ticks_ns(tx)
+        self._new_stamp(tx_ns)
+        if not self._frame(number - (number >> 31 << 32)):  # the frame number's i32 bits
+            return []
+        t = self._map(tx_ns, lat_ns, arrival_ns)
         if code == _kernels.FRAME_BLOCK:
             return self._block_samples(bp, self._make_block(bp, pos, quat, t, arrival_ns))
         tab = np.frombuffer(data, natnet.RIGID_BODY_DTYPE, n, table)
