@@ -149,26 +149,57 @@ NOISE = ImuNoise(gyro=2e-3, accel=2e-2, gyro_bias=1e-5, accel_bias=1e-4)
 SIG_P, SIG_R = 1e-3, np.radians(0.3)
 
 
+def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
+    """Rotations about one axis, (n, 3, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros((angle.shape[0], 3, 3))
+    i, j = ((1, 2), (2, 0), (0, 1))[axis]  # the right-handed order after the axis
+    m[:, axis, axis] = 1.0
+    m[:, i, i], m[:, j, j], m[:, i, j], m[:, j, i] = c, c, -s, s
+    return m
+
+
 def _truth():
-    """True IMU inputs and the trajectory they drive (the filter's own integrator)."""
+    """True IMU inputs and the trajectory, in closed form (independent of the filter's
+    integrator): attitude ``R = Rz(a) Ry(b) Rx(c)`` with sinusoidal angles, so the body rate
+    is ``w = Rx(c)^T Ry(b)^T (0, 0, a') + Rx(c)^T (0, b', 0) + (c', 0, 0)``; position
+    sinusoids with their derivatives, so the specific force is ``R^T (p'' - g)``."""
     n = int(SECONDS * RATE)
     t = np.arange(n) / RATE
-    w = np.stack([1.5 * np.sin(1.1 * t), 1.2 * np.cos(0.7 * t), 0.9 * np.sin(0.5 * t + 1)], 1)
-    a_w = np.stack([2 * np.sin(0.9 * t), 1.5 * np.cos(1.3 * t), np.sin(0.6 * t)], 1)
-    x = np.zeros(15)
-    x[3:6] = [0.0, 1.5 / 1.3, 0.0]
-    r = np.eye(3)
-    xs, rs, f = [x.copy()], [r.copy()], np.zeros((n, 3))
-    f[0] = r.T @ (a_w[0] - G)
-    P = np.zeros((15, 15))
-    for k in range(1, n):
-        # specific force consistent with the wanted world acceleration at the current attitude
-        f[k] = (r @ L.so3_exp(w[k - 1] / RATE)).T @ (a_w[k] - G)
-        r = K.propagate(x, r, P, 0.5 * (w[k - 1] + w[k]), 0.5 * (f[k - 1] + f[k]), 1 / RATE, G,
-                        np.ones(4), 15)  # fmt: skip
-        xs.append(x.copy())
-        rs.append(r.copy())
-    return t, w, f, np.array(xs), np.array(rs)
+    a, da = 0.8 * np.sin(0.7 * t), 0.56 * np.cos(0.7 * t)
+    b, db = 0.4 * np.sin(1.1 * t + 0.3), 0.44 * np.cos(1.1 * t + 0.3)
+    c, dc = 0.5 * np.sin(0.9 * t + 1.0), 0.45 * np.cos(0.9 * t + 1.0)
+    rx, ry, rz = _rot(0, c), _rot(1, b), _rot(2, a)
+    rs = rz @ ry @ rx
+    zero = np.zeros_like(t)
+    w = (
+        np.einsum("nji,nkj,nk->ni", rx, ry, np.stack([zero, zero, da], 1))
+        + np.einsum("nji,nj->ni", rx, np.stack([zero, db, zero], 1))
+        + np.stack([dc, zero, zero], 1)
+    )
+    pos = np.stack([-2 / 0.81 * np.sin(0.9 * t), -1.5 / 1.69 * np.cos(1.3 * t),
+                    -1 / 0.36 * np.sin(0.6 * t)], 1)  # fmt: skip
+    vel = np.stack([-2 / 0.9 * np.cos(0.9 * t), 1.5 / 1.3 * np.sin(1.3 * t),
+                    -1 / 0.6 * np.cos(0.6 * t)], 1)  # fmt: skip
+    acc = np.stack([2 * np.sin(0.9 * t), 1.5 * np.cos(1.3 * t), np.sin(0.6 * t)], 1)
+    f = np.einsum("nji,nj->ni", rs, acc - G)
+    xs = np.zeros((n, 15))
+    xs[:, 0:3], xs[:, 3:6] = pos, vel
+    return t, w, f, xs, rs
+
+
+def test_the_closed_form_truth_is_consistent():
+    """The truth's rate and specific force against finite differences of its own attitude
+    and position (so that a wrong formula cannot pass as truth)."""
+    t, w, f, xs, rs = TRUTH
+    h = 1 / RATE
+    k = np.arange(1, t.shape[0] - 1)
+    w_fd = np.array([L.so3_log(rs[i - 1].T @ rs[i + 1]) / (2 * h) for i in k])
+    np.testing.assert_allclose(w_fd, w[k], atol=1e-4)
+    acc_fd = (xs[k + 1, 0:3] - 2 * xs[k, 0:3] + xs[k - 1, 0:3]) / h**2
+    np.testing.assert_allclose(np.einsum("nji,nj->ni", rs[k], acc_fd - G), f[k], atol=1e-3)
+    np.testing.assert_allclose((xs[k + 1, 0:3] - xs[k - 1, 0:3]) / (2 * h), xs[k, 3:6],
+                               atol=1e-4)  # fmt: skip
 
 
 TRUTH = _truth()

@@ -390,8 +390,10 @@ def test_additive_formulation_tracks_like_error_state(rng):
     C = np.diag([1e-6] * 3 + [1e-4] * 3)
     filters = {f: PoseKalmanFilter(model, formulation=f) for f in ("error_state", "additive")}
     err = {f: [] for f in filters}
+    raw = []  # what a filter that only echoed its measurements would answer
     for k in range(200):
         z = measure(truth[k], 3, C, rng)
+        raw.append(abs(z.quaternion @ truth[k][9:13]))
         for f, kf in filters.items():
             kf.update_pose(k * 0.01, z)
             est = kf.predict(k * 0.01)
@@ -399,11 +401,11 @@ def test_additive_formulation_tracks_like_error_state(rng):
             err[f].append(abs(est.quaternion @ q_true))
             assert abs(np.linalg.norm(est.quaternion) - 1) < 1e-12
     rms = {}
-    for f in filters:
-        ang = 2 * np.arccos(np.minimum(np.array(err[f][50:]), 1.0))
+    for f, e in (*err.items(), ("raw", raw)):
+        ang = 2 * np.arccos(np.minimum(np.array(e[50:]), 1.0))
         rms[f] = np.sqrt(np.mean(ang**2))
-    assert rms["error_state"] < 0.02  # measurement noise: 0.017 rad RMS
-    assert rms["additive"] < 1.2 * rms["error_state"]
+    assert rms["error_state"] < 0.85 * rms["raw"], rms  # it filters (0.012 vs 0.017 rad)
+    assert rms["additive"] < 1.2 * rms["error_state"], rms
     # the additive filter reports its covariance in trackflow's convention as well
     ca = filters["additive"].predict(2.0).covariance
     ce = filters["error_state"].predict(2.0).covariance

@@ -115,7 +115,8 @@ def test_files_written_by_opencv_are_read(tmp_path, ext):
     fs.write("image_height", 1024)
     fs.release()
     back = read_opencv_calibration(p)
-    for c, d in zip(rig, back):
+    assert len(back) == len(rig)
+    for c, d in zip(rig, back, strict=True):
         np.testing.assert_array_equal(c.K, d.K)
         np.testing.assert_array_equal(c.dist, d.dist)
         np.testing.assert_array_equal(c.R_cam_world, d.R_cam_world)
@@ -132,10 +133,15 @@ def test_files_written_here_are_read_by_opencv_and_back(tmp_path, ext):
     assert int(fs.getNode("nCameras").real()) == 4
     for i, c in enumerate(rig):
         np.testing.assert_array_equal(fs.getNode(f"camera_matrix_{i}").mat(), c.K)
-        np.testing.assert_array_equal(fs.getNode(f"camera_pose_{i}").mat()[:3, 3], c.t_cam_world)
+        pose = fs.getNode(f"camera_pose_{i}").mat()
+        np.testing.assert_array_equal(pose[:3, :3], c.R_cam_world)
+        np.testing.assert_array_equal(pose[:3, 3], c.t_cam_world)
+        np.testing.assert_array_equal(pose[3], [0, 0, 0, 1])
+    assert fs.getNode("camera_matrix_4").empty()  # four cameras, no more
     fs.release()
     back = read_opencv_calibration(p)
-    for c, d in zip(rig, back):
+    assert len(back) == len(rig)
+    for c, d in zip(rig, back, strict=True):
         np.testing.assert_array_equal(c.dist, d.dist)
         np.testing.assert_array_equal(c.R_cam_world, d.R_cam_world)
 
@@ -152,9 +158,11 @@ def test_round_trip_is_exact(tmp_path_factory, f, k, mm):
     unit = 1e-3 if mm else 1.0
     write_opencv_calibration(p, rig, unit_m=unit)
     back = read_opencv_calibration(p, unit_m=unit)
-    for c, d in zip(rig, back):
+    assert len(back) == len(rig)
+    for c, d in zip(rig, back, strict=True):
         np.testing.assert_array_equal(c.K, d.K)
         np.testing.assert_array_equal(c.dist, d.dist)
+        np.testing.assert_array_equal(c.R_cam_world, d.R_cam_world)
         np.testing.assert_allclose(c.t_cam_world, d.t_cam_world, rtol=1e-15)
 
 
