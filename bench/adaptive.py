@@ -61,6 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _failover_modes import print_table, run_modes, summary
 from trackflow.io import read_stream
 from trackflow.trackers.runtime import input_paths
 from trackflow.trackers.switch_log import read_switch_log, switch_log_path
@@ -342,24 +343,14 @@ def main(argv=None) -> int:
     if not ROOM1.exists():
         print(f"needs {ROOM1}", file=sys.stderr)
         return 2
-    modes = {}
-    for mode in ("outage", "kill", "freeze"):
-        with tempfile.TemporaryDirectory() as d:
-            print(f"{mode} ...", file=sys.stderr, flush=True)
-            modes[mode] = measure(mode, ROOM1, Path(d))
+    modes = run_modes(lambda mode, folder: measure(mode, ROOM1, folder))
     with tempfile.TemporaryDirectory() as d:
         print("attributes ...", file=sys.stderr, flush=True)
         attributes = measure_attributes(ROOM1, Path(d))
     print("online offsets (32 s of each recording on the wall clock) ...", file=sys.stderr)
     online = measure_online_offsets()
-    nees = np.concatenate([m.pop("nees") for m in modes.values()])
     out = {
-        "failover_gap_ms": {m: round(v["failover_gap_ms"], 1) for m, v in modes.items()},
-        "post_switch_nees": round(float(nees.mean()), 3),
-        "post_switch_nees_p99": round(float(np.percentile(nees, 99)), 3),
-        "switch_back_s": round(max(v["switch_back_s"] for v in modes.values()), 3),
-        "bound_ms": STALE_MS + 2 * 1000 / 120,
-        "modes": modes,
+        **summary(modes, STALE_MS + 2 * 1000 / 120),
         "attribute_error": attributes["attribute_error"],
         "rescored": attributes["rescored"],
         "attributes": attributes["sensors"],
@@ -368,11 +359,7 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"{'mode':8} {'gap ms':>8} {'back s':>7}  reason")
-        for m, v in modes.items():
-            print(f"{m:8} {v['failover_gap_ms']:8.1f} {v['switch_back_s']:7.3f}  {v['reason']}")
-        print(f"NEES on the fallback: mean {out['post_switch_nees']}, "
-              f"p99 {out['post_switch_nees_p99']} (3 dof: 99 % bound 11.34)")  # fmt: skip
+        print_table(out)
         print(f"measured attributes, largest relative error: {out['attribute_error']}")
         print(f"re-scored with the measured figures: {out['rescored']}")
         print(f"online relative delay vs offline: {out['online_offset']}")

@@ -31,13 +31,13 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from _failover_modes import print_table, run_modes, summary
 from trackflow.distributed.wire import decode
 from trackflow.io import read_stream
 
@@ -237,29 +237,12 @@ def main(argv=None) -> int:
     if not ROOM1.exists():
         print(f"needs {ROOM1}", file=sys.stderr)
         return 2
-    modes = {}
-    for mode in ("outage", "kill", "freeze"):
-        with tempfile.TemporaryDirectory() as d:
-            print(f"{mode} (three agents) ...", file=sys.stderr, flush=True)
-            modes[mode] = measure(mode, Path(d))
-    nees = np.concatenate([m.pop("nees") for m in modes.values()])
-    out = {
-        "failover_gap_ms": {m: v["failover_gap_ms"] for m, v in modes.items()},
-        "post_switch_nees": round(float(nees.mean()), 3),
-        "post_switch_nees_p99": round(float(np.percentile(nees, 99)), 3),
-        "switch_back_s": max(v["switch_back_s"] for v in modes.values()),
-        "hold_s": HOLD_MS / 1000,
-        "bound_ms": STALE_MS + 2 * 1000 / 120,
-        "modes": modes,
-    }
+    modes = run_modes(measure, " (three agents)")
+    out = {**summary(modes, STALE_MS + 2 * 1000 / 120), "hold_s": HOLD_MS / 1000}
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"{'mode':8} {'gap ms':>8} {'back s':>7}  reason")
-        for m, v in modes.items():
-            print(f"{m:8} {v['failover_gap_ms']:8.1f} {v['switch_back_s']:7.3f}  {v['reason']}")
-        print(f"NEES on the fallback: mean {out['post_switch_nees']}, "
-              f"p99 {out['post_switch_nees_p99']} (3 dof: 99 % bound 11.34)")  # fmt: skip
+        print_table(out)
     return 0
 
 

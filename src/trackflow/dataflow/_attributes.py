@@ -72,11 +72,12 @@ class MeasuredAttributes:
 
     __slots__ = ("n", "listeners", "_ring")
 
-    def __init__(self):
+    def __init__(self, listeners: list | None = None):
         self.n = 0
         #: called with ``(t_ns, position, quaternion)`` of every measured pose delivered
-        #: (such as :class:`trackflow.calibration.OnlineClockOffset`): keep them cheap
-        self.listeners: list = []
+        #: (such as :class:`trackflow.calibration.OnlineClockOffset`): keep them cheap. The
+        #: list is the caller's when given (a filter keeps one across its resets)
+        self.listeners: list = [] if listeners is None else listeners
         # one tuple per measurement (t_ns, now_ns, nis, position, quaternion): a list store
         # per event, the arrays made when the figures are asked for
         self._ring: list = [None] * WINDOW
@@ -134,11 +135,6 @@ class MeasuredAttributes:
         if noise is not None:
             out["noise_mm"], out["noise_deg"], out["noise_mm_sigma"], out["noise_deg_sigma"] = noise
         return out
-
-    @property
-    def warm(self) -> bool:
-        """Whether the ring is full (the figures average a whole :data:`WINDOW`)."""
-        return self.n >= WINDOW
 
     def edge(self, edge):
         """``edge`` (a :class:`~trackflow.graph.Edge`) with its measured rate, latency and

@@ -148,6 +148,9 @@ class KalmanFilter(Component):
         self.stamp_offset_ns = int(stamp_offset_ns)
         self.max_extrapolation_ns = None if motion.static else max_extrapolation_ns
         self.filter_factory = filter_factory or make_filter
+        #: called with every measured pose delivered (``measured.listeners``); the filter
+        #: owns the list, so listeners stay across a reset (they watch the sensor, not a run)
+        self.measurement_listeners: list = []
         self.reset()
 
     def reset(self) -> None:
@@ -157,11 +160,8 @@ class KalmanFilter(Component):
         self.first_t: int | None = None
         self.last_t: int | None = None
         self.last_origin = NO_ORIGIN
-        #: the sensor's rate, latency and noise as measured (dataflow/_attributes.py); its
-        #: listeners stay across a reset (they watch the sensor, not one run)
-        listeners = self.measured.listeners if hasattr(self, "measured") else []
-        self.measured = MeasuredAttributes()
-        self.measured.listeners = listeners
+        #: the sensor's rate, latency and noise as measured (dataflow/_attributes.py)
+        self.measured = MeasuredAttributes(self.measurement_listeners)
         #: measurements the filter refused since the last one it took (liveness)
         self.refused_in_a_row = 0
 
