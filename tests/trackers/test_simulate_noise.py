@@ -59,3 +59,19 @@ def test_bad_degradations_are_refused(room1, kw, message):
     stream, _ = read_stream(room1)
     with pytest.raises(InputError, match=message):
         Simulator(stream, SimConfig("dtrack", port=9, duration_s=1, **kw))
+
+
+def test_plays_go_back_and_forth_on_one_time_line():
+    """``plays=3``: forwards, backwards, forwards, on one increasing time and frame line, so
+    the motion is continuous at every turn."""
+    from trackflow.io import PoseStream
+
+    t = np.arange(5, dtype=np.int64) * 10_000_000
+    pos = np.stack([np.arange(5.0), np.zeros(5), np.zeros(5)], axis=1)
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (5, 1))
+    sim = Simulator(PoseStream("w", "b", t, pos, quat), SimConfig("dtrack", plays=3))
+    assert np.all(np.diff(sim.rel_s) > 0) and np.all(np.diff(sim.frames) == 1)
+    assert sim.position[:, 0].tolist() == [0, 1, 2, 3, 4, 4, 3, 2, 1, 0, 0, 1, 2, 3, 4]
+    np.testing.assert_allclose(sim.rel_s[5] - sim.rel_s[4], 0.01)
+    with pytest.raises(ValueError, match="plays"):
+        Simulator(PoseStream("w", "b", t, pos, quat), SimConfig("dtrack", plays=0))

@@ -56,6 +56,13 @@ def register(subparsers) -> argparse.ArgumentParser:
         metavar="A:B",
         help="hold the frames from A to B s, then send them at once (repeatable)",
     )
+    p.add_argument(
+        "--plays",
+        type=int,
+        default=1,
+        help="play the recording this many times, every second one backwards (continuous "
+        "motion for long runs)",
+    )
     p.add_argument("--noise-mm", type=float, default=0.0, help="position noise sigma [mm]")
     p.add_argument("--noise-deg", type=float, default=0.0, help="orientation noise sigma [deg]")
     p.add_argument(
@@ -107,6 +114,7 @@ def run(args) -> int:
         noise_mm=args.noise_mm,
         noise_deg=args.noise_deg,
         changes=changes,
+        plays=args.plays,
     )
     out = simulate(args.recording, cfg, truth_path=args.truth, wait_for_client_s=args.wait)
     print(json.dumps(out))

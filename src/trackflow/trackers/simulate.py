@@ -66,6 +66,9 @@ class SimConfig:
     noise_deg: float = 0.0  # orientation noise sigma per axis [deg]
     #: from ``at`` [s] on: ``{"latency_ms": .., "noise_mm": .., "noise_deg": ..}`` (any of them)
     changes: tuple[tuple[float, dict], ...] = ()
+    #: plays of the (chosen part of the) recording, every second one backwards, so that the
+    #: motion stays continuous and a soak can run for hours on a short recording
+    plays: int = 1
 
 
 class Simulator:
@@ -84,6 +87,8 @@ class Simulator:
             raise InputError("speed must be > 0")
         if not 1 <= cfg.bodies <= 1000:
             raise InputError("bodies must be 1 .. 1000")
+        if not 1 <= cfg.plays <= 100_000:
+            raise InputError("plays must be 1 .. 100000")
         if not (cfg.noise_mm >= 0 and cfg.noise_deg >= 0):
             raise InputError("need noise_mm >= 0 and noise_deg >= 0")
         for at, change in cfg.changes:
@@ -111,6 +116,8 @@ class Simulator:
         dt = np.diff(t)
         rate = 1.0 / float(np.median(dt[dt > 0])) if len(dt) else 100.0
         self.frames = np.round(t[keep] * rate).astype(np.int64) + 1
+        if cfg.plays > 1:
+            self._play_again(cfg.plays, 1.0 / (rate * cfg.speed))
         self.latency_ns, self._dp, self._dq = self._per_frame(cfg)
         self.stop = threading.Event()
         self.sent = 0
@@ -302,6 +309,20 @@ class Simulator:
                 self.sock.sendto(data, addr)
         else:
             self.sock.sendto(data, (c.host, self.port))
+
+    def _play_again(self, plays: int, step_s: float) -> None:
+        """The recording played ``plays`` times in a row, every second play backwards (the
+        poses in reverse order on the same time grid), one frame period between plays; frame
+        numbers and times go on."""
+        n = len(self.rel_s)
+        span = float(self.rel_s[-1]) + step_s
+        back = np.arange(n)[::-1]
+        order = np.concatenate([back if k % 2 else np.arange(n) for k in range(plays)])
+        self.rel_s = np.concatenate([self.rel_s + k * span for k in range(plays)])
+        self.position = self.position[order]
+        self.quaternion = self.quaternion[order]
+        frame_span = int(self.frames[-1] - self.frames[0]) + 1
+        self.frames = np.concatenate([self.frames + k * frame_span for k in range(plays)])
 
     def run(self, wait_for_client_s: float = 10.0) -> dict:
         """Replay; returns counts. Waits up to ``wait_for_client_s`` for a first client
