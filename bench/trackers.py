@@ -21,6 +21,13 @@
   this process's CPU (of a core) while the sender ran. ``plain`` is the same run, made
   first, with the input's defaults (asleep until a packet): the same keys, for comparison.
 
+* ``cpu_us_per_body`` ``{"hot", "live"}``: CPU time per body update (decode, filter, answer,
+  bookkeeping) of a 20-body packet, in the hot loop of ``bench/trackers_cpu.py`` (one
+  thread, packets back to back) and live (the receiving thread of the end-to-end run, from
+  one packet's end to the next's: waking included), with ``live_over_hot``; the same at 100
+  bodies (``cpu_us_per_body_100``, a second end-to-end run) and ``bodies_per_core_240hz``
+  from it (None when the 100-body figure is not within 20 % of the 20-body one).
+
 Usage: ``python bench/trackers.py [--json] [--seconds S] [--repeat R] [--spin-us U]
 [--no-plain]``. The machine is shared: take the figures as the best of a few runs.
 """
@@ -133,9 +140,12 @@ def decode_rates(repeat: int) -> dict:
     return {"decode": out, "pkg": pkg}
 
 
-def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
-    """Packet receipt -> 20 filtered answers delivered [us] (module docstring); ``spin_us``
-    is the input's polling window around a frame's due time (0: it sleeps until a packet)."""
+def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0, bodies: int = BODIES):
+    """Packet receipt -> the filtered answers of ``bodies`` bodies delivered [us] (module
+    docstring); ``spin_us`` is the input's polling window around a frame's due time (0: it
+    sleeps until a packet). ``thread_cpu_us_per_packet``: the receiving thread's CPU time
+    from one packet's end to the next's (waking, receiving, decoding, filtering, answering,
+    bookkeeping), averaged after the first second."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -155,7 +165,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
             ),  # fmt: skip
             np.eye(6) * 1e-6,
         )
-        for k in range(1, BODIES + 1)
+        for k in range(1, bodies + 1)
     }
     (inp,) = make_inputs(specs)
     # white acceleration / angular acceleration noise for hand motion replayed at twice its
@@ -178,6 +188,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
     service_cpu: list[int] = []  # the same, CPU time of the receiving thread
     woken: list[int] = []  # receipt -> the packet in this process (wake-up, receive call)
     handled: list[int] = []  # decoding, clock mapping and the samples (handle)
+    thread_cpu: list[int] = []  # the receiving thread's CPU time at each packet's end
 
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
@@ -207,6 +218,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
             if type(samples) is SampleBlock:  # else not every body valid: not timed
                 answer(samples, t0, entered)
         collect_due()  # as trackflow run does once a packet is answered
+        thread_cpu.append(time.thread_time_ns())
 
     cpu0, wall0 = time.process_time(), time.perf_counter()
     with calm_gc():  # as trackflow run does once the network is warm
@@ -216,7 +228,7 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
         sender = subprocess.Popen(
             [
                 sys.executable, "-m", "trackflow.cli.main", "simulate", "natnet", str(recording),
-                "--port", str(port), "--bodies", str(BODIES), "--speed", str(RATE / 120),
+                "--port", str(port), "--bodies", str(bodies), "--speed", str(RATE / 120),
                 "--duration", str(seconds * RATE / 120), "--jitter-ms", "0", "--wait", "30",
             ],
             env=env,
@@ -252,6 +264,30 @@ def e2e_latency(seconds: float, recording: Path, spin_us: float = 0.0) -> dict:
         "cpu_share": cpu_share,  # of a core: this process while the sender ran
         "polled_share": inp.waiting.polled_s / seconds,  # of a core
         "caught_share": inp.waiting.caught / max(len(latencies), 1),
+        "thread_cpu_us_per_packet": (thread_cpu[-1] - thread_cpu[RATE])
+        * 1e-3
+        / max(len(thread_cpu) - 1 - RATE, 1),
+    }
+
+
+def cpu_per_body(seconds: float, recording: Path, live20: dict) -> dict:
+    """CPU per body update [us], one run (issue 31's keys): ``hot`` from the in-thread loop
+    of ``bench/trackers_cpu.py`` (p50 of a packet's total over its bodies), ``live`` from the
+    receiving thread of the end-to-end run (its CPU per packet over the bodies), each at 20
+    and 100 bodies; ``bodies_per_core_240hz`` from the live 100-body figure, only when it is
+    within 20 % of the 20-body one (else linear extrapolation does not hold: None)."""
+    from trackers_cpu import measure as hot_loop
+
+    hot = {n: hot_loop(1000, bodies=n)["p50"]["total_us"] / n for n in (20, 100)}
+    live100 = e2e_latency(seconds, recording, bodies=100)
+    live = {20: live20["thread_cpu_us_per_packet"] / 20,
+            100: live100["thread_cpu_us_per_packet"] / 100}  # fmt: skip
+    linear = abs(live[100] / live[20] - 1) <= 0.2
+    return {
+        "cpu_us_per_body": {"hot": round(hot[20], 2), "live": round(live[20], 2)},
+        "cpu_us_per_body_100": {"hot": round(hot[100], 2), "live": round(live[100], 2)},
+        "live_over_hot": round(live[20] / hot[20], 2),
+        "bodies_per_core_240hz": round(1e6 / (RATE * live[100])) if linear else None,
     }
 
 
@@ -312,6 +348,7 @@ def main(argv=None) -> int:
         "rate_hz": RATE,
     }
     out["options"] = {"spin_us": args.spin_us}
+    out.update(cpu_per_body(args.seconds, args.recording, lat))
     out["cpu_share"] = round(lat["cpu_share"], 4)
     if plain is not None:
         out["plain"] = {

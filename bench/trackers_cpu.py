@@ -35,30 +35,31 @@ from trackflow.trackers.runtime import LiveSource, LiveSources
 BODIES, RATE, FREQ = 20, 240, 10_000_000
 
 
-def _packets(n: int) -> list[tuple[bytes, int]]:
-    """NatNet 4.1 frames of 20 moving bodies, with host arrival times 3 ms after transmit."""
+def _packets(n: int, bodies: int = BODIES) -> list[tuple[bytes, int]]:
+    """NatNet 4.1 frames of ``bodies`` moving bodies, with host arrival times 3 ms after
+    transmit."""
     out = []
     t0 = 1_700_000_000_000_000_000
     for i in range(n):
         t = t0 + i * 1_000_000_000 // RATE
         p = np.array([1.0, 2.0, 0.5]) + 0.01 * np.sin(i * 0.01)
         q = tuple(quat_exp(np.array([0.1, 0.2 + 0.001 * i, 0.3])))
-        bodies = tuple(
+        rbs = tuple(
             natnet.NatNetRigidBody(k, (p[0] + 0.1 * k, p[1], p[2]), q, 2e-4, True)
-            for k in range(1, BODIES + 1)
+            for k in range(1, bodies + 1)
         )
         tick = t * FREQ // 1_000_000_000
-        frame = natnet.NatNetFrame(i + 1, bodies, t * 1e-9, tick, tick, tick + 20_000)
+        frame = natnet.NatNetFrame(i + 1, rbs, t * 1e-9, tick, tick, tick + 20_000)
         out.append((natnet.encode_frame(frame, (4, 1)), t + 3_000_000))
     return out
 
 
-def network():
-    """The NatNet 4.1 input of 20 bodies (its handshake done) and the sources of 20 pose
-    Kalman filters, one each, compiled: ``(input, {name: LiveSource})``."""
+def network(bodies: int = BODIES):
+    """The NatNet 4.1 input of ``bodies`` bodies (its handshake done) and the sources of as
+    many pose Kalman filters, one each, compiled: ``(input, {name: LiveSource})``."""
     specs = {
         f"b{k}": (parse_input({"natnet": {"command_port": 1, "body": k}}), np.eye(6) * 1e-6)
-        for k in range(1, BODIES + 1)
+        for k in range(1, bodies + 1)
     }
     (inp,) = make_inputs(specs)
     info = natnet.ServerInfo(natnet_version=(4, 1, 0, 0), clock_frequency=FREQ)
@@ -76,10 +77,11 @@ def network():
     return inp, sources
 
 
-def measure(packets: int, between=None) -> dict:
-    """Per-packet thread CPU times [us]; ``between()``, if given, runs before each packet
-    (``experiments/trackers_idle_core.py`` sleeps or spins there for the packet period)."""
-    inp, sources = network()
+def measure(packets: int, between=None, bodies: int = BODIES) -> dict:
+    """Per-packet thread CPU times [us] of packets of ``bodies`` bodies; ``between()``, if
+    given, runs before each packet (``experiments/trackers_idle_core.py`` sleeps or spins
+    there for the packet period)."""
+    inp, sources = network(bodies)
     names = [b.name for b in inp.bodies]
     delivery = LiveSources(sources)
     rows = []
@@ -90,7 +92,7 @@ def measure(packets: int, between=None) -> dict:
         got.extend((clock(), answers))
 
     with calm_gc():
-        for k, (data, arrival) in enumerate(_packets(packets + 200)):
+        for k, (data, arrival) in enumerate(_packets(packets + 200, bodies)):
             if between is not None:
                 between()
             t0 = clock()
@@ -111,7 +113,7 @@ def measure(packets: int, between=None) -> dict:
         "p10": {k: round(float(v), 1) for k, v in zip(keys, np.percentile(r, 10, axis=0))},
         "p50": {k: round(float(v), 1) for k, v in zip(keys, np.percentile(r, 50, axis=0))},
         "p99": {k: round(float(v), 1) for k, v in zip(keys, np.percentile(r, 99, axis=0))},
-        "bodies": BODIES,
+        "bodies": bodies,
         "packets": packets,
     }
 
