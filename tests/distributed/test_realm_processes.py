@@ -162,7 +162,8 @@ def test_a_realm_made_by_realm_init_cannot_be_spoofed(tmp_path, realm):
     p = np.array([a.pose.position for a in answers])
     sigma = np.sqrt(np.array([np.trace(a.pose.covariance[:3, :3]) / 3 for a in answers]))
     err = np.linalg.norm(p - _truth((t - start) * 1e-9), axis=1)
-    calm, tried = err[:before], err[before:]
-    # the attack moved nothing: its answers' errors are those of the calm answers
-    assert tried.max() <= max(3 * calm.max(), 5e-3), (calm.max(), tried.max())
-    assert np.all(err < 5 * sigma + 3e-3), (err.max(), sigma.min())
+    # the attack moved nothing: every answer within its own error (5 sigma, plus the
+    # recording's 1 mm noise thrice) of the truth, before, during and after it; a fake state
+    # that got through would put answers metres off (8.1 m without the access control)
+    assert np.all(err < 5 * sigma + 3e-3), (err.max(), sigma[np.argmax(err)])
+    assert err[before:].max() < 0.1, err[before:].max()
