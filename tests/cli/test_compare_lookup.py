@@ -122,6 +122,13 @@ def test_compare_cli_results_and_plots(tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
 
 
+def test_a_delta_beyond_the_pairs_is_refused(capsys):
+    """evo refuses an RPE step longer than the trajectory; a table of NaN is no answer."""
+    assert main(["compare", str(GT), str(SLAM), "--t-max-diff", "0.02", "--delta", "100000"]) == 1
+    err = capsys.readouterr().err
+    assert "delta 100000 needs more than 100000 associated poses; there are" in err
+
+
 def test_plot_traj_several_files(tmp_path, capsys):
     out = tmp_path / "t.png"
     argv = ["plot-traj", str(GT), str(SLAM), "--out", str(out), "--views", "top,side,3d"]

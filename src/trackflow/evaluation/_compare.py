@@ -271,6 +271,10 @@ def compare_trajectories(
             f"{te[0]:.9g}..{te[-1]:.9g} s (+ offset {t_offset:g} s) with --t-max-diff "
             f"{t_max_diff:g} s"
         )
+    if delta >= len(ir):
+        raise InputError(
+            f"delta {delta} needs more than {delta} associated poses; there are {len(ir)}"
+        )
     rq, pq = _matrices(ref, ir)
     re_, pe = _matrices(est, ie)
     rot, trans, scale = np.eye(3), np.zeros(3), 1.0
