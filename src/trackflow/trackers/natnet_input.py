@@ -342,16 +342,16 @@ class NatNetInput(LiveInput):
 
     def names_missing(self) -> bool:
         """Some sensor selects its body by a name the model definitions do not (yet) hold."""
-        known, of = self._missing
-        if of is not self.models or of is None:
+        missing, of = self._missing
+        if of is not self.models or of is None:  # new definitions (or none yet): look again
             m = self.models
-            known = any(
+            missing = any(
                 isinstance(b.options["body"], str)
                 and (m is None or m.id_of(b.options["body"]) is None)
                 for b in self.bodies
             )
-            self._missing = (known, m)
-        return known
+            self._missing = (missing, m)
+        return missing
 
     def _note_names(self) -> None:
         """After new model definitions: a note on every sensor whose name is not in them."""
