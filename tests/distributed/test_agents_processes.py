@@ -3,6 +3,7 @@ re-planning, rejoining, garbage on the key space, late joiners, router-less and 
 
 from __future__ import annotations
 
+import json
 import struct
 import time
 
@@ -258,3 +259,30 @@ def test_router_setup_with_clients(tmp_path, procs):
         wait_for(_running_on(session, realm, "c", "q", "s2", min_published=q["published"] + 10), 30)
     finally:
         session.close()
+
+
+def test_status_file_is_current_while_the_agent_runs(tmp_path, procs):
+    """``--status FILE`` is rewritten while the agent runs (a monitor can read it at any time,
+    whole), not only at exit."""
+    rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=60, seed=9)
+    path = write_agent(
+        tmp_path / "s.yaml", "lone", f"st{free_port()}", zenoh={}, start_ns=time.time_ns(),
+        sensors=[dict(name="s1", source="W", target="X", rate_hz=100, sigma_pos_mm=1.0,
+                      sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
+                      recording=str(rec))],
+    )  # fmt: skip
+    status_file = tmp_path / "status.json"
+    p = procs(path, "--status", str(status_file))
+    p.wait_ready()
+    first = wait_for(lambda: status_file.exists() and json.loads(status_file.read_text()), 30)
+    assert p.proc.poll() is None  # written while running
+    assert first["agent"] == "lone" and first["security"] == "loopback"
+    later = wait_for(
+        lambda: (
+            (s := json.loads(status_file.read_text()))["published_states"]
+            > first["published_states"]
+            and s
+        ),
+        30,
+    )
+    assert later["agent"] == "lone" and p.proc.poll() is None

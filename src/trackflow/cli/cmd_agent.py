@@ -23,7 +23,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint")
     p.add_argument("--connect", action="append", default=None, help="Zenoh connect endpoint")
     p.add_argument("--start-ns", type=int, default=None, help="agent time of recording time 0")
-    p.add_argument("--status", type=Path, default=None, help="write the final status JSON here")
+    p.add_argument(
+        "--status",
+        type=Path,
+        default=None,
+        help="keep the status JSON here: rewritten every second while running, final at exit",
+    )
     p.add_argument(
         "--insecure",
         action="store_true",
@@ -54,13 +59,18 @@ def run(args) -> int:
     def ready(agent) -> None:
         print(json.dumps({"ready": agent.name, "realm": agent.realm}), flush=True)
 
+    def write(status: dict) -> None:  # replaced whole: a reader never sees half a file
+        tmp = args.status.with_name(args.status.name + ".tmp")
+        tmp.write_text(json.dumps(status, indent=2))
+        tmp.replace(args.status)
+
     stop = threading.Event()
     with stop_signals(lambda *_: stop.set()):  # SIGTERM/SIGHUP end the agent as Ctrl-C does
-        status = run_agent(cfg, args.duration, on_ready=ready, stop=stop)
-    text = json.dumps(status, indent=2)
+        status = run_agent(cfg, args.duration, on_ready=ready, stop=stop,
+                           on_status=write if args.status is not None else None)  # fmt: skip
     if args.status is not None:
-        args.status.write_text(text)
+        write(status)
     else:
-        print(text)
+        print(json.dumps(status, indent=2))
     sys.stdout.flush()
     return 0

@@ -708,22 +708,30 @@ def run_agent(
     duration_s: float | None = None,
     on_ready=None,
     stop: threading.Event | None = None,
+    on_status=None,
+    status_period_s: float = 1.0,
 ) -> dict:
     """Run an agent until ``duration_s`` passes, ``stop`` is set (the command line sets it
     on SIGTERM), Ctrl-C, or (without a duration) until its recordings have played, or
     forever if it has none. Returns the final :meth:`Agent.status`. ``on_ready(agent)`` is
-    called once it is running."""
+    called once it is running, ``on_status(status)`` every ``status_period_s`` while it
+    runs (``trackflow agent --status`` keeps its file current with it)."""
     stop = stop or threading.Event()
     agent = Agent(config).start()
     try:
         if on_ready is not None:
             on_ready(agent)
         deadline = None if duration_s is None else time.monotonic() + duration_s
+        next_status = time.monotonic() + status_period_s
         while not stop.is_set():
-            if deadline is not None and time.monotonic() >= deadline:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
                 break
             if deadline is None and agent.recordings_done():
                 break
+            if on_status is not None and now >= next_status:
+                on_status(agent.status())
+                next_status = now + status_period_s
             stop.wait(0.1)
         return agent.status()
     finally:
