@@ -4,7 +4,10 @@ re-planning, rejoining, garbage on the key space, late joiners, router-less and 
 from __future__ import annotations
 
 import json
+import os
 import struct
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -13,6 +16,7 @@ import pytest
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
 
 from _agents import (
+    SRC,
     AgentProcess,
     endpoint,
     free_port,
@@ -286,3 +290,43 @@ def test_status_file_is_current_while_the_agent_runs(tmp_path, procs):
         30,
     )
     assert later["agent"] == "lone" and p.proc.poll() is None
+
+
+def test_status_command_shows_every_agent_of_a_realm(tmp_path, procs):
+    """``trackflow status --realm`` joins read-only and shows both agents: the sensor's
+    host advertising its sensor, the application's query running on it."""
+    realm = f"stat{free_port()}"
+    ps, pc = free_port(), free_port()
+    rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=60, seed=5)
+    sensor = write_agent(
+        tmp_path / "s.yaml", "host_s", realm, start_ns=time.time_ns(),
+        zenoh={"listen": {"endpoints": [endpoint(ps)]}},
+        sensors=[dict(name="s1", source="W", target="X", rate_hz=100, sigma_pos_mm=1.0,
+                      sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
+                      recording=str(rec))],
+    )  # fmt: skip
+    app = write_agent(
+        tmp_path / "c.yaml", "host_c", realm,
+        zenoh={"listen": {"endpoints": [endpoint(pc)]}, "connect": {"endpoints": [endpoint(ps)]}},
+        frames=["W", "X"], queries=[dict(name="q", source="W", target="X", mode="push",
+                                         rate_hz=50)],
+    )  # fmt: skip
+    for p in (procs(sensor), procs(app)):
+        p.wait_ready()
+    cmd = [sys.executable, "-m", "trackflow.cli.main", "status", "--realm", realm,
+           "--connect", endpoint(ps), "--connect", endpoint(pc)]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(SRC))
+
+    def running():
+        out = subprocess.run([*cmd, "--json"], capture_output=True, text=True, timeout=60,
+                             env=env)  # fmt: skip
+        st = json.loads(out.stdout)
+        q = st.get("host_c", {}).get("queries", {}).get("q", {})
+        return st if q.get("state") == "running" and q.get("published", 0) > 0 else None
+
+    st = wait_for(running, 60, interval_s=1.0)
+    assert sorted(st) == ["host_c", "host_s"]
+    assert st["host_c"]["live_edges"] == {"s1": "host_s"}
+    text = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env).stdout
+    assert text.startswith(f"realm {realm}: 2 agent(s)")
+    assert "host_s (links: loopback)" in text and "q: running, path W->X[s1]" in text
