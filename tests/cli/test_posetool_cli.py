@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from trackflow.cli.main import main
-from trackflow.io import read_stream, write_stream
+from trackflow.io import PoseStream, read_stream, write_stream
 from trackflow.math import quat_angle
 
 DATA = Path(__file__).parent / "data"
@@ -83,6 +83,19 @@ def test_every_subcommand_runs(small, tmp_path, capsys):
     f, _ = read_stream(out / "f.tfrec")
     g, _ = read_stream(out / "g.tfrec")
     assert len(f) == 1000 and np.allclose(g.covariance, 4 * f.covariance)
+
+
+def test_filter_a_recording_that_never_moves(tmp_path):
+    """A body at rest with no noise at all: NIS 0, nothing to calibrate the noise by; the
+    filter still runs (it failed with "noise scale must be > 0, got 0.0")."""
+    t = np.arange(200, dtype=np.int64) * 10_000_000
+    still = PoseStream("w", "b", t, np.tile([1.0, 2.0, 0.5], (200, 1)),
+                       np.tile([0.0, 0.0, 0.0, 1.0], (200, 1)))  # fmt: skip
+    path = tmp_path / "still.tfrec"
+    write_stream(path, still)
+    assert main(["filter", str(path), str(tmp_path / "f.tfrec")]) == 0
+    f, _ = read_stream(tmp_path / "f.tfrec")
+    assert len(f) == 200 and np.allclose(f.position, [1.0, 2.0, 0.5])
 
 
 def test_infer_aligns_two_recordings_by_filters(small, tmp_path):

@@ -251,6 +251,8 @@ def _calibrated(pred, t, p, q, horizon: float, calibrate: bool):
     if not nis.size:
         return pred, 1.0, out
     k = float(np.mean(nis)) / _dof(pred)
+    if not k > 0:  # a recording that never moves nor shows noise: nothing to calibrate by
+        return pred, 1.0, out
     pred = scale_noise(pred, k)
     return pred, k, _run_part(pred, t, p, q, horizon)
 
