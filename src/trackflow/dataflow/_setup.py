@@ -38,6 +38,7 @@ from ..math import Pose
 from ..yamlfile import YamlMap, line_of, read_yaml
 from ._planner import Plan, plan_query
 from ._sources import RecordingPlayer
+from ._static_loops import StaticLoops
 
 __all__ = ["Setup", "load_setup", "parse_setup"]
 
@@ -411,6 +412,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 inputs[str(s["name"])] = parse_input(s["input"], base_dir)
             except ValueError as exc:
                 raise _err(source, s.get("input") or s, f"{what}: {exc}") from exc
+    loops = StaticLoops()
     for i, s in enumerate(doc.get("statics") or []):
         what = f"statics[{i}]"
         _check_keys(source, s, _STATIC_KEYS, what)
@@ -431,6 +433,9 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             g.add_static(name, src_f, tgt_f, pose, cov)
         except (TypeError, ValueError) as exc:
             raise _err(source, s, f"{what}: {exc}") from exc
+        why = loops.add(name, src_f, tgt_f, pose, g.edge(name).covariance)
+        if why is not None:
+            raise _err(source, s, f"{what}: {why}")
     queries: dict[str, Query] = {}
     for i, q in enumerate(doc.get("queries") or []):
         what = f"queries[{i}]"
