@@ -6,6 +6,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -126,3 +127,25 @@ def test_an_agent_refuses_plain_links_off_this_machine(tmp_path):
         zenoh_config(cfg)
     cfg = load_agent(_agent(tmp_path, "a", "art", extra=extra + ", insecure: true"))
     assert security(zenoh_config(cfg)) == ("insecure", ["tcp/192.168.1.5:7447"])
+
+
+def test_plan_on_a_realms_agent_files(tmp_path, capsys):
+    """``trackflow plan`` on agent files plans on their union, as the agents would: the
+    example realm's query runs through the tracker's and the camera's sensors."""
+    from trackflow.cli.main import main
+
+    ex = Path(__file__).resolve().parents[2] / "examples" / "distributed"
+    files = [str(ex / f) for f in ("tracker.yaml", "camera.yaml", "app.yaml")]
+    assert main(["plan", *files]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("path: P->A[projector] . A->T[art] . T->C[target_camera]")
+    assert main(["plan", files[2]]) == 1  # the application alone has no path
+    assert "no path" in capsys.readouterr().err
+
+
+def test_a_realm_with_one_sensor_twice_is_refused(tmp_path):
+    from trackflow.distributed.realm_setup import realm_setup
+
+    a, b = _agent(tmp_path, "a", "art"), _agent(tmp_path, "b", "art", "Y")
+    with pytest.raises(ConfigError, match=r"b\.yaml: edge 'art' is also in .*a\.yaml"):
+        realm_setup([a, b])

@@ -15,7 +15,12 @@ def register(subparsers) -> argparse.ArgumentParser:
         description="Find the path(s) for a query in a setup's spatial relationship graph and "
         "print the dataflow network the planner builds (thesis 7.4).",
     )
-    p.add_argument("setup", type=Path, help="YAML setup file")
+    p.add_argument(
+        "setup",
+        type=Path,
+        nargs="+",
+        help="YAML setup file, or a realm's agent files (planned on their union graph)",
+    )
     p.add_argument("--from", dest="source", help="source frame (default: the setup's query)")
     p.add_argument("--to", dest="target", help="target frame")
     p.add_argument("--query", help="name of a query in the setup (default: the first)")
@@ -34,10 +39,10 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ..dataflow import load_setup
+    from ..distributed.realm_setup import realm_setup
     from ..graph import Query
 
-    setup = load_setup(args.setup)
+    setup = realm_setup(args.setup)
     if args.source or args.target:
         if not (args.source and args.target):
             raise InputError("give both --from and --to")

@@ -48,6 +48,7 @@ from ._sources import (
     SimulatedSensor,
     StaticPose,
 )
+from ._static_loops import StaticLoops
 from ._warmup import warm_up
 
 __all__ = [
@@ -95,6 +96,7 @@ __all__ = [
     "Recorder",
     "Sampler",
     "Setup",
+    "StaticLoops",
     "SimulatedSensor",
     "StaticPose",
     "SwitchEvent",
