@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,11 +22,16 @@ class CallbackSink(Component):
 
     Statistics: delivery latency = network clock at delivery - origin sensor timestamp;
     ``wall_latencies_ns`` = wall time from the scheduler dispatching the causing event to
-    delivery (processing cost).
+    delivery (processing cost). With ``keep`` set (a live run for hours), only the newest
+    ``keep`` latencies (and, for a :class:`Recorder`, results) stay in memory; the counts
+    stay whole.
     """
 
     push_in = 1
     kind = "callback"
+    #: how many of the newest results and latencies stay in memory (None: all); set before
+    #: :meth:`reset`
+    keep: int | None = None
 
     def __init__(self, name: str, callback: Callable[[Measurement], None] | None = None):
         super().__init__(name)
@@ -34,7 +40,13 @@ class CallbackSink(Component):
 
     def reset(self) -> None:
         super().reset()
-        self.wall_latencies_ns = []
+        self.wall_latencies_ns = self._kept()
+        if self.keep is not None:
+            self.stats.latencies_ns = self._kept()
+
+    def _kept(self):
+        """A new store of results or latencies: a list, or the newest ``keep`` only."""
+        return [] if self.keep is None else deque(maxlen=self.keep)
 
     def push(self, m: Measurement, port: int = 0) -> None:
         self.stats.events_in += 1
@@ -90,7 +102,7 @@ class Recorder(CallbackSink):
 
     def reset(self) -> None:
         super().reset()
-        self.events = []
+        self.events = self._kept()
         self.finish()
         self._last_written: int | None = None
         if self.path is not None:

@@ -33,6 +33,7 @@ import numpy as np
 from ..dataflow import (
     BACKLOG_NS,
     SAMPLE,
+    CallbackSink,
     Component,
     KalmanBank,
     KalmanFilter,
@@ -63,6 +64,10 @@ from .inputs import (
     warm_up_inputs,
 )
 from .switch_log import SwitchLog, read_switch_log, switch_log_path
+
+#: answers (and their latencies) a live run keeps in memory per query: the newest 10 minutes
+#: at 60 Hz; all of them go to the recording and the callbacks
+LIVE_KEEP = 36_000
 
 __all__ = [
     "LiveSource",
@@ -608,6 +613,9 @@ def run_live(
     log = SwitchLog(None if record is None else switch_log_path(record))
     served = _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log)
     net = served.net
+    for c in net.components.values():  # answers go to the file and callbacks: memory stays
+        if isinstance(c, CallbackSink):
+            c.keep = LIVE_KEEP
     net.reset()
     warm_up(net)
     warm_up_inputs()
