@@ -65,9 +65,9 @@ from .inputs import (
 )
 from .switch_log import SwitchLog, read_switch_log, switch_log_path
 
-#: answers (and their latencies) a live run keeps in memory per query: the newest 10 minutes
-#: at 60 Hz; all of them go to the recording and the callbacks
-LIVE_KEEP = 36_000
+#: answers (and their latencies) a live run keeps in memory per query: the newest minute at
+#: 60 Hz; all of them go to the recording and the callbacks
+LIVE_KEEP = 3_600
 
 __all__ = [
     "LiveSource",
