@@ -36,9 +36,10 @@ class _Motive:
     ``head`` description has a wrong size, later ones a good one; after CONNECT a frame of
     bodies 3 (head) and 5 (hand) every 10 ms to the client."""
 
-    def __init__(self, bad: int):
+    def __init__(self, bad: int, port: int = 0):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind(("127.0.0.1", port))
         self.sock.settimeout(0.01)
         self.port = self.sock.getsockname()[1]
         self.bad, self.requests = bad, 0
@@ -146,3 +147,21 @@ def test_a_server_that_never_answers_is_reported():
     assert inp.status.connection["handshake not answered"] == 1
     assert "to CONNECT for 2 s: is Motive streaming" in inp.status.notes["hint"]
     assert inp.status.measurements == 0
+
+
+def test_a_restarted_server_is_connected_to_again():
+    """Motive restarted: the new server streams only to clients that CONNECT. The input hears
+    nothing for 2 s, says so and connects again; the measurements go on."""
+    first = _Motive(bad=0)
+    port = first.port
+    inp = _input(port)
+    inp.start(lambda i, data, a: i.handle(data, a))
+    try:
+        with first:
+            assert _wait(lambda: inp.status.measurements >= 5)
+        before = inp.status.measurements
+        with _Motive(bad=0, port=port):
+            assert _wait(lambda: inp.status.measurements >= before + 20, 30)
+    finally:
+        inp.stop()
+    assert inp.status.connection["server silent: handshake again"] >= 1

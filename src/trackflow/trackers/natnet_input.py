@@ -31,7 +31,8 @@ class NatNetInput(LiveInput):
     skipped as malformed, a body added in Motive later), MODELDEF is asked for again, with
     the wait doubling from 0.5 s to 8 s. A server that does not answer the handshake within
     :attr:`HANDSHAKE_WAIT_S` is reported (event and status note), as is a name the
-    definitions do not hold."""
+    definitions do not hold. A unicast server silent for :attr:`REHANDSHAKE_S` after the
+    handshake is connected to again (a restarted Motive has forgotten its clients)."""
 
     protocol = "natnet"
     #: round trips at the start, then the period between them [s]
@@ -40,6 +41,9 @@ class NatNetInput(LiveInput):
     MODELDEF_FIRST_S, MODELDEF_MAX_S = 0.5, 8.0
     #: a server silent this long after the first CONNECT is reported [s]
     HANDSHAKE_WAIT_S = 2.0
+    #: a unicast server silent this long after the handshake is asked again (CONNECT): a
+    #: restarted Motive streams only to clients that connect to it [s]
+    REHANDSHAKE_S = 2.0
 
     def __init__(self, spec):
         super().__init__(spec)
@@ -419,10 +423,16 @@ class NatNetInput(LiveInput):
         connected = None
         modeldef_wait = self.MODELDEF_FIRST_S
         silent_since = time.monotonic()  # the first CONNECT; None once answered or reported
+        heard = time.monotonic()  # the last datagram from the server
         wait = self._due_wait()
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
+                if not mc and self.server is not None and now - heard > self.REHANDSHAKE_S:
+                    # a silent unicast server may have restarted and forgotten this client
+                    self.server = None
+                    self._event_all("server silent: handshake again")
+                    heard, next_cmd = now, 0.0
                 try:
                     if now >= next_cmd and self.server is None:
                         cmd.sendto(natnet.encode_connect(), server)
@@ -450,6 +460,7 @@ class NatNetInput(LiveInput):
                         raw, arrival = recv_stamped(key.fileobj, self.kernel_stamps)
                     except OSError:  # nothing to read, ICMP port unreachable while no server
                         continue
+                    heard = time.monotonic()
                     had_server = self.server is not None
                     sink(self, raw, arrival)
                     if raw[:2] == _FRAME_ID:  # the stream's period is the frames'
