@@ -172,6 +172,20 @@ def test_dtrack_status_names_the_ids_sent_and_hints_at_counting_from_0():
     assert st.notes == {"seen": "6d ids seen: 0, 1, 2"}
 
 
+def test_dtrack_a_line_kind_that_appears_later_is_noted():
+    """Bodies first, then a Flystick line too: the ids of the new kind join the notes (a
+    kind not seen before must not break the packet)."""
+    inp = make_input("s", parse_input({"dtrack": {"body": 0}}), COV)
+    R = tuple(np.eye(3).ravel())
+    body = dtrack.DTrackBody(0, 1.0, (1.0, 2.0, 3.0), R)
+    fly = dtrack.DTrackFlystick(0, 1.0, (1.0, 2.0, 3.0), R, (False,) * 8, (0.0, 0.0))
+    first = dtrack.DTrackFrame(1, None, (1001, 0, 100), None, (body,), ())
+    later = dtrack.DTrackFrame(2, None, (1002, 0, 100), None, (body,), (), flysticks=(fly,))
+    assert len(inp.handle(dtrack.encode_dtrack(first, None, None), 10**12 + 10**9)) == 1
+    assert len(inp.handle(dtrack.encode_dtrack(later, None, None), 10**12 + 2 * 10**9)) == 1
+    assert inp.seen == {"body": {0}, "flystick": {0}}
+
+
 def test_dtrack_ts_over_midnight_and_6dcov():
     inp = _dtrack(latency_ms=2.0)
     cov = dtrack.DTrackCovariance(

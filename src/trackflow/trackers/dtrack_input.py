@@ -13,6 +13,8 @@ from .live_input import Body, LiveInput, recv_stamped
 
 __all__ = ["DTrackInput"]
 
+_NONE: frozenset = frozenset()  # no id of a kind seen yet
+
 
 class DTrackInput(LiveInput):
     """DTrack bodies from the UDP output (``ts2`` latency preferred, else ``ts`` with the
@@ -59,7 +61,7 @@ class DTrackInput(LiveInput):
         lines = {"body": f.bodies, "flystick": f.flysticks, "tool": f.tools, "hand": f.hands}
         by_id = {k: {x.id: x for x in v} for k, v in lines.items() if v}
         seen = self.seen
-        if seen is None or any(not ids.keys() <= seen.get(k, ()) for k, ids in by_id.items()):
+        if seen is None or any(not ids.keys() <= seen.get(k, _NONE) for k, ids in by_id.items()):
             self._saw(by_id)
         covs = {x.id: x for x in f.covariances}
 

@@ -275,7 +275,8 @@ class LiveInput:
     def _map(self, tx_ns: int, latency_ns: int, arrival_ns: int) -> int:
         """Exposure time on the host clock: the send time ``tx_ns`` (tracker clock) mapped
         by the envelope fit, minus the protocol's exposure-to-send latency. A stamp that
-        jumps off the fit is refused (PacketError) until the next ones confirm the jump
+        steps off the fit is refused (PacketError) until the next ones confirm the step; one
+        that jumps below it is mapped by the fit but kept out of it until confirmed
         (:class:`~trackflow.timesync.ClockMapper`), so one corrupted stamp moves nothing."""
         clock = self.clock
         if not clock.add(tx_ns, arrival_ns):
