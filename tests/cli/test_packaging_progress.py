@@ -12,9 +12,11 @@ import pytest
 
 from trackflow.cli._progress import FinishingStream, Progress
 from trackflow.cli.main import main
+from trackflow.math import use_backend
 
 DATA = Path(__file__).parent / "data"
 GT = DATA / "fr1_xyz_groundtruth_10s.txt"
+DEMO_SETUP = resources.files("trackflow") / "examples" / "demo_setup.yaml"
 
 
 def test_examples_are_package_data():
@@ -28,6 +30,8 @@ def test_examples_are_package_data():
     [
         ("rosbags", ["convert", str(GT), "{tmp}/o.bag"], "trackflow[ros]"),
         ("matplotlib", ["plot-traj", str(GT), "--out", "{tmp}/t.png"], "trackflow[plot]"),
+        # a live setup's view: said before its view process starts (no BufferError from it)
+        ("viser", ["view", str(DEMO_SETUP), "--snapshot", "{tmp}/v.png"], "trackflow[viewer]"),
     ],
 )
 def test_missing_extra_is_named(module, argv, extra, tmp_path, monkeypatch, capsys):
@@ -102,3 +106,27 @@ def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
         plotting.plot_sequence(tmp_path / "e.png", recording, pred, 0.1, (1000, 1003))
     assert not (tmp_path / "e.png").exists()
     assert np.isfinite(t).all()
+
+
+def test_the_numpy_backend_is_announced_once_before_the_work(capsys):
+    with use_backend("numpy"):
+        assert main(["compare", str(GT), str(GT), "--align", "se3"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("trackflow: the numpy backend was selected, so the numerical kernels")
+    assert err.count("run as plain NumPy") == 1 and "100x slower" in err
+
+
+def test_the_numpy_reason_names_the_variable_or_the_missing_numba(monkeypatch):
+    from trackflow.math import _backend
+
+    monkeypatch.setenv("TRACKFLOW_BACKEND", "numpy")
+    assert _backend.numpy_reason() == "TRACKFLOW_BACKEND=numpy"
+    monkeypatch.setattr(_backend, "numba_available", lambda: False)
+    assert _backend.numpy_reason() == "numba is not installed"
+
+
+def test_compile_on_the_numpy_backend_says_why_nothing_compiles(capsys):
+    with use_backend("numpy"):
+        assert main(["compile"]) == 0
+    err = capsys.readouterr().err
+    assert "nothing to compile: the numpy backend was selected" in err and "plain NumPy" in err

@@ -22,7 +22,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from ..evaluation import compile_kernels
-    from ..math import get_backend
+    from ..math._backend import numpy_reason
 
     t0 = time.perf_counter()
 
@@ -37,7 +37,11 @@ def run(args) -> int:
         say("live tracker packets (run)")
         warm_up_inputs()
     if not steps:
-        print(f"trackflow: nothing to compile (backend {get_backend()})", file=sys.stderr)
+        print(
+            f"trackflow: nothing to compile: {numpy_reason()}, so the kernels run as plain "
+            "NumPy (about 100x slower)",
+            file=sys.stderr,
+        )
     elif not args.quiet:
         print(f"trackflow: kernels compiled in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0

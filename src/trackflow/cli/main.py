@@ -122,22 +122,35 @@ def _quiet_stdout() -> None:
 
 
 def _announce_compilation(quiet: bool) -> None:
-    """Say once, on standard error, when a command must wait for kernels to compile."""
-    from ..math._backend import set_compile_notice
+    """Say once, on standard error, when a command must wait for kernels to compile, or will
+    run on the slow NumPy backend (said even with ``--quiet``: it changes how long a run takes
+    by two orders of magnitude)."""
+    from ..math._backend import numpy_reason, set_notice
 
-    said = []
+    said = set()
 
-    def notice(source: str) -> None:
-        if not said and not quiet:
+    def notice(event: str, source: str) -> None:
+        if event in said:
+            return
+        said.add(event)
+        if event == "numpy":
+            print(
+                f"trackflow: {numpy_reason()}, so the numerical kernels run as plain NumPy: "
+                "filtering is about 100x slower than compiled (a minute of tracking data can "
+                "take minutes). `pip install numba` (installed with trackflow where numba has "
+                "wheels) makes it fast.",
+                file=sys.stderr,
+                flush=True,
+            )
+        elif not quiet:
             print(
                 "trackflow: compiling numerical kernels for their first use (cached for later "
                 "runs; `trackflow compile` does this ahead of time) ...",
                 file=sys.stderr,
                 flush=True,
             )
-        said.append(source)
 
-    set_compile_notice(notice)
+    set_notice(notice)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,8 +61,9 @@ __all__ = [
     "get_backend",
     "kernels",
     "numba_available",
-    "set_compile_notice",
+    "numpy_reason",
     "set_backend",
+    "set_notice",
     "use_backend",
 ]
 
@@ -117,7 +118,7 @@ def set_backend(name: str) -> None:
         raise InputError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
     if name == "numba" and not numba_available():
         raise InputError(
-            "numba backend requested but numba is not installed: pip install 'trackflow[fast]'"
+            "numba backend requested but numba is not installed: pip install numba"
         )
     _backend = name
 
@@ -136,8 +137,19 @@ def use_backend(name: str):
 def kernels(source: types.ModuleType) -> types.ModuleType:
     """The kernels of the kernel source module ``source`` for the active backend."""
     if _backend != "numba":
+        if _notice is not None:
+            _notice("numpy", source.__name__)
         return source
     return _compiled(source.__name__)
+
+
+def numpy_reason() -> str:
+    """Why the NumPy backend is active, for a user: numba missing, or chosen."""
+    if not numba_available():
+        return "numba is not installed"
+    if os.environ.get("TRACKFLOW_BACKEND", "").lower() == "numpy":
+        return "TRACKFLOW_BACKEND=numpy"
+    return "the numpy backend was selected"
 
 
 # -- compiled copies ---------------------------------------------------------------------------
@@ -242,14 +254,16 @@ def _drop_stale_cache(name: str, path: str) -> None:
         stamp.write_text(fingerprint)
 
 
-_notice = None  # called once with a kernel source's name before its first cold compile
+_notice = None  # called with (event, kernel source name); see set_notice
 
 
-def set_compile_notice(callback) -> None:
-    """Call ``callback(source_name)`` before compiling a kernel source with an empty cache.
+def set_notice(callback) -> None:
+    """Call ``callback(event, source_name)`` when the user may wait for the kernels.
 
-    The command line uses it to say why the first run waits; the library stays silent.
-    ``None`` removes it.
+    ``event`` is ``"compile"`` before a kernel source with an empty cache is compiled, and
+    ``"numpy"`` each time a kernel source is handed out on the NumPy backend (the slow
+    reference path). The command line uses it to say why a run waits or crawls, once; the
+    library stays silent. ``None`` removes it.
     """
     global _notice
     _notice = callback
@@ -276,7 +290,7 @@ def _compiled(name: str) -> types.ModuleType:
     source = importlib.import_module(name)
     deps = {dep: (importlib.import_module(dep), _compiled(dep)) for dep in source.KERNEL_SOURCES}
     if _notice is not None and not cache_is_warm(source):
-        _notice(name)
+        _notice("compile", name)
     _drop_stale_cache(name, source.__file__)
     jit_name = f"{name}__compiled"
     spec = importlib.util.spec_from_file_location(jit_name, source.__file__)

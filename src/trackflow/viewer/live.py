@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Setup
-from ..errors import InputError, PlanError, ServiceError
+from ..errors import InputError, MissingExtraError, PlanError, ServiceError
+from ..optional import available
 from .board import Board
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
 from .graph_panel import EdgeStatus
@@ -113,6 +114,9 @@ class LiveView:
         self._send_lock = threading.Lock()
         opts = {"host": host, "port": int(port), "rate_hz": self.rate_hz, "priority": priority,
                 "style": style}  # fmt: skip
+        if not available("viser"):  # said here, before a process is started for nothing
+            board.close()
+            raise MissingExtraError("viser", "viewer", "the viewer")
         self.process, self._conn, self._sock = _start_process(timeout_s)
         try:
             self._conn.send((layout, board.name, opts))

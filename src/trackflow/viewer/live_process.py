@@ -425,6 +425,7 @@ def main(conn) -> None:
             except (BrokenPipeError, OSError):
                 pass  # the dataflow process is gone; the receiver stops us
 
+    board = None
     try:
         layout, board_name, options = conn.recv()
         lower_priority(options.get("priority", "low"))
@@ -436,8 +437,12 @@ def main(conn) -> None:
             options["style"], send,
         )  # fmt: skip
     except (EOFError, OSError):
+        if board is not None:
+            board.close()
         return  # the dataflow process went away before we started
     except Exception as exc:  # reported to the dataflow process, which raises it
+        if board is not None:
+            board.close()  # its views released, so the interpreter's exit is quiet
         send(("failed", f"{type(exc).__name__}: {exc}"))
         return
     stop = threading.Event()
