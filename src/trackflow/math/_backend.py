@@ -117,9 +117,7 @@ def set_backend(name: str) -> None:
     if name not in ("numba", "numpy"):
         raise InputError(f"unknown backend {name!r}; use 'numba' or 'numpy'")
     if name == "numba" and not numba_available():
-        raise InputError(
-            "numba backend requested but numba is not installed: pip install numba"
-        )
+        raise InputError("numba backend requested but numba is not installed: pip install numba")
     _backend = name
 
 
