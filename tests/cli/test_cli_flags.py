@@ -13,7 +13,7 @@ import pytest
 
 from trackflow.cli import _common
 from trackflow.cli.main import build_parser, flag_hints, main
-from trackflow.io import FORMATS, PoseStream, read_stream, write_stream
+from trackflow.io import FORMATS, MESSAGE_TYPES, PoseStream, read_stream, write_stream
 
 DATA = Path(__file__).parent / "data"
 GT = DATA / "fr1_xyz_groundtruth_10s.txt"
@@ -34,6 +34,7 @@ def test_mirrored_names_match_the_library():
     from trackflow.evaluation import LEARNED_ORDERS
 
     assert _common.FORMATS == FORMATS
+    assert _common.ROS_MESSAGE_TYPES == tuple(MESSAGE_TYPES)
     assert _common.LEARNED_ORDERS == tuple(LEARNED_ORDERS)
     assert DEFAULT_SEED == DemoConfig.seed
 

@@ -28,6 +28,14 @@ __all__ = [
 
 #: ``trackflow.io.FORMATS`` (mirrored so that parsing arguments does not import the library).
 FORMATS = ("native", "tum", "euroc", "csv", "rosbag", "quest", "broad", "kitti")
+#: ``trackflow.io.MESSAGE_TYPES`` (mirrored for the same reason).
+ROS_MESSAGE_TYPES = (
+    "PoseStamped",
+    "PoseWithCovarianceStamped",
+    "TransformStamped",
+    "Odometry",
+    "TFMessage",
+)
 #: ``trackflow.evaluation.LEARNED_ORDERS`` (mirrored for the same reason).
 LEARNED_ORDERS = (3, 5, 10)
 TIME_UNITS = ("s", "ms", "us", "ns")
@@ -90,6 +98,13 @@ def add_output(p, name: str = "output") -> None:
     p.add_argument(name, help="output file ('-' writes standard output; format from --to or "
                    "the extension)")  # fmt: skip
     p.add_argument("--to", choices=FORMATS, default=None, help="output format")
+    p.add_argument(
+        "--msgtype",
+        choices=ROS_MESSAGE_TYPES,
+        default=None,
+        help="ROS bag output: the message type (default PoseWithCovarianceStamped with a "
+        "covariance, else PoseStamped; TFMessage writes /tf)",
+    )
     p.add_argument(
         "--force", action="store_true", help="replace an existing output (default: refuse)"
     )
@@ -163,10 +178,26 @@ def load(args, name: str = "file", suffix: str = "", min_samples: int = 1):
 
 
 def save(args, stream, name: str = "output") -> None:
-    """Write ``stream`` to argument ``name`` under the output policy (``--to``, ``--force``)."""
+    """Write ``stream`` to argument ``name`` under the output policy (``--to``, ``--force``).
+
+    A ROS 2 bag written under another name than the one given (``run.mcap`` is the bag
+    directory ``run/``) is named on standard error, unless ``--quiet``.
+    """
+    import os
+
     from ..io import write_stream
 
-    write_stream(getattr(args, name), stream, format=args.to, overwrite=args.force)
+    given = getattr(args, name)
+    opts = {} if getattr(args, "msgtype", None) is None else {"msgtype": args.msgtype}
+    written = write_stream(given, stream, format=args.to, overwrite=args.force, **opts)
+    if isinstance(written, os.PathLike) and os.fspath(written) != os.fspath(given):
+        if not getattr(args, "quiet", False):
+            print(
+                f"trackflow: wrote the ROS 2 bag directory {written}{os.sep} "
+                f"(storage file {os.path.join(written, os.path.basename(given))}, "
+                "metadata.yaml)",
+                file=sys.stderr,
+            )
 
 
 def parse_horizons(text: str) -> tuple[float, ...]:

@@ -40,6 +40,7 @@ FLAG_FOR_OPTION = {
     "target": "--target",
     "overwrite": "--force",
     "delimiter": "--delimiter",
+    "msgtype": "--msgtype",
 }
 
 

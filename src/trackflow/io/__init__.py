@@ -6,10 +6,11 @@ per-format functions are exported too. Every writer follows one output policy
 (``atomic_output``: temporary file in the target directory, rename when complete, no silent
 overwrite, nothing left behind on failure); ``"-"`` is standard input/output. Formats,
 conversions and quirks: ``docs/formats.md``.
-IMU recordings: ``read_imu(path) -> (ImuStream, ReadReport)`` (EuRoC IMU csv, BROAD ``.mat``).
+IMU recordings: ``read_imu(path) -> (ImuStream, ReadReport)`` (EuRoC IMU csv, BROAD ``.mat``,
+``sensor_msgs/Imu`` in ROS bags); ``write_rosbag_imu`` writes one.
 """
 
-from ._api import FORMATS, guess_format, read_stream, write_stream
+from ._api import FORMATS, IMU_FORMATS, guess_format, read_imu, read_stream, write_stream
 from ._devices import (
     BROAD_RATE_HZ,
     DOTNET_UNIX_EPOCH_TICKS,
@@ -18,12 +19,14 @@ from ._devices import (
     write_broad,
     write_quest,
 )
-from ._imu import IMU_FORMATS, ImuStream, read_broad_imu, read_euroc_imu, read_imu
+from ._imu import ImuStream, read_broad_imu, read_euroc_imu
 from ._kitti import KITTI_RATE_HZ, read_kitti, write_kitti
 from ._native import RecordingWriter, read_native, write_native
 from ._output import STDIO, atomic_output, remove_stale_temporaries
 from ._report import ReadReport
 from ._rosbag import MESSAGE_TYPES, read_rosbag, write_rosbag
+from ._rosimu import read_rosbag_imu, write_rosbag_imu
+from ._rostf import FrameLookupError
 from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
 from ._text import read_csv, read_euroc, read_tum, write_csv, write_euroc, write_tum
 
@@ -35,6 +38,7 @@ __all__ = [
     "FLAG_ORIENTATION",
     "FLAG_POSITION",
     "FORMATS",
+    "FrameLookupError",
     "IMU_FORMATS",
     "ImuStream",
     "KITTI_RATE_HZ",
@@ -55,6 +59,7 @@ __all__ = [
     "read_native",
     "read_quest",
     "read_rosbag",
+    "read_rosbag_imu",
     "read_stream",
     "read_tum",
     "remove_stale_temporaries",
@@ -65,6 +70,7 @@ __all__ = [
     "write_native",
     "write_quest",
     "write_rosbag",
+    "write_rosbag_imu",
     "write_stream",
     "write_tum",
 ]

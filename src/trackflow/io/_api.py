@@ -10,15 +10,17 @@ from pathlib import Path
 
 from ..errors import FormatError, InputError
 from ._devices import read_broad, read_quest, write_broad, write_quest
+from ._imu import ImuStream, read_broad_imu, read_euroc_imu
 from ._kitti import read_kitti, write_kitti
 from ._native import MAGIC, read_native, write_native
 from ._output import STDIO
 from ._report import ReadReport
 from ._rosbag import read_rosbag, write_rosbag
+from ._rosimu import read_rosbag_imu
 from ._stream import PoseStream
 from ._text import read_csv, read_euroc, read_tum, write_csv, write_euroc, write_tum
 
-__all__ = ["FORMATS", "guess_format", "read_stream", "write_stream"]
+__all__ = ["FORMATS", "IMU_FORMATS", "guess_format", "read_imu", "read_stream", "write_stream"]
 
 _READERS = {
     "native": read_native,
@@ -42,6 +44,15 @@ _WRITERS = {
 }
 #: Names accepted by ``format=``.
 FORMATS = tuple(_READERS)
+#: IMU recording formats :func:`read_imu` understands.
+IMU_FORMATS = ("euroc_imu", "broad", "rosbag")
+
+
+def _is_bag(path: Path) -> bool:
+    """A ROS bag by name: ``.bag``, ``.mcap``/``.db3``, or a directory with ``metadata.yaml``."""
+    return path.suffix.lower() in (".bag", ".mcap", ".db3") or (
+        path.is_dir() and (path / "metadata.yaml").exists()
+    )
 
 
 def _head(path: Path) -> bytes:
@@ -73,7 +84,8 @@ def _is_quest_line(line: str) -> bool:
 def guess_format(path, for_writing: bool = False) -> str:
     """Format name from content (when reading an existing file) and extension.
 
-    Rules: native magic bytes; ``.bag`` or a directory with ``metadata.yaml`` -> ``rosbag``;
+    Rules: native magic bytes; ``.bag``, ``.mcap``, ``.db3`` or a directory with
+    ``metadata.yaml`` -> ``rosbag``;
     ``.mat`` -> ``broad``; ``.tfrec`` -> ``native``; a text file with a leading comment line
     ``#timestamp,...`` -> ``euroc``; 16 comma-separated columns with .NET ticks ->
     ``quest``; other comma-separated text -> ``csv``; whitespace-separated with 12 columns ->
@@ -85,9 +97,7 @@ def guess_format(path, for_writing: bool = False) -> str:
         with open(path, "rb") as f:
             if f.read(len(MAGIC)) == MAGIC:
                 return "native"
-    if suffix == ".bag" or (path.is_dir() and (path / "metadata.yaml").exists()):
-        return "rosbag"
-    if suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").exists():
+    if _is_bag(path):
         return "rosbag"
     if suffix == ".mat":
         return "broad"
@@ -100,7 +110,7 @@ def guess_format(path, for_writing: bool = False) -> str:
             return "csv"
         if suffix in (".txt", ".tum"):
             return "tum"
-        if for_writing and suffix in ("", ".db3", ".mcap"):
+        if for_writing and suffix == "":
             return "rosbag"
         raise FormatError(f"{path}: cannot tell the format from the name; pass format=")
     chunk = _head(path)
@@ -190,7 +200,7 @@ def _read_stdin(format, clean, options) -> tuple[PoseStream, ReadReport]:
 
 def write_stream(
     path, stream: PoseStream, format: str | None = None, *, overwrite: bool = False, **options
-) -> None:
+) -> Path | None:
     """Write ``stream`` in ``format`` (guessed from the extension when omitted).
 
     Every format follows one output policy (:func:`trackflow.io.atomic_output`): the file is
@@ -200,9 +210,13 @@ def write_stream(
     ``tum``).
 
     Extensions: ``.tfrec`` native, ``.txt``/``.tum`` TUM, ``.csv`` generic CSV, ``.bag`` ROS 1,
-    no extension ROS 2 bag directory, ``.mat`` BROAD. Options: ``msgtype=``/``topic=`` for
-    ``rosbag``, ``delimiter=``/``time_unit=`` for ``csv``, ``rate_hz=`` for ``broad``. What each
-    format can hold is listed in ``docs/formats.md``; fields it cannot hold are not written.
+    ``.mcap``/``.db3`` ROS 2 bag directory named without the suffix (``run.mcap`` writes
+    ``run/run.mcap`` and ``run/metadata.yaml``), no extension ROS 2 bag directory (SQLite),
+    ``.mat`` BROAD. Options: ``msgtype=``/``topic=``/``storage=`` for ``rosbag``,
+    ``delimiter=``/``time_unit=`` for ``csv``, ``rate_hz=`` for ``broad``. What each format can
+    hold is listed in ``docs/formats.md``; fields it cannot hold are not written.
+
+    Returns the path of a ROS bag written (``run.mcap`` -> ``run``), else ``None``.
     """
     if not isinstance(stream, PoseStream):
         raise InputError(f"stream must be a PoseStream, got {type(stream).__name__}")
@@ -217,4 +231,37 @@ def write_stream(
         raise InputError(
             f"format {fmt!r} does not take option(s) {unknown}; it accepts {accepted or 'none'}"
         )
-    func(path if str(path) == STDIO else Path(path), stream, overwrite=overwrite, **options)
+    return func(path if str(path) == STDIO else Path(path), stream, overwrite=overwrite, **options)
+
+
+def read_imu(
+    path, format: str | None = None, *, clean: bool = False, **options
+) -> tuple[ImuStream, ReadReport]:
+    """Read an IMU recording; the format is guessed from the name.
+
+    Parameters
+    ----------
+    path : path-like
+    format : {"euroc_imu", "broad", "rosbag"}, optional
+        Default: ``broad`` for ``.mat``; ``rosbag`` for ``.bag``, ``.mcap``, ``.db3`` or a
+        directory with ``metadata.yaml`` (``sensor_msgs/Imu``); else ``euroc_imu``.
+    clean : bool
+        Drop malformed rows (counted in the report) instead of raising ``ValueError``.
+    **options
+        ``rate_hz=`` for ``broad``; ``topic=``/``stamp=`` for ``rosbag``; ``frame=`` names the
+        sensor frame.
+
+    Returns
+    -------
+    ImuStream, ReadReport
+    """
+    path = Path(path)
+    if format is None:
+        if path.suffix.lower() == ".mat":
+            format = "broad"
+        else:
+            format = "rosbag" if _is_bag(path) else "euroc_imu"
+    readers = {"broad": read_broad_imu, "euroc_imu": read_euroc_imu, "rosbag": read_rosbag_imu}
+    if format not in readers:
+        raise InputError(f"unknown IMU format {format!r}; expected one of {IMU_FORMATS}")
+    return readers[format](path, clean=clean, **options)

@@ -1,5 +1,8 @@
 """Inertial measurement streams: ``ImuStream`` and readers for EuRoC IMU csv and BROAD ``.mat``.
 
+``sensor_msgs/Imu`` in ROS bags: :mod:`trackflow.io._rosimu`; ``read_imu`` over every format:
+:mod:`trackflow.io._api`.
+
 EuRoC IMU csv
 -------------
 ``#timestamp [ns], w_RS_S_x, w_RS_S_y, w_RS_S_z [rad/s], a_RS_S_x, a_RS_S_y, a_RS_S_z [m/s^2]``:
@@ -19,6 +22,7 @@ Both give the sensor's own frame (``"imu"`` by default); accelerometers measure 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,12 +31,10 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ._devices import BROAD_RATE_HZ
 from ._report import ReadReport
+from ._stream import unit_quaternions
 from ._table import parse_rows
 
-__all__ = ["IMU_FORMATS", "ImuStream", "read_broad_imu", "read_euroc_imu", "read_imu"]
-
-#: IMU file formats :func:`read_imu` understands.
-IMU_FORMATS = ("euroc_imu", "broad")
+__all__ = ["ImuStream", "check_rows", "read_broad_imu", "read_euroc_imu"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +53,15 @@ class ImuStream:
         Magnetic field in the sensor frame [microtesla], when the IMU has a magnetometer.
     frame : str
         Name of the sensor frame.
+    orientation : ndarray, shape (N, 4), or None
+        ``R_ref_sensor`` as unit quaternions ``(x, y, z, w)``, when the IMU estimates its
+        orientation against a reference frame of its own (ROS ``sensor_msgs/Imu``).
+    orientation_covariance : ndarray, shape (N, 3, 3), or None
+        Covariance of ``dtheta`` with ``R_true = R Exp(dtheta)`` (on the right, sensor frame)
+        [rad^2], ``docs/conventions.md``. All zeros for a sample: unknown.
+    gyro_covariance, accel_covariance : ndarray, shape (N, 3, 3), or None
+        Covariance of ``gyro`` [(rad/s)^2] and of ``accel`` [(m/s^2)^2], sensor frame. All
+        zeros for a sample: unknown.
     """
 
     t_ns: np.ndarray
@@ -58,20 +69,34 @@ class ImuStream:
     accel: np.ndarray
     mag: np.ndarray | None = None
     frame: str = "imu"
+    orientation: np.ndarray | None = None
+    orientation_covariance: np.ndarray | None = None
+    gyro_covariance: np.ndarray | None = None
+    accel_covariance: np.ndarray | None = None
 
     def __post_init__(self):
         t = np.ascontiguousarray(self.t_ns, dtype=np.int64).reshape(-1)
         n = t.shape[0]
-        arrays = {"gyro": self.gyro, "accel": self.accel}
-        if self.mag is not None:
-            arrays["mag"] = self.mag
-        for name, value in arrays.items():
+        arrays = {"gyro": (self.gyro, (n, 3)), "accel": (self.accel, (n, 3))}
+        optional = {
+            "mag": (n, 3),
+            "orientation": (n, 4),
+            "orientation_covariance": (n, 3, 3),
+            "gyro_covariance": (n, 3, 3),
+            "accel_covariance": (n, 3, 3),
+        }
+        for name, shape in optional.items():
+            if getattr(self, name) is not None:
+                arrays[name] = (getattr(self, name), shape)
+        for name, (value, shape) in arrays.items():
             a = np.ascontiguousarray(value, dtype=float)
-            if a.shape != (n, 3):
-                raise InputError(f"ImuStream.{name} must have shape ({n}, 3), got {a.shape}")
+            if a.shape != shape:
+                raise InputError(f"ImuStream.{name} must have shape {shape}, got {a.shape}")
             if not np.all(np.isfinite(a)):
-                k = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
+                k = int(np.flatnonzero(~np.isfinite(a.reshape(n, -1)).all(axis=1))[0])
                 raise InputError(f"ImuStream.{name} sample {k} is not finite: {a[k].tolist()}")
+            if name == "orientation" and n:
+                a = unit_quaternions(a)
             object.__setattr__(self, name, a)
         if n > 1 and np.any(np.diff(t) <= 0):
             k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
@@ -98,18 +123,25 @@ class ImuStream:
 
     def select(self, mask_or_index) -> ImuStream:
         """The samples at a boolean mask, slice or index array (order kept)."""
-        t = self.t_ns[mask_or_index]
+
+        def pick(a):
+            return None if a is None else a[mask_or_index]
+
         return ImuStream(
-            t,
+            self.t_ns[mask_or_index],
             self.gyro[mask_or_index],
             self.accel[mask_or_index],
-            None if self.mag is None else self.mag[mask_or_index],
+            pick(self.mag),
             self.frame,
+            pick(self.orientation),
+            pick(self.orientation_covariance),
+            pick(self.gyro_covariance),
+            pick(self.accel_covariance),
         )
 
     def shifted(self, offset_ns: int) -> ImuStream:
         """The same samples with ``offset_ns`` added to every time stamp."""
-        return ImuStream(self.t_ns + int(offset_ns), self.gyro, self.accel, self.mag, self.frame)
+        return dataclasses.replace(self, t_ns=self.t_ns + int(offset_ns))
 
 
 def read_euroc_imu(
@@ -128,7 +160,7 @@ def read_euroc_imu(
         value_cols=range(1, 7),
         clean=clean,
     )
-    keep = _check_rows(report, table.where, table.t_ns, table.values, clean, f"{path}:", "line")
+    keep = check_rows(report, table.where, table.t_ns, table.values, clean, f"{path}:", "line")
     v = table.values[keep]
     report.rows_kept = int(np.count_nonzero(keep))
     stream = ImuStream(table.t_ns[keep], v[:, 0:3], v[:, 3:6], None, frame)
@@ -167,7 +199,7 @@ def read_broad_imu(
     report = ReadReport(str(path), "broad", unit="row", rows_read=n)
     t_ns = np.rint(np.arange(n) * (1e9 / rate_hz)).astype(np.int64)
     values = np.concatenate(list(cols.values()), axis=1)
-    keep = _check_rows(report, np.arange(n), t_ns, values, clean, f"{path}: row ", "row")
+    keep = check_rows(report, np.arange(n), t_ns, values, clean, f"{path}: row ", "row")
     report.rows_kept = int(np.count_nonzero(keep))
     report.notes.append(f"t = row / {rate_hz} Hz; gyro rad/s, accel m/s^2, mag microtesla")
     mag = cols["imu_mag"][keep] if "imu_mag" in cols else None
@@ -175,7 +207,7 @@ def read_broad_imu(
     return stream, report
 
 
-def _check_rows(report, where, t_ns, values, clean, prefix, unit) -> np.ndarray:
+def check_rows(report, where, t_ns, values, clean, prefix, unit) -> np.ndarray:
     """Rows to keep: finite values and increasing time; otherwise an error naming the row."""
     bad = ~np.isfinite(values).all(axis=1)
     order = np.ones(len(t_ns), dtype=bool)
@@ -189,30 +221,3 @@ def _check_rows(report, where, t_ns, values, clean, prefix, unit) -> np.ndarray:
                 raise FormatError(f"{prefix}{int(where[k])}: {reason}")
             report.drop(reason, where[mask])
     return ~bad & order
-
-
-def read_imu(
-    path, format: str | None = None, *, clean: bool = False, **options
-) -> tuple[ImuStream, ReadReport]:
-    """Read an IMU recording; the format is guessed from the extension (``.mat`` -> ``broad``).
-
-    Parameters
-    ----------
-    path : path-like
-    format : {"euroc_imu", "broad"}, optional
-    clean : bool
-        Drop malformed rows (counted in the report) instead of raising ``ValueError``.
-    **options
-        ``rate_hz=`` for ``broad``; ``frame=`` names the sensor frame.
-
-    Returns
-    -------
-    ImuStream, ReadReport
-    """
-    if format is None:
-        format = "broad" if Path(path).suffix.lower() == ".mat" else "euroc_imu"
-    if format == "broad":
-        return read_broad_imu(path, clean=clean, **options)
-    if format == "euroc_imu":
-        return read_euroc_imu(path, clean=clean, **options)
-    raise InputError(f"unknown IMU format {format!r}; expected one of {IMU_FORMATS}")
