@@ -5,7 +5,8 @@ constant time offset, corrected by prediction, corrected by smoothing) and the e
 static relationship (fig. 9.17) on two real trackers. This script does both on
 
 * ``quest_ur5e/quest2``: a Quest 2 headset carried by a UR5e robot; calibrated (hand-eye,
-  clock offset) on the ``calib`` run and applied to ``traj1``;
+  clock offset) on the ``calib`` run and applied to ``traj1`` (also as a user reuses it:
+  ``--use --refit world``, :func:`reuse_figures`);
 * ``quest_ur5e/optitrack_unity_example``: the headset seen by OptiTrack and by itself.
 
 Writes PNGs to ``docs/calibration/`` and prints the figures quoted in ``docs/calibration.md``
@@ -24,8 +25,10 @@ import numpy as np
 
 from trackflow.calibration import (
     estimate_clock_offset,
+    evaluate_hand_eye,
     evaluate_with_world_fit,
     hand_eye_residuals,
+    refit_calibration,
     solve_hand_eye,
 )
 from trackflow.calibration.hand_eye import FORMS
@@ -245,6 +248,28 @@ def plot_rate_window(path, scan: dict, poses: dict):
     plt.close(fig)
 
 
+def reuse_figures(robot1, quest1, calib) -> dict:
+    """``calibrate hand-eye --use calib.json --refit world`` on traj1 (X from ``calib``, Z and
+    the offset refitted) against traj1's own default calibration and the stored world, each in
+    the same measures: a solve's (``A X = Z B`` over the solvers' inliers, motion pairs) and
+    every sample and pair without rejection (:func:`evaluate_hand_eye`)."""
+    own = solve_hand_eye(robot1, quest1)
+    reused = refit_calibration(robot1, quest1, calib.X)
+    keys = ("offset_s", "offset_sigma_s", "residual_pos_mm", "residual_ori_deg",
+            "pair_residual_pos_mm", "pair_residual_ori_deg", "n_used", "n_outliers", "n_pairs",
+            "n_pair_outliers")  # fmt: skip
+    out = {}
+    for name, r in (("own", own), ("reused", reused)):
+        out[name] = {k: getattr(r, k) for k in keys} | {
+            "Z_mm": (r.Z.position * 1e3).tolist(),
+            "Z_sd_mm": (np.sqrt(np.diag(r.Z.covariance))[:3] * 1e3).tolist(),
+            "Z_sd_deg": np.degrees(np.sqrt(np.diag(r.Z.covariance))[3:]).tolist(),
+            "all_blocks": evaluate_hand_eye(robot1, quest1, r.X.pose, r.Z.pose, r.offset_s),
+        }
+    out["stored"] = evaluate_hand_eye(robot1, quest1, calib.X.pose, calib.Z.pose, calib.offset_s)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration")
@@ -303,6 +328,7 @@ def main(argv=None) -> int:
     summary["quest_traj1_own_X_mm"] = (own.X.position * 1e3).tolist()
     summary["quest_traj1_own_X_sigma_mm"] = (np.sqrt(np.diag(own.X.covariance))[:3] * 1e3).tolist()
     summary["quest_traj1_own_offset_s"] = own.offset_s
+    summary["quest_traj1_reuse"] = reuse_figures(robot1, quest1, res["robot-world"])
     plot_rate_window(out / "quest_rate_window.png", summary["quest_rate_offset_vs_half_window_ms"],
                      {"calib": res["hand-eye"].offset_s * 1e3,
                       "traj1": own.offset_s * 1e3})  # fmt: skip

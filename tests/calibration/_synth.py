@@ -42,11 +42,13 @@ def two_trackers(
     rot_amp: float = 0.6,
     gap: tuple[float, float] | None = None,
     t0: float = 1.7e9,
+    Z=Z_TRUE,
 ):
     """Robot ``T_base_tool`` (a) and sensor ``T_world_body`` (b) with ``t_a = t_b + offset``.
 
     ``A X = Z B`` holds exactly at matching instants before noise; both streams get white
-    position and rotation noise; ``gap = (start, end)`` seconds removes sensor samples.
+    position and rotation noise; ``gap = (start, end)`` seconds removes sensor samples; ``Z``
+    ``(p (3,), q (4,))`` is the sensor's world in the robot's base (another session's).
     """
     rng = np.random.default_rng(seed + 1000)
     ta = np.arange(0, duration, 1 / rate_a) + rng.uniform(0, 1 / rate_a)
@@ -54,7 +56,7 @@ def two_trackers(
     pa, qa = motion(ta, seed, rot_amp, axes)
     pb_t, qb_t = motion(tb, seed, rot_amp, axes)  # true A at the sensor's true instants
     Xp, Xq = X_TRUE
-    Zp, Zq = Z_TRUE
+    Zp, Zq = Z
     # B = Z^-1 A X
     pAX = pb_t + quat_rotate(qb_t, Xp)
     qAX = quat_multiply(qb_t, Xq)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _synth import motion, perturb
+from _synth import X_TRUE, motion, perturb, two_trackers
 from scipy import stats
 
 from trackflow.calibration import (
@@ -61,6 +61,48 @@ def test_alignment_with_scale():
     assert abs(r.scale - 2.5) < 4 * r.scale_sigma + 1e-4
     # 3-D noise: sqrt(3 (1 mm^2 + (2.5 x 1 mm)^2)) = 4.7 mm
     assert r.residual_rmse_mm < 6.0
+
+
+def test_lever_arm_gain_matches_finite_differences():
+    a, b = two_trackers(3, duration=15.0, offset=0.1)
+    lever = X_TRUE[0]
+    r = align_trajectories(a, b, lever_arm=lever)
+    assert r.lever_arm_gain.shape == (7, 3) and r.covariance.shape == (7, 7)
+    # With the offset fixed the residual's Jacobian is exact and so is the gain. (The offset's
+    # column is the sensor velocity smoothed over +-2 samples, the slope of the expected
+    # motion, so with the offset estimated the gain is that of the expected objective, which
+    # a difference quotient through the noisy interpolation does not reproduce.)
+    fixed = align_trajectories(a, b, offset_s=0.1, estimate_offset=False, lever_arm=lever)
+    assert fixed.lever_arm_gain.shape == (6, 3)
+    # a's positions are linear in the lever arm, the robust solver's rejections and scale
+    # re-estimation are not (the +-h runs reject different blocks): differences of 1 cm, and
+    # 0.025 m/m or rad/m of tolerance on gains of order 1 (the quotients scatter by up to
+    # 0.011 on these data; a wrong sign or frame would be off by about 1)
+    h = 1e-2
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        rp, rm = (
+            align_trajectories(a, b, offset_s=0.1, estimate_offset=False, lever_arm=lever + s * d)
+            for s in (1, -1)
+        )
+        dt = (rp.T.position - rm.T.position) / (2 * h)
+        dth = quat_log(quat_multiply(quat_conjugate(rm.T.quaternion), rp.T.quaternion)) / (2 * h)
+        np.testing.assert_allclose(fixed.lever_arm_gain[:, k], np.r_[dt, dth], rtol=0, atol=0.025)
+    # a lever arm is the same as moving a's positions to the point by hand
+    moved = a.with_(position=a.position + quat_rotate(a.quaternion, lever))
+    ref = align_trajectories(moved, b, offset_s=r.offset_s, estimate_offset=False)
+    same = align_trajectories(a, b, offset_s=r.offset_s, estimate_offset=False, lever_arm=lever)
+    np.testing.assert_allclose(same.T.position, ref.T.position, atol=1e-9)
+    np.testing.assert_allclose(same.T.covariance, ref.T.covariance, rtol=1e-6, atol=1e-18)
+
+
+def test_lever_arm_input_is_checked():
+    a, b = two_trackers(3, duration=10.0)
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        align_trajectories(a, b, lever_arm=np.zeros(2))
+    with pytest.raises(ValueError, match="needs a lever_arm"):
+        align_trajectories(a, b, lever_arm_covariance=np.eye(3))
 
 
 def test_fit_alignment_rejects_reflections_and_lines():

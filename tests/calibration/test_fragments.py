@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from _synth import two_trackers
+from _synth import X_TRUE, Z_TRUE, two_trackers
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -77,8 +77,7 @@ def test_cli_hand_eye_json_use_and_fragment(tmp_path, capsys):
     rc = main(["calibrate", "hand-eye", *args, "--form", "robot-world", "--json", *extra])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
-    assert list(out) == ["X", "Z", "offset_s", "offset_sigma_s", "residual_pos_mm",
-                         "residual_ori_deg", "X_sigma_mm", "X_sigma_deg"]  # fmt: skip
+    assert list(out) == KEYS
     ref = solve_hand_eye(a, b)
     assert out["offset_s"] == pytest.approx(ref.offset_s, abs=1e-4)
     np.testing.assert_allclose(out["X"]["position"], ref.X.position, atol=1e-4)
@@ -91,6 +90,76 @@ def test_cli_hand_eye_json_use_and_fragment(tmp_path, capsys):
     used = json.loads(capsys.readouterr().out)
     assert used["residual_pos_mm"] == pytest.approx(out["residual_pos_mm"], rel=0.3)
     assert used["offset_s"] == out["offset_s"]
+    # the world-independent residual of the stored X, as the solve reported it
+    assert used["pair_residual_pos_mm"] == pytest.approx(out["pair_residual_pos_mm"], rel=0.1)
+    assert used["pair_residual_ori_deg"] == pytest.approx(out["pair_residual_ori_deg"], rel=0.1)
+
+
+KEYS = ["X", "Z", "offset_s", "offset_sigma_s", "residual_pos_mm", "residual_ori_deg",
+        "pair_residual_pos_mm", "pair_residual_ori_deg", "X_sigma_mm", "X_sigma_deg"]  # fmt: skip
+
+
+def test_cli_use_refit_world_keeps_X_and_refits_the_world(tmp_path, capsys):
+    from trackflow.math import quat_exp, quat_multiply
+
+    # session 1 calibrates; session 2 has another world frame and clock offset
+    a1, b1 = two_trackers(3, duration=20.0)
+    Z2 = (Z_TRUE[0] + np.array([0.3, 0.1, -0.2]), quat_multiply(Z_TRUE[1], quat_exp(
+        np.array([0.2, -0.5, 0.4]))))  # fmt: skip
+    a2, b2 = two_trackers(4, duration=20.0, offset=0.18, Z=Z2)
+    for name, s in (("r1", a1), ("s1", b1), ("r2", a2), ("s2", b2)):
+        write_stream(tmp_path / f"{name}.txt", s)
+    rc = main(["calibrate", "hand-eye", str(tmp_path / "r1.txt"), str(tmp_path / "s1.txt"),
+               "--form", "robot-world", "--json"])  # fmt: skip
+    assert rc == 0
+    (tmp_path / "calib.json").write_text(capsys.readouterr().out)
+    stored = json.loads((tmp_path / "calib.json").read_text())
+    session2 = [str(tmp_path / "r2.txt"), str(tmp_path / "s2.txt"), "--use",
+                str(tmp_path / "calib.json")]  # fmt: skip
+    # the stored world is wrong here, X is not (at this session's offset: the stored one is
+    # 70 ms off and spoils the motion pairs too)
+    assert main(["calibrate", "hand-eye", *session2, "--offset", "0.18", "--json"]) == 0
+    used = json.loads(capsys.readouterr().out)
+    assert used["residual_pos_mm"] > 100 * stored["residual_pos_mm"]
+    assert used["pair_residual_pos_mm"] < 3 * stored["pair_residual_pos_mm"]
+    extra = ["--fragment", str(tmp_path / "frag.yaml"), "--report", str(tmp_path / "rep")]
+    assert main(["calibrate", "hand-eye", *session2, "--refit", "world", "--json", *extra]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert list(out) == KEYS
+    assert out["X"] == stored["X"]  # kept, covariance and all
+    np.testing.assert_allclose(out["Z"]["position"], Z2[0], atol=2e-3)
+    assert abs(out["offset_s"] - 0.18) < 0.1 / 30
+    assert out["residual_pos_mm"] < 2 * stored["residual_pos_mm"]
+    frag = yaml.safe_load((tmp_path / "frag.yaml").read_text())
+    statics = {s["name"]: s for s in frag["statics"]}
+    np.testing.assert_allclose(statics["hand_eye_Z"]["position"], out["Z"]["position"])
+    np.testing.assert_allclose(statics["hand_eye_X"]["position"], X_TRUE[0], atol=2e-3)
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert report["form"] == "refit-world" and report["n_pairs"] > 100
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--refit", "X"], "cannot refit 'X': allowed: 'world'"),
+        (["--refit", "offset"], "cannot refit 'offset': allowed: 'world'"),
+        (["--refit", "world", "--drift"], "--form and --drift do not apply"),
+        (["--refit", "world", "--form", "hand-eye"], "--form and --drift do not apply"),
+    ],
+)
+def test_cli_refit_refuses_what_it_cannot_do(tmp_path, capsys, args, message):
+    (tmp_path / "calib.json").write_text("{}")  # refused before the file is read
+    rc = main(["calibrate", "hand-eye", str(tmp_path / "r.txt"), str(tmp_path / "s.txt"),
+               "--use", str(tmp_path / "calib.json"), *args])  # fmt: skip
+    assert rc == 1
+    assert message in capsys.readouterr().err
+
+
+def test_cli_refit_needs_use(tmp_path, capsys):
+    rc = main(["calibrate", "hand-eye", str(tmp_path / "r.txt"), str(tmp_path / "s.txt"),
+               "--refit", "world"])  # fmt: skip
+    assert rc == 1
+    assert "--refit needs --use" in capsys.readouterr().err
 
 
 def test_cli_reports_bad_input_without_traceback(tmp_path, capsys):

@@ -1,4 +1,5 @@
-"""Hand-eye / robot-world-hand-eye: Jacobians, consistency on synthetic truth, degenerate input."""
+"""Hand-eye / robot-world-hand-eye: Jacobians, consistency on synthetic truth, degenerate input,
+the world-independent motion-pair residual."""
 
 from __future__ import annotations
 
@@ -7,9 +8,14 @@ import pytest
 from _synth import X_TRUE, Z_TRUE, two_trackers
 from scipy import stats
 
-from trackflow.calibration import estimate_clock_offset, hand_eye_residuals, solve_hand_eye
+from trackflow.calibration import (
+    estimate_clock_offset,
+    evaluate_hand_eye,
+    hand_eye_residuals,
+    solve_hand_eye,
+)
 from trackflow.calibration.hand_eye import _relative, pair_residuals, pair_station_jacobians
-from trackflow.math import quat_conjugate, quat_exp, quat_log, quat_multiply
+from trackflow.math import Pose, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 
 
 def _err(est, true):
@@ -256,3 +262,35 @@ def test_a_drifting_sensor_world_does_not_bias_the_default_robot_world_form():
             if form == "robot-world":
                 assert e @ np.linalg.solve(r.X.covariance, e) < stats.chi2.ppf(0.999, 6)
     assert np.mean(err["robot-world"]) < 0.5 * np.mean(err["robot-world-joint"]), err
+
+
+def test_pair_residual_does_not_depend_on_either_world():
+    a, b = two_trackers(4, duration=20.0)
+    r = solve_hand_eye(a, b, form="hand-eye")
+    # on the hand-eye form's own pairs, the pair residual is the form's residual
+    assert r.pair_residual_pos_mm == pytest.approx(r.residual_pos_mm, rel=0.05)
+    assert r.pair_residual_ori_deg == pytest.approx(r.residual_ori_deg, rel=0.05)
+    # moving the sensor's world (a new session) changes nothing in it, unlike A X = Z B
+    W = (np.array([0.4, -1.0, 0.3]), quat_exp(np.array([0.3, -1.1, 2.0])))
+    moved = b.with_(position=W[0] + quat_rotate(W[1], b.position),
+                    quaternion=quat_multiply(W[1], b.quaternion))  # fmt: skip
+    same = evaluate_hand_eye(a, b, r.X.pose, Pose(*Z_TRUE), r.offset_s)
+    other = evaluate_hand_eye(a, moved, r.X.pose, Pose(*Z_TRUE), r.offset_s)
+    assert other["residual_pos_mm"] > 100 * same["residual_pos_mm"]
+    assert other["pair_residual_pos_mm"] == pytest.approx(same["pair_residual_pos_mm"], rel=1e-9)
+    assert other["pair_residual_ori_deg"] == pytest.approx(same["pair_residual_ori_deg"], rel=1e-9)
+    # a wrong X shows in it: 5 mm off along x
+    off = Pose(r.X.position + np.array([0.005, 0.0, 0.0]), r.X.quaternion)
+    worse = evaluate_hand_eye(a, b, off, None, r.offset_s)
+    assert worse["pair_residual_pos_mm"] > 2 * same["pair_residual_pos_mm"]
+
+
+def test_pair_residual_leaves_out_a_pose_jump():
+    a, b = two_trackers(5, duration=20.0)
+    r = solve_hand_eye(a, b, form="hand-eye")
+    p = np.array(b.position)
+    p[len(p) // 2 : len(p) // 2 + 3] += 0.03  # a 3 cm jump of the sensor for 3 samples
+    jumped = evaluate_hand_eye(a, b.with_(position=p), r.X.pose, None, r.offset_s)
+    clean = evaluate_hand_eye(a, b, r.X.pose, None, r.offset_s)
+    assert jumped["residual_pos_mm"] > 1.5 * clean["residual_pos_mm"]  # plain RMS: every pair
+    assert jumped["pair_residual_pos_mm"] == pytest.approx(clean["pair_residual_pos_mm"], rel=0.1)

@@ -18,7 +18,7 @@ from scipy import stats
 
 from ..errors import InputError
 
-__all__ = ["Solution", "autocorrelation_time", "robust_solve"]
+__all__ = ["Solution", "autocorrelation_time", "chi2_inliers", "robust_solve"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +108,52 @@ def _gauss_newton(fun, x, sigma, mask, step, huber=None, max_iter=30, tol=1e-8):
     return x
 
 
+def _rejection_round(r, sigma, inl, outlier_p, groups):
+    """One round of the outlier test: the blocks of ``r`` (M, B) whose squared whitened norm,
+    rescaled by the median over the current inliers ``inl``, passes the chi-square test at
+    level ``outlier_p``; then each group's scale from the new inliers. Returns
+    ``(new inliers, old sigma, new sigma)``."""
+    nb = len(sigma)
+    m2 = np.sum((r / sigma) ** 2, axis=1)
+    # Rescale by the robust residual level before the chi-square test.
+    scale = np.nanmedian(m2[inl]) / stats.chi2.ppf(0.5, nb)
+    new = np.isfinite(m2) & (m2 <= stats.chi2.ppf(1 - outlier_p, nb) * max(scale, 1e-12))
+    old = sigma
+    if groups is not None and np.any(new):
+        sigma = sigma.copy()
+        for g in groups:
+            rms = float(np.sqrt(np.mean(r[new][:, list(g)] ** 2)))
+            sigma[list(g)] = max(rms, 1e-12)
+    return new, old, sigma
+
+
+def chi2_inliers(
+    r: np.ndarray,
+    sigma: np.ndarray,
+    *,
+    outlier_p: float = 1e-3,
+    groups: tuple[tuple[int, ...], ...] | None = None,
+    max_rounds: int = 5,
+) -> np.ndarray:
+    """The inliers (M,) of fixed residual blocks ``r`` (M, B) under :func:`robust_solve`'s
+    outlier test (median-rescaled chi-square at level ``outlier_p``, the scales of ``groups``
+    re-estimated from the inliers each round, from the prior scales ``sigma`` (B,)), without
+    refitting anything: the residual measure of a solve applied to given residuals. Non-finite
+    blocks are outliers."""
+    r = np.asarray(r, float)
+    sigma = np.asarray(sigma, float).copy()
+    inl = np.all(np.isfinite(r), axis=1)
+    if not inl.any():
+        return inl
+    for _ in range(max_rounds):
+        new, old, sigma = _rejection_round(r, sigma, inl, outlier_p, groups)
+        settled = np.all(np.abs(sigma / old - 1.0) < 0.05)
+        if np.array_equal(new, inl) and settled:
+            break
+        inl = new
+    return new
+
+
 def robust_solve(
     fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     x0: np.ndarray,
@@ -152,21 +198,12 @@ def robust_solve(
     for rnd in range(max_rounds):
         x = _gauss_newton(fun, x, sigma, inl, step, huber=2.0 if rnd == 0 else None)
         r, _ = raw(x)
-        m2 = np.sum((r / sigma) ** 2, axis=1)
-        # Rescale by the robust residual level before the chi-square test.
-        scale = np.nanmedian(m2[inl]) / stats.chi2.ppf(0.5, nb)
-        new = np.isfinite(m2) & (m2 <= stats.chi2.ppf(1 - outlier_p, nb) * max(scale, 1e-12))
+        new, old, sigma = _rejection_round(r, sigma, inl, outlier_p, groups)
         if new.sum() * nb <= 2 * ndim:
             raise InputError(
                 f"only {int(new.sum())} usable residuals for {ndim} unknowns: the data do not "
                 "determine the calibration"
             )
-        old = sigma
-        if groups is not None and np.any(new):
-            sigma = sigma.copy()
-            for g in groups:
-                rms = float(np.sqrt(np.mean(r[new][:, list(g)] ** 2)))
-                sigma[list(g)] = max(rms, 1e-12)
         settled = np.all(np.abs(sigma / old - 1.0) < 0.05)
         if rnd > 0 and np.array_equal(new, inl) and settled:
             break

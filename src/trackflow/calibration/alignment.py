@@ -5,6 +5,10 @@ a's (as ``evo --align`` / Umeyama do), optionally with a scale ``s`` and jointly
 offset (``t_a = t_b + offset``). A closed-form Umeyama start is refined by robust Gauss-Newton
 with analytic Jacobians; the covariance follows the conventions (translation error in frame a,
 rotation error on the right) and is inflated by the residual autocorrelation.
+
+With a lever arm the tracked point sits at a known offset ``l`` in a's body frame
+(``p_a = t_a + R_a l``, e.g. a hand-eye ``X`` held fixed while only the world is refitted); its
+covariance is carried into the result's to first order.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from ..math import (
     UncertainPose,
     quat_exp,
     quat_multiply,
+    quat_rotate,
     quat_to_matrix,
     skew,
     umeyama,
@@ -39,6 +44,13 @@ class AlignmentResult:
 
     ``residual_rmse_mm`` is the RMS position error after alignment over the inliers (evo's
     APE RMSE); ``times_s`` (M,), ``residuals`` (M, 3) [m] and ``inliers`` (M,) for plots.
+
+    ``covariance`` (P, P) is the joint covariance over the tangent step ``(dt (3) [m] in frame
+    a, dtheta (3) [rad] on the right, dlog(s) if the scale is estimated, doffset [s] if the
+    offset is estimated)``; ``T.covariance`` is its top-left 6x6 block. With a lever arm it
+    includes the lever arm's covariance, and ``lever_arm_gain`` (P, 3) is the first-order
+    sensitivity of those parameters to the lever arm (``d params / d l``, l in a's body frame
+    [m]), so ``lever_arm_gain @ C_l`` is their cross-covariance with it; None without one.
     """
 
     T: UncertainPose
@@ -52,6 +64,8 @@ class AlignmentResult:
     times_s: np.ndarray
     residuals: np.ndarray
     inliers: np.ndarray
+    covariance: np.ndarray | None = None
+    lever_arm_gain: np.ndarray | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -106,6 +120,8 @@ def align_trajectories(
     offset_s: float | None = None,
     estimate_offset: bool = True,
     max_offset_s: float = 1.0,
+    lever_arm: np.ndarray | None = None,
+    lever_arm_covariance: np.ndarray | None = None,
 ) -> AlignmentResult:
     """Align trajectory ``b`` to ``a`` (positions of the same point) with covariance.
 
@@ -117,14 +133,27 @@ def align_trajectories(
     with_scale : bool
         Estimate a scale too (monocular SLAM, unknown units).
     offset_s : float, optional
-        Known clock offset ``t_a = t_b + offset``; else found from the speed profiles.
+        Known clock offset ``t_a = t_b + offset``; else found from the speed profiles
+        (:func:`~trackflow.calibration.estimate_clock_offset`, coarse search).
     estimate_offset : bool
         Refine the offset jointly with the alignment.
+    max_offset_s : float
+        Search range of the coarse offset [s].
+    lever_arm : ndarray, shape (3,), optional
+        Position [m] in a's body frame (``a.target``) of the point whose trajectory b tracks,
+        held fixed: a's positions become ``t_a + R_a lever_arm`` (for a hand-eye ``X =
+        T_tool_body`` held fixed, its translation; b's origin is then the point). Default: a's
+        origin.
+    lever_arm_covariance : ndarray, shape (3, 3), optional
+        Covariance [m^2] of ``lever_arm`` in a's body frame (the position block of ``X``'s
+        covariance); added to the result's covariance to first order,
+        ``K C_l K^T`` with ``K = -(J^T W J)^-1 J^T W R_a`` over the inliers (``lever_arm_gain``).
 
     Raises
     ------
     ValueError
-        No overlap, no motion, collinear positions, opposite handedness.
+        No overlap, no motion, collinear positions, opposite handedness, a lever arm or its
+        covariance of the wrong shape.
     """
     epoch = common_epoch_ns(a, b)
     ta, tb = trajectory(a, epoch, "a"), trajectory(b, epoch, "b")
@@ -138,9 +167,11 @@ def align_trajectories(
     if len(grid) < 10:
         raise InputError(f"the trajectories overlap for {max(hi - lo, 0):.2f} s only")
     A = ta.sample(grid)
+    lever, C_lever = _lever_arm(lever_arm, lever_arm_covariance)
+    pa = A.p if lever is None else A.p + quat_rotate(A.q, lever)
     B0 = tb.sample(grid - offset_s)
     ok = A.valid & B0.valid
-    start = fit_alignment(A.p[ok], B0.p[ok], with_scale)
+    start = fit_alignment(pa[ok], B0.p[ok], with_scale)
     s0, R0, t0 = start.scale, start.rotation, start.translation
 
     def fun(x):
@@ -151,7 +182,7 @@ def align_trajectories(
         off = x[k] if estimate_offset else offset_s
         B = tb.sample(grid - off)
         Rp = B.p @ R.T
-        r = A.p - (s * Rp + x[:3])
+        r = pa - (s * Rp + x[:3])
         J = [np.broadcast_to(-np.eye(3), (len(r), 3, 3)), s * R @ skew(B.p)]
         if with_scale:
             J.append(-s * Rp[:, :, None])
@@ -175,7 +206,15 @@ def align_trajectories(
         + ([[offset_s]] if estimate_offset else [])
     )
     sol = robust_solve(fun, x0, np.full(3, 1e-3), update=update, groups=((0, 1, 2),))
-    cov = sol.cov
+    cov, gain = sol.cov, None
+    if lever is not None:
+        # The fit's sensitivity to the lever arm, d r / d l = R_a (one isotropic residual
+        # scale, so the weights cancel): K = -(J^T J)^-1 J^T R_a over the inliers.
+        _, J = fun(sol.x)
+        Jk, Rk = J[sol.inliers], quat_to_matrix(A.q[sol.inliers])
+        H = np.einsum("mbi,mbj->ij", Jk, Jk)
+        gain = -np.linalg.solve(H, np.einsum("mbi,mbj->ij", Jk, Rk))
+        cov = cov + gain @ C_lever @ gain.T
     k = 6
     scale, scale_sigma = 1.0, 0.0
     if with_scale:
@@ -197,4 +236,24 @@ def align_trajectories(
         times_s=grid,
         residuals=sol.residuals,
         inliers=sol.inliers,
+        covariance=cov,
+        lever_arm_gain=gain,
     )
+
+
+def _lever_arm(lever_arm, covariance) -> tuple[np.ndarray | None, np.ndarray]:
+    """The lever arm (3,) [m] or None, and its covariance (3, 3) [m^2] (zeros if not given)."""
+    if lever_arm is None:
+        if covariance is not None:
+            raise InputError("lever_arm_covariance needs a lever_arm")
+        return None, np.zeros((3, 3))
+    lever = np.asarray(lever_arm, dtype=float)
+    C = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, dtype=float)
+    if lever.shape != (3,) or C.shape != (3, 3):
+        raise InputError(
+            f"lever arm must have shape (3,) and its covariance (3, 3); got {lever.shape} "
+            f"and {C.shape}"
+        )
+    if not (np.all(np.isfinite(lever)) and np.all(np.isfinite(C))):
+        raise InputError("lever arm and its covariance must be finite")
+    return lever, C

@@ -16,6 +16,11 @@ absolute poses, with the covariance it inherits from X; ``robot-world-joint`` so
 frame is static, biased when it drifts), its covariance inflated by the residual
 autocorrelation.
 Offset convention as in :mod:`trackflow.calibration.clock_offset`: ``t_a = t_b + offset``.
+
+Every result also carries a residual that no world frame enters (``pair_residual_pos_mm``,
+``pair_residual_ori_deg``): that of ``A_ij X = X B_ij`` on the motion pairs the hand-eye
+estimator uses (:func:`pair_residual_rms`), so a calibration can be compared between sessions
+whose sensor world differs.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from ..math import (
     umeyama,
 )
 from ._geometry import matrix_quaternion, mean_rotation, rotation_axis_spread
-from ._lsq import robust_solve
+from ._lsq import chi2_inliers, robust_solve
 from ._noise_sandwich import Stream, fit_noise, sandwich_covariance
 from ._pair_noise import pair_noise_jacobians, relative_pose_jacobians
 from ._sampling import Trajectory, common_epoch_ns, trajectory, velocities
@@ -50,7 +55,9 @@ from .clock_offset import estimate_clock_offset
 __all__ = [
     "HandEyeResult",
     "evaluate_hand_eye",
+    "evaluate_with_world_fit",
     "hand_eye_residuals",
+    "pair_residual_rms",
     "solve_hand_eye",
 ]
 
@@ -89,9 +96,18 @@ class HandEyeResult:
         Joint covariance over ``(X (6), Z (6) if present, offset (1) and drift (1) if
         estimated)``.
     form : str
-        ``"robot-world"``, ``"robot-world-joint"`` or ``"hand-eye"``.
+        ``"robot-world"``, ``"robot-world-joint"`` or ``"hand-eye"``; ``"refit-world"`` for
+        a stored X with Z and the clock refitted
+        (:func:`~trackflow.calibration.refit_calibration`).
     residual_pos_mm, residual_ori_deg : float
-        RMS position and rotation residual over the inliers.
+        RMS position [mm] and rotation [deg] residual over the inliers of the form's own
+        residual blocks (absolute poses ``A X = Z B`` or motion pairs).
+    pair_residual_pos_mm, pair_residual_ori_deg : float or None
+        World-independent residual [mm, deg]: RMS of ``A_ij X = X B_ij`` on the motion pairs
+        of the hand-eye selection with the final X and clock, over the pairs that pass the
+        solver's outlier test (:func:`pair_residual_rms`); None when no pair qualifies.
+    n_pairs, n_pair_outliers : int
+        Motion pairs in ``pair_residual_*`` and pairs rejected.
     n_used, n_outliers : int
         Residual blocks (samples or motion pairs) used and rejected.
     times_s, residuals, inliers : ndarray
@@ -115,6 +131,10 @@ class HandEyeResult:
     drift: float | None = None
     drift_sigma: float | None = None
     reference_time_s: float = 0.0
+    pair_residual_pos_mm: float | None = None
+    pair_residual_ori_deg: float | None = None
+    n_pairs: int = 0
+    n_pair_outliers: int = 0
 
     @property
     def X_sigma_mm(self) -> float:
@@ -135,6 +155,8 @@ class HandEyeResult:
             "offset_sigma_s": self.offset_sigma_s,
             "residual_pos_mm": self.residual_pos_mm,
             "residual_ori_deg": self.residual_ori_deg,
+            "pair_residual_pos_mm": self.pair_residual_pos_mm,
+            "pair_residual_ori_deg": self.pair_residual_ori_deg,
             "X_sigma_mm": self.X_sigma_mm,
             "X_sigma_deg": self.X_sigma_deg,
         }
@@ -408,6 +430,12 @@ def solve_hand_eye(
     station_spacing_s : float
         Spacing of the poses used for the closed-form start and for hand-eye motion pairs.
 
+    Returns
+    -------
+    HandEyeResult
+        With ``pair_residual_*`` over the motion pairs of these stations (every form, the
+        same pairs as the hand-eye and robot-world forms solve on; :func:`pair_residual_rms`).
+
     Raises
     ------
     ValueError
@@ -436,14 +464,17 @@ def solve_hand_eye(
     As = (A.p[stations], A.q[stations])
     X0, _ = closed_form_X(*As, B0.p, B0.q, max_lag=int(round(10.0 / station_spacing_s)))
     clock = _Clock(offset_s, estimate_offset, estimate_drift, 0.5 * (grid[0] + grid[-1]))
+    lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
     if form == "robot-world-joint":
         Z0 = closed_form_Z(*As, B0.p, B0.q, X0)
-        return _refine_robot_world(A, tb, grid, X0, Z0, clock)
-    lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
-    sol, times = _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
-    if form == "hand-eye":
-        return _result("hand-eye", sol, 1, clock, times, False)
-    return _world_after_pairs(A, tb, grid, sol, clock)
+        res = _refine_robot_world(A, tb, grid, X0, Z0, clock)
+    else:
+        sol, times = _refine_hand_eye(ta, tb, grid[stations], X0, clock, min_pair_angle_deg, lag)
+        if form == "hand-eye":
+            res = _result("hand-eye", sol, 1, clock, times, False)
+        else:
+            res = _world_after_pairs(A, tb, grid, sol, clock)
+    return with_pair_residual(res, ta, tb, grid[stations], min_pair_angle_deg, lag)
 
 
 @dataclass(frozen=True)
@@ -618,6 +649,105 @@ def _world_after_pairs(A, tb, grid, pairs, clock: _Clock) -> HandEyeResult:
     return _result("robot-world", replace(sol, x=x, cov=cov), 2, clock, grid[ok], True)
 
 
+def station_times(grid: np.ndarray, spacing_s: float) -> np.ndarray:
+    """The stations of the motion pairs: the first instant of ``grid`` (M,) [s] in every
+    ``spacing_s`` [s] bin."""
+    return grid[np.unique(np.round((grid - grid[0]) / spacing_s), return_index=True)[1]]
+
+
+def pair_residual_rms(
+    ta: Trajectory,
+    tb: Trajectory,
+    stations: np.ndarray,
+    stations_b: np.ndarray,
+    X,
+    min_pair_angle_deg: float = MIN_PAIR_ANGLE_DEG,
+    max_lag: int = int(round(MAX_PAIR_SPAN_S / 0.25)),
+) -> tuple[float | None, float | None, int, int]:
+    """World-independent residual of ``A_ij X = X B_ij`` on motion pairs.
+
+    The pairs are those of the hand-eye estimator: stations ``i < j <= i + max_lag`` (by
+    default 2 s at the 0.25 s spacing of :func:`solve_hand_eye`) whose robot rotation
+    ``A_i^-1 A_j`` is at least ``min_pair_angle_deg``, both stations valid in both streams;
+    ``A_ij = A_i^-1 A_j`` (robot, base frame cancels) and ``B_ij = B_i^-1 B_j`` (sensor, its
+    world frame cancels), so neither world transform enters. Pairs failing the solver's outlier
+    test (:func:`._lsq.chi2_inliers`: chi-square at 0.1 % after rescaling by the median, the
+    position and rotation scales from the inliers) are left out, so a few pose jumps of the
+    sensor do not decide the figure; the same rule for solves, ``--use`` and ``--refit``.
+
+    Parameters
+    ----------
+    ta, tb : Trajectory
+        Robot ``T_base_tool`` and sensor ``T_world_body``.
+    stations, stations_b : ndarray, shape (N,)
+        Station instants on the robot's clock and the same instants on the sensor's clock [s]
+        (``stations - offset`` without drift).
+    X : tuple (p (3,) [m], q (4,) (x, y, z, w))
+        ``T_tool_body``.
+    min_pair_angle_deg : float
+        Smallest relative robot rotation of a pair [deg].
+    max_lag : int
+        Most stations between the two poses of a pair.
+
+    Returns
+    -------
+    pos_mm, ori_deg : float or None
+        RMS position [mm] (tool frame) and rotation [deg] residual over the inlier pairs; None
+        without valid pairs.
+    n, n_rejected : int
+        Inlier pairs and rejected pairs.
+    """
+    r = _valid_pair_residuals(ta, tb, stations, stations_b, X, min_pair_angle_deg, max_lag)
+    if len(r) == 0:
+        return None, None, 0, 0
+    k = residual_inliers(r)
+    d = _rms(r[k])
+    return d["residual_pos_mm"], d["residual_ori_deg"], int(k.sum()), int((~k).sum())
+
+
+def residual_inliers(r: np.ndarray) -> np.ndarray:
+    """The hand-eye solvers' outlier test applied to given residual blocks ``r`` (M, 6)
+    ``(dp [m], dtheta [rad])``: the inlier mask (M,) (:func:`._lsq.chi2_inliers` with the
+    solvers' prior scales and their position and rotation groups)."""
+    return chi2_inliers(r, _SIGMA0, groups=_GROUPS)
+
+
+def _valid_pair_residuals(ta, tb, stations, stations_b, X, min_pair_angle_deg, max_lag):
+    """Residuals (M, 6) of :func:`pair_residual_rms`'s valid pairs."""
+    A, B = ta.sample(stations), tb.sample(stations_b)
+    i, j = _pairs(A.q, np.radians(min_pair_angle_deg), max_lag)
+    ok = A.valid[i] & A.valid[j] & B.valid[i] & B.valid[j]
+    i, j = i[ok], j[ok]
+    return pair_residuals(*_relative(A.p, A.q, i, j), *_relative(B.p, B.q, i, j), X)
+
+
+def with_pair_residual(
+    res: HandEyeResult, ta: Trajectory, tb: Trajectory, stations, min_pair_angle_deg, max_lag
+) -> HandEyeResult:
+    """``res`` with ``pair_residual_*`` and ``n_pairs`` from :func:`pair_residual_rms` at
+    ``stations`` (a-clock [s]) with its X and clock (offset and drift)."""
+    d = res.drift or 0.0
+    sb = stations - res.offset_s - d * (stations - res.reference_time_s)
+    Xt = (np.asarray(res.X.position, float), np.asarray(res.X.quaternion, float))
+    pos, ori, n, out = pair_residual_rms(ta, tb, stations, sb, Xt, min_pair_angle_deg, max_lag)
+    return replace(
+        res, pair_residual_pos_mm=pos, pair_residual_ori_deg=ori, n_pairs=n, n_pair_outliers=out
+    )
+
+
+def _rms(r: np.ndarray) -> dict:
+    """RMS and median of the position [mm] and rotation [deg] norms of residuals (M, 6)."""
+    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
+    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
+    return {
+        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
+        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
+        "median_pos_mm": float(np.median(dp)),
+        "median_ori_deg": float(np.median(da)),
+        "n": len(r),
+    }
+
+
 def evaluate_hand_eye(
     robot: PoseStream,
     sensor: PoseStream,
@@ -632,34 +762,27 @@ def evaluate_hand_eye(
 
     With ``Z`` the residual of ``A X = Z B`` at every sample of the slower stream, else that
     of ``A_ij X = X B_ij`` on motion pairs. Returns ``{"residual_pos_mm", "residual_ori_deg",
-    "median_pos_mm", "median_ori_deg", "n"}`` (RMS and median over all valid blocks).
+    "median_pos_mm", "median_ori_deg", "n"}`` (RMS [mm, deg] and median over all valid blocks,
+    nothing rejected) and the world-independent ``"pair_residual_pos_mm"``,
+    ``"pair_residual_ori_deg"`` and ``"n_pairs"`` (:func:`pair_residual_rms`: the motion pairs
+    of the solver, RMS over those passing its outlier test; None without valid pairs).
     """
     epoch = common_epoch_ns(robot, sensor)
     ta, tb = trajectory(robot, epoch), trajectory(sensor, epoch)
     grid = _grid(ta, tb, offset_s, 3 * max(ta.period_s, tb.period_s))
     Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
+    st = station_times(grid, station_spacing_s)
+    lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
     if Z is not None:
         A, B = ta.sample(grid), tb.sample(grid - offset_s)
         Zt = (np.asarray(Z.position, float), np.asarray(Z.quaternion, float))
         r = hand_eye_residuals(A.p, A.q, B.p, B.q, Xt, Zt)[A.valid & B.valid]
     else:
-        st = grid[np.unique(np.round((grid - grid[0]) / station_spacing_s), return_index=True)[1]]
-        A, B = ta.sample(st), tb.sample(st - offset_s)
-        lag = max(1, int(round(max_pair_span_s / station_spacing_s)))
-        i, j = _pairs(A.q, np.radians(min_pair_angle_deg), lag)
-        ok = A.valid[i] & A.valid[j] & B.valid[i] & B.valid[j]
-        r = pair_residuals(*_relative(A.p, A.q, i, j), *_relative(B.p, B.q, i, j), Xt)[ok]
+        r = _valid_pair_residuals(ta, tb, st, st - offset_s, Xt, min_pair_angle_deg, lag)
     if len(r) == 0:
         raise InputError("no valid residuals: the recordings do not overlap or do not rotate")
-    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
-    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
-    return {
-        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
-        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
-        "median_pos_mm": float(np.median(dp)),
-        "median_ori_deg": float(np.median(da)),
-        "n": len(r),
-    }
+    pos, ori, n, _ = pair_residual_rms(ta, tb, st, st - offset_s, Xt, min_pair_angle_deg, lag)
+    return _rms(r) | {"pair_residual_pos_mm": pos, "pair_residual_ori_deg": ori, "n_pairs": n}
 
 
 def evaluate_with_world_fit(
@@ -680,15 +803,7 @@ def evaluate_with_world_fit(
     Ap, Aq, Bp, Bq = A.p[ok], A.q[ok], B.p[ok], B.q[ok]
     Xt = (np.asarray(X.position, float), np.asarray(X.quaternion, float))
     sol = _fit_world(Ap, Aq, Bp, Bq, Xt)
-    r = sol.residuals
-    dp = np.linalg.norm(r[:, :3], axis=1) * 1e3
-    da = np.degrees(np.linalg.norm(r[:, 3:], axis=1))
-    return {
-        "residual_pos_mm": float(np.sqrt(np.mean(dp**2))),
-        "residual_ori_deg": float(np.sqrt(np.mean(da**2))),
-        "median_pos_mm": float(np.median(dp)),
-        "median_ori_deg": float(np.median(da)),
-        "n": len(r),
+    return _rms(sol.residuals) | {
         "Z": {"position": [float(v) for v in sol.x[:3]],
               "quaternion": [float(v) for v in sol.x[3:7]]},
     }  # fmt: skip

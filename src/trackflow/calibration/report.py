@@ -70,11 +70,12 @@ def write_clock_report(directory, result) -> Path:
 
 
 def write_hand_eye_report(directory, result) -> Path:
-    """``report.json`` (the ``--json`` keys plus counts) and ``residuals.png``."""
+    """``report.json`` (the ``--json`` keys plus the form and counts) and ``residuals.png``."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     out = result.to_json()
     out.update(form=result.form, n_used=result.n_used, n_outliers=result.n_outliers,
+               n_pairs=result.n_pairs, n_pair_outliers=result.n_pair_outliers,
                drift=result.drift, drift_sigma=result.drift_sigma)  # fmt: skip
     (d / "report.json").write_text(json.dumps(out, indent=2))
     plot_residuals(

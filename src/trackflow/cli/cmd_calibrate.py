@@ -145,7 +145,14 @@ def _register_hand_eye(sub):
         "--use",
         type=Path,
         help="evaluate a stored calibration (a --json output) on these recordings; "
-        "nothing is re-estimated",
+        "nothing is re-estimated unless --refit",
+    )
+    p.add_argument(
+        "--refit",
+        metavar="PART",
+        help="with --use: keep X (and its covariance) from the file and refit PART on these "
+        "recordings; 'world' refits Z and the clock offset (a tracker whose world frame is "
+        "re-created each session). Prints a full calibration (--json, --fragment, --report)",
     )
     p.add_argument("--min-pair-angle", type=float, default=5.0, help="degrees (motion pairs)")
     p.add_argument("--max-pair-span", type=float, default=2.0, help="seconds (motion pairs)")
@@ -153,7 +160,10 @@ def _register_hand_eye(sub):
 
 
 def load_calibration(path: Path) -> dict:
-    """Read a ``calibrate hand-eye --json`` file; ``ValueError`` naming the file if malformed."""
+    """Read a ``calibrate hand-eye --json`` file; ``ValueError`` naming the file if malformed.
+
+    Returns ``{"X": UncertainPose, "Z": UncertainPose or None, "offset_s": float}`` (a missing
+    covariance reads as zeros)."""
     from ..calibration.hand_eye import pose_from_json
 
     try:
@@ -162,28 +172,45 @@ def load_calibration(path: Path) -> dict:
         raise ConfigError(f"{path}: not JSON: {exc}") from exc
     if not isinstance(d, dict) or "X" not in d or "offset_s" not in d:
         raise ConfigError(f"{path}: expected the keys of 'calibrate hand-eye --json' (X, offset_s)")
-    X = pose_from_json(d["X"], f"{path}: X").pose
-    Z = None if d.get("Z") is None else pose_from_json(d["Z"], f"{path}: Z").pose
+    X = pose_from_json(d["X"], f"{path}: X")
+    Z = None if d.get("Z") is None else pose_from_json(d["Z"], f"{path}: Z")
     return {"X": X, "Z": Z, "offset_s": float(d["offset_s"])}
 
 
 def run_hand_eye(args) -> int:
     from ..calibration import evaluate_hand_eye, solve_hand_eye
-    from ..calibration.fragment import sensor_update, static_edge
-    from ..calibration.report import write_hand_eye_report
+    from ..calibration.reuse import check_refit, refit_calibration
 
+    if args.refit is not None:
+        if not args.use:
+            raise InputError("--refit needs --use CALIB.json (the calibration whose X is kept)")
+        check_refit(args.refit)
+        if args.drift or args.form != "auto":
+            raise InputError(
+                "--refit world keeps X and fits Z and a constant offset: --form and --drift "
+                "do not apply"
+            )
+    if args.fixed_offset and args.offset is None:
+        raise InputError("--fixed-offset needs --offset")
     robot, sensor = load(args, "robot"), load(args, "sensor", suffix="2")
     if args.use:
         c = load_calibration(args.use)
+        if args.refit is not None:
+            r = refit_calibration(
+                robot, sensor, c["X"], refit=args.refit, offset_s=args.offset,
+                estimate_offset=not args.fixed_offset, max_offset_s=args.max_offset,
+                min_pair_angle_deg=args.min_pair_angle, max_pair_span_s=args.max_pair_span,
+            )  # fmt: skip
+            return _emit_hand_eye(args, r, robot, sensor, f"{args.use} refitted to")
         offset = c["offset_s"] if args.offset is None else args.offset
-        out = evaluate_hand_eye(robot, sensor, c["X"], c["Z"], offset)
-        if c["Z"] is not None:
-            out["pairs"] = evaluate_hand_eye(robot, sensor, c["X"], None, offset)
+        X, Z = c["X"].pose, None if c["Z"] is None else c["Z"].pose
+        out = evaluate_hand_eye(
+            robot, sensor, X, Z, offset,
+            min_pair_angle_deg=args.min_pair_angle, max_pair_span_s=args.max_pair_span,
+        )  # fmt: skip
         out["offset_s"] = offset
         _print(out, args.json)
         return 0
-    if args.fixed_offset and args.offset is None:
-        raise InputError("--fixed-offset needs --offset")
     r = solve_hand_eye(
         robot,
         sensor,
@@ -195,11 +222,20 @@ def run_hand_eye(args) -> int:
         min_pair_angle_deg=args.min_pair_angle,
         max_pair_span_s=args.max_pair_span,
     )
+    return _emit_hand_eye(args, r, robot, sensor, "hand-eye calibration from")
+
+
+def _emit_hand_eye(args, r, robot, sensor, what: str) -> int:
+    """``_emit`` of a :class:`HandEyeResult`: X and Z as static edges, the offset as the
+    sensor's update, the report with the residual plot."""
+    from ..calibration.fragment import sensor_update, static_edge
+    from ..calibration.report import write_hand_eye_report
+
     statics = [static_edge("hand_eye_X", robot.target, sensor.target, r.X)]
     if r.Z is not None:
         statics.append(static_edge("hand_eye_Z", robot.source, sensor.source, r.Z))
     return _emit(
-        args, r.to_json(), f"hand-eye calibration from {args.robot} and {args.sensor}",
+        args, r.to_json(), f"{what} {args.robot} and {args.sensor}",
         lambda d: write_hand_eye_report(d, r), statics=statics,
         sensors=[sensor_update(args.sensor_name, r.offset_s)],
     )  # fmt: skip
