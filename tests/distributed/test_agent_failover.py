@@ -17,6 +17,7 @@ from _agents import AgentProcess, endpoint, free_port, observer, status, wait_fo
 from test_agents_processes import PERIOD_NS, _files, _query
 
 from trackflow.dataflow._planner import DEFAULT_STALE_NS
+from trackflow.distributed.wire import decode
 
 pytestmark = pytest.mark.slow
 
@@ -42,6 +43,13 @@ def test_a_frozen_agent_is_replaced_by_a_live_path_and_comes_back(tmp_path):
         for p in procs.values():
             p.wait_ready()
         session = observer([endpoint(ports[n]) for n in "abc"])
+        answers = []  # (exposure, path) of every answer: each says which path gave it
+
+        def on_answer(sample) -> None:
+            m = decode(sample.payload.to_bytes())
+            answers.append((m.exposure_ns, m.path))
+
+        sub = session.declare_subscriber(f"trackflow/{realm}/result/c/q", on_answer)
 
         def on(path: int, min_published: int = 0):
             q = _query(status(session, realm, "c"), "q")
@@ -76,6 +84,13 @@ def test_a_frozen_agent_is_replaced_by_a_live_path_and_comes_back(tmp_path):
             f"{(back['t_ns'] - continued_at) * 1e-9:.2f} s after it continued; {rejected}"
         )
         assert rejected.get("older than the backlog window", 0) > 0, rejected
+        wait_for(lambda: any(t > back["t_ns"] + PERIOD_NS for t, _ in answers) or None, 10)
+        seen = list(answers)
+        away_paths = {p for t, p in seen if away["t_ns"] + PERIOD_NS < t < back["t_ns"]}
+        after = {p for t, p in seen if t > back["t_ns"] + PERIOD_NS}
+        before = {p for t, p in seen if t < frozen_at}
+        sub.undeclare()
+        assert before == {0} and away_paths == {1} and after == {0}, (before, away_paths, after)
     finally:
         if session is not None:
             session.close()

@@ -52,6 +52,21 @@ def test_golden_bytes():
     assert np.array_equal(decode(GOLDEN_NOCOV).pose.covariance, np.zeros((6, 6)))
 
 
+def test_golden_bytes_with_the_answers_path():
+    """Flag bit 1: the index of the query's candidate path, uint16, after the covariance."""
+    with_cov = bytes.fromhex(HEAD.format(flags="03") + "".join(UPPER) + "0200")
+    without = bytes.fromhex(HEAD.format(flags="02") + "0100")
+    assert encode(POSE, **STAMPS, path=2) == with_cov and len(with_cov) == 262
+    assert encode(POSE, **STAMPS, covariance=False, path=1) == without
+    assert decode(with_cov).path == 2 and decode(without).path == 1
+    assert np.array_equal(decode(with_cov).pose.covariance, COV)
+    assert decode(GOLDEN_COV).path is None  # no flag: no path
+    assert _rejection(with_cov[:-1]) == "truncated"
+    assert _rejection(GOLDEN_COV[:3] + b"\x03" + GOLDEN_COV[4:]) == "truncated"
+    with pytest.raises(ValueError, match="path index"):
+        encode(POSE, **STAMPS, path=70_000)
+
+
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 
 
@@ -117,7 +132,7 @@ def test_rejection_reasons_are_counted():
         "bad magic": b"XX" + GOLDEN_COV[2:],
         "truncated": GOLDEN_COV[:100],
         "wrong length": GOLDEN_COV + b"\x00",
-        "unknown flags": GOLDEN_COV[:3] + b"\x03" + GOLDEN_COV[4:],
+        "unknown flags": GOLDEN_COV[:3] + b"\x05" + GOLDEN_COV[4:],
         "non-finite": GOLDEN_COV[:36] + struct.pack("<d", np.nan) + GOLDEN_COV[44:],
         "non-unit quaternion": GOLDEN_COV[:84] + struct.pack("<d", 2.0) + GOLDEN_COV[92:],
         "invalid covariance": GOLDEN_COV[:92] + struct.pack("<d", -1.0) + GOLDEN_COV[100:],

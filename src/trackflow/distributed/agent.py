@@ -571,6 +571,7 @@ class Agent:
                 exposure_ns=m.t_ns,
                 host_ns=self.now_ns(),
                 origin_ns=m.origin_ns,
+                path=m.path,
             )
             pub.put(buf)
 
@@ -628,7 +629,12 @@ class Agent:
         query.reply(
             query.key_expr,
             wire.encode(
-                m.pose, seq=0, exposure_ns=m.t_ns, host_ns=self.now_ns(), origin_ns=m.origin_ns
+                m.pose,
+                seq=0,
+                exposure_ns=m.t_ns,
+                host_ns=self.now_ns(),
+                origin_ns=m.origin_ns,
+                path=m.path,
             ),
         )
 

@@ -5,7 +5,7 @@ One message is one uncertain pose ``T_a_b`` of an edge, little-endian, fixed lay
     offset size  field
     0      2     magic b"TF"
     2      1     version (1)
-    3      1     flags: bit 0 = covariance present, other bits must be 0
+    3      1     flags: bit 0 = covariance present, bit 1 = path present, others 0
     4      8     sequence number, uint64 (per publisher, +1 per message)
     12     8     exposure stamp, int64 ns: the time the pose is valid at (sender's clock)
     20     8     host stamp, int64 ns: sender's clock when the message was sent
@@ -16,8 +16,10 @@ One message is one uncertain pose ``T_a_b`` of an edge, little-endian, fixed lay
     92     168   covariance upper triangle, row by row, 21 x float64 (only with flag bit 0)
                  over (dt [m, frame a], dtheta [rad, right]): t_true = t + dt,
                  R_true = R Exp(dtheta)
+    ..     2     path, uint16 (only with flag bit 1): which of the query's candidate paths
+                 gave the answer (0 the preferred one, k its k-th fallback)
 
-A message with covariance is 260 bytes, without 92.
+A message with covariance is 260 bytes, without 92; a path adds 2.
 
 Version 2 is the other message kind: a sensor filter's state after a measurement (what a
 consumer's copy of the filter adopts, :class:`trackflow.filters.FilterSnapshot`)::
@@ -80,6 +82,8 @@ VERSION = 1
 STATE_VERSION = 2
 _KNOWN = (VERSION, STATE_VERSION)
 _FLAG_COV = 0x01
+_FLAG_PATH = 0x02
+_PATH = struct.Struct("<H")
 _FLAG_SEGMENT = 0x01
 _STATE_HEAD = struct.Struct("<2sBBQqqqbbBBHHI")
 _FORMULATIONS = ("error_state", "additive")
@@ -116,6 +120,8 @@ class WireSample(NamedTuple):
         Valid-at time, send time and origin sensor stamp [ns], on the sender's clock.
     pose : UncertainPose
         ``T_a_b`` with a 6x6 covariance over ``(dt, dtheta)`` (zeros if none was sent).
+    path : int or None
+        The candidate path of the query that gave the answer (0 the preferred one), when sent.
     """
 
     seq: int
@@ -123,6 +129,7 @@ class WireSample(NamedTuple):
     host_ns: int
     origin_ns: int
     pose: UncertainPose
+    path: int | None = None
 
 
 def encode(
@@ -133,16 +140,20 @@ def encode(
     host_ns: int,
     origin_ns: int | None = None,
     covariance: bool = True,
+    path: int | None = None,
 ) -> bytes:
-    """One message (260 bytes with covariance, 92 without); see the module docstring."""
+    """One message (260 bytes with covariance, 92 without, 2 more with ``path``); see the
+    module docstring."""
     if pose.shape != ():
         raise InputError("encode takes a single pose, not a batch")
+    if path is not None and not 0 <= path <= 0xFFFF:
+        raise InputError(f"path index must be in [0, 65535], got {path}")
     p = pose.position
     q = pose.quaternion
     head = _HEAD.pack(
         MAGIC,
         VERSION,
-        _FLAG_COV if covariance else 0,
+        (_FLAG_COV if covariance else 0) | (0 if path is None else _FLAG_PATH),
         int(seq) & 0xFFFFFFFFFFFFFFFF,
         int(exposure_ns),
         int(host_ns),
@@ -155,9 +166,10 @@ def encode(
         q[2],
         q[3],
     )
+    tail = b"" if path is None else _PATH.pack(path)
     if not covariance:
-        return head
-    return head + _COV.pack(*pose.covariance[_IU])
+        return head + tail
+    return head + _COV.pack(*pose.covariance[_IU]) + tail
 
 
 class StateSample(NamedTuple):
@@ -297,18 +309,21 @@ def decode(buf) -> WireSample:
     b = bytes(buf)
     _check_version(b, VERSION)
     flags = b[3]
-    if flags & ~_FLAG_COV:
+    if flags & ~(_FLAG_COV | _FLAG_PATH):
         raise WireError("unknown flags", f"0x{flags:02x}")
-    want = _HEAD.size + (_COV.size if flags & _FLAG_COV else 0)
+    n_cov = _COV.size if flags & _FLAG_COV else 0
+    want = _HEAD.size + n_cov + (_PATH.size if flags & _FLAG_PATH else 0)
     if len(b) < want:
         raise WireError("truncated", f"{len(b)} of {want} bytes")
     if len(b) != want:
         raise WireError("wrong length", f"{len(b)} instead of {want} bytes")
     _, _, _, seq, exposure, host, origin = _STAMPS.unpack_from(b)
-    values = np.frombuffer(b, "<f8", count=(want - _STAMPS.size) // 8, offset=_STAMPS.size)
+    n_values = (_HEAD.size + n_cov - _STAMPS.size) // 8
+    values = np.frombuffer(b, "<f8", count=n_values, offset=_STAMPS.size)
     if not np.isfinite(values).all():
         raise WireError("non-finite")
     cov = values[7 + _SYM] if len(values) > 7 else np.zeros((6, 6))
+    path = _PATH.unpack_from(b, _HEAD.size + n_cov)[0] if flags & _FLAG_PATH else None
     with np.errstate(over="ignore", invalid="ignore"):  # finite but huge garbage: rejected
         try:
             pose = Pose(values[:3], values[3:7])
@@ -318,7 +333,7 @@ def decode(buf) -> WireSample:
             up = UncertainPose(pose, cov)
         except ValueError as exc:
             raise WireError("invalid covariance", str(exc)) from None
-    return WireSample(seq, exposure, host, origin, up)
+    return WireSample(seq, exposure, host, origin, up, path)
 
 
 @dataclass
