@@ -24,7 +24,7 @@ from ._attributes import MeasuredAttributes
 from ._bank import KalmanBank
 from ._component import Component
 from ._events import ComponentStats, Measurement
-from ._failover import PathSwitch, SwitchEvent
+from ._failover import KEPT_EVENTS, PathSwitch, SwitchEvent
 from ._inertial import ImuPlayer, ImuSample, ImuSpec, InertialKalmanFilter
 from ._inputs import (
     NETWORK_PROTOCOLS,
@@ -88,6 +88,7 @@ __all__ = [
     "MeasuredAttributes",
     "Measurement",
     "Network",
+    "KEPT_EVENTS",
     "PathSwitch",
     "Plan",
     "PlanNode",

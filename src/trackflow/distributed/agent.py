@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field
 
 from ..dataflow import (
+    KEPT_EVENTS,
     Component,
     KalmanFilter,
     Measurement,
@@ -87,7 +88,8 @@ class QueryState:
     sink: object = None
     sampler: object = None
     generation: int = 0
-    events: list[dict] = field(default_factory=list)
+    #: the newest re-plan events (status shows the last 20; a long run keeps memory flat)
+    events: collections.deque = field(default_factory=lambda: collections.deque(maxlen=KEPT_EVENTS))
     published: int = 0
     last: Measurement | None = None
     inputs: frozenset = frozenset()  # remote sensors of the plan (thin: ticks wait for them)
@@ -693,7 +695,7 @@ class Agent:
                     "paths": st.paths,
                     "fallbacks": st.fallbacks,
                     "published": st.published,
-                    "events": st.events[-20:],
+                    "events": list(st.events)[-20:],
                 }
                 switch = self.net.components.get(f"{n}_g{st.generation}_switch")
                 if isinstance(switch, PathSwitch):  # failover: current path, its switches
