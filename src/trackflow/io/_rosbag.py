@@ -35,6 +35,7 @@ from ._roscommon import (
     check_stamp_mode,
     header,
     open_bag,
+    pick_topic,
     require_rosbags,
     serializer,
     stamp_ns,
@@ -79,15 +80,7 @@ def _pick_topic(path, reader, topic: str | None) -> str:
             and not (c.msgtype == TF_MSGTYPE and is_static_topic(c.topic))
         }
     )
-    if topic is None:
-        if len(candidates) != 1:
-            all_topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-            raise FormatError(
-                f"{path}: {'no' if not candidates else 'several'} pose topics; pass topic= one "
-                f"of: {', '.join(all_topics) or 'none'}"
-            )
-        return candidates[0]
-    return topic
+    return pick_topic(path, reader, topic, candidates, "pose")
 
 
 def read_rosbag(

@@ -40,6 +40,7 @@ __all__ = [
     "header",
     "is_ros1",
     "open_bag",
+    "pick_topic",
     "require_rosbags",
     "serializer",
     "stamp_ns",
@@ -198,3 +199,22 @@ def header(store, ros1: bool, seq: int, t_ns: int, frame_id: str):
 def serializer(store, ros1: bool):
     """``serialize(msg, msgtype) -> bytes`` of the bag's encoding (ROS 1 or CDR)."""
     return store.serialize_ros1 if ros1 else store.serialize_cdr
+
+
+def pick_topic(path, reader, topic: str | None, candidates: list[str], kind: str) -> str:
+    """The topic to read: ``topic`` (it must be one of ``candidates`` when they are given in
+    full), or the bag's only candidate; else a ``FormatError`` listing every topic of the bag.
+
+    ``candidates`` are the sorted topics carrying ``kind`` (a message type or "pose").
+    """
+    if topic is None:
+        if len(candidates) != 1:
+            all_topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+            raise FormatError(
+                f"{path}: {'no' if not candidates else 'several'} {kind} topics; pass topic= "
+                f"one of: {', '.join(all_topics) or 'none'}"
+            )
+        return candidates[0]
+    if topic not in candidates:
+        raise FormatError(f"{path}: no supported {kind} messages on topic {topic!r}")
+    return topic

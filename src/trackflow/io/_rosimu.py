@@ -39,6 +39,7 @@ from ._roscommon import (
     check_stamp_mode,
     header,
     open_bag,
+    pick_topic,
     serializer,
     stamp_ns,
 )
@@ -60,17 +61,7 @@ def _rotation_block(cov3: np.ndarray, quaternion: np.ndarray, to_ros: bool) -> n
 
 def _pick_topic(path, reader, topic: str | None) -> str:
     topics = sorted({c.topic for c in reader.connections if c.msgtype == IMU_MSGTYPE})
-    if topic is None:
-        if len(topics) != 1:
-            all_topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-            raise FormatError(
-                f"{path}: {'no' if not topics else 'several'} {IMU_MSGTYPE} topics; pass "
-                f"topic= one of: {', '.join(all_topics) or 'none'}"
-            )
-        return topics[0]
-    if topic not in topics:
-        raise FormatError(f"{path}: no {IMU_MSGTYPE} messages on topic {topic!r}")
-    return topic
+    return pick_topic(path, reader, topic, topics, IMU_MSGTYPE)
 
 
 def read_rosbag_imu(
