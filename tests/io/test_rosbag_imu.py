@@ -164,5 +164,7 @@ def test_rep_145_markers_and_bad_messages(tmp_path):
         w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=store)
     with pytest.raises(FormatError, match=r"no sensor_msgs/msg/Imu topics.*/odom \(nav_msgs"):
         read_imu(poses)
-    with pytest.raises(FormatError, match="no supported sensor_msgs/msg/Imu messages on topic '/odom'"):
+    with pytest.raises(
+        FormatError, match="no supported sensor_msgs/msg/Imu messages on topic '/odom'"
+    ):
         read_rosbag_imu(poses, topic="/odom")
