@@ -108,12 +108,19 @@ def test_sequence_plot_has_title_and_explained_legends(tmp_path, monkeypatch):
     assert np.isfinite(t).all()
 
 
-def test_the_numpy_backend_is_announced_once_before_the_work(capsys):
+def test_the_numpy_backend_is_announced_once_before_the_work(capsys, monkeypatch):
+    monkeypatch.setenv("TRACKFLOW_BACKEND", "numpy")  # the user's choice, as at a start
     with use_backend("numpy"):
         assert main(["compare", str(GT), str(GT), "--align", "se3"]) == 0
     err = capsys.readouterr().err
-    assert err.startswith("trackflow: the numpy backend was selected, so the numerical kernels")
+    assert err.startswith("trackflow: TRACKFLOW_BACKEND=numpy, so the numerical kernels")
     assert err.count("run as plain NumPy") == 1 and "100x slower" in err
+
+
+def test_a_command_that_chose_numpy_itself_is_not_announced_as_slow(capsys):
+    with use_backend("numpy"):  # as `trackflow demo` does by default
+        assert main(["compare", str(GT), str(GT), "--align", "se3"]) == 0
+    assert "plain NumPy" not in capsys.readouterr().err
 
 
 def test_the_numpy_reason_names_the_variable_or_the_missing_numba(monkeypatch):

@@ -19,6 +19,13 @@ def register(subparsers) -> argparse.ArgumentParser:
         "through headless Chromium and the command exits.",
     )
     add_input(p, "target")
+    p.add_argument(
+        "more",
+        nargs="*",
+        metavar="FILE",
+        help="further agent or setup files of one realm: viewed with the first as the one "
+        "setup they make together (as `trackflow plan` plans them)",
+    )
     p.add_argument("--host", default="127.0.0.1", help="bind address (default loopback only)")
     p.add_argument("--port", type=int, default=8080, help="port (0: any free port)")
     p.add_argument("--snapshot", type=Path, default=None, help="write one frame to this PNG")
@@ -60,7 +67,9 @@ def run(args) -> int:
         posetool=args.posetool,
         magnify=args.magnify,
     )
-    out = serve(args.target, opts, snapshot=args.snapshot, size=(args.width, args.height))
+    out = serve(
+        args.target, opts, snapshot=args.snapshot, size=(args.width, args.height), more=args.more
+    )
     if out is not None:
         print(f"snapshot written to {out}")
     return 0

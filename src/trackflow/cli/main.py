@@ -126,7 +126,7 @@ def _announce_compilation(quiet: bool) -> None:
     """Say once, on standard error, when a command must wait for kernels to compile, or will
     run on the slow NumPy backend (said even with ``--quiet``: it changes how long a run takes
     by two orders of magnitude)."""
-    from ..math._backend import numpy_reason, set_notice
+    from ..math._backend import SELECTED, numpy_reason, set_notice
 
     said = set()
 
@@ -135,8 +135,11 @@ def _announce_compilation(quiet: bool) -> None:
             return
         said.add(event)
         if event == "numpy":
+            reason = numpy_reason()
+            if reason == SELECTED:  # a command that runs NumPy on purpose (`demo`) is not slow
+                return
             print(
-                f"trackflow: {numpy_reason()}, so the numerical kernels run as plain NumPy: "
+                f"trackflow: {reason}, so the numerical kernels run as plain NumPy: "
                 "filtering is about 100x slower than compiled (a minute of tracking data can "
                 "take minutes). `pip install numba` (installed with trackflow where numba has "
                 "wheels) makes it fast.",

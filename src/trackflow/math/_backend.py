@@ -56,6 +56,7 @@ from ..errors import InputError
 from ..optional import require
 
 __all__ = [
+    "SELECTED",
     "cache_is_warm",
     "frozen",
     "get_backend",
@@ -141,13 +142,18 @@ def kernels(source: types.ModuleType) -> types.ModuleType:
     return _compiled(source.__name__)
 
 
+#: :func:`numpy_reason` when the code chose the NumPy backend (``use_backend``), not the user
+SELECTED = "the numpy backend was selected"
+
+
 def numpy_reason() -> str:
-    """Why the NumPy backend is active, for a user: numba missing, or chosen."""
+    """Why the NumPy backend is active, for a user: numba missing, the environment variable,
+    or :data:`SELECTED`."""
     if not numba_available():
         return "numba is not installed"
     if os.environ.get("TRACKFLOW_BACKEND", "").lower() == "numpy":
         return "TRACKFLOW_BACKEND=numpy"
-    return "the numpy backend was selected"
+    return SELECTED
 
 
 # -- compiled copies ---------------------------------------------------------------------------
