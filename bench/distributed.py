@@ -49,7 +49,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 sys.path.insert(0, str(SRC))
 
-from trackflow.dataflow import SimulatedSensor, load_setup, parse_setup  # noqa: E402
+from trackflow.dataflow import parse_setup  # noqa: E402
 from trackflow.graph import Query, random_graph  # noqa: E402
 from trackflow.math import Pose, UncertainPose, quat_angle, quat_exp  # noqa: E402
 
@@ -706,58 +706,10 @@ def bench_replan(work: Path, kills: int = 3) -> dict:
 
 # -- 4. the thesis demo split over three processes ---------------------------------------------
 def make_demo_recordings(out: Path, seconds: float, seed: int = 7) -> dict[str, Path]:
-    """Recordings of the demo's two sensors (a smooth head motion, demo noise and camera
-    stamp offset), consistent with the statics of ``examples/demo_setup.yaml``."""
-    from trackflow.io import PoseStream, write_stream
+    """The demo realm's recordings (``trackflow demo --realm`` writes the same)."""
+    from trackflow.demo.realm import demo_realm_recordings
 
-    setup = load_setup(ROOT / "examples" / "demo_setup.yaml")
-    g = setup.graph
-    T_T_C = g.edge("target_camera").pose
-
-    def head(t):
-        t = np.asarray(t, float)
-        p = np.stack(
-            [0.2 * np.sin(0.7 * t), 1.5 + 0.1 * np.cos(0.5 * t), 0.3 * np.sin(0.4 * t)], -1
-        )
-        r = np.stack([0.2 * np.sin(0.6 * t), 0.3 * np.sin(0.3 * t), 0.1 * np.cos(0.8 * t)], -1)
-        return Pose(p, quat_exp(r))
-
-    T_A_M = (
-        head(np.array([seconds / 2]))[0] @ T_T_C @ Pose([0.02, 0.01, 0.6], quat_exp([0, 3.0, 0.2]))
-    )
-
-    def camera(t):
-        return (head(t) @ T_T_C).inverse() @ T_A_M
-
-    rng = np.random.default_rng(seed)
-    paths = {}
-    for name, truth in (("art", head), ("artoolkit", camera)):
-        e = g.edge(name)
-        s = SimulatedSensor(
-            name,
-            truth,
-            rate_hz=e.rate_hz,
-            latency_s=e.latency_s,
-            sigma_pos=float(np.sqrt(e.covariance[0, 0])),
-            sigma_ori=np.sqrt(np.diag(e.covariance)[3:]),
-            rng=rng,
-            start_s=0.0,
-            end_s=seconds,
-            stamp_offset_s=e.stamp_offset_s,
-        )
-        paths[name] = out / f"{name}.tfrec"
-        write_stream(
-            paths[name],
-            PoseStream(
-                e.source,
-                e.target,
-                s.t_ns,
-                s.position,
-                s.quaternion,
-                covariance=np.array(s.covariance),
-            ),
-        )
-    return paths
+    return demo_realm_recordings(out, seconds, seed)
 
 
 def single_process(recordings: dict[str, Path], rate_hz: float = 60.0):

@@ -27,11 +27,38 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="kernel backend (default numpy: no compile step, so a fresh clone runs in "
         "seconds; numba is faster once its cache is warm; results agree to rounding)",
     )
+    p.add_argument(
+        "--realm",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write the demo split over three agents (examples/distributed: agent files and "
+        "recordings) into DIR and print the commands that start them; runs nothing",
+    )
+    p.add_argument(
+        "--seconds", type=float, default=600.0, help="--realm: length of the recordings [s]"
+    )
+    p.add_argument("--force", action="store_true", help="--realm: replace existing files")
     p.set_defaults(func=run)
     return p
 
 
+def _write_realm(args) -> int:
+    from ..demo.realm import write_demo_realm
+
+    files = write_demo_realm(args.realm, args.seconds, args.seed, overwrite=args.force)
+    d = args.realm
+    print(f"wrote {', '.join(sorted(files))} to {d}/; start the three agents (bash):")
+    print("  start=$(( $(date +%s%N) + 5000000000 ))  # recording time 0 on the agents' clock")
+    print(f"  trackflow agent {d}/tracker.yaml --start-ns $start &")
+    print(f"  trackflow agent {d}/camera.yaml --start-ns $start &")
+    print(f"  trackflow agent {d}/app.yaml --duration 60 --status status.json")
+    return 0
+
+
 def run(args) -> int:
+    if args.realm is not None:
+        return _write_realm(args)
     from ..demo import DemoConfig, demo_json, run_demo
     from ..math import use_backend
 
