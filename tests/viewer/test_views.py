@@ -296,3 +296,25 @@ def test_the_view_process_places_frames_and_bodies_like_pose_algebra():
     finally:
         scene.close()
         board.close()
+
+
+def test_a_realms_agent_files_are_viewed_as_one_setup(tmp_path):
+    """`trackflow view tracker.yaml camera.yaml app.yaml`: the union of a realm's agent files,
+    as `trackflow plan` plans it; the app's query runs over both other agents' sensors."""
+    from trackflow.demo.realm import write_demo_realm
+    from trackflow.errors import InputError
+    from trackflow.viewer import ViewOptions, serve, start_setup
+
+    files = write_demo_realm(tmp_path, seconds=10.0)
+    paths = [files[n] for n in ("tracker.yaml", "camera.yaml", "app.yaml")]
+    run = start_setup(paths, ViewOptions(port=0, duration_s=5.0, rate_hz=20))
+    try:
+        run.wait_network_time(2.0, timeout_s=120)
+        states = {s.name: s.state for s in run.view.edge_statuses()}
+        assert states["art"] == "live" and states["artoolkit"] == "live", states
+        assert run.network["view:art"].count > 0
+    finally:
+        run.close()
+    assert run.error is None
+    with pytest.raises(InputError, match="only as setups or agent files"):
+        serve(paths[0], ViewOptions(port=0), more=[str(files["art.tfrec"])])
