@@ -302,12 +302,12 @@ def test_a_realms_agent_files_are_viewed_as_one_setup(tmp_path):
     """`trackflow view tracker.yaml camera.yaml app.yaml`: the union of a realm's agent files,
     as `trackflow plan` plans it; the app's query runs over both other agents' sensors."""
     from trackflow.demo.realm import write_demo_realm
-    from trackflow.errors import InputError
-    from trackflow.viewer import ViewOptions, serve, start_setup
+    from trackflow.distributed.realm_setup import realm_setup
+    from trackflow.viewer import ViewOptions, start_setup
 
     files = write_demo_realm(tmp_path, seconds=10.0)
     paths = [files[n] for n in ("tracker.yaml", "camera.yaml", "app.yaml")]
-    run = start_setup(paths, ViewOptions(port=0, duration_s=5.0, rate_hz=20))
+    run = start_setup(realm_setup(paths), ViewOptions(port=0, duration_s=5.0, rate_hz=20))
     try:
         run.wait_network_time(2.0, timeout_s=120)
         states = {s.name: s.state for s in run.view.edge_statuses()}
@@ -316,5 +316,11 @@ def test_a_realms_agent_files_are_viewed_as_one_setup(tmp_path):
     finally:
         run.close()
     assert run.error is None
-    with pytest.raises(InputError, match="only as setups or agent files"):
-        serve(paths[0], ViewOptions(port=0), more=[str(files["art.tfrec"])])
+
+
+def test_view_refuses_a_recording_among_agent_files(tmp_path, capsys):
+    from trackflow.demo.realm import write_demo_realm
+
+    files = write_demo_realm(tmp_path, seconds=2.0)
+    assert main(["view", str(files["app.yaml"]), str(files["art.tfrec"])]) == 1
+    assert "viewed together only as setups or agent files" in capsys.readouterr().err

@@ -53,7 +53,9 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ..viewer import ViewOptions, serve
+    from ..distributed.realm_setup import is_agent_file
+    from ..errors import InputError
+    from ..viewer import ViewOptions, is_setup, serve
 
     opts = ViewOptions(
         host=args.host,
@@ -67,9 +69,15 @@ def run(args) -> int:
         posetool=args.posetool,
         magnify=args.magnify,
     )
-    out = serve(
-        args.target, opts, snapshot=args.snapshot, size=(args.width, args.height), more=args.more
-    )
+    target = args.target
+    files = [args.target, *args.more]
+    if args.more or is_agent_file(args.target):
+        if not all(is_setup(f) for f in files):
+            raise InputError("several files are viewed together only as setups or agent files")
+        from ..distributed.realm_setup import realm_setup
+
+        target = realm_setup(files)  # as `trackflow plan` plans them
+    out = serve(target, opts, snapshot=args.snapshot, size=(args.width, args.height))
     if out is not None:
         print(f"snapshot written to {out}")
     return 0

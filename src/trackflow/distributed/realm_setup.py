@@ -18,7 +18,16 @@ from ..graph import SpatialRelationshipGraph
 from ..yamlfile import read_yaml
 from .config import load_agent
 
-__all__ = ["load_any_setup", "realm_setup"]
+__all__ = ["is_agent_file", "load_any_setup", "realm_setup"]
+
+
+def is_agent_file(path) -> bool:
+    """Whether ``path`` is a YAML agent file (a mapping with an ``agent:`` key)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
+        return False
+    doc = read_yaml(path)
+    return isinstance(doc, dict) and "agent" in doc
 
 
 def load_any_setup(path) -> tuple[Setup, str | None]:

@@ -111,41 +111,24 @@ class SetupRun:
 
 
 def start_setup(path, opts: ViewOptions) -> SetupRun:
-    """Load a YAML setup and start its network with a view (see :class:`SetupRun`).
-
-    ``path`` is a setup file, an agent file (its agent's setup), or a sequence of agent and
-    setup files of one realm, viewed as the one setup they make together (as ``trackflow plan``
-    plans them: :func:`trackflow.distributed.realm_setup.realm_setup`).
-    """
-    paths = [path] if isinstance(path, (str, Path)) else list(path)
-    if len(paths) == 1 and not _is_agent_file(paths[0]):
-        return SetupRun(load_setup(paths[0]), opts)
-    from ..distributed.realm_setup import realm_setup
-
-    return SetupRun(realm_setup(paths), opts)
+    """Start a setup's network with a view (see :class:`SetupRun`): ``path`` is a YAML setup
+    file or a :class:`~trackflow.dataflow.Setup` already made (the command line makes one of a
+    realm's agent files)."""
+    return SetupRun(path if isinstance(path, Setup) else load_setup(path), opts)
 
 
-def _is_agent_file(path) -> bool:
-    from ..yamlfile import read_yaml
-
-    doc = read_yaml(Path(path))
-    return isinstance(doc, dict) and "agent" in doc
-
-
-def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800), more=()) -> Path | None:
-    """Serve the view of ``target`` (a setup or agent file, or a recording) until interrupted,
-    or, with ``snapshot``, render one frame to that PNG through headless Chromium and return
-    its path. ``more``: further agent or setup files viewed with ``target`` as one setup."""
+def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | None:
+    """Serve the view of ``target`` (a setup file or :class:`~trackflow.dataflow.Setup`, or a
+    recording) until interrupted, or, with ``snapshot``, render one frame to that PNG through
+    headless Chromium and return its path."""
     from .browser import snapshot as take
 
-    if more and not all(is_setup(p) for p in (target, *more)):
-        raise InputError("several files are viewed together only as setups or agent files (YAML)")
-    if is_setup(target):
+    if isinstance(target, Setup) or is_setup(target):
         if snapshot is not None:
             # data just past the snapshot time, so the network thread ends soon after it
             at = 3.0 if opts.at_s is None else float(opts.at_s)
             opts = dataclasses.replace(opts, duration_s=min(opts.duration_s, at + 2.0))
-        run = start_setup([target, *more], opts)
+        run = start_setup(target, opts)
         try:
             if snapshot is not None:
                 at = 3.0 if opts.at_s is None else float(opts.at_s)
