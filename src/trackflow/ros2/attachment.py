@@ -9,7 +9,7 @@ length 16 as LEB128, then the bytes)::
     10 "source_timestamp" <int64 LE>   (the publisher's clock when it sent, ns)
     0a "source_gid"       10 <16 bytes>
 
-``tests/ros2/test_codec.py`` checks these bytes against Python Zenoh's own
+``tests/ros2/test_ros2_codec.py`` checks these bytes against Python Zenoh's own
 ``zenoh.ext.z_serialize``.
 """
 
