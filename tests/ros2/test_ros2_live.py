@@ -35,13 +35,6 @@ SENSOR = {"name": "head", "source": "room", "target": "head", "rate_hz": 100,
           "motion": {"n_dp": 1, "n_do": 1, "noise": [0.0, 3.0, 0.0, 10.0]}}  # fmt: skip
 
 
-@pytest.fixture
-def router():
-    r = Router()
-    yield r
-    r.close()
-
-
 def _motion(i: int):
     """A smooth pose and its covariance in ROS's convention, message ``i`` (100 Hz)."""
     t = i * 0.01
