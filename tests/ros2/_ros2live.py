@@ -14,7 +14,7 @@ import zenoh
 import zenoh.ext as ext
 from rosbags.typesys import Stores, get_typestore
 
-STORE = get_typestore(Stores.ROS2_JAZZY)
+STORE = get_typestore(Stores.LATEST)  # (rosbags 0.10, the oldest supported, has no JAZZY)
 HASH = {
     "geometry_msgs/msg/PoseStamped": STORE.hash_rihs01("geometry_msgs/msg/PoseStamped"),
     "geometry_msgs/msg/PoseWithCovarianceStamped": STORE.hash_rihs01(

@@ -139,7 +139,11 @@ def test_run_reads_and_publishes_ros2_topics(tmp_path, router):
     assert status["measurements"] == len(sent) > 200
     rec, _ = read_stream(tmp_path / "out.head.tfrec")
     by_stamp = {t: (p, q, c) for t, p, q, c in sent}
-    assert len(rec.t_ns) == status["accepted"] >= len(sent) - 2
+    # accepted or dropped by the live source (a message more than 500 ms old when dispatched,
+    # on a loaded machine), each counted
+    assert status["accepted"] + sum(status["dropped"].values()) == len(sent)
+    assert set(status["dropped"]) <= {"older than the backlog window"}, status["dropped"]
+    assert len(rec.t_ns) == status["accepted"] > 0.8 * len(sent)
     for k in range(0, len(rec.t_ns), 37):
         p, q, c = by_stamp[int(rec.t_ns[k])]
         np.testing.assert_array_equal(rec.position[k], p)

@@ -28,6 +28,8 @@ __all__ = ["MAX_PAYLOAD", "MessageError", "PoseCodec", "RosPose", "type_hash"]
 #: the largest payload decoded (bytes); a larger one is a counted rejection
 MAX_PAYLOAD = 1 << 20
 _COVARIANCE_TYPES = ("PoseWithCovarianceStamped",)
+#: plain CDR, big or little endian (the first two bytes of every payload)
+_ENCAPSULATIONS = (b"\x00\x00", b"\x00\x01")
 
 
 class MessageError(FormatError):
@@ -82,8 +84,11 @@ class PoseCodec:
         self.type_hash = self.store.hash_rihs01(self.msgtype)
         from rosbags.serde import SerdeError
 
+        # what rosbags' generated deserialisers raise on bytes that are no such message; the
+        # oldest supported rosbags (0.10) checks the message's length with an assert
         self._errors = (SerdeError, struct.error, ValueError, IndexError, TypeError,
-                        AttributeError, OverflowError, MemoryError, UnicodeDecodeError)  # fmt: skip
+                        AttributeError, OverflowError, MemoryError, UnicodeDecodeError,
+                        AssertionError)  # fmt: skip
 
     def encode(self, t_ns: int, frame_id: str, child: str, position, quaternion,
                covariance=None) -> bytes:  # fmt: skip
@@ -104,6 +109,8 @@ class PoseCodec:
         :class:`MessageError` when the bytes are not a message of this type."""
         if len(payload) > MAX_PAYLOAD:
             raise MessageError(f"{len(payload)} bytes: larger than {MAX_PAYLOAD}")
+        if len(payload) < 8 or bytes(payload[:2]) not in _ENCAPSULATIONS:
+            raise MessageError("no CDR encapsulation header (00 00 or 00 01)")
         try:
             msg = self.store.deserialize_cdr(bytes(payload), self.msgtype)
             if self.short == "TFMessage":
