@@ -232,3 +232,35 @@ def test_agent_publishes_tf(tmp_path, router):
             assert (r.x, r.y, r.z, r.w) == tuple(last.pose.quaternion)
             found += 1
     assert found == 1
+
+
+def test_agent_reads_a_ros2_topic(tmp_path, router):
+    """An agent opens a sensor's ``input: {ros2: ...}`` as ``trackflow run`` does."""
+    from trackflow.distributed import Agent, load_agent
+
+    inp = {"ros2": {"topic": "/mocap/head", "type": "PoseWithCovarianceStamped", "frame_id": "room",
+                    "connect": router.endpoint, "node": "agent_in"}}  # fmt: skip
+    doc = {
+        "agent": {"name": "mocap", "realm": f"ros2in{time.time_ns() % 10**6}"},
+        "sensors": [dict(SENSOR, input=inp)],
+        "queries": [{"name": "q", "source": "room", "target": "head", "mode": "push",
+                     "rate_hz": 50}],
+    }  # fmt: skip
+    path = tmp_path / "agent.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    sent, bad = [], {}
+    with Agent(load_agent(path)) as agent:
+        router.wait_token("/MS/%/%/agent_in/%mocap%head/")
+        _feed(router, 100, sent, bad)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            status = agent.status()
+            if status["inputs"]["head"]["packets"] >= 100:
+                break
+            time.sleep(0.05)
+        time.sleep(0.3)
+        status = agent.status()
+    head = status["inputs"]["head"]
+    assert head["protocol"] == "ros2" and head["packets"] == 100
+    assert head["measurements"] == len(sent) and head["rejections"] == bad
+    assert status["queries"]["q"]["published"] > 0
