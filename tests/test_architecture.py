@@ -18,12 +18,14 @@ LAYERS = {
     "scheduler": 0,
     "timesync": 0,
     "yamlfile": 1,
+    "zenohconf": 1,
     "graph": 1,
     "io": 1,
     "filters": 1,
     "plotting": 3,
     "dataflow": 2,
     "evaluation": 2,
+    "ros2": 2,
     "demo": 3,
     "trackers": 3,
     "optical": 3,
@@ -41,6 +43,7 @@ SAME_LAYER: set[tuple[str, str]] = {
     ("timesync", "math"),
     ("timesync", "errors"),
     ("scheduler", "errors"),
+    ("ros2", "dataflow"),  # the ROS 2 topics build on the setup's specs of them
 }
 
 

@@ -125,6 +125,7 @@ def run(args) -> int:
         "sensors": res.statuses,
         "queries": _queries(setup, res),
         "attributes": res.attributes,
+        **({"ros2": res.ros2} if res.ros2 else {}),
         **({} if offsets is None else {"online_offsets": offsets.final()}),
         "record": None if res.record is None else str(res.record),
     }

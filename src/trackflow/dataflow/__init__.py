@@ -38,6 +38,7 @@ from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
+from ._ros2spec import ROS2_INPUT_TYPES, ROS2_OUTPUT_TYPES, Ros2Link, Ros2Output
 from ._setup import Setup, load_setup, parse_setup
 from ._sinks import CallbackSink, PullSink, Recorder
 from ._sources import (
@@ -53,6 +54,10 @@ from ._warmup import warm_up
 
 __all__ = [
     "BACKLOG_NS",
+    "ROS2_INPUT_TYPES",
+    "ROS2_OUTPUT_TYPES",
+    "Ros2Link",
+    "Ros2Output",
     "NO_ORIGIN",
     "SAMPLE",
     "TICK",

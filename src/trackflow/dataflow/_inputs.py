@@ -6,12 +6,15 @@ Examples (YAML)::
     input: {dtrack: {port: 5000, body: 3}}
     input: {vrpn: {device: "Tracker0@127.0.0.1", sensor: 0}}
     input: {optical: {config: optical.yaml, body: wand}}
+    input: {ros2: {topic: /mocap/head, type: PoseStamped}}
 
 ``optical`` is an in-process feed rather than a network tracker: the optical tracker of an
 optical setup file (``config``, relative to the setup file; docs/optical.md) measuring the
 marker model ``body``. Such feeds implement :class:`PoseFeed` and are made by a factory that
 their package registers with :func:`register_feed` (dataflow knows neither the trackers
 nor the optical package; the live runtime looks the factory up by the protocol's name).
+``ros2`` reads a ROS 2 topic through rmw_zenoh's Zenoh key expressions (its keys:
+:mod:`trackflow.dataflow._ros2spec`, ``docs/ros2.md``).
 
 Common keys next to the protocol: ``up`` (``z``: frames as sent; ``y``: the tracker sends
 Y-up frames, converted to Z-up, see ``docs/conventions.md``), ``unit`` (unit of positions on
@@ -30,6 +33,7 @@ from typing import Protocol
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from ._ros2spec import LINK_OPTIONS, check_ros2_input
 
 __all__ = [
     "NETWORK_PROTOCOLS",
@@ -42,7 +46,7 @@ __all__ = [
 ]
 
 _UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
-_DEFAULT_UNIT = {"natnet": "m", "dtrack": "mm", "vrpn": "m", "optical": "m"}
+_DEFAULT_UNIT = {"natnet": "m", "dtrack": "mm", "vrpn": "m", "optical": "m", "ros2": "m"}
 
 # key -> (type, default); a default of ... means required
 _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
@@ -79,6 +83,15 @@ _OPTIONS: dict[str, dict[str, tuple[type | tuple, object]]] = {
     "optical": {
         "config": (str, ...),
         "body": (str, ...),
+    },
+    "ros2": {
+        "topic": (str, ...),
+        "type": (str, "PoseStamped"),
+        "frame_id": ((str, type(None)), None),
+        "child_frame_id": ((str, type(None)), None),
+        "clock": (str, "host"),
+        "latency_ms": ((int, float), 0.0),
+        **LINK_OPTIONS,
     },
 }
 PROTOCOLS = tuple(_OPTIONS)
@@ -155,7 +168,7 @@ class PoseFeed(Protocol):
 
 
 #: network trackers, implemented by trackflow.trackers itself (not feeds)
-NETWORK_PROTOCOLS = ("natnet", "dtrack", "vrpn")
+NETWORK_PROTOCOLS = ("natnet", "dtrack", "vrpn", "ros2")
 #: protocol -> factory(options) of its feed, registered by the package implementing it
 _FEEDS: dict[str, Callable[[dict], PoseFeed]] = {}
 
@@ -237,6 +250,8 @@ def parse_input(doc, base_dir=None) -> InputSpec:
             f"input.dtrack.kind must be 'body' (6d), 'flystick' (6df2), 'tool' (6dmt2) or "
             f"'hand' (gl), got {opts['kind']!r}"
         )
+    if proto == "ros2":
+        check_ros2_input(opts, base_dir)
     if proto == "optical":
         if not opts["config"].strip():
             raise ConfigError("input.optical.config: empty path")

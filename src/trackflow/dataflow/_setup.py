@@ -11,7 +11,8 @@ Example (``examples/demo_setup.yaml`` is a complete one)::
       - {name: projector, source: P, target: A, position: [0, 2, 0],
          quaternion: [0, 0, 0, 1], sigma_pos_mm: 0.1, sigma_ori_deg: 0.01}
     queries:
-      - {name: view, source: P, target: M, mode: push, rate_hz: 60, time_offset_ms: 0}
+      - {name: view, source: P, target: M, mode: push, rate_hz: 60, time_offset_ms: 0,
+         ros2: {topic: /trackflow/view}}   # optional: answers as a ROS 2 topic (docs/ros2.md)
     include: [calib/hand_eye.yaml]      # optional setup fragments (trackflow calibrate ...)
 
 A fragment (written by ``trackflow calibrate ... --fragment``) holds ``statics`` entries, which
@@ -56,6 +57,8 @@ class Setup:
     imus: dict = field(default_factory=dict)  # name -> ImuSpec (dataflow/_inertial.py)
     #: line of each entry in the file: ``"sensors.<name>"``, ``"queries.<name>"`` -> line
     lines: dict = field(default_factory=dict)
+    #: push queries whose answers go to a ROS 2 topic: name -> :class:`Ros2Output`
+    ros2: dict = field(default_factory=dict)
 
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
@@ -233,6 +236,7 @@ _QUERY_KEYS = {
     "evaluation",
     "failover",
     "require",
+    "ros2",
 }
 _FAILOVER_KEYS = {"hold_ms", "refused_down", "rescore"}
 
@@ -437,6 +441,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
         if why is not None:
             raise _err(source, s, f"{what}: {why}")
     queries: dict[str, Query] = {}
+    ros2: dict = {}
     for i, q in enumerate(doc.get("queries") or []):
         what = f"queries[{i}]"
         _check_keys(source, q, _QUERY_KEYS, what)
@@ -462,6 +467,16 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
             )
         except (TypeError, ValueError) as exc:
             raise _err(source, q, f"{what}: {exc}") from exc
+        if "ros2" in q:
+            from ._ros2spec import parse_ros2_output
+
+            query = queries[str(q["name"])]
+            try:
+                ros2[query.name] = parse_ros2_output(
+                    q["ros2"], query.source, query.target, query.mode, base_dir
+                )
+            except ValueError as exc:
+                raise ConfigError(f"{what}.{exc}", source, line_of(q, "ros2")) from exc
     imus = {}
     if doc.get("imus"):
         from ._inertial import parse_imus
@@ -472,7 +487,7 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 g.check_frame(spec.body)
             except ValueError as exc:
                 raise _err(source, doc, f"IMU {spec.name}: {exc}") from exc
-    return Setup(g, queries, recordings, source, inputs, imus, lines)
+    return Setup(g, queries, recordings, source, inputs, imus, lines, ros2)
 
 
 def load_setup(path: str | Path) -> Setup:

@@ -59,6 +59,7 @@ from ..errors import InputError, ServiceError
 from ..graph import Edge
 from ..math import UncertainPose
 from ..optional import require
+from ..ros2 import close_publishers, open_publishers
 from ..trackers.inputs import make_inputs, warm_up_inputs
 from ..trackers.runtime import InputSource, LiveSource, LiveSources, measured_attributes
 from . import wire
@@ -190,6 +191,8 @@ class Agent:
         self.net = Network(self._clock)
         self.session = None
         self.security = "not started"  # how its Zenoh links are protected (start())
+        #: push queries published as ROS 2 topics (``ros2:``; trackflow.ros2.AnswerPublisher)
+        self.ros2: dict = {}
 
     # -- clock ----------------------------------------------------------------------------------
     def now_ns(self) -> int:
@@ -210,6 +213,12 @@ class Agent:
                 f"agent {self.name!r}: cannot open the Zenoh session (listen {listen}): {exc}"
             ) from None
         s, r = self.session, self.realm
+        try:
+            self.ros2 = open_publishers(self.setup.ros2)  # own sessions, to the ROS 2 router
+        except BaseException:
+            self.session.close()
+            self.session = None
+            raise
         warm_up_replicas()  # compiled kernels are typed, not sized: one model warms them for all
         self._own_sensors()
         self._declare(s, r)
@@ -274,6 +283,8 @@ class Agent:
         if self.session is not None:
             self.session.close()
             self.session = None
+        close_publishers(self.ros2)
+        self.ros2 = {}
 
     def __enter__(self) -> Agent:
         return self.start()
@@ -561,6 +572,7 @@ class Agent:
     def _result_callback(self, name: str):
         pub = self._results[name]
         st = self.queries[name]
+        ros2 = self.ros2.get(name)
 
         def publish(m: Measurement) -> None:
             st.published += 1
@@ -576,6 +588,8 @@ class Agent:
                 path=m.path,
             )
             pub.put(buf)
+            if ros2 is not None:
+                ros2(m)
 
         return publish
 
@@ -684,6 +698,7 @@ class Agent:
                     for b in src.input.bodies
                 },
                 "queries": {},
+                "ros2": {n: p.status() for n, p in self.ros2.items()},
                 "attributes": measured_attributes(self.net, self.setup.graph, sorted(self._own)),
             }
             if self.error is not None:

@@ -38,16 +38,14 @@ control is refused, unless ``insecure: true`` (its status then says ``"security"
 
 from __future__ import annotations
 
-import ipaddress
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..dataflow import Setup, parse_setup
 from ..errors import ConfigError
-from ..optional import require
 from ..yamlfile import config_error, line_of, read_yaml
+from ..zenohconf import DEFAULT_ZENOH, build_config, link_security, security
 
 __all__ = ["AgentConfig", "link_security", "load_agent", "security", "zenoh_config"]
 
@@ -65,15 +63,6 @@ _AGENT_KEYS = {
     "thin",
     "thin_grace_ms",
     "insecure",
-}
-DEFAULT_ZENOH = {
-    "mode": "peer",
-    "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
-    # agents may start in any order: retry connecting every 0.25 s .. 1 s
-    "connect": {
-        "retry": {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
-    },
-    "scouting": {"multicast": {"enabled": False}},
 }
 
 
@@ -135,58 +124,25 @@ class AgentConfig:
             )
 
 
-def _insert(conf, key: str, value) -> None:
-    """Set ``key`` (a ``a/b/c`` path) to ``value``: mappings key by key (so the other keys
-    keep their defaults), or as a whole where Zenoh has no such sub-keys yet (a null
-    default such as ``connect/retry``)."""
-    zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
-
-    if isinstance(value, dict) and value:
-        try:
-            for k, v in value.items():
-                _insert(conf, f"{key}/{k}", v)
-            return
-        except zenoh.ZError:
-            pass
-    conf.insert_json5(key, json.dumps(value))
-
-
 def zenoh_config(cfg: AgentConfig):
     """The ``zenoh.Config`` of an agent: the file (if any), else the loopback defaults, then
-    the ``zenoh`` keys of the agent file on top."""
-    zenoh = require("zenoh", extra="distributed", feature="trackflow agent")
-
-    if cfg.zenoh_config is not None:
-        conf = zenoh.Config.from_file(str(cfg.zenoh_config))
-        layers = [cfg.zenoh]
-    else:
-        conf = zenoh.Config()
-        layers = [DEFAULT_ZENOH, cfg.zenoh]
-    for layer in layers:
-        for key, value in layer.items():
-            try:
-                _insert(conf, str(key), value)
-            except zenoh.ZError as exc:
-                raise _bad("zenoh", f"zenoh config key {key!r} = {value!r}: {exc}") from None
-    kind, weak = security(conf)
-    if kind == "insecure" and not cfg.insecure:
-        where = f"zenoh_config {cfg.zenoh_config}" if cfg.zenoh_config else "zenoh"
-        raise ConfigError(
-            f"agent: {where}: links off this machine ({', '.join(weak)}) without TLS with "
-            "mutual authentication and access control: make the realm's files with "
-            "'trackflow realm init' (docs/distributed.md), or set 'insecure: true' in the "
-            "agent section (or pass --insecure) to accept it",
-            cfg.path,
+    the ``zenoh`` keys of the agent file on top (:func:`trackflow.zenohconf.build_config`)."""
+    where = f"zenoh_config {cfg.zenoh_config}" if cfg.zenoh_config else "zenoh"
+    try:
+        return build_config(
+            [cfg.zenoh] if cfg.zenoh_config is not None else [DEFAULT_ZENOH, cfg.zenoh],
+            cfg.zenoh_config,
+            insecure=cfg.insecure,
+            where=f"agent: {where}",
+            path=cfg.path,
+            hint=": make the realm's files with 'trackflow realm init' (docs/distributed.md), "
+            "or set 'insecure: true' in the agent section (or pass --insecure) to accept it",
+            feature="trackflow agent",
         )
-    return conf
-
-
-def security(conf) -> tuple[str, list[str]]:
-    """``(kind, endpoints)`` of a ``zenoh.Config``: ``loopback``, ``tls+acl`` or
-    ``insecure`` (:func:`trackflow.distributed.realm.link_security`)."""
-    keys = ("listen/endpoints", "connect/endpoints", "transport/link/tls/enable_mtls",
-            "access_control/enabled")  # fmt: skip
-    return link_security(*(json.loads(conf.get_json(k)) for k in keys))
+    except ConfigError as exc:
+        if getattr(exc, "key", None) == "zenoh":
+            raise _bad("zenoh", exc.reason) from None
+        raise
 
 
 def _value(path, a, key: str, convert, default):
@@ -265,38 +221,3 @@ def load_agent(path: str | Path) -> AgentConfig:
         if exc.key is None:  # not a key of the agent section (an edge name)
             raise ConfigError(exc.reason, path) from None
         raise ConfigError(f"agent: {exc.reason}", path, line_of(a, exc.key)) from None
-
-
-def _endpoints(value) -> list[str]:
-    """A Zenoh ``endpoints`` value: a list, or a map of lists by mode."""
-    if isinstance(value, dict):
-        return [e for v in value.values() for e in _endpoints(v)]
-    return [str(e) for e in value or ()]
-
-
-def _loopback(endpoint: str) -> bool:
-    proto, _, address = endpoint.partition("/")
-    if proto in ("unixsock-stream", "unixpipe", "vsock"):
-        return True
-    host = address.split("#", 1)[0].rsplit(":", 1)[0].strip("[]")
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def link_security(listen, connect, mtls, access_control) -> tuple[str, list[str]]:
-    """How an agent's Zenoh links are protected: ``("tls+acl", [])`` when every endpoint is
-    TLS (or QUIC) with mutual authentication and access control is on, else
-    ``("loopback", [])`` when every endpoint is on this machine, else ``("insecure",
-    the endpoints off this machine that are not protected)``."""
-    every = _endpoints(listen) + _endpoints(connect)
-    weak = [e for e in every if not e.startswith(("tls/", "quic/"))]
-    if not weak and mtls is True and access_control is True:
-        return "tls+acl", []
-    off = [e for e in every if not _loopback(e)]
-    if not off:
-        return "loopback", []
-    return "insecure", [e for e in off if e in weak] or off

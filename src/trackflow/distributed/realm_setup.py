@@ -43,7 +43,7 @@ def load_any_setup(path) -> tuple[Setup, str | None]:
 def realm_setup(paths) -> Setup:
     """One setup of the setups or agent files ``paths`` (module docstring)."""
     g = SpatialRelationshipGraph()
-    queries, recordings, inputs, imus, lines = {}, {}, {}, {}, {}
+    queries, recordings, inputs, imus, lines, ros2 = {}, {}, {}, {}, {}, {}
     owner: dict[str, str] = {}
     loops = StaticLoops()
     for path in paths:
@@ -68,5 +68,6 @@ def realm_setup(paths) -> Setup:
         inputs.update(setup.inputs)
         imus.update(setup.imus)
         lines.update(setup.lines)
+        ros2.update(setup.ros2)
     source = " + ".join(str(p) for p in paths)
-    return Setup(g, queries, recordings, source, inputs, imus, lines)
+    return Setup(g, queries, recordings, source, inputs, imus, lines, ros2)

@@ -24,7 +24,9 @@ from ._kitti import KITTI_RATE_HZ, read_kitti, write_kitti
 from ._native import RecordingWriter, read_native, write_native
 from ._output import STDIO, atomic_output, remove_stale_temporaries
 from ._report import ReadReport
-from ._rosbag import MESSAGE_TYPES, read_rosbag, write_rosbag
+from ._rosbag import MESSAGE_TYPES, pose_fields, pose_message, read_rosbag, write_rosbag
+from ._roscommon import stamp_ns as ros_stamp_ns
+from ._roscommon import typestore as ros_typestore
 from ._rosimu import read_rosbag_imu, write_rosbag_imu
 from ._rostf import FrameLookupError
 from ._stream import FLAG_CONFIDENCE, FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
@@ -49,6 +51,8 @@ __all__ = [
     "RecordingWriter",
     "atomic_output",
     "guess_format",
+    "pose_fields",
+    "pose_message",
     "read_broad",
     "read_broad_imu",
     "read_csv",
@@ -63,6 +67,8 @@ __all__ = [
     "read_stream",
     "read_tum",
     "remove_stale_temporaries",
+    "ros_stamp_ns",
+    "ros_typestore",
     "write_broad",
     "write_csv",
     "write_euroc",

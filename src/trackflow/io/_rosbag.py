@@ -43,7 +43,14 @@ from ._roscommon import (
 from ._rostf import TF_MSGTYPE, is_static_topic, read_tf, tf_message
 from ._stream import FLAG_COVARIANCE, FLAG_ORIENTATION, FLAG_POSITION, PoseStream
 
-__all__ = ["MESSAGE_TYPES", "read_rosbag", "require_rosbags", "write_rosbag"]
+__all__ = [
+    "MESSAGE_TYPES",
+    "pose_fields",
+    "pose_message",
+    "read_rosbag",
+    "require_rosbags",
+    "write_rosbag",
+]
 
 #: Short name -> full ROS 2 style type name of the supported messages.
 MESSAGE_TYPES = {
@@ -67,6 +74,23 @@ def _extract(msg, msgtype: str):
     else:  # PoseWithCovarianceStamped, Odometry: msg.pose is a PoseWithCovariance
         p, q, cov = msg.pose.pose.position, msg.pose.pose.orientation, msg.pose.covariance
     return (p.x, p.y, p.z), (q.x, q.y, q.z, q.w), cov, msg.header.frame_id, child
+
+
+def pose_fields(msg, msgtype: str):
+    """The pose of a deserialised message of ``msgtype`` (full name; not ``TFMessage``, whose
+    transforms are ``TransformStamped`` each): ``(position, quaternion xyzw, ROS covariance
+    (36,) or None, header.frame_id, child_frame_id or None)``."""
+    return _extract(msg, msgtype)
+
+
+def pose_message(store, msgtype: str, t_ns: int, frame_id: str, child: str, position,
+                 quaternion, ros_covariance=None):  # fmt: skip
+    """A ROS 2 message of ``msgtype`` (a short name of :data:`MESSAGE_TYPES`) holding the pose
+    ``frame_id`` -> ``child`` stamped ``t_ns``; ``ros_covariance`` (36,) is in ROS's order and
+    convention (:func:`trackflow.math.cov_to_ros`), zeros where not given."""
+    cov = np.zeros(36) if ros_covariance is None else np.asarray(ros_covariance, float).ravel()
+    hdr = header(store, False, 0, int(t_ns), frame_id)
+    return _pose_message(store, msgtype, hdr, child, position, quaternion, cov)
 
 
 def _pick_topic(path, reader, topic: str | None) -> str:

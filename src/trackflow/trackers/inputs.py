@@ -3,7 +3,8 @@
 The inputs themselves: :class:`~.live_input.LiveInput` (the common part, with
 :class:`~.live_input.Sample` and :class:`~.live_input.SampleBlock`) and one per protocol,
 :class:`~.dtrack_input.DTrackInput`, :class:`~.natnet_input.NatNetInput`,
-:class:`~.vrpn_input.VrpnInput` and :class:`~.feed.FeedInput` (in-process feeds); their
+:class:`~.vrpn_input.VrpnInput`, :class:`~.ros2_input.Ros2Input` (a ROS 2 topic) and
+:class:`~.feed.FeedInput` (in-process feeds); their
 names are also importable from here.
 """
 
@@ -26,6 +27,7 @@ from .live_input import (
     recv_stamped,
 )
 from .natnet_input import NatNetInput
+from .ros2_input import Ros2Input
 from .vrpn_input import VrpnInput
 
 __all__ = [
@@ -35,6 +37,7 @@ __all__ = [
     "FeedInput",
     "LiveInput",
     "NatNetInput",
+    "Ros2Input",
     "Sample",
     "SampleBlock",
     "VrpnInput",
@@ -46,7 +49,7 @@ __all__ = [
     "warm_up_inputs",
 ]
 
-_INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput}
+_INPUTS = {"dtrack": DTrackInput, "natnet": NatNetInput, "vrpn": VrpnInput, "ros2": Ros2Input}
 
 
 def warm_up_inputs() -> None:

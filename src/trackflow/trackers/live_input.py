@@ -224,6 +224,9 @@ class LiveInput:
         }.get(spec.protocol)
         if spec.protocol not in NETWORK_PROTOCOLS:  # a feed: one per set of options
             return (spec.protocol, *sorted((k, v) for k, v in o.items() if k != "body"))
+        if spec.protocol == "ros2":  # one per topic (its sensors differ by their frames)
+            keys = ("connect", "zenoh_config", "insecure", "domain", "node", "topic", "type")
+            return (spec.protocol, *(o[k] for k in keys))
         if keys is None:
             return (spec.protocol, spec.vrpn_address[1:], o["timeout_ms"])
         return (spec.protocol, *(o[k] for k in keys))

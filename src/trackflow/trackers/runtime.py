@@ -54,6 +54,7 @@ from ..errors import InputError
 from ..filters import Layouts
 from ..io import RecordingWriter, read_stream
 from ..math import Pose, UncertainPose, check_covariance
+from ..ros2 import close_publishers, open_publishers
 from .inputs import (
     CheckedSample,
     LiveInput,
@@ -361,6 +362,8 @@ class RunResult:
     switches: dict[str, PathSwitch] = field(default_factory=dict, repr=False)
     #: each filtered sensor's measured rate, latency and NIS beside its declared figures
     attributes: dict[str, dict] = field(default_factory=dict)
+    #: queries published as ROS 2 topics (``ros2:``): topic, key expression, messages sent
+    ros2: dict[str, dict] = field(default_factory=dict)
 
 
 def _push_query(setup: Setup, query: str | None):
@@ -513,15 +516,32 @@ class _Served:
     switches: dict[str, PathSwitch]
 
 
-def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log) -> _Served:
+def _chain(*callbacks):
+    """One callback calling each of ``callbacks`` that is not ``None`` (``None`` if none)."""
+    calls = [c for c in callbacks if c is not None]
+    if len(calls) <= 1:
+        return calls[0] if calls else None
+
+    def call(m: Measurement) -> None:
+        for c in calls:
+            c(m)
+
+    return call
+
+
+def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log,
+               ros2=None) -> _Served:  # fmt: skip
     """Build every query of the setup into one network: ``main`` answers to ``on_answer``
     and ``record``; other push queries to ``out.query.<name>.tfrec`` (and VRPN sensor
-    1, 2, ... in setup order); pull queries to :class:`PullSink` objects. Path switches
-    report to ``log`` (a :class:`SwitchLog`)."""
+    1, 2, ... in setup order); pull queries to :class:`PullSink` objects; a query with a
+    publisher in ``ros2`` (query name -> callable) to it as well. Path switches report to
+    ``log`` (a :class:`SwitchLog`)."""
+    ros2 = ros2 or {}
     net = Network()
     plan = setup.plan(main)
     net, sink = plan.build(
-        sources, callback=on_answer, record=record, history_s=history_s, network=net,
+        sources, callback=_chain(on_answer, ros2.get(main.name)), record=record,
+        history_s=history_s, network=net,
         on_switch=log.callback(main.name),
     )  # fmt: skip
     sinks, unplanned, vrpn_index = {main.name: sink}, {}, 0
@@ -542,8 +562,8 @@ def _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log
 
         path = None if record is None or q.mode != "push" else query_record_path(record, name)
         _, sinks[name] = other.build(
-            sources, callback=callback, record=path, history_s=history_s, network=net,
-            prefix=f"{name}:", on_switch=log.callback(name),
+            sources, callback=_chain(callback, ros2.get(name)), record=path,
+            history_s=history_s, network=net, prefix=f"{name}:", on_switch=log.callback(name),
         )  # fmt: skip
     for name, src in sources.items():  # sensors no query uses are still opened and recorded
         if name not in net.components:
@@ -611,53 +631,61 @@ def run_live(
             callback(m)
 
     log = SwitchLog(None if record is None else switch_log_path(record))
-    served = _serve_all(setup, main, sources, on_answer, record, history_s, vrpn_out, log)
-    net = served.net
-    for c in net.components.values():  # answers go to the file and callbacks: memory stays
-        if isinstance(c, CallbackSink):
-            c.keep = LIVE_KEEP
-    net.reset()
-    warm_up(net)
-    warm_up_inputs()
-    inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
-    if on_network is not None:
-        on_network(net, served.plan, inputs)
-    writers = _writers(setup, edges, record)
-    delivery = LiveSources(sources)
-    t_start = host_ns()
-    sched = net.scheduler(t_start, None, WallTime(host_ns))
-    for inp in inputs:
-        sched.add(InputSource(inp, delivery, writers))
-    main_ticks = _main_ticker(sched, net, served.sink)
-    bodies = [b for i in inputs for b in i.bodies]
-    status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s, log)
-    deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
-    interrupted = False
+    publishers = open_publishers(setup.ros2)  # before any input: a refused link fails here
     try:
-        sched.run(deadline, stop=stop, on_idle=status, calm=True)
-    except KeyboardInterrupt:
-        interrupted = True
+        served = _serve_all(
+            setup, main, sources, on_answer, record, history_s, vrpn_out, log, publishers
+        )
+        net = served.net
+        for c in net.components.values():  # answers go to the file and callbacks: memory stays
+            if isinstance(c, CallbackSink):
+                c.keep = LIVE_KEEP
+        net.reset()
+        warm_up(net)
+        warm_up_inputs()
+        inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
+        if on_network is not None:
+            on_network(net, served.plan, inputs)
+        writers = _writers(setup, edges, record)
+        delivery = LiveSources(sources)
+        t_start = host_ns()
+        sched = net.scheduler(t_start, None, WallTime(host_ns))
+        for inp in inputs:
+            sched.add(InputSource(inp, delivery, writers))
+        main_ticks = _main_ticker(sched, net, served.sink)
+        bodies = [b for i in inputs for b in i.bodies]
+        status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s, log)
+        deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
+        interrupted = False
+        try:
+            sched.run(deadline, stop=stop, on_idle=status, calm=True)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            net.finish()
+            log.close()
+            for pair in writers.values():
+                for w in pair:
+                    w.close()
+        end = host_ns()
+        result = RunResult(
+            answers=served.sink.stats.events_in,
+            ticks=main_ticks.fired,
+            statuses={b.name: _accounted(b, sources[b.name], end) for b in bodies},
+            stats=net.stats(),
+            record=None if record is None else Path(record),
+            duration_s=(end - t_start) * 1e-9,
+            interrupted=interrupted,
+            inputs=inputs,
+            sinks=served.sinks,
+            unplanned=served.unplanned,
+            switches=served.switches,
+            attributes=measured_attributes(net, setup.graph, edges),
+        )
+        result.ros2 = {name: p.status() for name, p in publishers.items()}
+        return result
     finally:
-        net.finish()
-        log.close()
-        for pair in writers.values():
-            for w in pair:
-                w.close()
-    end = host_ns()
-    return RunResult(
-        answers=served.sink.stats.events_in,
-        ticks=main_ticks.fired,
-        statuses={b.name: _accounted(b, sources[b.name], end) for b in bodies},
-        stats=net.stats(),
-        record=None if record is None else Path(record),
-        duration_s=(end - t_start) * 1e-9,
-        interrupted=interrupted,
-        inputs=inputs,
-        sinks=served.sinks,
-        unplanned=served.unplanned,
-        switches=served.switches,
-        attributes=measured_attributes(net, setup.graph, edges),
-    )
+        close_publishers(publishers)
 
 
 def measured_attributes(net: Network, graph, edges) -> dict[str, dict]:
