@@ -39,12 +39,22 @@ from ._predictor import (
     default_predictor,
     estimate_noise,
 )
+from ._results import ResultsComparison, compare_results, load_result
 from ._shrinkage import (
     ShrunkPredictor,
     apply_shrinkage,
     change_factors,
     fit_shrinkage,
     shrinkage_factors,
+)
+from ._stream_ops import (
+    check_stream,
+    downsample_stream,
+    load_transform,
+    merge_streams,
+    motion_filter_stream,
+    sync_streams,
+    transform_stream,
 )
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._thinned import TrackerTrajectory, predict_from_last_pose, thin_poses
@@ -71,6 +81,16 @@ __all__ = [
     "ErrorSeries",
     "POSE_RELATIONS",
     "rpe_pairs",
+    "check_stream",
+    "compare_results",
+    "load_result",
+    "ResultsComparison",
+    "downsample_stream",
+    "load_transform",
+    "merge_streams",
+    "motion_filter_stream",
+    "sync_streams",
+    "transform_stream",
     "Stats",
     "ShrunkPredictor",
     "apply_shrinkage",

@@ -231,14 +231,19 @@ def downsample_ids(n: int, max_poses: int) -> np.ndarray:
     return np.linspace(0, n - 1, int(max_poses), dtype=np.int64)
 
 
-def motion_filter_ids(p: np.ndarray, q: np.ndarray, min_dist_m: float, min_angle_deg: float):
-    """Indices of the poses kept by the motion filter: the first, then each pose whose path
-    travelled since the last kept one reaches ``min_dist_m`` [m] or whose rotation from it
-    reaches ``min_angle_deg`` [deg]. ``p`` (N, 3), ``q`` (N, 4); returns (M,) int."""
+def check_motion_filter(min_dist_m: float, min_angle_deg: float) -> None:
+    """``InputError`` unless both thresholds are finite and ``>= 0``."""
     if not (np.isfinite(min_dist_m) and min_dist_m >= 0):
         raise InputError(f"motion filter distance must be >= 0 m, got {min_dist_m}")
     if not (np.isfinite(min_angle_deg) and min_angle_deg >= 0):
         raise InputError(f"motion filter angle must be >= 0 deg, got {min_angle_deg}")
+
+
+def motion_filter_ids(p: np.ndarray, q: np.ndarray, min_dist_m: float, min_angle_deg: float):
+    """Indices of the poses kept by the motion filter: the first, then each pose whose path
+    travelled since the last kept one reaches ``min_dist_m`` [m] or whose rotation from it
+    reaches ``min_angle_deg`` [deg]. ``p`` (N, 3), ``q`` (N, 4); returns (M,) int."""
+    check_motion_filter(min_dist_m, min_angle_deg)
     if len(p) < 2:
         raise InputError(f"the motion filter needs at least 2 poses, got {len(p)}")
     k = kernels_for(_pair_kernels)
