@@ -136,7 +136,7 @@ def check_delta(delta: float, unit: str) -> float:
         if d != int(d):
             raise InputError(f"delta must be an integer >= 1 in frames (unit f), got {delta}")
         return int(d)
-    top = 180.0 if unit == "d" else np.pi
+    top = {"m": np.inf, "d": 180.0, "r": np.pi}[unit]
     if d > top:
         raise InputError(
             f"delta must be at most {top:g} {DELTA_UNIT_NAMES[unit]} (an angle), got {delta}"

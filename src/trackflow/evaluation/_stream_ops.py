@@ -155,8 +155,17 @@ def motion_filter_stream(stream: PoseStream, min_dist_m: float, min_angle_deg: f
 
 
 def sync_streams(ref: PoseStream, est: PoseStream, t_max_diff: float = 0.01, t_offset=0.0):
-    """The associated samples of two recordings (:func:`associate`), as two streams of equal
-    length, each on its own clock.
+    """The samples of two recordings that :func:`associate` pairs, each on its own clock.
+
+    Every sample of the recording with fewer samples is paired with the nearest sample of the
+    other (after adding ``t_offset`` to ``est``'s times) within ``t_max_diff`` [s]; a sample
+    of the denser one nearest to two samples of the sparser one is kept once, so the two
+    streams can differ in length (evo repeats it: a stream's times are strictly increasing).
+
+    Returns
+    -------
+    (PoseStream, PoseStream)
+        The associated samples of ``ref`` and of ``est``.
 
     Raises
     ------
@@ -168,7 +177,7 @@ def sync_streams(ref: PoseStream, est: PoseStream, t_max_diff: float = 0.01, t_o
         raise InputError(
             f"no samples within {t_max_diff:g} s of each other (time offset {t_offset:g} s)"
         )
-    return ref[ir], est[ie]
+    return ref[np.unique(ir)], est[np.unique(ie)]
 
 
 def check_stream(stream: PoseStream, report=None) -> dict:
@@ -178,7 +187,9 @@ def check_stream(stream: PoseStream, report=None) -> dict:
     ----------
     stream : PoseStream
     report : trackflow.io.ReadReport, optional
-        The reader's account: rows dropped (and why), quaternions normalised, truncation.
+        The reader's account: rows dropped (and why), quaternions normalised, truncation, and
+        its notes (quaternions off unit length within the rounding of the file's printed
+        digits are normalised and noted, not counted as invalid).
 
     Returns
     -------
@@ -216,6 +227,8 @@ def check_stream(stream: PoseStream, report=None) -> dict:
             )
         valid &= not (report.dropped or report.normalized or report.truncated)
         checks["rows"] = f"{report.rows_kept} of {report.rows_read} kept"
+        for k, note in enumerate(report.notes):
+            checks[f"reader note {k + 1}"] = note
     out = {"valid": bool(valid), "checks": checks, "samples": n}
     if n < 2:
         return out
