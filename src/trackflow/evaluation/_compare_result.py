@@ -330,5 +330,5 @@ class CompareResult:
                     f"{100 * st['inside_95_percent']:.1f} % inside the 95 % bound"
                 )
                 continue
-            rows.append(f"{name:<{width}}" + "".join(f"{st[k]:11.6f}" for k in STAT_KEYS))
+            rows.append(f"{name:<{width}}" + "".join(f" {st[k]:10.6f}" for k in STAT_KEYS))
         return "\n".join(rows)

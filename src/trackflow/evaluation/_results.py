@@ -92,7 +92,7 @@ class ResultsComparison:
             rows.append(f"{'result':<{width}}" + "".join(f"{k:>11}" for k in STAT_KEYS)
                         + f"{'n':>9}")  # fmt: skip
             for n, st in by_name.items():
-                rows.append(f"{n:<{width}}" + "".join(f"{st[k]:11.6f}" for k in STAT_KEYS)
+                rows.append(f"{n:<{width}}" + "".join(f" {st[k]:10.6f}" for k in STAT_KEYS)
                             + f"{st['n']:>9}")  # fmt: skip
         return "\n".join(rows)
 
