@@ -152,14 +152,23 @@ def plot_error_vs_horizon(
         plt.close(fig)
 
 
+def _series_axis(series) -> tuple[float, str]:
+    """Scale and y label of an error series: metres drawn in millimetres."""
+    what = {"ape": "APE", "rpe": "RPE", "axis": "APE"}[series.kind]
+    rel = series.relation.replace("_", " ") + (" error" if series.kind == "axis" else "")
+    if series.unit == "m":
+        return 1e3, f"{what} {rel} [mm]"
+    return 1.0, f"{what} {rel}" + (f" [{series.unit}]" if series.unit else "")
+
+
 def plot_compare(folder, result, ref_name: str = "reference", est_name: str = "estimate",
                  overwrite: bool = False) -> list:  # fmt: skip
     """Two PNGs of a :class:`trackflow.evaluation.CompareResult` in ``folder``.
 
-    ``<est>_vs_<ref>_errors.png``: APE translation (with per-axis errors) and rotation, and RPE
-    over time, each with its RMSE. ``<est>_vs_<ref>_trajectories.png``: both associated
-    trajectories from above (x-y) and from the side (x-z), the estimate after alignment.
-    Returns the two paths.
+    ``<est>_vs_<ref>_errors.png``: every APE and RPE metric over time (one panel each; the APE
+    translation with its per-axis errors), each with its RMSE. ``<est>_vs_<ref>_trajectories.png``:
+    both associated trajectories from above (x-y) and from the side (x-z), the estimate after
+    alignment. Returns the two paths.
     """
     from pathlib import Path
 
@@ -168,21 +177,25 @@ def plot_compare(folder, result, ref_name: str = "reference", est_name: str = "e
     stem = f"{est_name}_vs_{ref_name}"
     paths = [folder / f"{stem}_errors.png", folder / f"{stem}_trajectories.png"]
     r = result
-    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-    axes[0].plot(r.t, r.ape_trans * 1e3, color="k", lw=1.2, label="|error|")
-    for k, axis in enumerate("xyz"):
-        axes[0].plot(r.t, r.ape_axes[:, k] * 1e3, lw=0.8, color=f"C{k}", label=f"{axis} error")
-    axes[0].set_ylabel("APE translation [mm]")
-    axes[1].plot(r.t, r.ape_rot_deg, color="k", lw=1.0)
-    axes[1].set_ylabel("APE rotation [deg]")
-    axes[2].plot(r.rpe_t, r.rpe_trans * 1e3, color="C3", lw=1.0)
-    axes[2].set_ylabel(f"RPE translation [mm]\nper {r.delta} pair(s)")
-    axes[2].set_xlabel("time since the first reference sample [s]")
-    for ax, e in zip(axes, (r.ape_trans * 1e3, r.ape_rot_deg, r.rpe_trans * 1e3)):
+    panels = [s for s in r.series.values() if s.kind in ("ape", "rpe")]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11, 2.7 * len(panels)), sharex=True,
+                             squeeze=False)  # fmt: skip
+    axes = axes[:, 0]
+    s = r.settings
+    step = f"delta {s.get('delta', 1):g} {s.get('delta_unit', 'f')}"
+    for ax, series in zip(axes, panels):
+        k, label = _series_axis(series)
+        e = series.error * k
+        ax.plot(series.t, e, color="k" if series.kind == "ape" else "C3", lw=1.0, label="error")
+        if series.name == "ape_trans_m":
+            for a, axis in enumerate("xyz"):
+                ax.plot(r.t, r.ape_axes[:, a] * 1e3, lw=0.8, color=f"C{a}", label=f"{axis} error")
+        ax.set_ylabel(label + (f"\n{step}" if series.kind == "rpe" else ""), fontsize=8)
         rmse = float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
         ax.axhline(rmse, color="gray", ls="--", lw=0.8, label=f"RMSE {rmse:.3g}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right", ncol=5)
+    axes[-1].set_xlabel("time since the first reference sample [s]")
     fig.suptitle(f"{est_name} vs {ref_name}: pose errors (alignment {r.alignment['method']})")
     fig.tight_layout()
     try:
@@ -205,6 +218,47 @@ def plot_compare(folder, result, ref_name: str = "reference", est_name: str = "e
         save_figure(fig, paths[1], overwrite)
     finally:
         plt.close(fig)
+    return paths
+
+
+def plot_results(folder, comparison, overwrite: bool = False) -> list:
+    """One PNG per metric of a :class:`trackflow.evaluation.ResultsComparison` in ``folder``,
+    ``results_<metric>.png`` for each APE and RPE metric (not the per-axis ones): the errors of
+    every result over time (left) and their distributions as box plots (right, whiskers at
+    1.5 IQR, mean marked). Returns the paths.
+    """
+    from pathlib import Path
+
+    plt = _pyplot()
+    folder = Path(folder)
+    paths = []
+    for m in comparison.metrics:
+        if comparison.results[0].series[m].kind == "axis":
+            continue
+        fig, (ax_t, ax_b) = plt.subplots(1, 2, figsize=(13, 4.5),
+                                         gridspec_kw={"width_ratios": [2.2, 1]})  # fmt: skip
+        k, label = _series_axis(comparison.results[0].series[m])
+        data = []
+        for c, (name, res) in enumerate(zip(comparison.names, comparison.results)):
+            series = res.series[m]
+            ax_t.plot(series.t, series.error * k, lw=0.9, color=f"C{c}", label=name)
+            data.append(series.error * k)
+        ax_t.set_xlabel("time since the first reference sample [s]")
+        ax_t.set_ylabel(label)
+        ax_t.grid(alpha=0.3)
+        ax_t.legend(fontsize=8)
+        ax_b.boxplot(data, showmeans=True)
+        ax_b.set_xticks(range(1, len(data) + 1), comparison.names, rotation=20, fontsize=8)
+        ax_b.set_ylabel(label)
+        ax_b.grid(alpha=0.3, axis="y")
+        fig.suptitle(f"{m}: {len(data)} results")
+        fig.tight_layout()
+        path = folder / f"results_{m}.png"
+        try:
+            save_figure(fig, path, overwrite)
+        finally:
+            plt.close(fig)
+        paths.append(path)
     return paths
 
 

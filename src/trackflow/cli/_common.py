@@ -54,13 +54,19 @@ _READ_OPTIONS = {
 }
 
 
-def add_input(parser: argparse.ArgumentParser, name: str = "file", suffix: str = "") -> None:
+def add_input(
+    parser: argparse.ArgumentParser, name: str = "file", suffix: str = "", nargs=None
+) -> None:
     """Add a recording argument with its reading options.
 
-    ``suffix`` distinguishes the options of a second input (``--format2``, ``--source2`` ...).
+    ``suffix`` distinguishes the options of a second input (``--format2``, ``--source2`` ...);
+    ``nargs="+"`` takes several recordings (read with the same options).
     """
     parser.add_argument(
-        name, help="recording ('-' reads standard input; format guessed from content/extension)"
+        name,
+        nargs=nargs,
+        help="recording ('-' reads standard input; format guessed from content/extension)"
+        + ("; several with --merge" if nargs else ""),
     )
     parser.add_argument(
         f"--format{suffix}", choices=FORMATS, default=None, help="input format (default: guessed)"
@@ -131,12 +137,14 @@ def _reader_options(args, suffix: str = "") -> dict:
     return opts
 
 
-def load(args, name: str = "file", suffix: str = "", min_samples: int = 1):
+def load(
+    args, name: str = "file", suffix: str = "", min_samples: int = 1, with_report: bool = False
+):
     """Read the recording of argument ``name`` with the options the user gave.
 
     The read report goes to standard error whenever the reader dropped, repaired or ignored
     anything, or guessed the format (unless ``--quiet``). Fewer than ``min_samples`` samples
-    is an error naming the file and what was dropped.
+    is an error naming the file and what was dropped. ``with_report``: ``(stream, report)``.
     """
     import os
     import time
@@ -174,7 +182,7 @@ def load(args, name: str = "file", suffix: str = "", min_samples: int = 1):
             f"{report.path}: {len(stream)} pose samples{hint}, this command needs at least "
             f"{min_samples} ({report.rows_read} rows read{dropped})"
         )
-    return stream
+    return (stream, report) if with_report else stream
 
 
 def save(args, stream, name: str = "output") -> None:

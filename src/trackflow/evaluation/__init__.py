@@ -9,7 +9,8 @@ predictor (``kalman_imu``) on a thinned pose stream. See ``docs/posetool.md`` an
 """
 
 from ._baselines import LinearPredictor, NoPredictor, predict_linear, predict_none
-from ._compare import ALIGNMENTS, CompareResult, Stats, associate, compare_trajectories
+from ._compare import ALIGNMENTS, CompareSettings, associate, compare_trajectories
+from ._compare_result import CompareResult, ErrorSeries, Stats
 from ._evaluate import PREDICTORS, PredictionReport, evaluate_predictors
 from ._inertial import (
     IMU_PREDICTORS,
@@ -29,6 +30,7 @@ from ._model_file import (
     save_model,
 )
 from ._ops import infer_streams, invert_stream, scale_covariance, shift_stream, stream_info
+from ._pairs import DELTA_UNITS, POSE_RELATIONS, rpe_pairs
 from ._prediction import Prediction, Predictor, predict_kalman
 from ._predictor import (
     KalmanPredictor,
@@ -37,12 +39,22 @@ from ._predictor import (
     default_predictor,
     estimate_noise,
 )
+from ._results import ResultsComparison, compare_results, load_result
 from ._shrinkage import (
     ShrunkPredictor,
     apply_shrinkage,
     change_factors,
     fit_shrinkage,
     shrinkage_factors,
+)
+from ._stream_ops import (
+    check_stream,
+    downsample_stream,
+    load_transform,
+    merge_streams,
+    motion_filter_stream,
+    sync_streams,
+    transform_stream,
 )
 from ._targets import default_gap, interpolate_poses, scored_mask
 from ._thinned import TrackerTrajectory, predict_from_last_pose, thin_poses
@@ -64,6 +76,21 @@ __all__ = [
     "change_factors",
     "ALIGNMENTS",
     "CompareResult",
+    "CompareSettings",
+    "DELTA_UNITS",
+    "ErrorSeries",
+    "POSE_RELATIONS",
+    "rpe_pairs",
+    "check_stream",
+    "compare_results",
+    "load_result",
+    "ResultsComparison",
+    "downsample_stream",
+    "load_transform",
+    "merge_streams",
+    "motion_filter_stream",
+    "sync_streams",
+    "transform_stream",
     "Stats",
     "ShrunkPredictor",
     "apply_shrinkage",

@@ -1,71 +1,150 @@
 """Trajectory comparison: absolute and relative pose error (APE, RPE) of an estimate vs a reference.
 
 The definitions follow the common practice of trajectory evaluation tools (Sturm et al.,
-"A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012), so figures agree with such
-tools given the same association and alignment:
+"A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012) and evo's choices, so
+figures agree with evo given the same association, alignment, pose relation and pairs
+(``docs/cli.md``, "trackflow compare"):
 
 * **Association** (:func:`associate`): for every sample of the recording with fewer samples,
   the sample of the other recording nearest in time (after adding ``t_offset`` to the
   estimate's times), if within ``t_max_diff``. Times are compared as float64 seconds.
-* **Alignment** (:func:`trackflow.math.umeyama`): ``"se3"`` a rigid motion, ``"sim3"`` a
-  similarity, fitted by least squares to the associated positions (Umeyama 1991);
-  ``"origin"`` maps the first estimated pose onto the first reference pose; ``"none"``. The
-  alignment ``T_ref_est`` is applied to every estimated pose: ``P'_i = S P_i`` (position
-  scaled by ``s`` for Sim(3)).
-* **APE**: ``E_i = Q_i^-1 P'_i`` for reference poses ``Q_i`` (``T_world_body``); translation
-  error ``|t(E_i)| = |t(P'_i) - t(Q_i)|`` [m], rotation error ``angle(E_i)`` [deg]. Per-axis
-  errors are ``t(P'_i) - t(Q_i)`` in the reference's world frame.
-* **RPE** over ``delta`` samples: ``E_i = (Q_i^-1 Q_{i+d})^-1 (P'_i^-1 P'_{i+d})`` for
-  ``i = 0, d, 2d, ...``; translation ``|t(E_i)|`` [m] and rotation ``angle(E_i)`` [deg].
-* **Statistics** (:class:`Stats`): RMSE, mean, median, standard deviation (population), min,
-  max and the sum of squares.
+* **Alignment** (:func:`trackflow.math.umeyama`, fitted to the associated positions, or to the
+  first ``n_to_align`` of them): ``"se3"`` a rigid motion, ``"sim3"`` a similarity,
+  ``"scale"`` the similarity's scale alone (positions scaled about the world origin, no
+  rotation or translation); ``"origin"`` maps the first estimated pose onto the first
+  reference pose; ``"none"``. The alignment ``T_ref_est`` is applied to every estimated pose:
+  ``P'_i = S P_i`` (position scaled by ``s``).
+* **APE**: the error pose between ``P'_i`` and the reference pose ``Q_i`` (``T_world_body``):
+  translation ``t(P'_i) - t(Q_i)`` (also per world axis), rotation ``R(Q_i)^T R(P'_i)``.
+* **RPE** over the pairs ``(i, j)`` of :func:`trackflow.evaluation._pairs.rpe_pairs`:
+  ``E = (Q_i^-1 Q_j)^-1 (P'_i^-1 P'_j)``.
+* Each error pose gives one number per **pose relation** (``trans_part`` [m], ``angle_deg``
+  ...; :mod:`trackflow.evaluation._pairs`), summarised by :class:`Stats`.
 * **Uncertainty**: when the estimate carries covariances, the APE position errors are also
   weighed by them: NEES ``e^T C^-1 e`` with ``C`` the position block rotated by the alignment
   (and scaled by ``s^2``), and the fraction inside its 95 % chi-square(3) bound.
+
+Memory: the per-pair work runs in blocks of ``BLOCK`` pairs; what is kept for the whole
+comparison is the association's indices, the associated positions (reference and aligned
+estimate) and one float64 array per metric.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from ..errors import InputError
 from ..io import PoseStream
-from ..math import quat_from_matrix, quat_to_matrix, umeyama
+from ..math import (
+    quat_between,
+    quat_conjugate,
+    quat_from_matrix,
+    quat_multiply,
+    quat_rotate,
+    quat_to_matrix,
+    umeyama,
+)
+from ._compare_result import CompareResult, ErrorSeries
+from ._pairs import (
+    APE_RELATIONS,
+    DELTA_UNITS,
+    POSE_RELATIONS,
+    check_delta,
+    metric_name,
+    relation_errors,
+    rpe_pairs,
+)
 
-__all__ = ["ALIGNMENTS", "CompareResult", "Stats", "associate", "compare_trajectories"]
+__all__ = ["ALIGNMENTS", "CompareSettings", "associate", "compare_trajectories"]
 
 #: Names accepted by ``align=``.
-ALIGNMENTS = ("none", "se3", "sim3", "origin")
+ALIGNMENTS = ("none", "se3", "sim3", "scale", "origin")
+#: The relations reported when none are asked for: translation [m] and angle [deg].
+DEFAULT_RELATIONS = ("trans_part", "angle_deg")
+#: Pairs per block of the per-pair work (bounds the temporaries: about 1 KB per pair).
+BLOCK = 1 << 16
 
 
 @dataclass(frozen=True)
-class Stats:
-    """Summary statistics of a set of non-negative errors (or signed, for per-axis errors)."""
+class CompareSettings:
+    """Every setting of a comparison, checked once (:func:`compare_trajectories`).
 
-    rmse: float
-    mean: float
-    median: float
-    std: float
-    min: float
-    max: float
-    sse: float
-    n: int
+    Attributes
+    ----------
+    t_max_diff : float
+        Association tolerance [s], ``>= 0``.
+    t_offset : float
+        Added to the estimate's times for the association [s].
+    align : {"none", "se3", "sim3", "scale", "origin"}
+    n_to_align : int or None
+        Fit the alignment to the first ``n`` associated pairs only (``>= 3``; se3, sim3 and
+        scale only); ``None``: all.
+    delta : float
+        RPE step, in ``delta_unit``: frames (an integer >= 1), metres travelled, degrees
+        (``<= 180``) or radians (``<= pi``).
+    delta_unit : {"f", "m", "d", "r"}
+    delta_tol : float
+        All pairs by path or angle: accepted relative deviation from ``delta`` (``>= 0``).
+    all_pairs : bool
+        RPE from every pose instead of consecutive segments.
+    pairs_from_reference : bool
+        Choose the RPE pairs on the reference instead of the (aligned) estimate.
+    pose_relations : tuple of str
+        The relations to report (``POSE_RELATIONS``), each for APE and RPE
+        (``point_distance_error_ratio``: RPE only).
+    """
 
-    @classmethod
-    def of(cls, e) -> Stats:
-        e = np.asarray(e, dtype=float).reshape(-1)
-        if not e.size:
-            nan = float("nan")
-            return cls(nan, nan, nan, nan, nan, nan, 0.0, 0)
-        return cls(
-            float(np.sqrt(np.mean(e * e))), float(np.mean(e)), float(np.median(e)),
-            float(np.std(e)), float(np.min(e)), float(np.max(e)), float(np.dot(e, e)), e.size,
-        )  # fmt: skip
+    t_max_diff: float = 0.01
+    t_offset: float = 0.0
+    align: str = "none"
+    n_to_align: int | None = None
+    delta: float = 1
+    delta_unit: str = "f"
+    delta_tol: float = 0.1
+    all_pairs: bool = False
+    pairs_from_reference: bool = False
+    pose_relations: tuple = DEFAULT_RELATIONS
+
+    def __post_init__(self):
+        if not (np.isfinite(self.t_max_diff) and self.t_max_diff >= 0):
+            raise InputError(f"t_max_diff must be >= 0 s, got {self.t_max_diff}")
+        if not np.isfinite(self.t_offset):
+            raise InputError(f"t_offset must be finite, got {self.t_offset}")
+        if self.align not in ALIGNMENTS:
+            raise InputError(f"align must be one of {ALIGNMENTS}, got {self.align!r}")
+        if self.n_to_align is not None:
+            n = self.n_to_align
+            if isinstance(n, bool) or int(n) != n or n < 3:
+                raise InputError(f"n_to_align must be an integer >= 3 (pairs), got {n}")
+            if self.align not in ("se3", "sim3", "scale"):
+                raise InputError(
+                    f"n_to_align needs align 'se3', 'sim3' or 'scale' (a fit); align is "
+                    f"{self.align!r}"
+                )
+            object.__setattr__(self, "n_to_align", int(n))
+        if self.delta_unit not in DELTA_UNITS:
+            raise InputError(f"delta unit must be one of {DELTA_UNITS}, got {self.delta_unit!r}")
+        object.__setattr__(self, "delta", check_delta(self.delta, self.delta_unit))
+        if not (np.isfinite(self.delta_tol) and self.delta_tol >= 0):
+            raise InputError(f"delta_tol must be >= 0, got {self.delta_tol}")
+        rel = self.pose_relations
+        rel = (rel,) if isinstance(rel, str) else tuple(rel)
+        bad = [r for r in rel if r not in POSE_RELATIONS]
+        if bad or not rel or len(set(rel)) != len(rel):
+            raise InputError(
+                f"pose relations must be distinct names of {POSE_RELATIONS}, got {list(rel)}"
+            )
+        object.__setattr__(self, "pose_relations", rel)
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__)
+        """Plain data, with the units in the names of the times."""
+        d = asdict(self)
+        d["t_max_diff_s"] = d.pop("t_max_diff")
+        d["t_offset_s"] = d.pop("t_offset")
+        d["pose_relations"] = list(self.pose_relations)
+        return d
 
 
 def associate(
@@ -103,215 +182,176 @@ def associate(
     return (i_short, i_long) if est_longer else (i_long, i_short)
 
 
-def _matrices(stream: PoseStream, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return quat_to_matrix(np.asarray(stream.quaternion)[idx]), np.asarray(stream.position)[idx]
+def _blocks(n: int):
+    return (slice(i, min(i + BLOCK, n)) for i in range(0, n, BLOCK))
 
 
-def _angle_deg(r: np.ndarray) -> np.ndarray:
-    """Rotation angles of matrices (..., 3, 3) in degrees (robust near 0 and 180)."""
-    q = quat_from_matrix(r)
-    return np.degrees(2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3])))
+def _alignment(cfg: CompareSettings, ref: PoseStream, est: PoseStream, ir, ie, pq, pe) -> dict:
+    """``{"method", "rotation", "translation", "scale", "n_aligned"}`` mapping the estimate's
+    world onto the reference's (module docstring)."""
+    rot, trans, scale, n = np.eye(3), np.zeros(3), 1.0, None
+    if cfg.align in ("se3", "sim3", "scale"):
+        n = len(pq) if cfg.n_to_align is None else cfg.n_to_align
+        if n > len(pq):
+            raise InputError(
+                f"n_to_align {n} exceeds the {len(pq)} associated pairs; give at most {len(pq)}"
+            )
+        if len(pq) < 3:
+            raise InputError(f"an alignment needs at least 3 associated pairs, got {len(pq)}")
+        fit = umeyama(pq[:n], pe[:n], with_scale=cfg.align != "se3")  # T_ref_est
+        scale = float(fit.scale)
+        if cfg.align != "scale":
+            rot, trans = fit.rotation, fit.translation
+    elif cfg.align == "origin":
+        rot = quat_to_matrix(ref.quaternion[ir[0]]) @ quat_to_matrix(est.quaternion[ie[0]]).T
+        trans = pq[0] - rot @ pe[0]
+    return {"method": cfg.align, "rotation": rot, "translation": trans, "scale": scale,
+            "n_aligned": n}  # fmt: skip
 
 
-@dataclass
-class CompareResult:
-    """APE/RPE of an estimate against a reference (see the module docstring).
-
-    Attributes
-    ----------
-    t : ndarray (K,)
-        Reference times of the associated pairs, seconds since the first reference sample.
-    ape_trans, ape_rot_deg : ndarray (K,)
-        APE translation [m] and rotation [deg] per pair.
-    ape_axes : ndarray (K, 3)
-        ``t(P') - t(Q)`` per pair, world axes of the reference [m].
-    rpe_t : ndarray (J,)
-        Reference times of the first pose of each RPE pair [s].
-    rpe_trans, rpe_rot_deg : ndarray (J,)
-    ref_xyz, est_xyz : ndarray (K, 3)
-        Associated reference and aligned estimated positions [m].
-    alignment : dict
-        ``{"method", "rotation" (3x3), "translation" (3,), "scale"}``.
-    nees : ndarray (K,) or None
-        Position NEES per pair when the estimate has covariances.
-    """
-
-    t: np.ndarray
-    ape_trans: np.ndarray
-    ape_rot_deg: np.ndarray
-    ape_axes: np.ndarray
-    rpe_t: np.ndarray
-    rpe_trans: np.ndarray
-    rpe_rot_deg: np.ndarray
-    ref_xyz: np.ndarray
-    est_xyz: np.ndarray
-    alignment: dict
-    n_ref: int
-    n_est: int
-    delta: int
-    nees: np.ndarray | None = None
-    settings: dict = field(default_factory=dict)
-
-    def stats(self) -> dict:
-        """``{"ape_trans_m", "ape_rot_deg", "rpe_trans_m", "rpe_rot_deg", "ape_x_m", ...}``."""
-        out = {
-            "ape_trans_m": Stats.of(self.ape_trans).as_dict(),
-            "ape_rot_deg": Stats.of(self.ape_rot_deg).as_dict(),
-            "rpe_trans_m": Stats.of(self.rpe_trans).as_dict(),
-            "rpe_rot_deg": Stats.of(self.rpe_rot_deg).as_dict(),
-        }
-        for k, axis in enumerate("xyz"):
-            out[f"ape_{axis}_m"] = Stats.of(self.ape_axes[:, k]).as_dict()
-        if self.nees is not None:
-            from scipy.stats import chi2
-
-            out["ape_position_nees"] = {
-                "mean": float(np.mean(self.nees)),
-                "expected": 3.0,
-                "inside_95_percent": float(np.mean(self.nees <= chi2.ppf(0.95, 3))),
-            }
-        return out
-
-    def as_dict(self, arrays: bool = False) -> dict:
-        """Plain data (JSON serialisable); with ``arrays`` every per-pair error too."""
-        a = self.alignment
-        out = {
-            "pairs": int(len(self.t)),
-            "reference_samples": self.n_ref,
-            "estimate_samples": self.n_est,
-            "settings": dict(self.settings),
-            "alignment": {
-                "method": a["method"],
-                "rotation": np.asarray(a["rotation"]).tolist(),
-                "translation": np.asarray(a["translation"]).tolist(),
-                "scale": a["scale"],
-            },  # fmt: skip
-            "stats": self.stats(),
-        }
-        if arrays:
-            out["arrays"] = {
-                "t_s": self.t.tolist(),
-                "ape_trans_m": self.ape_trans.tolist(),
-                "ape_rot_deg": self.ape_rot_deg.tolist(),
-                "ape_xyz_m": self.ape_axes.tolist(),
-                "rpe_t_s": self.rpe_t.tolist(),
-                "rpe_trans_m": self.rpe_trans.tolist(),
-                "rpe_rot_deg": self.rpe_rot_deg.tolist(),
-                "ref_xyz_m": self.ref_xyz.tolist(),
-                "est_xyz_m": self.est_xyz.tolist(),
-            }
-            if self.nees is not None:
-                out["arrays"]["ape_position_nees"] = self.nees.tolist()
-        return out
-
-    def table(self) -> str:
-        """Human-readable summary: one row per metric."""
-        rows = [
-            f"{len(self.t)} associated pairs ({self.n_ref} reference, {self.n_est} estimate "
-            f"samples); alignment {self.alignment['method']}"
-            + (
-                f", scale {self.alignment['scale']:.6g}"
-                if self.alignment["method"] == "sim3"
-                else ""
-            ),  # fmt: skip
-            f"{'metric':<18}{'rmse':>11}{'mean':>11}{'median':>11}{'std':>11}{'min':>11}"
-            f"{'max':>11}",
-        ]
-        for name, st in self.stats().items():
-            if "nees" in name:
-                rows.append(
-                    f"position NEES: mean {st['mean']:.3g} (3 if consistent), "
-                    f"{100 * st['inside_95_percent']:.1f} % inside the 95 % bound"
-                )
-                continue
-            rows.append(
-                f"{name:<18}" + "".join(f"{st[k]:11.6f}" for k in
-                                       ("rmse", "mean", "median", "std", "min", "max"))
-            )  # fmt: skip
-        return "\n".join(rows)
+def _series(kind: str, relations, t: np.ndarray, errors: dict) -> dict:
+    out = {}
+    for rel in relations:
+        if rel not in errors:
+            continue
+        name, unit = metric_name(kind, rel)
+        tt, e = errors[rel] if isinstance(errors[rel], tuple) else (t, errors[rel])
+        out[name] = ErrorSeries(name, kind, rel, unit, tt, e)
+    return out
 
 
 def compare_trajectories(
-    ref: PoseStream,
-    est: PoseStream,
-    *,
-    t_max_diff: float = 0.01,
-    t_offset: float = 0.0,
-    align: str = "none",
-    delta: int = 1,
+    ref: PoseStream, est: PoseStream, *, labels=("reference", "estimate"), **settings
 ) -> CompareResult:
     """APE and RPE of ``est`` against ``ref`` (both ``T_world_body``; module docstring).
 
     Parameters
     ----------
     ref, est : PoseStream
-    t_max_diff : float
-        Association tolerance [s].
-    t_offset : float
-        Added to the estimate's times for the association [s].
-    align : {"none", "se3", "sim3", "origin"}
-    delta : int
-        RPE step in associated pairs (``>= 1``).
+        Reference and estimate, positions [m], quaternions ``(x, y, z, w)``.
+    labels : tuple of two str
+        Their names in tables, plots and saved results.
+    **settings
+        The fields of :class:`CompareSettings` (``t_max_diff``, ``t_offset``, ``align``,
+        ``n_to_align``, ``delta``, ``delta_unit``, ``delta_tol``, ``all_pairs``,
+        ``pairs_from_reference``, ``pose_relations``), or ``settings=CompareSettings(...)``.
+
+    Returns
+    -------
+    CompareResult
 
     Raises
     ------
-    ValueError
-        No associated pairs, fewer than 3 for an alignment, or bad settings.
+    InputError
+        No associated pairs, fewer than 3 for an alignment, an RPE step that gives no pair, or
+        bad settings.
     """
-    if align not in ALIGNMENTS:
-        raise InputError(f"align must be one of {ALIGNMENTS}, got {align!r}")
-    if int(delta) != delta or delta < 1:
-        raise InputError(f"delta must be an integer >= 1, got {delta}")
+    cfg = settings.pop("settings", None)
+    if cfg is None:
+        try:
+            cfg = CompareSettings(**settings)
+        except TypeError as exc:
+            raise InputError(f"compare_trajectories: {exc}") from None
+    elif settings:
+        raise InputError(f"pass settings= or keywords, not both: {sorted(settings)}")
     tr = np.asarray(ref.t_ns) * 1e-9
     te = np.asarray(est.t_ns) * 1e-9
-    ir, ie = associate(tr, te, t_max_diff, t_offset)
+    ir, ie = associate(tr, te, cfg.t_max_diff, cfg.t_offset)
     if not len(ir):
         raise InputError(
             f"no associated poses: reference {tr[0]:.9g}..{tr[-1]:.9g} s, estimate "
-            f"{te[0]:.9g}..{te[-1]:.9g} s (+ offset {t_offset:g} s) with --t-max-diff "
-            f"{t_max_diff:g} s"
+            f"{te[0]:.9g}..{te[-1]:.9g} s (+ offset {cfg.t_offset:g} s) with --t-max-diff "
+            f"{cfg.t_max_diff:g} s"
         )
-    if delta >= len(ir):
+    del te
+    t_pairs = tr[ir] - tr[0]
+    del tr
+    k = len(ir)
+    if cfg.delta_unit == "f" and cfg.delta >= k:
         raise InputError(
-            f"delta {delta} needs more than {delta} associated poses; there are {len(ir)}"
+            f"delta {cfg.delta} needs more than {cfg.delta} associated poses; there are {k}"
         )
-    rq, pq = _matrices(ref, ir)
-    re_, pe = _matrices(est, ie)
-    rot, trans, scale = np.eye(3), np.zeros(3), 1.0
-    if align in ("se3", "sim3"):
-        fit = umeyama(pq, pe, with_scale=align == "sim3")  # T_ref_est
-        rot, trans, scale = fit.rotation, fit.translation, fit.scale
-    elif align == "origin":
-        rot = rq[0] @ re_[0].T
-        trans = pq[0] - rot @ pe[0]
-    re_ = rot @ re_
-    pe = scale * pe @ rot.T + trans
-    ape_axes = pe - pq
-    e_rot = np.einsum("nji,njk->nik", rq, re_)
-    k = np.arange(0, len(ir) - delta, delta)
-    rel_q_r = np.einsum("nji,njk->nik", rq[k], rq[k + delta])
-    rel_q_t = np.einsum("nji,nj->ni", rq[k], pq[k + delta] - pq[k])
-    rel_p_r = np.einsum("nji,njk->nik", re_[k], re_[k + delta])
-    rel_p_t = np.einsum("nji,nj->ni", re_[k], pe[k + delta] - pe[k])
-    nees = None
-    if est.covariance is not None:
-        c = scale**2 * rot @ np.asarray(est.covariance)[ie][:, :3, :3] @ rot.T
-        nees = np.einsum("ni,ni->n", ape_axes, np.linalg.solve(c, ape_axes[..., None])[..., 0])
-    t0 = tr[0]
+    qr_all, qe_all = np.asarray(ref.quaternion), np.asarray(est.quaternion)
+    ref_xyz = np.asarray(ref.position)[ir]
+    est_xyz = np.asarray(est.position)[ie]
+    al = _alignment(cfg, ref, est, ir, ie, ref_xyz, est_xyz)
+    rot, trans, scale = al["rotation"], al["translation"], al["scale"]
+    q_align = quat_from_matrix(rot)
+    for s in _blocks(k):  # in place: P' = s R p + t
+        est_xyz[s] = scale * est_xyz[s] @ rot.T + trans
+
+    # APE, block by block
+    ape_rel = [r for r in cfg.pose_relations if r in APE_RELATIONS]
+    ape = {r: np.empty(k) for r in ape_rel}
+    nees = np.empty(k) if est.covariance is not None else None
+    for s in _blocks(k):
+        dq = quat_between(qr_all[ir[s]], quat_multiply(q_align, qe_all[ie[s]]))
+        e = est_xyz[s] - ref_xyz[s]
+        dt = np.linalg.norm(e, axis=1)
+        for r in ape_rel:
+            ape[r][s] = relation_errors(r, dq, dt)
+        if nees is not None:
+            c = scale**2 * rot @ np.asarray(est.covariance)[ie[s]][:, :3, :3] @ rot.T
+            nees[s] = np.einsum("ni,ni->n", e, np.linalg.solve(c, e[..., None])[..., 0])
+
+    # RPE pairs, chosen on the aligned estimate (or the reference)
+    p_sel, q_src, idx = (ref_xyz, qr_all, ir) if cfg.pairs_from_reference else (est_xyz, qe_all, ie)
+    q_sel = q_src[idx] if cfg.delta_unit in ("d", "r") else None
+    pi, pj = rpe_pairs(p_sel, q_sel, cfg.delta, cfg.delta_unit, all_pairs=cfg.all_pairs,
+                       delta_tol=cfg.delta_tol)  # fmt: skip
+    del q_sel
+    rpe_t = t_pairs[pi]
+    m = len(pi)
+    rpe = {r: np.empty(m) for r in cfg.pose_relations}
+    ref_dist = np.empty(m) if "point_distance_error_ratio" in rpe else None
+    for s in _blocks(m):
+        i, j = pi[s], pj[s]
+        qri, qei = qr_all[ir[i]], quat_multiply(q_align, qe_all[ie[i]])
+        q_rel_r = quat_between(qri, qr_all[ir[j]])
+        q_rel_e = quat_between(qei, quat_multiply(q_align, qe_all[ie[j]]))
+        step_r = ref_xyz[j] - ref_xyz[i]
+        step_e = est_xyz[j] - est_xyz[i]
+        t_rel_r = quat_rotate(quat_conjugate(qri), step_r)
+        t_rel_e = quat_rotate(quat_conjugate(qei), step_e)
+        dq = quat_between(q_rel_r, q_rel_e)
+        dt = np.linalg.norm(t_rel_e - t_rel_r, axis=1)
+        dist = (np.linalg.norm(step_r, axis=1), np.linalg.norm(step_e, axis=1))
+        for r in cfg.pose_relations:
+            rr = "point_distance" if r == "point_distance_error_ratio" else r
+            rpe[r][s] = relation_errors(rr, dq, dt, dist)
+        if ref_dist is not None:
+            ref_dist[s] = dist[0]
+    notes = []
+    if ref_dist is not None:
+        moved = np.flatnonzero(ref_dist)
+        if len(moved) < m:
+            notes.append(
+                f"point_distance_error_ratio leaves out {m - len(moved)} of {m} RPE pairs "
+                "whose reference positions coincide"
+            )
+        rpe["point_distance_error_ratio"] = (
+            rpe_t[moved],
+            rpe["point_distance_error_ratio"][moved] / ref_dist[moved] * 100.0,
+        )
+
+    series = _series("ape", ape_rel, t_pairs, ape)
+    series.update(_series("rpe", cfg.pose_relations, rpe_t, rpe))
+    if "trans_part" in cfg.pose_relations:
+        for a, axis in enumerate("xyz"):
+            name = f"ape_{axis}_m"
+            series[name] = ErrorSeries(name, "axis", axis, "m", t_pairs,
+                                       est_xyz[:, a] - ref_xyz[:, a])  # fmt: skip
     return CompareResult(
-        t=tr[ir] - t0,
-        ape_trans=np.linalg.norm(ape_axes, axis=1),
-        ape_rot_deg=_angle_deg(e_rot),
-        ape_axes=ape_axes,
-        rpe_t=tr[ir][k] - t0,
-        rpe_trans=np.linalg.norm(rel_p_t - rel_q_t, axis=1),
-        rpe_rot_deg=_angle_deg(np.einsum("nji,njk->nik", rel_q_r, rel_p_r)),
-        ref_xyz=pq,
-        est_xyz=pe,
-        alignment={"method": align, "rotation": rot, "translation": trans, "scale": scale},
+        series=series,
+        t=t_pairs,
+        rpe_t=rpe_t,
+        ref_xyz=ref_xyz,
+        est_xyz=est_xyz,
+        alignment=al,
         n_ref=len(ref),
         n_est=len(est),
-        delta=int(delta),
+        settings=cfg.as_dict(),
         nees=nees,
-        settings={"t_max_diff_s": t_max_diff, "t_offset_s": t_offset, "delta": int(delta)},
+        labels=tuple(labels),
+        notes=notes,
     )

@@ -21,7 +21,9 @@ from ..io import PoseStream
 from ..math import Pose, UncertainPose, get_backend, quat_exp, umeyama
 from ._model_file import filter_stream
 from ._ops import infer_streams
+from ._pairs import rpe_pairs
 from ._predictor import TwistARPredictor, default_predictor
+from ._stream_ops import motion_filter_stream
 from ._trajectory import Trajectory
 from ._tuning import evaluate_recording
 
@@ -100,4 +102,12 @@ def compile_kernels(progress: Callable[[str], None] | None = None) -> list[str]:
     say("trajectory alignment (compare, calibrate align)")
     umeyama(pos[:100], pos[1:101], with_scale=True)
     steps.append("align")
+
+    say("RPE pairs by path and angle, motion filter (compare, plot-traj)")
+    short = stream[:200]
+    for unit, delta in (("m", 0.01), ("d", 1.0)):
+        for all_pairs in (False, True):
+            rpe_pairs(short.position, short.quaternion, delta, unit, all_pairs=all_pairs)
+    motion_filter_stream(short, 0.01, 1.0)
+    steps.append("compare")
     return steps
