@@ -48,3 +48,17 @@ def room1(shared_data) -> Path:
 def rng() -> np.random.Generator:
     """A fresh, seeded generator per test: no shared hidden RNG state between tests."""
     return np.random.default_rng(20261121)
+
+
+@pytest.fixture
+def router():
+    """A Zenoh router on loopback standing in for ``rmw_zenohd`` (the ROS 2 tests,
+    ``tests/ros2/_ros2live.py``; here because a second ``conftest`` module would shadow this
+    one for ``from conftest import ...``)."""
+    pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed")
+    pytest.importorskip("rosbags", reason="rosbags is not installed")
+    from _ros2live import Router
+
+    r = Router()
+    yield r
+    r.close()
