@@ -16,7 +16,7 @@ import numpy as np
 from ..math import ellipsoid, quat_from_matrix, quat_to_matrix, skew
 from .decor import faint, path_segments
 from .glyphs import stable_axes, to_wxyz
-from .scene import GHOST_AXES, MARKER_RADIUS, Style
+from .scene import GHOST_AXES, MARKER_RADIUS, TRAIL_PX, Style
 
 __all__ = ["HIDDEN", "BatchDrawing", "BodyFrame", "icosphere"]
 
@@ -103,7 +103,7 @@ class BatchDrawing:
         L = style.axes_length
         self.axes = scene.add_batched_axes(
             f"{path}/axes", ident, zeros3, np.full(n, HIDDEN),
-            axes_length=L, axes_radius=L * 0.05,
+            axes_length=L, axes_radius=L * 0.03,
         )  # fmt: skip
         v0, f0 = icosphere(0)  # a wire icosahedron: it hides no ellipsoid inside it
         self.markers = scene.add_batched_meshes_simple(
@@ -262,7 +262,7 @@ class BatchDrawing:
         col = np.concatenate(cols)
         if self.trails is None:
             self.trails = self.scene.add_line_segments(
-                f"{self.path}/trails", seg, col, thickness=self.style.axes_length * 0.05
+                f"{self.path}/trails", seg, col, thickness=TRAIL_PX, thickness_units="screen"
             )
         else:
             self.trails.points, self.trails.colors = seg, col

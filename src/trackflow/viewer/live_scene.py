@@ -34,6 +34,9 @@ __all__ = ["IDLE_RATE_HZ", "LiveScene"]
 
 #: Points kept of a body's whole path (halved, every other one, when full).
 PATH_POINTS = 4000
+#: Part of the page the followed body's glyph covers on the default camera: less than a
+#: recording's, a live setup's other bodies and frames are around it.
+LIVE_COVERAGE = 0.06
 #: Frames per second drawn while no browser is connected (keeps trails and plots current).
 IDLE_RATE_HZ = 2.0
 
@@ -108,7 +111,7 @@ class LiveScene:
         self.frame_axes = scene.add_batched_axes(
             "/frames", np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), np.zeros((n, 3)),
             np.where(np.array(lay.frames) == self.anchor, 1.0, HIDDEN),
-            axes_length=st.axes_length * 1.2, axes_radius=st.axes_length * 0.05,
+            axes_length=st.axes_length * 1.2, axes_radius=st.axes_length * 0.03,
         )  # fmt: skip
         self.bodies: list[EdgeLayout | QueryLayout] = [
             e for e in lay.edges if not e.static and e.slot is not None
@@ -382,8 +385,10 @@ class LiveScene:
         self._framed = True
 
     def _frame_body(self, body: BodyFrame) -> None:
+        """Aim the initial camera at ``body`` with some of the scene around it (its glyph
+        covers :data:`LIVE_COVERAGE` of the page)."""
         pts = body_glyph_points(body.position, body.quaternion, self.style.axes_length)
-        self.view.frame(pts, centre=body.position)
+        self.view.frame(pts, coverage=LIVE_COVERAGE, centre=body.position)
 
     def _follow_index(self, bodies: list) -> int | None:
         """The body the camera follows: the selected query's answer, else the first drawn."""

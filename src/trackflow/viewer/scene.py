@@ -39,6 +39,8 @@ GREY = (150, 150, 150)
 #: Radius of the wireframe body marker and length of the ghost's axes [axes lengths].
 MARKER_RADIUS = 0.1
 GHOST_AXES = 0.6
+#: Width of the fading trail on screen [px].
+TRAIL_PX = 3.0
 
 
 @dataclass
@@ -209,7 +211,7 @@ class PoseDrawing:
         cols = np.stack([rgb[:-1], rgb[1:]], axis=1).astype(np.uint8)
         if self.trail is None:
             self.trail = self.scene.add_line_segments(
-                f"{self.path}/trail", seg, cols, thickness=self.style.axes_length * 0.05
+                f"{self.path}/trail", seg, cols, thickness=TRAIL_PX, thickness_units="screen"
             )
         else:
             self.trail.points, self.trail.colors = seg, cols

@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+import threading
+import time
 
 import numpy as np
 
@@ -53,12 +55,30 @@ class ViewServer:
         self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
 
     def _watch_camera(self, client) -> None:
+        reports: list[float] = []
+
         def seen(camera, cid=client.client_id) -> None:
+            # A page reports its camera once when it starts, possibly before it applied the
+            # initial camera: its camera counts (is followed, labels are laid out for it)
+            # from its second report on, or 1.5 s after the first.
+            reports.append(time.monotonic())
+            if len(reports) < 2 and cid not in self._cameras:
+                timer = threading.Timer(1.5, lambda: self._settled(cid, client))
+                timer.daemon = True
+                timer.start()
+                return
             self._cameras[cid] = Camera.from_client(camera)
             for hook in list(self._camera_hooks):
                 hook()
 
         client.camera.on_update(seen)
+
+    def _settled(self, cid: int, client) -> None:
+        if cid in self._cameras or cid not in self.server.get_clients():
+            return
+        self._cameras[cid] = Camera.from_client(client.camera)
+        for hook in list(self._camera_hooks):
+            hook()
 
     @property
     def has_browser_camera(self) -> bool:
