@@ -4,6 +4,8 @@ frame, the ghost's own magnification, rejections and refused pulls counted apart
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -142,3 +144,18 @@ def test_the_ghost_has_its_own_magnification():
     assert auto_ghost_magnify(track, 0.0, L) == 1.0
     pose = UncertainPose(Pose(pos[0], q[0]), np.eye(6) * 1e-6)
     assert pose.covariance.shape == (6, 6)
+
+
+def test_the_command_line_names_a_bad_anchor(tmp_path, capsys):
+    from trackflow.cli.main import main
+
+    root = Path(__file__).resolve().parents[2]
+    shot = str(tmp_path / "x.png")
+    setup = str(root / "examples" / "live_demo.yaml")
+    assert main(["view", setup, "--anchor", "nowhere", "--snapshot", shot]) == 1
+    err = capsys.readouterr().err
+    assert "nowhere" in err and "room" in err  # the frames it could have been
+    rec = tmp_path / "rec.tum"
+    rec.write_text("0 0 0 0 0 0 0 1\n0.01 0 0 0 0 0 0 1\n0.02 0 0 0 0 0 0 1\n")
+    assert main(["view", str(rec), "--anchor", "world", "--snapshot", shot]) == 1
+    assert "--anchor applies to a setup" in capsys.readouterr().err

@@ -88,6 +88,17 @@ def _circle(duration_s=6.0, rate=100.0) -> PoseStream:
     return PoseStream("world", "body", np.round(t * 1e9).astype(np.int64), pos, q)
 
 
+def _doc(browser, page, view, name: str) -> None:
+    """The page with the view's own status line, to ``docs/viewer/NAME.png`` (when asked)."""
+    if not os.environ.get("TRACKFLOW_DOC_SHOTS"):
+        return
+    view.view.set_status("picture")
+    browser.wait_text(page, "picture")
+    view.show(view.t_s)
+    browser.wait_text(page, f"t = {view.t_s:.3f} s /")
+    doc_shot(browser.capture(page, stable_s=15.0), name)
+
+
 def _shot(browser, page, view, text: str) -> np.ndarray:
     """The page once it shows ``text`` and two screenshots agree (software WebGL lags)."""
     view.view.set_status(text)
@@ -117,9 +128,9 @@ def test_the_floor_grid_is_drawn_with_its_scale(browser):
         view.close()
 
 
-def _body_coverage(browser, view, t_s: float, picture: bool) -> tuple[float, np.ndarray | None]:
+def _body_coverage(browser, view, t_s: float, picture: str | None = None) -> float:
     """Bounding box of the body's pixels over the page on the default camera at ``t_s``
-    (and, with ``picture``, a screenshot of the whole scene)."""
+    (and, with ``picture``, the whole scene to ``docs/viewer/PICTURE.png``)."""
     view.show(t_s)
     text = f"t = {view.t_s:.3f} s"
     page = browser.open(view.url, text)  # a new page: the default camera
@@ -130,12 +141,12 @@ def _body_coverage(browser, view, t_s: float, picture: bool) -> tuple[float, np.
         view.measured.visible = False
         hidden = _shot(browser, page, view, text + " (no body)")
         diff = changed(shown, hidden) & outside(shown.shape, panel_box(page))
-        if not picture:
-            return bbox_fraction(diff), None
-        view.set_scene(labels=True, trail=True, path=True, grid=True)
-        view.body.set_visible(True)
-        view.measured.visible = True
-        return bbox_fraction(diff), _shot(browser, page, view, text + " (all)")
+        if picture:
+            view.set_scene(labels=True, trail=True, path=True, grid=True)
+            view.body.set_visible(True)
+            view.measured.visible = True
+            _doc(browser, page, view, picture)
+        return bbox_fraction(diff)
     finally:
         page.close()
 
@@ -149,11 +160,9 @@ def test_the_body_covers_a_tenth_of_the_default_view(browser, shared_data, name)
     view = RecordingView(RecordingTrack.from_stream(stream), port=0)
     try:
         mid = round(view.track.duration / 2, 2)
-        picture = name.startswith("ar_table/table_01")
-        cover, img = _body_coverage(browser, view, mid, picture)
+        picture = "recording_ar_table" if name.startswith("ar_table/table_01") else None
+        cover = _body_coverage(browser, view, mid, picture)
         print(f"{name}: the body covers {cover:.1%} of the view at t = {mid} s", flush=True)
-        if picture:
-            doc_shot(img, "recording_ar_table")
         assert cover >= 0.10, f"{name}: the body covers {cover:.1%} of the view"
     finally:
         view.close()
@@ -178,9 +187,9 @@ def test_the_prediction_ghost_keeps_to_its_own_scale(browser, room1):
         assert diff.sum() > 200, "the ghost is not drawn"
         assert cover < 0.30, f"the ghost covers {cover:.1%} of the view"
         view.set_scene(labels=True)
-        doc_shot(_shot(browser, page, view, "labels"), "recording_tumvi_room1_predicted")
+        _doc(browser, page, view, "recording_tumvi_room1_predicted")
         view.set_offset(0.0)
         view.set_sigma(3)
-        doc_shot(_shot(browser, page, view, "3 sigma"), "recording_tumvi_room1")
+        _doc(browser, page, view, "recording_tumvi_room1")
     finally:
         view.close()

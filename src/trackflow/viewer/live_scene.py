@@ -156,7 +156,7 @@ class LiveScene:
         ):  # fmt: skip
             handle.on_update(lambda _, h=handle, k=key, c=conv: self.apply(**{k: c(h.value)}))
         self.c_offset.on_update(lambda _: self._offset_moved(self.c_offset.value * 1e-3))
-        reframe.on_click(lambda _: self.apply(anchor=self.anchor, reframe=True))
+        reframe.on_click(lambda _: self.apply(reframe=True))
         with gui.add_folder("Spatial relationship graph"):
             self.panel = gui.add_html("")
         with gui.add_folder("Time plots", expand_by_default=False):
@@ -199,12 +199,12 @@ class LiveScene:
                 elif k in ("show_path", "show_trail"):
                     setattr(self.style, k, bool(v))
                 elif k == "anchor":
-                    if v not in self.layout.frames:
-                        continue  # "(none)" or a stale control value
-                    if v != self.anchor or reframe:
+                    if v in self.layout.frames and v != self.anchor:
                         self._reanchor(v)
                 else:
                     setattr(self, k, v)
+            if reframe:  # the grid and every page's camera fitted again, paths kept
+                self._framed, self._first_placed, self._move_browsers = False, None, True
             if "show_grid" in kw and self.grid is not None:
                 self.grid.visible = bool(self.show_grid)
             if "show_labels" in kw:
