@@ -505,16 +505,18 @@ def bench_thin(
         # measure the middle of the run: from 1 s after feeding started, for duration - 2 s
         wait_for(lambda: all(answers.values()), 150)  # the sender feeds
         time.sleep(1.0)
-        st0 = {n: status(session, realm, n, 5) for n in consumers}
-        fed = [status(session, realm, "sender", 5).get("published_states", 0)]
+        # each agent's counters are read with the time of its reply (the middle of the
+        # call), and turned into rates over that agent's own window: on a loaded host a
+        # status reply can take seconds, and one window for all would count what came
+        # while the others were asked
+        st0 = {n: _timed_status(session, realm, n) for n in (*consumers, "sender")}
         w0, t0 = _tcp_bytes_sent(sender.pid), time.monotonic()
         for a in answers.values():
             a.clear()
         time.sleep(max(1.0, duration_s - 2.0))
         w1, t1 = _tcp_bytes_sent(sender.pid), time.monotonic()
-        fed.append(status(session, realm, "sender", 5).get("published_states", 0))
-        st1 = {n: status(session, realm, n, 5) for n in consumers}
         got = {n: list(a) for n, a in answers.items()}
+        st1 = {n: _timed_status(session, realm, n) for n in (*consumers, "sender")}
         sub.undeclare()
     finally:
         if session is not None:
@@ -522,16 +524,27 @@ def bench_thin(
         for p in (sender, *consumers.values()):
             stop(p)
     span = t1 - t0
+
+    def rate(names, count) -> float:
+        return sum((count(st1[n][0]) - count(st0[n][0])) / (st1[n][1] - st0[n][1]) for n in names)
+
     out = {"mode": tag, "reorder_ms": reorder_ms, "seconds": round(span, 2)}
     out["consumers"] = [f"{n}: {r} Hz, {'thinned' if t else 'every state'}" for n, r, t in spec]
-    out["fed_per_s"] = (fed[1] - fed[0]) / span  # states made by the sensors' filters
+    # states made by the sensors' filters
+    out["fed_per_s"] = rate(["sender"], lambda st: st.get("published_states", 0))
     out["sender_bytes_per_s"] = (w1 - w0) / span
-    msgs = sum(st1[n]["received_messages"] - st0[n]["received_messages"] for n in consumers)
-    byts = sum(st1[n]["received_bytes"] - st0[n]["received_bytes"] for n in consumers)
-    out["received_messages_per_s"] = msgs / span
-    out["received_payload_bytes_per_s"] = byts / span
-    beats = sum(st1[n]["received_heartbeats"] - st0[n]["received_heartbeats"] for n in consumers)
-    out["received_heartbeats_per_s"] = beats / span
+    for key, field in (
+        ("received_messages_per_s", "received_messages"),
+        ("received_payload_bytes_per_s", "received_bytes"),
+        ("received_heartbeats_per_s", "received_heartbeats"),
+    ):
+        out[key] = rate(consumers, lambda st, f=field: st[f])
+    # the sender's side of the thinned streams: states sent on their tick, heartbeats (a tick
+    # with no new state) and late states (made before a tick already completed: sent at once,
+    # a second message for that tick)
+    for k in ("sent", "heartbeats", "late"):
+        out[f"sender_thin_{k}_per_s"] = rate(["sender"], lambda st, k=k: _thin_totals(st)[k])
+    st1 = {n: st for n, (st, _) in st1.items()}
     if pair:  # the same stamps of the same relationship, thinned and not
         ref = {(f, e): pose for e, _, f, pose in got["r30"]}
         both = [(ref[(f, e)], pose) for e, _, f, pose in got["t30"] if (f, e) in ref]
@@ -543,7 +556,17 @@ def bench_thin(
         out["max_ang_diff_deg"] = float(da.max())
     for n in consumers:
         lat = np.array([h - e for e, h, _, _ in got[n]], float) * 1e-3
-        out[f"{n}_answers_per_s"] = len(lat) / span
+        # answers per second of the ticks they answer (a tick's answer published after the
+        # window closed still counts for its tick, one that came in it for an earlier tick
+        # too: the span of their ticks, not of the window)
+        ticks = sorted({(f, e) for e, _, f, _ in got[n]})
+        frames = {f for f, _ in ticks}
+        if len(ticks) > len(frames):
+            ends = {f: [e for g, e in ticks if g == f] for f in frames}
+            per = [(len(v) - 1) / ((v[-1] - v[0]) * 1e-9) for v in ends.values() if len(v) > 1]
+            out[f"{n}_answers_per_s"] = float(np.sum(per))
+        else:
+            out[f"{n}_answers_per_s"] = 0.0
         out[f"{n}_answer_p50_us"] = float(np.percentile(lat, 50)) if len(lat) else None
         out[f"{n}_answer_p99_us"] = float(np.percentile(lat, 99)) if len(lat) else None
         out[f"{n}_late_events"] = st1[n]["late_events"]
@@ -555,6 +578,26 @@ def bench_thin(
     out["answer_p99_us"] = float(np.percentile(lat, 99))
     out["_latencies_us"] = lat  # for --plot-thin; not printed
     return out
+
+
+def _timed_status(session, realm: str, name: str) -> tuple[dict, float]:
+    """An agent's status and the monotonic time of its reply (the middle of the call)."""
+    for _ in range(3):  # a loaded host may miss a reply: ask again
+        a = time.monotonic()
+        st = status(session, realm, name, 5)
+        if st:
+            return st, (a + time.monotonic()) / 2
+    raise TimeoutError(f"agent {name!r} gave no status in 3 tries")
+
+
+def _thin_totals(st: dict) -> dict:
+    """Sums of the sender's thinned-stream counters over its edges and consumers."""
+    tot = {"sent": 0, "heartbeats": 0, "late": 0}
+    for streams in (st or {}).get("thin_streams", {}).values():
+        for c in streams.values():
+            for k in tot:
+                tot[k] += c.get(k, 0)
+    return tot
 
 
 def plot_thin(path: Path, runs: list[dict], load: str) -> None:

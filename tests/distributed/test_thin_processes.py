@@ -151,19 +151,22 @@ def test_thinned_streams_union_garbage_and_a_dying_consumer(tmp_path):
             assert seqs == sorted(seqs)  # the newest state for each tick, in the filter's order
         # the unthinned consumer gets every state (240 Hz) and answers each tick once its
         # 60 ms jitter buffer has passed; the thinned one answers as soon as its stream
-        # completes the tick. Both must give the same answers, to the bit (one clock, the
-        # same newest state, the same prediction). The 10 % left allows for a host stalled
-        # for longer than the jitter buffer in one consumer and not the other (measured
-        # under two busy loops on 2 cores: 100 % in every run)
+        # completes the tick. An answer made from the same newest measurement (its origin
+        # stamp) in both must be the same to the bit (one clock, the same state, the same
+        # prediction). A host stalled for longer than the jitter buffer in one consumer and
+        # not the other makes them answer a tick from different states: those ticks are
+        # counted apart, not compared, so the check does not depend on the host's load.
         common = sorted(set(results["r30"]) & set(results["c30"]))
         assert len(common) > 30, (len(common), {n: len(r) for n, r in results.items()})
+        same = [t for t in common if results["r30"][t].origin_ns == results["c30"][t].origin_ns]
+        assert len(same) >= 10, (len(same), len(common))
         d = np.array(
             [
                 np.linalg.norm(results["r30"][t].pose.position - results["c30"][t].pose.position)
-                for t in common
+                for t in same
             ]
         )
-        assert np.mean(d <= 1e-9) >= 0.9, (np.mean(d <= 1e-9), d.max())
+        assert d.max() <= 1e-9, (int(np.sum(d > 1e-9)), len(same), d.max())
 
         # garbage demands are counted rejections; the agent keeps serving
         bad = [

@@ -141,7 +141,11 @@ class _ThinDeadlines(TimedSource):
         return None if due >= _FOREVER_NS else due
 
     def fire(self, t_ns: int) -> None:
-        self.agent.thin.flush(max(t_ns, self.agent.now_ns()))
+        # the scheduler's time, not the wall clock's: a live state stamped before the wall's
+        # now but still waiting for the scheduler's lock is dispatched after ``t_ns`` (its
+        # arrival moves past it) and so answers the next tick; completing ticks up to the
+        # wall's now would leave it late, a second message for an already completed tick
+        self.agent.thin.flush(t_ns, self.agent.now_ns())
 
 
 class Agent:
@@ -399,9 +403,10 @@ class Agent:
         src = self._sources.get(edge)
         if not isinstance(src, RemoteSource) or edge not in self._own:
             raise InputError(f"agent {self.name!r} has no live sensor {edge!r}")
+        m = Measurement(int(t_ns), pose, int(t_ns))
         with self.sched.arrival(self.now_ns()) as arr:
-            if arr is not None:
-                src.deliver(Measurement(int(t_ns), pose, int(t_ns)))
+            if arr is not None:  # at its dispatch time: the clock the dataflow reads is set
+                arr.deliver(1, lambda _i, _j, _a: src.deliver(m))
 
     def get(self, query: str, t_ns: int) -> Measurement | None:
         """``get(t)`` of one of this agent's pull queries (``None``: no path or no result;
@@ -452,8 +457,10 @@ class Agent:
             self.sched.reschedule(self._thin_deadlines)
 
     def _offer_thin(self, edge: str, h_ns: int, buf: bytes) -> None:
-        """(Under the agent's lock, from the state publisher.) A new state of an own sensor."""
-        self.thin.offer(edge, h_ns, buf, self.now_ns())
+        """(Under the agent's lock, from the state publisher.) A new state of an own sensor,
+        made at the dispatch time ``h_ns``: ticks due by then are completed at it too (see
+        :meth:`_ThinDeadlines.fire` for why not at the wall clock's now)."""
+        self.thin.offer(edge, h_ns, buf, h_ns)
 
     def _grace(self, edge: str) -> int:
         """How long after a tick a state made before it may still come [ns]: a live sensor's

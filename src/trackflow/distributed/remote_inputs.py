@@ -293,8 +293,8 @@ class RemoteInputs:
             return
         if self._reorder_ns <= 0:
             with self.sched.arrival(self.agent.now_ns()) as arr:
-                if arr is not None:
-                    self.deliver(edge, s, offset, sigma)
+                if arr is not None:  # at its dispatch time (the dataflow's clock is set)
+                    arr.deliver(1, lambda _i, _j, _a: self.deliver(edge, s, offset, sigma))
             return
         with self.sched.lock:
             if self.cfg.thin:  # every state sent before it has come (thin: ticks wait for it)

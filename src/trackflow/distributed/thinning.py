@@ -280,12 +280,16 @@ class ThinStreams:
         if now_ns >= self.next_due:
             self.flush(now_ns)
 
-    def flush(self, now_ns: int) -> None:
-        """Complete every stream's ticks that are due, but none after its sensor's progress;
-        remember the soonest next deadline (offers only move deadlines later, so it stays a
-        lower bound; a tick held back by a late sensor is looked at again in 1 ms, unless
-        the sensor's next state completes it first)."""
-        soonest = now_ns + _IDLE_NS
+    def flush(self, now_ns: int, wall_ns: int | None = None) -> None:
+        """Complete every stream's ticks that are due by ``now_ns`` (the scheduler's time of
+        this event), but none after its sensor's progress; remember the soonest next
+        deadline (offers only move deadlines later, so it stays a lower bound). ``wall_ns``
+        (default ``now_ns``): the clock's reading, from which an idle stream's next look and
+        a tick held back by a late sensor (looked at again in 1 ms, unless the sensor's next
+        state completes it first) are counted; a deadline between ``now_ns`` and it is due
+        at once, so a timer that runs late walks its ticks in order."""
+        wall = now_ns if wall_ns is None else max(wall_ns, now_ns)
+        soonest = wall + _IDLE_NS
         for edge, streams in self.streams.items():
             grace = self._grace_of(edge)
             clock = now_ns
@@ -295,7 +299,7 @@ class ThinStreams:
             for st in streams.values():
                 _send(st, st.thinner.due(clock, grace))
                 deadline = st.thinner.deadline(grace)
-                soonest = min(soonest, deadline if deadline > now_ns else now_ns + _HELD_NS)
+                soonest = min(soonest, deadline if deadline > now_ns else wall + _HELD_NS)
         self.next_due = soonest
 
     def status(self) -> dict:
