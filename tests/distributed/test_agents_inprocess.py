@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
 
-from _agents import endpoint, free_port, wait_for
+from _agents import endpoint, free_port, observer, wait_for
 
 from trackflow.cli.main import main
 from trackflow.dataflow import parse_setup
@@ -151,3 +151,45 @@ def test_pull_via_get_asks_the_sensor_agent_per_request():
         assert np.array_equal(m.pose.covariance, direct.pose.covariance)
         assert isinstance(c.filters["s"], RemoteGet) and not c.remote.subs  # nothing streamed
         assert c.status()["replicas"] == {}
+
+
+def test_a_fed_state_is_made_at_its_dispatch_time_and_thinned_streams_have_no_late_states():
+    """``Agent.feed`` dispatches each measurement at its arrival: the state it makes carries
+    that time as its host stamp (never an earlier event's time), so a thinned stream, whose
+    ticks the agent completes at the scheduler's time, never gets a state stamped before a
+    tick it already completed (a late state: a second message for that tick)."""
+    from trackflow.distributed.thinning import Grid, demand_key
+    from trackflow.distributed.wire import decode_state
+
+    realm, port = f"fd{free_port()}", free_port()
+    cfg = AgentConfig(
+        "s",
+        parse_setup({"sensors": [_sensor("s1", 2)]}),
+        realm=realm,
+        zenoh={"listen": {"endpoints": [endpoint(port)]}},
+    )
+    with Agent(cfg) as a:
+        session = observer([endpoint(port)])
+        try:
+            states, thin = [], []
+            session.declare_subscriber(
+                f"trackflow/{realm}/edge/s1", lambda s: states.append(s.payload.to_bytes())
+            )
+            session.declare_subscriber(
+                f"trackflow/{realm}/thin/s1/obs", lambda s: thin.append(s.payload.to_bytes())
+            )
+            token = session.liveliness().declare_token(
+                demand_key(realm, "s1", "obs", Grid(20_000_000, 0))
+            )
+            wait_for(lambda: a.status().get("thin_streams", {}).get("s1"), 10)
+            _feed(a, "s1", 40)
+            wait_for(lambda: len(states) >= 40 and len(thin) >= 5, 10)
+            token.undeclare()
+            decoded = [decode_state(b) for b in states]
+            assert all(s.host_ns >= s.stamp_ns for s in decoded), [
+                (s.stamp_ns, s.host_ns) for s in decoded if s.host_ns < s.stamp_ns
+            ]
+            streams = a.status()["thin_streams"].get("s1", {})
+            assert all(c["late"] == 0 for c in streams.values()), streams
+        finally:
+            session.close()
