@@ -142,7 +142,7 @@ def documented_commands() -> list[DocCommand]:
 
 # -- comparing output with the doc's quotes ------------------------------------------------------
 
-_TOKEN = re.compile(r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?|\S")
+_TOKEN = re.compile(r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?|[A-Za-z_]+|\S")
 
 
 def _tokens(text: str) -> list[str]:
@@ -173,29 +173,37 @@ def quoted_output_mismatch(expected: str, actual: str) -> str | None:
     doc do not matter; every number must equal the printed one within half a unit of the
     doc's last digit. A line ``...`` in the quote skips any output; otherwise each run of
     quoted lines must appear in the output as one piece, in order."""
-    segments = [[]]
+    segments: list[list[str]] = [[]]
     for ln in expected.splitlines():
         if ln.strip() == "...":
             segments.append([])
-        else:
-            segments[-1] += _tokens(ln)
+        elif ln.strip():
+            segments[-1].append(ln)
     act = _tokens(actual)
     pos = 0
-    for seg in filter(None, segments):
-        n = len(seg)
-        hit = next(
-            (i for i in range(pos, len(act) - n + 1) if all(map(_same, seg, act[i : i + n]))),
-            None,
-        )
+    for lines in filter(None, segments):
+        seg = [t for ln in lines for t in _tokens(ln)]
+        hit = _find(seg, act, pos)
         if hit is None:
-            return f"not in the output: {' '.join(seg)[:300]}"
-        pos = hit + n
+            missing = next((ln for ln in lines if _find(_tokens(ln), act, 0) is None), None)
+            if missing is not None:
+                return f"the doc quotes a line the output does not have: {missing.strip()!r}"
+            return f"the doc's lines are in the output, but not together in order: {lines}"
+        pos = hit + len(seg)
     return None
 
 
-def doc_numbers(doc: str, pattern: str) -> list[str]:
-    """The numbers a doc states, as printed: the groups of ``pattern`` (a regular expression
-    searched in the doc with whitespace runs made one space)."""
+def _find(seg: list[str], act: list[str], start: int) -> int | None:
+    n = len(seg)
+    return next(
+        (i for i in range(start, len(act) - n + 1) if all(map(_same, seg, act[i : i + n]))),
+        None,
+    )
+
+
+def doc_states(doc: str, pattern: str) -> list[str]:
+    """What a doc states, as printed (figures keep their digits): the groups of ``pattern``, a
+    regular expression searched in the doc with its whitespace runs made one space."""
     text = " ".join((REPO_ROOT / doc).read_text().split())
     m = re.search(pattern, text)
     assert m, f"{doc} no longer states /{pattern}/"
