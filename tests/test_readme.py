@@ -152,23 +152,38 @@ def check_hand_eye_calib(r: Ran) -> None:
 def check_use_on_traj1(r: Ran) -> None:
     """`calib` as stored, on `traj1`: the residuals of calibration.md's reuse table."""
     d = _json(r)
-    every = doc_states(CALIB, r"over every sample \(`--use` of each result\) \|[^|]*\|[^|]*\|"
-                        r"[^|]*\| (\S+) mm, (\S+) deg \|")  # fmt: skip
-    pairs = doc_states(CALIB, r"\| `pair_residual_\*` \(motion pairs\) \|[^|]*\|[^|]*\|"
-                        r"[^|]*\| (\S+) mm, (\S+) deg \|")  # fmt: skip
+    every = doc_states(
+        CALIB,
+        r"over every sample \(`--use` of each result\) \|[^|]*\|[^|]*\|"
+        r"[^|]*\| (\S+) mm, (\S+) deg \|",
+    )
+    pairs = doc_states(
+        CALIB,
+        r"\| `pair_residual_\*` \(motion pairs\) \|[^|]*\|[^|]*\|"
+        r"[^|]*\| (\S+) mm, (\S+) deg \|",
+    )
     assert_as_documented(every, [d["residual_pos_mm"], d["residual_ori_deg"]], "residual")
     assert_as_documented(pairs, [d["pair_residual_pos_mm"], d["pair_residual_ori_deg"]], "pairs")
 
 
 def _check_refit(d: dict, calib: dict) -> None:
-    offset = doc_states(CALIB, r"\| offset `t_robot = t_quest \+ offset` \| \S+ \+- \S+ ms \| "
-                         r"(\S+) \+- \S+ ms \| \S+ ms apart")  # fmt: skip
+    offset = doc_states(
+        CALIB,
+        r"\| offset `t_robot = t_quest \+ offset` \| \S+ \+- \S+ ms \| "
+        r"(\S+) \+- \S+ ms \| \S+ ms apart",
+    )
     assert_as_documented(offset, [d["offset_s"] * 1e3], "refitted offset [ms]")
-    res = doc_states(CALIB, r"\| `residual_\*` \(`A X = Z B`, solvers' inliers\) \|[^|]*\| "
-                      r"(\S+) mm, (\S+) deg \(")  # fmt: skip
+    res = doc_states(
+        CALIB,
+        r"\| `residual_\*` \(`A X = Z B`, solvers' inliers\) \|[^|]*\| "
+        r"(\S+) mm, (\S+) deg \(",
+    )
     assert_as_documented(res, [d["residual_pos_mm"], d["residual_ori_deg"]], "residual")
-    pairs = doc_states(CALIB, r"\| `pair_residual_\*` \(motion pairs\) \|[^|]*\| "
-                        r"(\S+) mm, (\S+) deg \(")  # fmt: skip
+    pairs = doc_states(
+        CALIB,
+        r"\| `pair_residual_\*` \(motion pairs\) \|[^|]*\| "
+        r"(\S+) mm, (\S+) deg \(",
+    )
     assert_as_documented(pairs, [d["pair_residual_pos_mm"], d["pair_residual_ori_deg"]], "pairs")
     assert d["X"] == calib["X"]  # X kept as stored, its covariance too
 
@@ -251,14 +266,6 @@ def check_filter_tuning_first(r: Ran) -> None:
     _check_filter_summary(r, "tuned.tfrec")
 
 
-@dataclass(frozen=True)
-class Run:
-    """How a documented command is run: inputs made first, then its checks."""
-
-    check: Callable[[Ran], None] | None = None  # None: the output the doc quotes is the check
-    prepare: Callable[[Path], None] | None = None
-
-
 def check_lists_demo_realm_and_prints_the_docs_commands(r: Ran) -> None:
     """The files the agents need, and the start commands exactly as docs/distributed.md's
     block goes on (so the doc's commands are the ones the demo prints)."""
@@ -303,22 +310,38 @@ def check_plan_dot(r: Ran) -> None:
 
 
 def check_optical(r: Ran) -> None:
-    """The answers of the optical setup's query are written and counted."""
+    """The answers it counts are the ones it wrote, with covariances; every frame reached each
+    sensor, which passed it on or counted why not."""
     from trackflow.io import read_stream
 
+    d = _json(r)
     stream, _ = read_stream(r.cwd / "out" / "wand_in_tool.tfrec")
-    assert len(stream) > 0 and stream.covariance is not None
+    assert len(stream) == d["results"] > 0 and stream.covariance is not None
+    for name, sensor in d["sensors"].items():
+        assert sensor["events_in"] == d["frames"], name
+        assert sensor["events_out"] + sum(sensor["rejections"].values()) == d["frames"], name
 
 
 def check_optical_record(r: Ran) -> None:
     from trackflow.io import read_stream
 
     stream, _ = read_stream(r.cwd / "out" / "optical.tfrec")
-    assert len(stream) > 0
+    assert len(stream) > 0 and stream.covariance is not None
 
 
 def check_replay_bit_for_bit(r: Ran) -> None:
-    assert "bit for bit" in r.output or "identical" in r.output, r.output[-500:]
+    """Every recorded answer again, identical (the exit code says so too)."""
+    out = dict(ln.split(": ", 1) for ln in r.stdout.splitlines() if ln.strip())
+    assert out["identical"] == "True"
+    assert int(out["answers"]) == int(out["recorded"]) > 0
+
+
+@dataclass(frozen=True)
+class Run:
+    """How a documented command is run: inputs made first, then its checks."""
+
+    check: Callable[[Ran], None] | None = None  # None: the output the doc quotes is the check
+    prepare: Callable[[Path], None] | None = None
 
 
 #: Run as written, in this order per page (a page's commands share one working directory;
@@ -518,8 +541,11 @@ def test_every_documented_command_is_run_or_exempted():
     commands = documented_commands()
     keys = {c.key for c in commands}
     for c in commands:
-        tables = [name for name, t in (("RUN", RUN), ("SYNOPSES", SYNOPSES), ("EXEMPT", EXEMPT))
-                  if c.key in t]  # fmt: skip
+        tables = [
+            name
+            for name, t in (("RUN", RUN), ("SYNOPSES", SYNOPSES), ("EXEMPT", EXEMPT))
+            if c.key in t
+        ]
         assert len(tables) == 1, f"{c.where}: {c.key!r} is in {tables or 'no table'}"
         if c.key in RUN:
             assert c.expected or RUN[c.key].check, f"{c.where}: run, but nothing checks it"
