@@ -573,6 +573,10 @@ def test_quoted_output_comparison_uses_the_docs_rounding():
     assert quoted_output_mismatch(quoted, "scale 1.008\nrmse 0.013470 n 786") is not None
     assert quoted_output_mismatch("a b\nc", "a\nb c") is None  # wrapping does not matter
     assert half_ulp("0.25") == 0.005 and half_ulp("12") == 0.5
+    assert_as_documented(["264.6", "0.046"], [264.64, 0.0455], "within the rounding")
+    with pytest.raises(AssertionError, match="doc says 264.6, got 264.66"):
+        assert_as_documented(["264.6"], [264.66], "offset")
+    assert _ratio_matches("0.654", "2.03", "0.322") and not _ratio_matches("0.654", "2.03", "0.33")
 
 
 def _pages() -> list[str]:
