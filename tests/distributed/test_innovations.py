@@ -77,7 +77,7 @@ def _with_pose(x, pose: UncertainPose) -> np.ndarray:
 
 
 def test_threshold_is_the_quantile_or_the_floor():
-    assert threshold(6) > 6.0  # one state: chi2(6) at 1e-9 is 54.8
+    assert threshold(6) > 6.0  # one state: chi2(6) at 1e-9 is 53.3
     assert threshold(6 * WINDOW) == 2.0  # a full window: the floor (the quantile is 1.7)
 
 
