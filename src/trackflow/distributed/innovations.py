@@ -102,14 +102,23 @@ def correction_statistic(d, p_pred, p_new) -> tuple[float, int, bool]:
     """
     scale = np.sqrt(np.maximum(np.diagonal(p_pred), 1e-300))
     s = (p_pred - p_new) / np.outer(scale, scale)
-    if not np.all(np.isfinite(s)):
+    if not math.isfinite(float(s.sum())):
         return math.nan, 0, False
+    dn = np.asarray(d) / scale
+    try:  # the usual case, S positive definite well above roundoff: one Cholesky
+        c = np.linalg.cholesky(s)
+        if float(np.diagonal(c).min()) ** 2 > 1e3 * RANK_TOL:
+            y = np.linalg.solve(c, dn)
+            return float(y @ y), len(dn), False
+    except np.linalg.LinAlgError:
+        pass
     w, v = np.linalg.eigh(0.5 * (s + s.T))
     keep = w > RANK_TOL
+    above = bool(w[0] < -RANK_TOL)
     if not keep.any():
-        return 0.0, 0, bool(w.min() < -RANK_TOL)
-    proj = v[:, keep].T @ (np.asarray(d) / scale)
-    return float(np.sum(proj * proj / w[keep])), int(keep.sum()), bool(w.min() < -RANK_TOL)
+        return 0.0, 0, above
+    proj = v[:, keep].T @ dn
+    return float(np.sum(proj * proj / w[keep])), int(keep.sum()), above
 
 
 class InnovationCheck:
@@ -141,8 +150,8 @@ class InnovationCheck:
             o = 3 * (n_dp + 1)
             idx += list(range(o, o + (4 if add else 3)))
         self._pose = np.array(idx)
-        self._model = model
-        self._formulation = formulation
+        self._block = np.ix_(self._pose, self._pose)
+        self._kernels = kernels()
         self._window: collections.deque = collections.deque(maxlen=int(window))
         self._sum = 0.0
         self._dof = 0
@@ -170,23 +179,31 @@ class InnovationCheck:
         self._prev = snap
         if prev is None or snap.segment_start or snap.t == prev.t:
             return self.scale
-        x_pred, p_pred = kernels().predict(prev.x, prev.p, snap.t - prev.t, *self.params)
-        x_new = np.asarray(snap.x, dtype=float)
-        d = self._model.local(x_new, x_pred, self._formulation)
-        i = self._pose
-        stat, dof, above = correction_statistic(d[i], p_pred[np.ix_(i, i)], snap.p[np.ix_(i, i)])
+        k = self._kernels
+        x_pred, p_pred = k.predict(prev.x, prev.p, snap.t - prev.t, *self.params)
+        d = k.local(np.asarray(snap.x, dtype=float), x_pred, *self.params[:3])
+        i, b = self._pose, self._block
+        stat, dof, above = correction_statistic(d[i], p_pred[b], snap.p[b])
         if above:
             self.counts["above"] += 1
-        moved = np.any(np.abs(d[i]) > 1e-6 * np.sqrt(np.diagonal(p_pred)[i]))
-        if not math.isfinite(stat) or (dof == 0 and moved):
+        if not math.isfinite(stat) or (
+            dof == 0 and bool((np.abs(d[i]) > 1e-6 * np.sqrt(np.diagonal(p_pred)[i])).any())
+        ):
             self.counts["degenerate"] += 1  # moved without learning anything: no verdict
             return self.scale
         if dof == 0:
             return self.scale  # a predicted state (gated measurement): nothing to judge
         self.counts["checked"] += 1
-        self._window.append((stat, dof))
-        self._sum = math.fsum(s for s, _ in self._window)
-        self._dof = sum(k for _, k in self._window)
+        w = self._window
+        if len(w) == w.maxlen:
+            s0, k0 = w[0]
+            self._sum -= s0
+            self._dof -= k0
+        w.append((stat, dof))
+        self._sum += stat
+        self._dof += dof
+        if self.counts["checked"] % w.maxlen == 0:  # no drift of the running sum
+            self._sum = math.fsum(s for s, _ in w)
         m = self.mean_ratio
         self.scale = min(m, MAX_SCALE) if m > threshold(self._dof) else 1.0
         if self.scale > 1.0:
