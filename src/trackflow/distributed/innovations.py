@@ -45,7 +45,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..filters.derivative.streaming import FilterSnapshot, kernels
+from ..filters.derivative.motion_kernels import predict_scratch
+from ..filters.derivative.streaming import FilterSnapshot
+from ..math import kernels_for
+from . import kernels as _kernels
 
 __all__ = [
     "FALSE_ALARM",
@@ -104,14 +107,11 @@ def correction_statistic(d, p_pred, p_new) -> tuple[float, int, bool]:
     s = (p_pred - p_new) / np.outer(scale, scale)
     if not math.isfinite(float(s.sum())):
         return math.nan, 0, False
-    dn = np.asarray(d) / scale
-    try:  # the usual case, S positive definite well above roundoff: one Cholesky
-        c = np.linalg.cholesky(s)
-        if float(np.diagonal(c).min()) ** 2 > 1e3 * RANK_TOL:
-            y = np.linalg.solve(c, dn)
-            return float(y @ y), len(dn), False
-    except np.linalg.LinAlgError:
-        pass
+    return _eigen_statistic(np.asarray(d) / scale, s)
+
+
+def _eigen_statistic(dn, s) -> tuple[float, int, bool]:
+    """:func:`correction_statistic` of the normalised correction ``dn`` and ``S``."""
     w, v = np.linalg.eigh(0.5 * (s + s.T))
     keep = w > RANK_TOL
     above = bool(w[0] < -RANK_TOL)
@@ -150,8 +150,10 @@ class InnovationCheck:
             o = 3 * (n_dp + 1)
             idx += list(range(o, o + (4 if add else 3)))
         self._pose = np.array(idx)
-        self._block = np.ix_(self._pose, self._pose)
-        self._kernels = kernels()
+        self._kern = kernels_for(_kernels)
+        self._ws = predict_scratch(n_dp, n_do, add)
+        k = len(idx)
+        self._out = np.empty(k + 1 + k * k + k)
         self._window: collections.deque = collections.deque(maxlen=int(window))
         self._sum = 0.0
         self._dof = 0
@@ -179,16 +181,23 @@ class InnovationCheck:
         self._prev = snap
         if prev is None or snap.segment_start or snap.t == prev.t:
             return self.scale
-        k = self._kernels
-        x_pred, p_pred = k.predict(prev.x, prev.p, snap.t - prev.t, *self.params)
-        d = k.local(np.asarray(snap.x, dtype=float), x_pred, *self.params[:3])
-        i, b = self._pose, self._block
-        stat, dof, above = correction_statistic(d[i], p_pred[b], snap.p[b])
+        i, k, out = self._pose, len(self._pose), self._out
+        x1 = np.asarray(snap.x, dtype=float)
+        p1 = np.asarray(snap.p, dtype=float)
+        if self._kern.correction_chol(
+            prev.x, prev.p, snap.t - prev.t, x1, p1, *self.params, i, self._ws, out
+        ):
+            stat, dof, above = float(out[k]), k, False
+        elif math.isnan(out[k]):
+            stat, dof, above = math.nan, 0, False
+        else:  # S near singular or indefinite: its kept directions only
+            stat, dof, above = _eigen_statistic(
+                out[:k].copy(), out[k + 1 : k + 1 + k * k].reshape(k, k)
+            )
+        dn = out[:k]
         if above:
             self.counts["above"] += 1
-        if not math.isfinite(stat) or (
-            dof == 0 and bool((np.abs(d[i]) > 1e-6 * np.sqrt(np.diagonal(p_pred)[i])).any())
-        ):
+        if not math.isfinite(stat) or (dof == 0 and bool((np.abs(dn) > 1e-6).any())):
             self.counts["degenerate"] += 1  # moved without learning anything: no verdict
             return self.scale
         if dof == 0:
