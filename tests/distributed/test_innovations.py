@@ -191,3 +191,28 @@ def test_other_models_are_judged_on_their_pose_block(n_dp, n_do, formulation, po
         kf.update_pose(k * 0.01, UncertainPose(Pose(p, q), R))
         assert check.check(kf.snapshot()) == 1.0
     assert check._dof == WINDOW * (3 * (n_dp >= 0) + 3 * (n_do >= 0))
+
+
+def test_the_agent_counts_the_reason_and_shows_the_scale():
+    from types import SimpleNamespace
+
+    from trackflow.distributed.remote_inputs import RemoteInputs
+    from trackflow.distributed.wire import Rejections
+
+    s = _Sensor(14)
+    agent = SimpleNamespace(cfg=SimpleNamespace(reorder_ms=0.0), rejections=Rejections())
+    inputs = RemoteInputs(agent, None, None, {}, {"s": s.rep})
+    s.rep = RemoteFilter("kf_s", MOTION)  # the sensor's own replica: a bystander here
+    replica = inputs.filters["s"]
+    for k in range(WINDOW):
+        s.step(lie=100.0)
+        snap = s.kf.snapshot()
+        stamp = T0_NS + k * 10_000_000
+        buf = encode_state(
+            snap, seq=k + 1, stamp_ns=stamp, host_ns=stamp, origin_ns=stamp, n_dp=1, n_do=1
+        )
+        inputs.deliver("s", decode_state(buf), 0, 0.0)
+    counted = agent.rejections.counts["covariance below its innovations"]
+    assert counted == replica.stats.rejections["covariance below its innovations"] >= WINDOW - 3
+    shown = inputs.status()["replicas"]["s"]["innovations"]
+    assert shown["scale"] == replica.innovations.scale > 10 and shown["scaled"] == counted
