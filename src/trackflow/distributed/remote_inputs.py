@@ -327,7 +327,10 @@ class RemoteInputs:
     def deliver(self, edge: str, s: wire.StateSample, offset_ns: int, sigma_s: float) -> None:
         kf = self.filters.get(edge)
         if isinstance(kf, RemoteFilter):
+            kf.last_judged = []
             kf.adopt(s, offset_ns, sigma_s)
+            for why in kf.last_judged:  # the innovation check's reasons, agent-wide too
+                self.rejections.add(why)
 
     def complete(self, inputs: frozenset, t_ns: int) -> bool:
         """(thin) Every remote input has sent what a tick at ``t_ns`` needs."""
@@ -341,7 +344,11 @@ class RemoteInputs:
     def status(self) -> dict:
         return {
             "replicas": {
-                n: {"states": f.stats.events_in, "rejections": dict(f.stats.rejections)}
+                n: {
+                    "states": f.stats.events_in,
+                    "rejections": dict(f.stats.rejections),
+                    "innovations": f.innovations.status(),
+                }
                 for n, f in sorted(self.filters.items())
                 if isinstance(f, RemoteFilter)
             },

@@ -24,6 +24,7 @@ from ..graph import MotionSpec
 from ..math import UncertainPose
 from . import wire
 from .clock import time_error_covariance, twist_between
+from .innovations import InnovationCheck
 
 __all__ = ["RemoteFilter", "RemoteGet", "StatePublisher", "warm_up"]
 
@@ -110,6 +111,12 @@ class RemoteFilter(KalmanFilter):
     (the clock offset's uncertainty) enters every answer's covariance through the
     relationship's velocity, ``C += sigma_t^2 xi xi^T``
     (:func:`trackflow.distributed.time_error_covariance`).
+
+    Every adopted state is judged against the sensor's innovations
+    (:class:`~trackflow.distributed.innovations.InnovationCheck`, ``innovations``): while
+    the sensor advertises a covariance far below what its corrections support, the state's
+    covariance is adopted scaled by the measured ratio, counted as ``covariance below its
+    innovations``.
     """
 
     kind = "remote filter"
@@ -122,6 +129,8 @@ class RemoteFilter(KalmanFilter):
         super().reset()
         model = self.filter.model
         self._model_key = (model.n_dp, model.n_do, self.filter.formulation)
+        self.innovations = InnovationCheck(model, self.filter.formulation)
+        self.last_judged: list[str] = []
 
     def push(self, m: Measurement, port: int = 0) -> None:
         raise InputError(f"{self.name}: a remote filter adopts filter states, not measurements")
@@ -135,7 +144,13 @@ class RemoteFilter(KalmanFilter):
             self.stats.reject("another motion model")
             return False
         t = s.stamp_ns + offset_ns
-        if not f.adopt(s.snapshot(offset_ns)):
+        snap = s.snapshot(offset_ns)
+        for why in self.judge(snap):
+            self.stats.reject(why)
+        scale = self.innovations.scale
+        if scale > 1.0:  # adopted, scaled
+            snap = snap._replace(p=snap.p * scale)
+        if not f.adopt(snap):
             self.stats.reject("older than the newest state")
             return False
         origin = s.origin_ns + offset_ns
@@ -145,6 +160,26 @@ class RemoteFilter(KalmanFilter):
         if self.consumers:  # a trigger (push-mode inference reads the time only)
             self.emit(Measurement(t, f.predict(t * 1e-9), origin))
         return True
+
+    def judge(self, snap) -> list[str]:
+        """The innovation check of a state about to be adopted: the reasons to count
+        (``covariance below its innovations``: adopted scaled; ``covariance above its
+        prediction``, ``correction without information``: adopted as sent)."""
+        check = self.innovations
+        before = dict(check.counts)
+        check.check(snap)
+        why = [
+            reason
+            for key, reason in (
+                ("above", "covariance above its prediction"),
+                ("degenerate", "correction without information"),
+            )
+            if check.counts[key] > before[key]
+        ]
+        if check.scale > 1.0:
+            why.append("covariance below its innovations")
+        self.last_judged = why
+        return why
 
     def pull(self, t_ns: int) -> Measurement | None:
         m = super().pull(t_ns)
