@@ -187,6 +187,9 @@ def test_scrubbing_a_recording_moves_the_body(browser):
     track = RecordingTrack.from_stream(_circle_stream())
     # a big body marker so the centroid is well defined
     view = RecordingView(track, port=0, style=Style(axes_length=0.12, magnify=10.0))
+    # the camera held on the whole circle (by default it frames and follows the body)
+    view.set_scene(follow=False)
+    view.view.look_at((0.0, 0.0, 0.1), 0.9)
     try:
         centroids = []
         page = None

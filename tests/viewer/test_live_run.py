@@ -2,14 +2,16 @@
 A.R.T. DTrack tracker (``trackflow simulate dtrack``) replays the EuRoC ground truth, ``trackflow
 run --view`` drives the setup's dataflow from it and serves the view, and headless Chromium
 shows the page. Asserted on pixels: the sensor's body is drawn and moves; when the sender is
-stopped,
-its edge in the graph panel turns from green (live) to red (stale). The panel shows the
-tracker's measured clock offset. Every wait is bounded."""
+killed, its edge in the graph panel turns from green (live) to red (stale) and its body in the
+3D scene turns grey, within 2 s of network time without data (the legend says how long it was
+without data when it was first drawn grey). The panel shows the tracker's measured clock
+offset. Every wait is bounded."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -22,6 +24,8 @@ import pytest
 
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+
+from _shots import click_button, doc_shot, set_checkbox
 
 from trackers._lines import read_lines, wait_line  # tests/trackers
 from trackflow.viewer import COLOURS, Browser, find_chromium
@@ -110,6 +114,8 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             page = browser.open(url, "100250.0 ms")
             page.close()  # a new page gets the initial camera aimed at the placed frames
             page = browser.open(url, "100250.0 ms")
+            # the camera follows the query's answer (the tool): held still, the body moves
+            set_checkbox(page, "follow body", False)
             # the body drawn, then drawn again elsewhere: it moves with the tracker (how soon
             # depends on the machine's load: bounded, not timed)
             first, moved = None, 0.0
@@ -128,18 +134,34 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
                         first = at
                     moved = float(np.linalg.norm(at - first))
                 page.wait_for_timeout(500)
+            # the camera back on the body, following it
+            click_button(page, "frame the body")
+            set_checkbox(page, "follow body", True)
             # the edge drawn live (green) while the tracker sends: on a loaded machine a late
             # redraw can show it late for a moment, so wait for it (bounded)
             panel = slice(int(W * 0.55), W)
             live = browser.capture_until(
-                page, lambda im: _colour(im[:, panel], COLOURS["live"]) > 150
+                page,
+                lambda im: (
+                    _colour(im[:, panel], COLOURS["live"]) > 150
+                    and _magenta(im[:, : int(W * 0.55)]).sum() > 20
+                ),
             )
-            sender.terminate()  # the tracker stops sending
+            magenta0 = int(_magenta(live[:, : int(W * 0.55)]).sum())
+            sender.kill()  # the tracker dies
             sender.wait(timeout=30)
             # stale after 250 ms; the panel redraws at 5 Hz, later under load: wait (bounded)
             stale = browser.capture_until(
                 page, lambda im: _colour(im[:, panel], COLOURS["stale"]) > 150
             )
+            # the sensor's body turns grey: its colour goes from the scene ...
+            grey = browser.capture_until(
+                page, lambda im: _magenta(im[:, : int(W * 0.55)]).sum() < 0.2 * magenta0
+            )
+            doc_shot(grey, "live_run_killed")
+            # ... and the legend says after how long without data it did (network time)
+            browser.wait_text(page, "tool (sensor): grey")
+            legend = page.inner_text("body")
         green0, red0 = (
             _colour(live[:, panel], COLOURS["live"]),
             _colour(live[:, panel], COLOURS["stale"]),
@@ -150,6 +172,13 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
         )
         assert red1 > 150 and red0 < 0.2 * red1, (red0, red1)  # the edge turned red ...
         assert green1 < green0 - 100, (green0, green1)  # ... from green
+        magenta1 = int(_magenta(grey[:, : int(W * 0.55)]).sum())
+        assert magenta0 > 20 and magenta1 < 0.2 * magenta0, (magenta0, magenta1)
+        after = re.search(
+            r"tool \(sensor\): grey, no data for [\d.]+ s, grey after ([\d.]+) s", legend
+        )
+        assert after is not None, legend
+        assert float(after.group(1)) < 2.0, f"drawn grey {after.group(1)} s after its last data"
     finally:
         if sender is not None and sender.poll() is None:
             sender.kill()

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
+import threading
+import time
 
 import numpy as np
 
 from ..optional import require
+from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
 __all__ = ["SECONDS_AXIS", "ViewServer"]
 
@@ -42,7 +46,56 @@ class ViewServer:
         self.server.request_share_url = _refuse_share
         self.gui.configure_theme(control_width="large", show_share_button=False)
         self.scene.set_up_direction("+z")
+        # a longer lens than three.js's 75 degrees: a body framed close is not distorted
+        self.server.initial_camera.fov = float(FRAMING_FOV)
         self.status = self.gui.add_markdown("starting", order=-100)
+        self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
+        self._camera_hooks: list = []
+        self.server.on_client_connect(self._watch_camera)
+        self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
+
+    def _watch_camera(self, client) -> None:
+        reports: list[float] = []
+
+        def seen(camera, cid=client.client_id) -> None:
+            # A page reports its camera once when it starts, possibly before it applied the
+            # initial camera: its camera counts (is followed, labels are laid out for it)
+            # from its second report on, or 1.5 s after the first.
+            reports.append(time.monotonic())
+            if len(reports) < 2 and cid not in self._cameras:
+                timer = threading.Timer(1.5, lambda: self._settled(cid, client))
+                timer.daemon = True
+                timer.start()
+                return
+            self._cameras[cid] = Camera.from_client(camera)
+            for hook in list(self._camera_hooks):
+                hook()
+
+        client.camera.on_update(seen)
+
+    def _settled(self, cid: int, client) -> None:
+        if cid in self._cameras or cid not in self.server.get_clients():
+            return
+        self._cameras[cid] = Camera.from_client(client.camera)
+        for hook in list(self._camera_hooks):
+            hook()
+
+    @property
+    def has_browser_camera(self) -> bool:
+        """Whether a connected page has reported its camera."""
+        return bool(self._cameras)
+
+    def on_camera(self, hook) -> None:
+        """Call ``hook()`` whenever a page reports a moved camera (labels are laid out anew)."""
+        self._camera_hooks.append(hook)
+
+    def reset_cameras(self) -> None:
+        """Move the camera of every connected page to the initial camera."""
+        ic = self.server.initial_camera
+        for cid, client in self.server.get_clients().items():
+            if cid in self._cameras:
+                client.camera.position = np.asarray(ic.position, float)
+                client.camera.look_at = np.asarray(ic.look_at, float)
 
     @property
     def url(self) -> str:
@@ -67,9 +120,44 @@ class ViewServer:
         # the control panel covers the right of the page: aim right of the centre so the
         # scene sits in the free left part
         target = c + 0.3 * e * right
-        self.server.initial_camera.position = tuple(target + 1.5 * e * back)
+        # 1.5 extents away at three.js's 75 degrees; the same view through the longer lens
+        dist = 1.5 * e * np.tan(0.5 * DEFAULT_FOV) / np.tan(0.5 * FRAMING_FOV)
+        self.server.initial_camera.position = tuple(target + dist * back)
         self.server.initial_camera.look_at = tuple(target)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def frame(self, points, coverage: float = 0.14, centre=None) -> None:
+        """Aim the initial camera (of pages opened from now on) at ``centre`` (default: the
+        middle of ``points`` (N, 3)) so that the points' bounding box covers ``coverage`` of
+        the page (:func:`camera.frame_points`)."""
+        position, look_at = frame_points(points, coverage, fov=FRAMING_FOV, centre=centre)
+        self.server.initial_camera.position = tuple(position)
+        self.server.initial_camera.look_at = tuple(look_at)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def camera(self) -> Camera:
+        """The camera of the first browser that reported one, else the initial camera (on
+        the default canvas)."""
+        for cam in list(self._cameras.values()):
+            return cam
+        ic = self.server.initial_camera
+        return Camera.looking_at(ic.position, ic.look_at, fov=float(ic.fov))
+
+    def follow(self, delta) -> None:
+        """Move every connected browser's camera (and the initial camera) by ``delta`` (3,)
+        [m], keeping its orientation: the followed body stays where it was on screen."""
+        d = np.asarray(delta, float)
+        if not np.all(np.isfinite(d)) or not np.any(d):
+            return
+        for cid, client in self.server.get_clients().items():
+            cam = self._cameras.get(cid)
+            if cam is not None:  # a camera the browser reported (the handle is valid)
+                client.camera.position = client.camera.position + d
+                # where it is now (labels are laid out for it before the page reports back)
+                self._cameras[cid] = dataclasses.replace(cam, position=cam.position + d)
+        ic = self.server.initial_camera
+        ic.position = tuple(np.asarray(ic.position, float) + d)
+        ic.look_at = tuple(np.asarray(ic.look_at, float) + d)
 
     def close(self) -> None:
         with contextlib.redirect_stdout(io.StringIO()):
