@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -92,7 +93,8 @@ class LiveScene:
         ]
         self._sigmas: dict[str, list] = {}
         self._edges = {e.name: e for e in layout.edges}
-        self._held: dict[str, BoardPose] = {}  # a query's newest answer within its limit
+        self._held: dict[str, BoardPose] = {}  # a query's newest usual answer (held if stale)
+        self._aheads: dict[str, deque] = {}  # how far its recent answers were extrapolated
         self._over: dict[str, float] = {}  # a query held (no live path): for how long [s]
         self._last: tuple[list, dict] | None = None  # bodies and frames last drawn
         self.grid = self.grid_spec = None
@@ -327,7 +329,18 @@ class LiveScene:
                 poses[b.name] = self._held.get(b.name)
             else:
                 self._over.pop(b.name, None)
-                self._held[b.name] = pose
+                # the answer to hold when the data stop: the newest one extrapolated as far
+                # as answers usually are (not one of the last, already ballooning, ones)
+                hist = self._aheads.setdefault(b.name, deque(maxlen=64))
+                hist.append(ahead)
+                if ahead <= float(np.median(hist)) + self._slack(b):
+                    self._held[b.name] = pose
+
+    def _slack(self, q: QueryLayout) -> float:
+        """Two periods of the slowest sensor on ``q``'s paths, and 5 ms [s]."""
+        rates = [self._edges[n].rate_hz for n in q.path_edges if n in self._edges]
+        periods = [1.0 / r for r in rates if 0 < r < math.inf]
+        return 2.0 * max(periods, default=0.0) + 0.005
 
     def _path_stale_s(self, q: QueryLayout, now_ns: int) -> float | None:
         """None while some path of ``q`` has no stale sensor; else how long its best path
