@@ -69,30 +69,3 @@ def doc_shot(img: np.ndarray, name: str) -> None:
 
     DOCS.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(DOCS / f"{name}.png")
-
-
-_CHECKBOX_JS = """([label, value]) => {
-  for (const el of document.querySelectorAll('label, div, span, p')) {
-    if (el.childElementCount === 0 && el.textContent.trim() === label) {
-      let row = el;
-      for (let i = 0; i < 6 && row !== null; i++, row = row.parentElement) {
-        const box = row.querySelector('input[type=checkbox]');
-        if (box !== null) {
-          if (box.checked !== value) box.click();
-          return true;
-        }
-      }
-    }
-  }
-  return false;
-}"""
-
-
-def set_checkbox(page, label: str, value: bool) -> None:
-    """Tick or clear the GUI checkbox labelled ``label`` on a viser page (as a user does)."""
-    assert page.evaluate(_CHECKBOX_JS, [label, value]), f"no checkbox {label!r} on the page"
-
-
-def click_button(page, text: str) -> None:
-    """Click the GUI button reading ``text`` on a viser page."""
-    page.get_by_role("button", name=text).click()

@@ -145,9 +145,10 @@ def test_the_scene_is_drawn_in_the_room_and_the_anchor_can_change():
         start_setup(setup, ViewOptions(port=0, anchor="nowhere"))
 
 
-def test_an_answer_past_the_extrapolation_limit_is_held_grey_and_its_old_ghost_hidden():
-    """A query's answer 1 s past its sensor's data (its filter answers 0.5 s at most) with a
-    ballooned covariance is not drawn: the last answer within the limit stays, grey."""
+def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
+    """A query's answer is drawn while its sensor is live: 0.4 s past the data (the filter
+    still answers: its limit is 0.5 s) or 1 s past it with a ballooned covariance, the last
+    answer drawn on live data stays, grey, and no old ghost with it."""
     from trackflow.math import quat_exp
     from trackflow.viewer.board import Board
     from trackflow.viewer.edges import EdgeLayout, QueryLayout, ViewLayout
@@ -172,6 +173,13 @@ def test_an_answer_past_the_extrapolation_limit_is_held_grey_and_its_old_ghost_h
         scene.render_frame()
         q_index = [b.name for b in scene.bodies].index("q")
         assert scene.report()["bodies"][q_index]["grey"] is False
+        # 0.4 s on: within the filter's limit, but the sensor is stale (250 ms without data)
+        board.write_event(1, int(1.4 * sec), 0, 1.0, int(1.4 * sec))
+        board.write_pose(1, int(1.4 * sec), [0.9, 0.0, 0.0], q0, np.eye(6) * 0.04)
+        board.set_clock(int(1.4 * sec), 0)
+        scene.render_frame()
+        rep = scene.report()["bodies"][q_index]
+        assert rep["grey"] and rep["extrapolated_s"] == pytest.approx(0.4)
         board.write_event(1, 2 * sec, 0, 1.0, 2 * sec)
         board.write_pose(1, 2 * sec, [5.0, 0.0, 0.0], q0, huge)  # 1 s ahead, ballooned
         board.set_clock(2 * sec, 0)
@@ -182,7 +190,7 @@ def test_an_answer_past_the_extrapolation_limit_is_held_grey_and_its_old_ghost_h
         assert rep["grey"] and rep["colour"] == list(GREY)
         assert rep["extrapolated_s"] == pytest.approx(1.0)
         poses = {b.name: scene._read(b) for b in scene.bodies}
-        scene._hold_extrapolated(poses)
+        scene._hold_extrapolated(poses, 2 * sec)
         bodies, _ = scene._collect(scene._place_frames(poses), poses)
         drawn = bodies[q_index]
         np.testing.assert_allclose(drawn.position, [0.1, 0.0, 0.0])  # the held answer

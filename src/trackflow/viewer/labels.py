@@ -6,7 +6,7 @@ viser draws a screen-sized label (``font_size_mode="screen"``) with a 12 px em (
 canvas size. The layout estimates each box from the text (a generous average advance per
 character), projects each label's anchor with the camera the browser reported and moves
 labels that would overlap an already placed one up or down, in label heights, until they do
-not. Frame labels (``[W]``, smaller) and body labels (the sensor's or query's name) read
+not. Frame labels (``frame W``, smaller) and body labels (the sensor's or query's name) read
 differently; the legend says which is which.
 """
 

@@ -52,7 +52,7 @@ def recording_legend(
     """The recording view's legend at the shown time."""
     pos, ori = sigma_sizes(pose.covariance, style.sigma)
     lines = [
-        f"**{target}** (magenta): axes at the filtered pose, wire sphere on its origin",
+        f"**{target}** (magenta): axes at the filtered pose, a small wire marker on its origin",
         f"- position error {_mm(pos)}, orientation error {ori:.3g} deg "
         f"({style.sigma:g} sigma, largest semi-axes)",
     ]

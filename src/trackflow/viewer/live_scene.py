@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -82,7 +83,7 @@ class LiveScene:
         self._panel_wall = self._plot_wall = self._label_wall = self._aim_wall = 0.0
         self._trails: dict[str, list] = {}
         self._paths: dict[str, list] = {}
-        self._followed: tuple[int, np.ndarray] | None = None
+        self._followed: tuple[int, np.ndarray] | None = None  # (body, look-at offset from it)
         self._grey_after: dict[str, float] = {}
         self._ages: list[float | None] = []
         self._statics = [
@@ -92,8 +93,9 @@ class LiveScene:
         ]
         self._sigmas: dict[str, list] = {}
         self._edges = {e.name: e for e in layout.edges}
-        self._held: dict[str, BoardPose] = {}  # a query's newest answer within its limit
-        self._over: dict[str, float] = {}  # a query whose answer went past it: by how much
+        self._held: dict[str, BoardPose] = {}  # a query's newest usual answer (held if stale)
+        self._aheads: dict[str, deque] = {}  # how far its recent answers were extrapolated
+        self._over: dict[str, float] = {}  # a query held (no live path): for how long [s]
         self._last: tuple[list, dict] | None = None  # bodies and frames last drawn
         self.grid = self.grid_spec = None
         self._build_scene()
@@ -137,15 +139,17 @@ class LiveScene:
             )
             self.c_sensors = gui.add_checkbox("sensors", True)
             self.c_pause = gui.add_checkbox("pause", False)
-        with gui.add_folder("Scene"):
+        with gui.add_folder("Spatial relationship graph"):
+            self.panel = gui.add_html("")
+        with gui.add_folder("Legend"):
+            self.legend = gui.add_markdown("")
+        with gui.add_folder("Scene", expand_by_default=False):
             self.c_follow = gui.add_checkbox("follow body", True)
             self.c_grid = gui.add_checkbox("grid", True)
             self.c_path = gui.add_checkbox("path", self.style.show_path)
             self.c_trail = gui.add_checkbox("trail", self.style.show_trail)
             self.c_labels = gui.add_checkbox("labels", True)
             reframe = gui.add_button("frame the body")
-        with gui.add_folder("Legend"):
-            self.legend = gui.add_markdown("")
         for handle, key, conv in (
             (self.c_query, "selected_query", str), (self.c_anchor, "anchor", str),
             (self.c_sigma, "sigma", float), (self.c_magnify, "magnify", float),
@@ -157,8 +161,6 @@ class LiveScene:
             handle.on_update(lambda _, h=handle, k=key, c=conv: self.apply(**{k: c(h.value)}))
         self.c_offset.on_update(lambda _: self._offset_moved(self.c_offset.value * 1e-3))
         reframe.on_click(lambda _: self.apply(reframe=True))
-        with gui.add_folder("Spatial relationship graph"):
-            self.panel = gui.add_html("")
         with gui.add_folder("Time plots", expand_by_default=False):
             names = tuple(e.name for e in lay.edges if not e.static) or ("(none)",)
             self.c_edge = gui.add_dropdown("edge", names, initial_value=names[0])
@@ -268,7 +270,7 @@ class LiveScene:
         now_wall = time.perf_counter()
         now_ns, _ = self.board.clock()
         poses = {b.name: self._read(b) for b in self.bodies}
-        self._hold_extrapolated(poses)
+        self._hold_extrapolated(poses, now_ns)
         places = self._place_frames(poses)
         bodies, trails = self._collect(places, poses)
         self._last = (bodies, places)
@@ -310,20 +312,56 @@ class LiveScene:
             + f" - in frame {self.anchor}"
         )
 
-    def _hold_extrapolated(self, poses: dict[str, BoardPose | None]) -> None:
-        """A query's answer further past its sensors' data than its filters answer (their
-        ``max_extrapolation``) is not drawn: the last one within the limit stays, grey."""
+    def _hold_extrapolated(self, poses: dict[str, BoardPose | None], now_ns: int) -> None:
+        """A query's answer is drawn only while it stands on data: while one of its paths has
+        no stale sensor (the panel's "stale": no event for three periods and 250 ms), and
+        within its filters' extrapolation limit (``max_extrapolation``) past that path's data.
+        Otherwise the last answer drawn stays, grey - not one extrapolated on, with its
+        ellipsoid ballooning, until the filters refuse."""
         for b in self.bodies:
             pose = poses.get(b.name)
             if not isinstance(b, QueryLayout) or pose is None:
                 continue
             ahead = self._extrapolation(b, pose)
-            if ahead > b.max_extrapolation_s(self._edges) + 1e-9:
-                self._over[b.name] = ahead
+            without = self._path_stale_s(b, now_ns)
+            if without is not None or ahead > b.max_extrapolation_s(self._edges) + 1e-9:
+                self._over[b.name] = max(without or 0.0, ahead)
                 poses[b.name] = self._held.get(b.name)
             else:
                 self._over.pop(b.name, None)
-                self._held[b.name] = pose
+                # the answer to hold when the data stop: the newest one extrapolated as far
+                # as answers usually are (not one of the last, already ballooning, ones)
+                hist = self._aheads.setdefault(b.name, deque(maxlen=64))
+                hist.append(ahead)
+                if ahead <= float(np.median(hist)) + self._slack(b):
+                    self._held[b.name] = pose
+
+    def _slack(self, q: QueryLayout) -> float:
+        """Two periods of the slowest sensor on ``q``'s paths, and 5 ms [s]."""
+        rates = [self._edges[n].rate_hz for n in q.path_edges if n in self._edges]
+        periods = [1.0 / r for r in rates if 0 < r < math.inf]
+        return 2.0 * max(periods, default=0.0) + 0.005
+
+    def _path_stale_s(self, q: QueryLayout, now_ns: int) -> float | None:
+        """None while some path of ``q`` has no stale sensor; else how long its best path
+        has been without data [s] (network time since its stalest sensor's last event)."""
+        best = None
+        for path in q.paths or (q.path_edges,):
+            worst = 0.0
+            for name in path:
+                e = self._edges.get(name)
+                if e is None or e.static or e.slot is None:
+                    continue
+                n = self.board.count(e.slot)
+                age = (now_ns - self.board.arrival_ns(e.slot)) * 1e-9 if n else math.inf
+                state = classify(static=False, used=True, age_s=None if not n else age,
+                                 rate_hz=e.rate_hz, gated_recently=False)  # fmt: skip
+                if state == "stale":
+                    worst = max(worst, age)
+            if worst == 0.0:
+                return None
+            best = worst if best is None else min(best, worst)
+        return best
 
     def _extrapolation(self, q: QueryLayout, pose: BoardPose) -> float:
         """How far ``pose`` [s] lies past the data of the query's best path (a path's data
@@ -375,8 +413,7 @@ class LiveScene:
         if k is None:
             self.view.look_at(0.5 * (lo + hi), extent)
         else:
-            self._frame_body(bodies[k])
-            self._followed = (k, bodies[k].position)
+            self._followed = (k, self._frame_body(bodies[k]) - bodies[k].position)
         if self._move_browsers:
             self.view.reset_cameras()
             self._move_browsers = False
@@ -384,11 +421,11 @@ class LiveScene:
             self.batch = BatchDrawing(self.view.scene, "/bodies", self.colours, self.style)
         self._framed = True
 
-    def _frame_body(self, body: BodyFrame) -> None:
+    def _frame_body(self, body: BodyFrame) -> np.ndarray:
         """Aim the initial camera at ``body`` with some of the scene around it (its glyph
-        covers :data:`LIVE_COVERAGE` of the page)."""
+        covers :data:`LIVE_COVERAGE` of the page); returns the point it looks at."""
         pts = body_glyph_points(body.position, body.quaternion, self.style.axes_length)
-        self.view.frame(pts, coverage=LIVE_COVERAGE, centre=body.position)
+        return self.view.frame(pts, coverage=LIVE_COVERAGE, centre=body.position)
 
     def _follow_index(self, bodies: list) -> int | None:
         """The body the camera follows: the selected query's answer, else the first drawn."""
@@ -398,22 +435,22 @@ class LiveScene:
         return next((k for k, b in enumerate(bodies) if b is not None), None)
 
     def _aim(self, bodies: list, now_wall: float) -> None:
-        """Follow the body: move the pages' cameras along with it (while no page has a
-        camera, aim the initial camera at it twice a second)."""
+        """Follow the body: every page's camera looks at the same point relative to it
+        (while no page has a camera, the initial camera is framed on it twice a second)."""
         k = self._follow_index(bodies)
         if k is None or not self.follow:
             self._followed = None
             return
         p = bodies[k].position
         if self._followed is None or self._followed[0] != k:
-            self._followed = (k, p)
+            # a new body, or following again: from where the pages look now
+            self._followed = (k, self.view.looked_at() - p)
             return
         if self.view.has_browser_camera:
-            self.view.follow(p - self._followed[1])
+            self.view.follow(p + self._followed[1])
         elif now_wall - self._aim_wall > 0.5:
             self._aim_wall = now_wall
-            self._frame_body(bodies[k])
-        self._followed = (k, p)
+            self._followed = (k, self._frame_body(bodies[k]) - p)
 
     def _states(self, now_ns: int, poses: dict[str, BoardPose | None]) -> list:
         """Each body's colour: grey once its data stopped (no event for three periods and

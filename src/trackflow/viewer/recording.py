@@ -179,7 +179,7 @@ class RecordingView:
         self._echo = False  # set while the view itself moves the slider
         self.t_s = 0.0
         self.offset_s = 0.0
-        self._followed: np.ndarray | None = None  # the body's position the camera was aimed at
+        self._look_offset: np.ndarray | None = None  # where the camera looks, from the body
         self._playing = threading.Event()
         self._stop = threading.Event()
         self._build_controls()
@@ -322,27 +322,26 @@ class RecordingView:
         """Aim the initial camera at the body (its glyph covers about a fifth of the page);
         ``move_browsers`` moves the cameras of open pages there too."""
         pts = self.body_points()
-        self.view.frame(pts, centre=pts[0])
-        self._followed = pts[0]
+        self._look_offset = self.view.frame(pts, centre=pts[0]) - pts[0]
         if move_browsers:
             self.view.reset_cameras()
         self._relabel()
 
     def _refollow(self) -> None:
+        """Following again: from where the pages look now, relative to the body."""
         if self.follow.value:
-            self._followed = self.body_points()[0]
+            self._look_offset = self.view.looked_at() - self.body_points()[0]
 
     def _aim(self) -> None:
         """The camera with the body: framed afresh while no page has its own camera yet,
         else (following) moved along with the body."""
         p = self.body_points()[0]
-        if self._followed is None or not self.view.has_browser_camera:
-            if self.follow.value or self._followed is None:
+        if self._look_offset is None or not self.view.has_browser_camera:
+            if self.follow.value or self._look_offset is None:
                 self.frame_body()
             return
         if self.follow.value:
-            self.view.follow(p - self._followed)
-            self._followed = p
+            self.view.follow(p + self._look_offset)
 
     def _relabel(self) -> None:
         with self._lock:

@@ -109,7 +109,7 @@ class PoseDrawing:
         self.scene, self.path, self.color, self.style = scene, path, tuple(color), style
         L = style.axes_length
         self.axes = scene.add_frame(
-            f"{path}/pose", axes_length=L, axes_radius=L * 0.03, origin_radius=L * 0.04
+            f"{path}/pose", axes_length=L, axes_radius=L * 0.03, origin_radius=L * 0.005
         )
         self.marker = scene.add_icosphere(
             f"{path}/pose/marker", radius=L * MARKER_RADIUS, color=self.color,
@@ -132,7 +132,7 @@ class PoseDrawing:
         ]
         self.ghost = scene.add_frame(
             f"{path}/predicted", axes_length=L * GHOST_AXES, axes_radius=L * 0.02,
-            origin_radius=L * 0.03, visible=False,
+            origin_radius=L * 0.005, visible=False,
         )  # fmt: skip
         self.ghost_ellipsoid = scene.add_icosphere(
             f"{path}/predicted_error", radius=1.0, color=self.color, opacity=0.2,

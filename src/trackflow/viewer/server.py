@@ -5,8 +5,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
-import threading
-import time
 
 import numpy as np
 
@@ -17,6 +15,12 @@ __all__ = ["SECONDS_AXIS", "ViewServer"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
 SECONDS_AXIS = {"x": {"time": False}}
+
+
+def _is_three_default(camera) -> bool:
+    """Whether a page's reported camera is the client's default, looking at the origin (our
+    initial cameras look elsewhere): the page has not applied the initial camera yet."""
+    return bool(np.all(np.abs(np.asarray(camera.look_at, float)) < 1e-9))
 
 
 def _refuse_share(*_args, **_kwargs) -> None:
@@ -55,30 +59,17 @@ class ViewServer:
         self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
 
     def _watch_camera(self, client) -> None:
-        reports: list[float] = []
-
         def seen(camera, cid=client.client_id) -> None:
-            # A page reports its camera once when it starts, possibly before it applied the
-            # initial camera: its camera counts (is followed, labels are laid out for it)
-            # from its second report on, or 1.5 s after the first.
-            reports.append(time.monotonic())
-            if len(reports) < 2 and cid not in self._cameras:
-                timer = threading.Timer(1.5, lambda: self._settled(cid, client))
-                timer.daemon = True
-                timer.start()
+            # A page reports its camera as it starts, possibly before it applied the initial
+            # camera: the client's default then, looking at the origin. Not followed (moving
+            # it would move that default), nor laid out for, until it is another.
+            if cid not in self._cameras and _is_three_default(camera):
                 return
             self._cameras[cid] = Camera.from_client(camera)
             for hook in list(self._camera_hooks):
                 hook()
 
         client.camera.on_update(seen)
-
-    def _settled(self, cid: int, client) -> None:
-        if cid in self._cameras or cid not in self.server.get_clients():
-            return
-        self._cameras[cid] = Camera.from_client(client.camera)
-        for hook in list(self._camera_hooks):
-            hook()
 
     @property
     def has_browser_camera(self) -> bool:
@@ -126,14 +117,15 @@ class ViewServer:
         self.server.initial_camera.look_at = tuple(target)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
-    def frame(self, points, coverage: float = 0.14, centre=None) -> None:
+    def frame(self, points, coverage: float = 0.14, centre=None) -> np.ndarray:
         """Aim the initial camera (of pages opened from now on) at ``centre`` (default: the
         middle of ``points`` (N, 3)) so that the points' bounding box covers ``coverage`` of
-        the page (:func:`camera.frame_points`)."""
+        the page (:func:`camera.frame_points`); returns the point it looks at (3,)."""
         position, look_at = frame_points(points, coverage, fov=FRAMING_FOV, centre=centre)
         self.server.initial_camera.position = tuple(position)
         self.server.initial_camera.look_at = tuple(look_at)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        return look_at
 
     def camera(self) -> Camera:
         """The camera of the first browser that reported one, else the initial camera (on
@@ -143,21 +135,38 @@ class ViewServer:
         ic = self.server.initial_camera
         return Camera.looking_at(ic.position, ic.look_at, fov=float(ic.fov))
 
-    def follow(self, delta) -> None:
-        """Move every connected browser's camera (and the initial camera) by ``delta`` (3,)
-        [m], keeping its orientation: the followed body stays where it was on screen."""
-        d = np.asarray(delta, float)
-        if not np.all(np.isfinite(d)) or not np.any(d):
+    def looked_at(self) -> np.ndarray:
+        """The point the first browser with a camera looks at, else the initial camera's."""
+        clients = self.server.get_clients()
+        for cid in list(self._cameras):
+            if cid in clients:
+                return np.asarray(clients[cid].camera.look_at, float)
+        return np.asarray(self.server.initial_camera.look_at, float)
+
+    def follow(self, look_at) -> None:
+        """Move every connected browser's camera (and the initial camera) so that it looks at
+        ``look_at`` (3,), keeping its direction and distance (the user may orbit and zoom
+        while it follows): a followed body stays where it is on the page.
+
+        Each camera is moved from where its page last reported it, to the absolute target,
+        so a report that crossed the previous move on the wire costs nothing."""
+        target = np.asarray(look_at, float)
+        if not np.all(np.isfinite(target)):
             return
         for cid, client in self.server.get_clients().items():
             cam = self._cameras.get(cid)
-            if cam is not None:  # a camera the browser reported (the handle is valid)
-                client.camera.position = client.camera.position + d
+            if cam is None:  # not reported yet: the handle has no state
+                continue
+            d = target - np.asarray(client.camera.look_at, float)
+            if np.linalg.norm(d) > 1e-6:
+                client.camera.position = np.asarray(client.camera.position, float) + d
                 # where it is now (labels are laid out for it before the page reports back)
                 self._cameras[cid] = dataclasses.replace(cam, position=cam.position + d)
         ic = self.server.initial_camera
-        ic.position = tuple(np.asarray(ic.position, float) + d)
-        ic.look_at = tuple(np.asarray(ic.look_at, float) + d)
+        d = target - np.asarray(ic.look_at, float)
+        if np.linalg.norm(d) > 1e-6:
+            ic.position = tuple(np.asarray(ic.position, float) + d)
+            ic.look_at = tuple(target)
 
     def close(self) -> None:
         with contextlib.redirect_stdout(io.StringIO()):
