@@ -147,12 +147,21 @@ class RecordingView:
     style : Style, optional
         Drawing options; by default the ellipsoids are magnified (:func:`auto_magnify`) and
         the ghost on its own scale (:func:`auto_ghost_magnify`).
+    server : ViewServer, optional
+        Show the view on this server (cleared first; ``host`` and ``port`` are not used):
+        its open pages keep their cameras until :meth:`frame_body` moves them.
+        :meth:`close` clears it again and leaves it running.
     """
 
-    def __init__(self, track: RecordingTrack, host="127.0.0.1", port=8080, style=None):
+    def __init__(self, track: RecordingTrack, host="127.0.0.1", port=8080, style=None, server=None):
         self.track = track
         s = track.stream
-        self.view = ViewServer(host, port, title=f"trackflow: {s.source} -> {s.target}")
+        self._own_server = server is None
+        if server is None:
+            server = ViewServer(host, port, title=f"trackflow: {s.source} -> {s.target}")
+        else:
+            server.clear()
+        self.view = server
         pos = np.asarray(s.position, float)
         lo, hi = np.nanmin(pos, axis=0), np.nanmax(pos, axis=0)
         extent = float(np.max(hi - lo))
@@ -406,4 +415,7 @@ class RecordingView:
     def close(self) -> None:
         self._stop.set()
         self._player.join(timeout=2.0)
-        self.view.close()
+        if self._own_server:
+            self.view.close()
+        else:
+            self.view.clear()

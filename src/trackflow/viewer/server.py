@@ -58,6 +58,15 @@ class ViewServer:
         self.server.on_client_connect(self._watch_camera)
         self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
 
+    def clear(self) -> None:
+        """Remove every scene node, control and camera hook (the status line stays): the
+        server can show another view to the pages already open, which keep their WebGL
+        context (a new page costs software WebGL its shaders again)."""
+        self.scene.reset()
+        self.gui.reset()
+        self.status = self.gui.add_markdown("starting", order=-100)
+        self._camera_hooks.clear()
+
     def _watch_camera(self, client) -> None:
         def seen(camera, cid=client.client_id) -> None:
             # A page reports its camera as it starts, possibly before it applied the initial
