@@ -5,11 +5,19 @@ and the prediction ghost is magnified on its own scale (it no longer covers the 
 Measured on screenshots: a part of the scene is what changes when it is shown or hidden (on
 one page, the camera untouched), outside the control panel. With ``TRACKFLOW_DOC_SHOTS=1`` the
 screenshots go to ``docs/viewer/``.
+
+One page serves the whole module (a new page costs software WebGL its shaders again, about a
+minute on a loaded two-core machine): each test shows its recording on the module's server
+(``RecordingView(server=...)``) and moves the page's camera to that view's initial camera
+(``frame_body(move_browsers=True)``, the "frame the body" button), which is the camera a new
+page starts with.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
+import time
 
 import numpy as np
 import pytest
@@ -21,11 +29,12 @@ from _shots import bbox_fraction, changed, doc_shot, outside, panel_box
 
 from trackflow.io import PoseStream, read_stream
 from trackflow.math import quat_exp
-from trackflow.viewer import Browser, RecordingTrack, RecordingView, find_chromium
+from trackflow.viewer import RecordingTrack, RecordingView, ViewServer
 
 pytestmark = pytest.mark.slow
 
 W, H = 1024, 640
+BROWSER_TIMEOUT_S = 120
 
 #: Every pose recording of the shared data (``/work/shared/data/README.md``; the EuRoC IMU
 #: file is no pose recording). ``fr2_desk`` has a repeated time stamp: read with ``clean``.
@@ -70,13 +79,37 @@ CHOSEN = RECORDINGS if os.environ.get("TRACKFLOW_ALL_RECORDINGS") else REPRESENT
 
 
 @pytest.fixture(scope="module")
-def browser():
-    try:
-        find_chromium()
-    except FileNotFoundError as exc:
-        pytest.skip(str(exc))
-    with Browser(W, H, timeout_s=120) as b:
-        yield b
+def server():
+    """The module's viser server: every test shows its view on it."""
+    view = ViewServer(port=0)
+    yield view
+    view.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser, server):
+    """The module's one page, once it reported its camera (the views move it)."""
+    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
+    server.set_status("page ready")
+    p = browser.open(server.url, "page ready")
+    end = time.monotonic() + BROWSER_TIMEOUT_S
+    while not server.has_browser_camera:
+        assert time.monotonic() < end, "the page did not report its camera"
+        time.sleep(0.1)
+    yield p
+    p.close()
+
+
+_STEP = itertools.count()
+
+
+def _show(browser, page, server, track: RecordingTrack, t_s: float) -> RecordingView:
+    """``track`` at ``t_s`` on the module's page, its camera the view's default camera."""
+    view = RecordingView(track, server=server)
+    view.show(t_s)
+    view.frame_body(move_browsers=True)
+    browser.wait_text(page, f"t = {view.t_s:.3f} s /")
+    return view
 
 
 def _circle(duration_s=6.0, rate=100.0) -> PoseStream:
@@ -101,16 +134,15 @@ def _doc(browser, page, view, name: str) -> None:
 
 def _shot(browser, page, view, text: str) -> np.ndarray:
     """The page once it shows ``text`` and two screenshots agree (software WebGL lags)."""
+    text = f"{text} [{next(_STEP)}]"  # never the text of an earlier step on the page
     view.view.set_status(text)
     browser.wait_text(page, text)
     return browser.capture(page, stable_s=15.0)
 
 
-def test_the_floor_grid_is_drawn_with_its_scale(browser):
-    view = RecordingView(RecordingTrack.from_stream(_circle()), port=0)
+def test_the_floor_grid_is_drawn_with_its_scale(browser, page, server):
+    view = _show(browser, page, server, RecordingTrack.from_stream(_circle()), 1.0)
     try:
-        view.show(1.0)
-        page = browser.open(view.url, "t = 1.000 s")
         with_grid = _shot(browser, page, view, "grid shown")
         view.set_scene(grid=False)
         without = _shot(browser, page, view, "grid hidden")
@@ -128,54 +160,48 @@ def test_the_floor_grid_is_drawn_with_its_scale(browser):
         view.close()
 
 
-def _body_coverage(browser, view, t_s: float, picture: str | None = None) -> float:
-    """Bounding box of the body's pixels over the page on the default camera at ``t_s``
-    (and, with ``picture``, the whole scene to ``docs/viewer/PICTURE.png``)."""
-    view.show(t_s)
+def _body_coverage(browser, page, view, picture: str | None = None) -> float:
+    """Bounding box of the body's pixels over the page on the view's default camera (and,
+    with ``picture``, the whole scene to ``docs/viewer/PICTURE.png``)."""
     text = f"t = {view.t_s:.3f} s"
-    page = browser.open(view.url, text)  # a new page: the default camera
-    try:
-        view.set_scene(labels=False, trail=False, path=False, grid=False)
-        shown = _shot(browser, page, view, text + " (body)")
-        view.body.set_visible(False)
-        view.measured.visible = False
-        hidden = _shot(browser, page, view, text + " (no body)")
-        diff = changed(shown, hidden) & outside(shown.shape, panel_box(page))
-        if picture:
-            view.set_scene(labels=True, trail=True, path=True, grid=True)
-            view.body.set_visible(True)
-            view.measured.visible = True
-            _doc(browser, page, view, picture)
-        return bbox_fraction(diff)
-    finally:
-        page.close()
+    view.set_scene(labels=False, trail=False, path=False, grid=False)
+    shown = _shot(browser, page, view, text + " (body)")
+    view.body.set_visible(False)
+    view.measured.visible = False
+    hidden = _shot(browser, page, view, text + " (no body)")
+    diff = changed(shown, hidden) & outside(shown.shape, panel_box(page))
+    if picture:
+        view.set_scene(labels=True, trail=True, path=True, grid=True)
+        view.body.set_visible(True)
+        view.measured.visible = True
+        _doc(browser, page, view, picture)
+    return bbox_fraction(diff)
 
 
 @pytest.mark.parametrize("name", CHOSEN)
-def test_the_body_covers_a_tenth_of_the_default_view(browser, shared_data, name):
+def test_the_body_covers_a_tenth_of_the_default_view(browser, page, server, shared_data, name):
     path = shared_data / name
     if not path.exists():
         pytest.skip(f"{path} not present")
     stream, _ = read_stream(path, clean=True)
-    view = RecordingView(RecordingTrack.from_stream(stream), port=0)
+    track = RecordingTrack.from_stream(stream)
+    mid = round(track.duration / 2, 2)
+    view = _show(browser, page, server, track, mid)
     try:
-        mid = round(view.track.duration / 2, 2)
         picture = "recording_ar_table" if name.startswith("ar_table/table_01") else None
-        cover = _body_coverage(browser, view, mid, picture)
+        cover = _body_coverage(browser, page, view, picture)
         print(f"{name}: the body covers {cover:.1%} of the view at t = {mid} s", flush=True)
         assert cover >= 0.10, f"{name}: the body covers {cover:.1%} of the view"
     finally:
         view.close()
 
 
-def test_the_prediction_ghost_keeps_to_its_own_scale(browser, room1):
+def test_the_prediction_ghost_keeps_to_its_own_scale(browser, page, server, room1):
     """``trackflow view room1 --at 40 --offset-ms 100`` was covered by the ghost's ellipsoid
     magnified x1000 (the filter's magnification): on its own scale it covers < 30 %."""
     stream, _ = read_stream(room1)
-    view = RecordingView(RecordingTrack.from_stream(stream), port=0)
+    view = _show(browser, page, server, RecordingTrack.from_stream(stream), 40.0)
     try:
-        view.show(40.0)
-        page = browser.open(view.url, "t = 40.000 s")
         view.set_scene(labels=False)
         plain = _shot(browser, page, view, "no prediction")
         view.set_offset(0.1)
