@@ -210,8 +210,10 @@ def _shows_body_apart(img: np.ndarray, earlier: list, px: float = 40.0) -> bool:
 
 def test_scrubbing_a_recording_moves_the_body(browser, page, server):
     track = RecordingTrack.from_stream(_circle_stream())
-    # a big body marker so the centroid is well defined
-    view = RecordingView(track, style=Style(axes_length=0.12, magnify=10.0), server=server)
+    # a big body so the centroid is well defined: the readable scene marks the origin with a
+    # small wire icosahedron (a solid marker hid the ellipsoid), so the magenta that shows is
+    # the position ellipsoid, magnified x100 (a few centimetres)
+    view = RecordingView(track, style=Style(axes_length=0.12, magnify=100.0), server=server)
     # The readable scene (issue 29) draws the whole path as a faint line and the 2 s trail in
     # the body's colour, and labels: on the whole circle they would hold the magenta pixels'
     # centroid near the circle's centre whatever the time, so they are hidden and the body's
