@@ -76,9 +76,7 @@ class LiveScene:
         self.selected_edge = next((e.name for e in layout.edges if not e.static), None)
         self._lock = threading.RLock()
         self._framed = False
-        # the first framing moves the pages already open too: until then they show a
-        # placeholder camera (no body was placed to aim at)
-        self._move_browsers = True
+        self._move_browsers = False
         self._first_placed: float | None = None
         self.auto_scale = style is None
         self._panel_html = ""
