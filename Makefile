@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-min lint demo demo-live bench clean browser tls-tools
+.PHONY: venv test test-min lint demo demo-live bench clean browser tls-tools doc-shots
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,13 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 browser:
 	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
 		{ $(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq chromium; }
+
+# The pictures of docs/viewer.md, taken by the viewer's pixel tests on what they assert
+# (tests/viewer/_shots.py); the live run's picture by its experiment.
+doc-shots: $(STAMP) browser
+	TRACKFLOW_DOC_SHOTS=1 $(PY) -m pytest -q -p no:xdist tests/viewer/test_scene_recording.py \
+		tests/viewer/test_scene_live.py tests/viewer/test_live_run.py
+	$(PY) experiments/viewer_live_run.py
 
 # openssl makes the certificates of the Zenoh TLS test (tests/distributed/test_tls_processes.py).
 tls-tools:

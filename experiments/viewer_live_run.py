@@ -23,7 +23,20 @@ from pathlib import Path
 
 import yaml
 
-from trackflow.viewer import snapshot
+from trackflow.viewer import Browser
+
+# tick the view's "pause" checkbox (the row whose label reads "pause")
+_PAUSE_JS = """() => {
+  for (const el of document.querySelectorAll('label, div, span, p')) {
+    if (el.childElementCount === 0 && el.textContent.trim() === 'pause') {
+      for (let row = el, i = 0; i < 6 && row !== null; i++, row = row.parentElement) {
+        const box = row.querySelector('input[type=checkbox]');
+        if (box !== null) { if (!box.checked) box.click(); return true; }
+      }
+    }
+  }
+  return false;
+}"""
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -93,9 +106,15 @@ def main(argv=None) -> int:
             ]  # fmt: skip
             time.sleep(12)  # both sensors live; the view framed the scene
             print(status[-1].strip() if status else "(no status line)")
-            # the page shows the DTrack tracker's measured clock offset once it is live
-            out = snapshot(url, args.out, "86000250.0 ms", 1280, 800, timeout_s=120)
-            print(f"snapshot written to {out}")
+            # the page shows the DTrack tracker's measured clock offset once it is live; then
+            # the view is paused from the page (software WebGL draws the bodies' updates later
+            # than the camera's: held still, the page catches up) and the picture taken
+            with Browser(1280, 800, timeout_s=120) as browser:
+                page = browser.open(url, "86000250.0 ms")
+                page.wait_for_timeout(3000)
+                page.evaluate(_PAUSE_JS)
+                browser.capture(page, args.out, stable_s=20.0)
+            print(f"snapshot written to {args.out}")
         finally:
             for p in procs[::-1]:
                 p.terminate()

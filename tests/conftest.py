@@ -62,3 +62,22 @@ def router():
     r = Router()
     yield r
     r.close()
+
+
+@pytest.fixture(scope="module")
+def browser(request):
+    """One headless Chromium per test module (starting one costs seconds of a loaded machine;
+    a page costs software WebGL its shaders: modules keep one page where they can). Its
+    viewport is the module's ``W`` x ``H``, its waits bounded by ``BROWSER_TIMEOUT_S``
+    (default 90 s). Skips with the reason when Chromium or the viewer extra is missing."""
+    pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+    from trackflow.viewer import Browser, find_chromium
+
+    try:
+        find_chromium()
+    except FileNotFoundError as exc:
+        pytest.skip(str(exc))
+    mod = request.module
+    size = (getattr(mod, "W", 1024), getattr(mod, "H", 640))
+    with Browser(*size, timeout_s=getattr(mod, "BROWSER_TIMEOUT_S", 90)) as b:
+        yield b

@@ -1,11 +1,15 @@
 """The views rendered by real headless Chromium (SwiftShader WebGL), asserted on pixels.
 
 Needs Debian's ``chromium`` (``make browser``) and the ``viewer`` extra (viser, playwright);
-skips with the reason when either is missing. One browser serves the whole module; every wait
-is bounded by the browser's timeout.
+skips with the reason when either is missing. One browser serves the whole module
+(``tests/conftest.py``), and one viser server with one page serves the tests drawn in this
+process (a new page costs software WebGL its shaders again); every wait is bounded by the
+browser's timeout.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -13,12 +17,13 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
+from _shots import panel_box
+
 from trackflow.dataflow import Network, SimulatedSensor, parse_setup
 from trackflow.io import PoseStream
 from trackflow.math import Pose, UncertainPose, quat_exp
 from trackflow.viewer import (
     COLOURS,
-    Browser,
     PoseDrawing,
     RecordingTrack,
     RecordingView,
@@ -26,7 +31,6 @@ from trackflow.viewer import (
     ViewServer,
     attach_view,
     edge_motion,
-    find_chromium,
 )
 
 pytestmark = pytest.mark.slow
@@ -35,13 +39,25 @@ W, H = 900, 600
 
 
 @pytest.fixture(scope="module")
-def browser():
-    try:
-        find_chromium()
-    except FileNotFoundError as exc:
-        pytest.skip(str(exc))
-    with Browser(W, H, timeout_s=90) as b:
-        yield b
+def server():
+    """The module's viser server for the views drawn in this process."""
+    view = ViewServer(port=0)
+    yield view
+    view.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser, server):
+    """The module's page on ``server``, once it reported its camera (tests move it)."""
+    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
+    server.set_status("page ready")
+    p = browser.open(server.url, "page ready")
+    end = time.monotonic() + 90
+    while not server.has_browser_camera:
+        assert time.monotonic() < end, "the page did not report its camera"
+        time.sleep(0.1)
+    yield p
+    p.close()
 
 
 def _mask(img: np.ndarray, rgb, tol: int = 40) -> np.ndarray:
@@ -58,36 +74,6 @@ def _magenta(img: np.ndarray) -> np.ndarray:
 def _scene_part(img: np.ndarray) -> np.ndarray:
     """The 3D canvas left of the control panel (viser docks it on the right)."""
     return img[:, : int(W * 0.6)]
-
-
-def test_four_times_the_covariance_covers_four_times_the_area(browser):
-    view = ViewServer(port=0)
-    try:
-        view.look_at((0.0, 0.0, 0.0), 0.4)
-        style = Style(axes_length=0.005, opacity=None, show_orientation=False)
-        body = PoseDrawing(view.scene, "/world/body", (230, 0, 230), style)
-        sigma = 0.03
-        areas = []
-        page = None
-        for k, factor in enumerate((1.0, 4.0)):
-            cov = np.diag([sigma**2 * factor] * 3 + [1e-6] * 3)
-            body.update(UncertainPose(Pose.identity(), cov))
-            view.set_status(f"covariance step {k}")
-            if page is None:
-                page = browser.open(view.url, f"covariance step {k}")
-            else:
-                browser.wait_text(page, f"covariance step {k}")
-            # wait until the new ellipsoid is drawn (software WebGL under load lags the
-            # status text), then until two screenshots agree
-            least = 500 if k == 0 else 1.5 * areas[0]
-            browser.capture_until(page, lambda im, n=least: _magenta(_scene_part(im)).sum() > n)
-            img = browser.capture(page, stable_s=10.0)
-            areas.append(int(_magenta(_scene_part(img)).sum()))
-        assert areas[0] > 500, f"the ellipsoid is hardly visible ({areas[0]} px)"
-        # radii double -> the projected area is four times as large (perspective: about)
-        assert 3.3 < areas[1] / areas[0] < 4.7, areas
-    finally:
-        view.close()
 
 
 SETUP = {
@@ -110,12 +96,22 @@ def _sensor(name, rate, end_s, k, rng, sigma):
     )  # fmt: skip
 
 
-PANEL = slice(int(W * 0.55), W)  # the graph panel, docked on the right
+def _in_panel(img: np.ndarray, box) -> np.ndarray:
+    """The control panel's part of the page (the graph panel is in it). The readable scene
+    (issue 29) frames and follows the body, so parts of the 3D scene (red and green axes, the
+    grid) show on the right of the page below the panel: only the panel's box is measured."""
+    x0, y0, x1, y1 = box
+    return img[max(y0, 0) : y1, max(x0, 0) : x1]
 
 
-def _red(img: np.ndarray) -> int:
+def _red(img: np.ndarray, box) -> int:
     """Pixels of the stale colour in the panel."""
-    return int(_mask(img[:, PANEL], (214, 39, 40)).sum())
+    return int(_mask(_in_panel(img, box), (214, 39, 40)).sum())
+
+
+def _green(img: np.ndarray, box) -> int:
+    """Pixels of the live colour in the panel."""
+    return int(_mask(_in_panel(img, box), (26, 158, 58)).sum())
 
 
 def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
@@ -141,22 +137,51 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
             else:
                 browser.wait_text(page, text)
             browser.settle(page, 700)  # the panel redraws at 5 Hz
+            box = panel_box(page)
             states = {s.name: s.state for s in live.edge_statuses()}
             if until_s < 1.0:
                 img = browser.capture(page)
             else:  # the panel's redraw may lag under load: wait (bounded) for the red arrow
-                img = browser.capture_until(page, lambda im: _red(im) > 150)
-            shots.append((img, states))
-        (img0, st0), (img1, st1) = shots
+                img = browser.capture_until(page, lambda im, b=box: _red(im, b) > 150)
+            shots.append((img, states, box))
+        (img0, st0, box0), (img1, st1, box1) = shots
         assert st0["art"] == "live" and st1["art"] == "stale" and st1["cam"] == "live"
-        green0, red0 = _mask(img0[:, PANEL], (26, 158, 58)).sum(), _red(img0)
-        green1, red1 = _mask(img1[:, PANEL], (26, 158, 58)).sum(), _red(img1)
+        green0, red0 = _green(img0, box0), _red(img0, box0)
+        green1, red1 = _green(img1, box1), _red(img1, box1)
         assert COLOURS["stale"] == "#d62728" and COLOURS["live"] == "#1a9e3a"
         assert red0 < 0.2 * red1, (red0, red1)  # the red arrow appeared
         assert red1 > 150, red1
         assert green1 < green0 - 100, (green0, green1)  # and replaced a green one
     finally:
         live.close()
+
+
+def test_four_times_the_covariance_covers_four_times_the_area(browser, page, server):
+    view = server
+    view.clear()
+    try:
+        view.look_at((0.0, 0.0, 0.0), 0.4)
+        view.reset_cameras()
+        style = Style(axes_length=0.005, opacity=None, show_orientation=False)
+        body = PoseDrawing(view.scene, "/world/body", (230, 0, 230), style)
+        sigma = 0.03
+        areas = []
+        for k, factor in enumerate((1.0, 4.0)):
+            cov = np.diag([sigma**2 * factor] * 3 + [1e-6] * 3)
+            body.update(UncertainPose(Pose.identity(), cov))
+            view.set_status(f"covariance step {k}")
+            browser.wait_text(page, f"covariance step {k}")
+            # wait until the new ellipsoid is drawn (software WebGL under load lags the
+            # status text), then until two screenshots agree
+            least = 500 if k == 0 else 1.5 * areas[0]
+            browser.capture_until(page, lambda im, n=least: _magenta(_scene_part(im)).sum() > n)
+            img = browser.capture(page, stable_s=10.0)
+            areas.append(int(_magenta(_scene_part(img)).sum()))
+        assert areas[0] > 500, f"the ellipsoid is hardly visible ({areas[0]} px)"
+        # radii double -> the projected area is four times as large (perspective: about)
+        assert 3.3 < areas[1] / areas[0] < 4.7, areas
+    finally:
+        view.clear()
 
 
 def _circle_stream(duration_s=6.0, rate=100.0) -> PoseStream:
@@ -183,20 +208,25 @@ def _shows_body_apart(img: np.ndarray, earlier: list, px: float = 40.0) -> bool:
     return all(np.linalg.norm(c - e) > px for e in earlier)
 
 
-def test_scrubbing_a_recording_moves_the_body(browser):
+def test_scrubbing_a_recording_moves_the_body(browser, page, server):
     track = RecordingTrack.from_stream(_circle_stream())
-    # a big body marker so the centroid is well defined
-    view = RecordingView(track, port=0, style=Style(axes_length=0.12, magnify=10.0))
+    # a big body so the centroid is well defined: the readable scene marks the origin with a
+    # small wire icosahedron (a solid marker hid the ellipsoid), so the magenta that shows is
+    # the position ellipsoid, magnified x100 (a few centimetres)
+    view = RecordingView(track, style=Style(axes_length=0.12, magnify=100.0), server=server)
+    # The readable scene (issue 29) draws the whole path as a faint line and the 2 s trail in
+    # the body's colour, and labels: on the whole circle they would hold the magenta pixels'
+    # centroid near the circle's centre whatever the time, so they are hidden and the body's
+    # own pixels are measured. The camera is held on the whole circle (by default it frames
+    # and follows the body, which would keep the body where it is on the page).
+    view.set_scene(follow=False, path=False, trail=False, labels=False)
+    server.look_at((0.0, 0.0, 0.1), 0.9)
+    server.reset_cameras()
     try:
         centroids = []
-        page = None
         for t in (0.5, 2.0):  # a quarter turn apart
             view.show(t)
-            text = f"t = {t:.3f} s"
-            if page is None:
-                page = browser.open(view.url, text)
-            else:
-                browser.wait_text(page, text)
+            browser.wait_text(page, f"t = {t:.3f} s")
             # the body is drawn some frames after the status text (software WebGL under load)
             img = browser.capture_until(page, lambda im: _shows_body_apart(im, centroids))
             m = _magenta(_scene_part(img))

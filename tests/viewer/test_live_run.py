@@ -1,15 +1,17 @@
 """``trackflow run SETUP --view`` end to end, in real processes on 127.0.0.1: a simulated
 A.R.T. DTrack tracker (``trackflow simulate dtrack``) replays the EuRoC ground truth, ``trackflow
 run --view`` drives the setup's dataflow from it and serves the view, and headless Chromium
-shows the page. Asserted on pixels: the sensor's body is drawn and moves; when the sender is
-stopped,
-its edge in the graph panel turns from green (live) to red (stale). The panel shows the
+shows the page. Asserted on pixels: the sensor's body is drawn and the scene moves with it;
+when the sender is killed, its edge in the graph panel turns from green (live) to red (stale)
+and its body in the 3D scene turns grey, within 2 s of network time without data (the legend
+says how long it was without data when it was first drawn grey). The panel shows the
 tracker's measured clock offset. Every wait is bounded."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -22,6 +24,8 @@ import pytest
 
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+
+from _shots import changed, doc_shot, outside, panel_box
 
 from trackers._lines import read_lines, wait_line  # tests/trackers
 from trackflow.viewer import COLOURS, Browser, find_chromium
@@ -76,6 +80,11 @@ def _trackflow(*args) -> subprocess.Popen:
     )  # fmt: skip
 
 
+# whether the page shows a time in milliseconds within ``tol`` of ``ms`` (the panel's offset)
+_SHOWS_OFFSET = """([ms, tol]) => [...document.body.innerText.matchAll(/(-?[\\d.]+) ms/g)]
+  .some(m => Math.abs(parseFloat(m[1]) - ms) <= tol)"""
+
+
 def _magenta(img: np.ndarray) -> np.ndarray:
     """The first body's colour (magenta), shaded."""
     r, g, b = (img[..., i].astype(int) for i in range(3))
@@ -105,51 +114,80 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             "simulate", "dtrack", euroc, "--port", port, "--start", 10, "--duration", 100,
             "--latency-ms", 5, "--clock-offset-s", -100.25,
         )  # fmt: skip
-        with Browser(W, H, timeout_s=90) as browser:
-            # poses flow once the panel shows the tracker's clock offset, as measured
-            page = browser.open(url, "100250.0 ms")
+        with Browser(W, H, timeout_s=120) as browser:
+            # poses flow once the panel shows the tracker's clock offset, as measured (100250 ms
+            # within 2 ms: on a loaded machine the lower envelope of the transit times, and so
+            # the shown tenth of a millisecond, moves)
+            page = browser.open(url)
+            page.wait_for_function(_SHOWS_OFFSET, arg=[100250.0, 2.0])
             page.close()  # a new page gets the initial camera aimed at the placed frames
-            page = browser.open(url, "100250.0 ms")
-            # the body drawn, then drawn again elsewhere: it moves with the tracker (how soon
-            # depends on the machine's load: bounded, not timed)
-            first, moved = None, 0.0
+            page = browser.open(url)
+            page.wait_for_function(_SHOWS_OFFSET, arg=[100250.0, 2.0])
+            # the body drawn, and drawn again with the scene moved: the tracker moves it and
+            # the camera follows it (software WebGL on a loaded machine draws the body's
+            # updates later than the camera's, so where it is on the page is not asserted);
+            # how soon depends on the machine's load (bounded, not timed)
+            # the panel's box; the 3D scene is the rest of the page (the readable scene of
+            # issue 29 frames the body left of the middle and draws the room around it, so
+            # axes, grid and paths show on the right of the page too, below the panel)
+            box = panel_box(page)
+            scene = outside((H, W), box)
+            first, passed = None, 0
             end = time.monotonic() + 60
-            while moved <= 5.0:
+            while passed <= 3000:
                 assert time.monotonic() < end, (
                     "the body is not drawn" if first is None else
-                    f"the body moved only {moved:.1f} px in 60 s"
+                    f"only {passed} px of the scene changed in 60 s"
                 )  # fmt: skip
                 img = browser.capture(page, tmp_path / "live.png")
-                m = _magenta(img[:, : int(W * 0.6)])
-                if m.sum() > 20:
-                    ys, xs = np.nonzero(m)
-                    at = np.array([xs.mean(), ys.mean()])
+                if (_magenta(img) & scene).sum() > 20:
                     if first is None:
-                        first = at
-                    moved = float(np.linalg.norm(at - first))
+                        first = img
+                    else:
+                        passed = int((changed(first, img) & scene).sum())
                 page.wait_for_timeout(500)
             # the edge drawn live (green) while the tracker sends: on a loaded machine a late
             # redraw can show it late for a moment, so wait for it (bounded)
-            panel = slice(int(W * 0.55), W)
+            x0, y0, x1, y1 = box
+            panel = (slice(max(y0, 0), y1), slice(max(x0, 0), x1))
             live = browser.capture_until(
-                page, lambda im: _colour(im[:, panel], COLOURS["live"]) > 150
+                page,
+                lambda im: (
+                    _colour(im[panel], COLOURS["live"]) > 150 and (_magenta(im) & scene).sum() > 20
+                ),
             )
-            sender.terminate()  # the tracker stops sending
+            magenta0 = int((_magenta(live) & scene).sum())
+            sender.kill()  # the tracker dies
             sender.wait(timeout=30)
             # stale after 250 ms; the panel redraws at 5 Hz, later under load: wait (bounded)
             stale = browser.capture_until(
-                page, lambda im: _colour(im[:, panel], COLOURS["stale"]) > 150
+                page, lambda im: _colour(im[panel], COLOURS["stale"]) > 150
             )
+            # the sensor's body turns grey: its colour goes from the scene ...
+            grey = browser.capture_until(
+                page, lambda im: (_magenta(im) & scene).sum() < 0.2 * magenta0
+            )
+            doc_shot(grey, "live_run_killed")
+            # ... and the legend says after how long without data it did (network time)
+            browser.wait_text(page, "tool (sensor): grey")
+            legend = page.inner_text("body")
         green0, red0 = (
-            _colour(live[:, panel], COLOURS["live"]),
-            _colour(live[:, panel], COLOURS["stale"]),
+            _colour(live[panel], COLOURS["live"]),
+            _colour(live[panel], COLOURS["stale"]),
         )
         green1, red1 = (
-            _colour(stale[:, panel], COLOURS["live"]),
-            _colour(stale[:, panel], COLOURS["stale"]),
+            _colour(stale[panel], COLOURS["live"]),
+            _colour(stale[panel], COLOURS["stale"]),
         )
         assert red1 > 150 and red0 < 0.2 * red1, (red0, red1)  # the edge turned red ...
         assert green1 < green0 - 100, (green0, green1)  # ... from green
+        magenta1 = int((_magenta(grey) & scene).sum())
+        assert magenta0 > 20 and magenta1 < 0.2 * magenta0, (magenta0, magenta1)
+        after = re.search(
+            r"tool \(sensor\): grey, no data for [\d.]+ s, grey after ([\d.]+) s", legend
+        )
+        assert after is not None, legend
+        assert float(after.group(1)) < 2.0, f"drawn grey {after.group(1)} s after its last data"
     finally:
         if sender is not None and sender.poll() is None:
             sender.kill()

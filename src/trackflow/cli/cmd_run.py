@@ -38,6 +38,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view-host", default="127.0.0.1", help="view bind address (loopback)")
     p.add_argument("--view-port", type=int, default=8080, help="view port (0: any free one)")
     p.add_argument(
+        "--view-anchor",
+        default=None,
+        metavar="FRAME",
+        help="the frame the view draws in (default: the room, not the query's source)",
+    )
+    p.add_argument(
         "--online-offsets",
         action="store_true",
         help="estimate the relative delay of every two sensors of one body while running "
@@ -88,7 +94,8 @@ def run(args) -> int:
 
             views.append(
                 attach_view(net, setup, {plan.query.name: (plan, "")}, host=args.view_host,
-                            port=args.view_port, sensor_info=_sensor_info(inputs))
+                            port=args.view_port, sensor_info=_sensor_info(inputs),
+                            anchor=args.view_anchor)
             )  # fmt: skip
             print(f"view: {views[0].url}", file=sys.stderr, flush=True)
 

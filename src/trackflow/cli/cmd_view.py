@@ -41,6 +41,13 @@ def register(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--query", default=None, help="setup: the selected query (default first)")
     p.add_argument(
+        "--anchor",
+        default=None,
+        metavar="FRAME",
+        help="setup: draw the scene in this frame (default: the room - a frame named world, "
+        "room, map or W, else a root of the graph; the page's 'anchor' control changes it)",
+    )
+    p.add_argument(
         "--posetool",
         action="store_true",
         help="recording: the PoseTool page (hand-tune the Kalman predictor beside the "
@@ -68,6 +75,7 @@ def run(args) -> int:
         clean=args.clean,
         posetool=args.posetool,
         magnify=args.magnify,
+        anchor=args.anchor,
     )
     target = args.target
     files = [args.target, *args.more]

@@ -31,6 +31,8 @@ _WHERE = {
     "LiveView": "live", "SensorInfo": "live", "attach_view": "live",
     "Tap": "monitor",
     "RecordingTrack": "recording", "RecordingView": "recording", "auto_magnify": "recording",
+    "auto_ghost_magnify": "recording",
+    "Camera": "camera", "default_anchor": "edges", "LabelLayer": "labels",
     "PoseDrawing": "scene", "Style": "scene",
     "ViewServer": "server",
     "edge_motion": "simulate", "setup_sources": "simulate",

@@ -35,6 +35,8 @@ class ViewOptions:
     magnify: float | None = None
     posetool: bool = False
     tune_fraction: float = 0.5
+    anchor: str | None = None
+    repeat: bool = True
 
 
 def is_setup(path: str | Path) -> bool:
@@ -47,7 +49,7 @@ class SetupRun:
 
     The network plans every query of the setup (queries without a path are listed in the
     view's panel as "no path"), plays recordings or simulated sensors for ``duration_s`` and
-    starts over until :meth:`close`.
+    starts over until :meth:`close` (with ``repeat=False`` it stops at the end).
     """
 
     def __init__(self, setup: Setup, opts: ViewOptions):
@@ -72,8 +74,9 @@ class SetupRun:
                 self.network.add(player)
         self.view: LiveView = attach_view(
             self.network, setup, plans, host=opts.host, port=opts.port, rate_hz=opts.rate_hz,
-            errors=errors,
+            errors=errors, anchor=opts.anchor,
         )  # fmt: skip
+        self.repeat = opts.repeat
         if opts.query:
             if opts.query not in plans:
                 raise InputError(f"{setup.source}: no plannable query {opts.query!r}")
@@ -89,7 +92,7 @@ class SetupRun:
 
     def _run(self) -> None:
         try:
-            self.network.run(realtime=True, stop=self._stop, repeat=True)
+            self.network.run(realtime=True, stop=self._stop, repeat=self.repeat)
         except (ValueError, RuntimeError) as exc:  # reported by serve()
             self.error = exc
 
@@ -123,11 +126,17 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
     headless Chromium and return its path."""
     from .browser import snapshot as take
 
-    if isinstance(target, Setup) or is_setup(target):
+    setup = isinstance(target, Setup) or is_setup(target)
+    if opts.anchor is not None and not setup:
+        raise InputError("--anchor applies to a setup; a recording is drawn in its source frame")
+    if setup:
         if snapshot is not None:
             # data just past the snapshot time, so the network thread ends soon after it
             at = 3.0 if opts.at_s is None else float(opts.at_s)
-            opts = dataclasses.replace(opts, duration_s=min(opts.duration_s, at + 2.0))
+            # and does not start over (the clock stays past --at: the page shows that time)
+            opts = dataclasses.replace(
+                opts, duration_s=min(opts.duration_s, at + 2.0), repeat=False
+            )
         run = start_setup(target, opts)
         try:
             if snapshot is not None:

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..math import ellipsoid, quat_from_matrix, quat_to_matrix, skew
+from .decor import faint, path_segments
 from .glyphs import stable_axes, to_wxyz
-from .scene import Style
+from .scene import GHOST_AXES, MARKER_RADIUS, TRAIL_PX, Style
 
 __all__ = ["HIDDEN", "BatchDrawing", "BodyFrame", "icosphere"]
 
@@ -102,11 +103,12 @@ class BatchDrawing:
         L = style.axes_length
         self.axes = scene.add_batched_axes(
             f"{path}/axes", ident, zeros3, np.full(n, HIDDEN),
-            axes_length=L, axes_radius=L * 0.05,
+            axes_length=L, axes_radius=L * 0.03,
         )  # fmt: skip
+        v0, f0 = icosphere(0)  # a wire icosahedron: it hides no ellipsoid inside it
         self.markers = scene.add_batched_meshes_simple(
-            f"{path}/markers", verts, faces, ident, zeros3,
-            batched_scales=tiny, batched_colors=self.colors, lod="off",
+            f"{path}/markers", v0, f0, ident, zeros3,
+            batched_scales=tiny, batched_colors=self.colors, lod="off", wireframe=True,
         )  # fmt: skip
         self.pos_err = scene.add_batched_meshes_simple(
             f"{path}/position_error", verts, faces, ident, zeros3, batched_scales=tiny,
@@ -119,16 +121,28 @@ class BatchDrawing:
         )  # fmt: skip
         self.ghost_axes = scene.add_batched_axes(
             f"{path}/predicted_axes", ident, zeros3, np.full(n, HIDDEN),
-            axes_length=L * 0.8, axes_radius=L * 0.025,
+            axes_length=L * GHOST_AXES, axes_radius=L * 0.02,
         )  # fmt: skip
         self.ghost_err = scene.add_batched_meshes_simple(
             f"{path}/predicted_error", verts, faces, ident, zeros3, batched_scales=tiny,
             batched_colors=self.colors, opacity=0.25, wireframe=True, lod="off",
         )  # fmt: skip
         self.trails = None
-        self._fades: dict[tuple[int, int], np.ndarray] = {}
+        self.paths = None
+        self.shown_colors = self.colors.copy()  # the colours drawn (grey: no data)
+        self._fades: dict[tuple, np.ndarray] = {}
         self._prev_pos: np.ndarray | None = None
         self._prev_tip: np.ndarray | None = None
+
+    def set_colors(self, colors) -> None:
+        """Draw the bodies in ``colors`` (n, 3) from now on (grey for a body without data)."""
+        c = np.asarray(colors, np.uint8).reshape(-1, 3)
+        if np.array_equal(c, self.shown_colors):
+            return
+        self.shown_colors = c
+        self.markers.batched_colors = c
+        self.pos_err.batched_colors = c
+        self.ghost_err.batched_colors = c
 
     def update(self, bodies: list[BodyFrame | None], trails: list[np.ndarray | None]) -> None:
         """Draw ``bodies`` (``None``: hidden) and their trails (world positions, oldest first)."""
@@ -145,7 +159,9 @@ class BatchDrawing:
         self.axes.batched_positions, self.axes.batched_wxyzs = pos, wxyz
         self.axes.batched_scales = np.where(shown, 1.0, HIDDEN)
         self.markers.batched_positions, self.markers.batched_wxyzs = pos, wxyz
-        self.markers.batched_scales = np.where(shown[:, None], L * 0.25, HIDDEN) * np.ones(3)
+        self.markers.batched_scales = np.where(shown[:, None], L * MARKER_RADIUS, HIDDEN) * np.ones(
+            3
+        )
         radii, axes = _ellipsoids(cov[:, :3, :3], st.sigma, self._prev_pos)
         self._prev_pos = axes
         self.pos_err.batched_positions = pos
@@ -172,8 +188,9 @@ class BatchDrawing:
         self._update_ghosts(bodies)
         self._update_trails(trails)
 
-    def _scales(self, radii: np.ndarray, shown: np.ndarray) -> np.ndarray:
-        s = np.maximum(radii * self.style.magnify, 1e-5)
+    def _scales(self, radii: np.ndarray, shown: np.ndarray, magnify: float | None = None):
+        m = self.style.magnify if magnify is None else magnify
+        s = np.maximum(radii * m, 1e-5)
         return np.where(shown[:, None], s, HIDDEN)
 
     def _update_ghosts(self, bodies) -> None:
@@ -192,19 +209,46 @@ class BatchDrawing:
         radii, axes = _ellipsoids(cov, self.style.sigma, None)
         self.ghost_err.batched_positions = pos
         self.ghost_err.batched_wxyzs = to_wxyz(quat_from_matrix(axes))
-        self.ghost_err.batched_scales = self._scales(radii, has)
+        self.ghost_err.batched_scales = self._scales(radii, has, self.style.ghost_magnify)
 
     def _fade(self, i: int, n: int) -> np.ndarray:
         """Segment colours (n - 1, 2, 3) of body ``i``'s trail of ``n`` points: from the
         background (white) at the oldest end to the body colour (cached per length)."""
-        key = (i, n)
+        colour = self.shown_colors[i]
+        key = (i, n, *colour.tolist())
         if key not in self._fades:
+            if len(self._fades) > 4 * self.n + 64:
+                self._fades.clear()
             a = np.linspace(0.0, 1.0, n)
-            rgb = 255.0 + a[:, None] * (self.colors[i].astype(float) - 255.0)
+            rgb = 255.0 + a[:, None] * (colour.astype(float) - 255.0)
             self._fades[key] = np.stack([rgb[:-1], rgb[1:]], axis=1).astype(np.uint8)
         return self._fades[key]
 
+    def update_paths(self, paths: list[np.ndarray | None]) -> None:
+        """Draw every body's whole path (world positions (N, 3)) as a faint line."""
+        segs, cols = [], []
+        for i, pts in enumerate(paths):
+            if pts is None or len(pts) < 2:
+                continue
+            seg = path_segments(pts)
+            segs.append(seg)
+            cols.append(np.broadcast_to(np.array(faint(self.shown_colors[i], 0.7)), seg.shape))
+        if not segs:
+            return
+        seg = np.concatenate(segs).astype(np.float32)
+        col = np.concatenate(cols).astype(np.uint8)
+        if self.paths is None:
+            self.paths = self.scene.add_line_segments(
+                f"{self.path}/paths", seg, col, thickness=1.5, thickness_units="screen",
+                visible=self.style.show_path,
+            )  # fmt: skip
+        else:
+            self.paths.points, self.paths.colors = seg, col
+            self.paths.visible = self.style.show_path
+
     def _update_trails(self, trails) -> None:
+        if self.trails is not None:
+            self.trails.visible = self.style.show_trail
         segs, cols = [], []
         for i, pts in enumerate(trails):
             if pts is None or len(pts) < 2:
@@ -218,7 +262,7 @@ class BatchDrawing:
         col = np.concatenate(cols)
         if self.trails is None:
             self.trails = self.scene.add_line_segments(
-                f"{self.path}/trails", seg, col, thickness=self.style.axes_length * 0.05
+                f"{self.path}/trails", seg, col, thickness=TRAIL_PX, thickness_units="screen"
             )
         else:
             self.trails.points, self.trails.colors = seg, col

@@ -183,6 +183,12 @@ class Board:
     def arrival_ns(self, slot: int) -> int:
         return int(self.q[self.base(slot) + S_ARRIVAL])
 
+    def last_event_ns(self, slot: int) -> int | None:
+        """Time of the slot's newest event [ns] (None before the first)."""
+        q, b = self.q, self.base(slot)
+        n = int(q[b + S_COUNT])
+        return int(q[b + _RING_T + (n - 1) % RING]) if n else None
+
     def read_pose(self, slot: int, tries: int = 100) -> BoardPose | None:
         """The slot's newest pose, or None if none was written yet (or it kept changing)."""
         q, b = self.q, self.base(slot)

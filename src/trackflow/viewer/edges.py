@@ -19,7 +19,10 @@ from ..math import UncertainPose
 from .board import Board
 from .graph_panel import EdgeStatus, classify
 
-__all__ = ["EdgeLayout", "EdgeMonitor", "QueryLayout", "ViewLayout"]
+__all__ = ["EdgeLayout", "EdgeMonitor", "QueryLayout", "ViewLayout", "default_anchor"]
+
+#: Frame names taken for the room (the default anchor of the view), in this order.
+WORLD_NAMES = ("world", "room", "map", "w", "odom")
 
 
 @dataclass
@@ -34,6 +37,7 @@ class EdgeLayout:
     value: UncertainPose | None = None  # static edges
     rate_hz: float = math.inf
     offset_ms: float = math.nan  # the edge's known timestamp offset
+    max_extrapolation_s: float = math.inf  # its filter answers no further past its data
 
 
 @dataclass
@@ -48,17 +52,53 @@ class QueryLayout:
     now_slot: int | None = None
     ahead_slot: int | None = None
     error: str = ""
+    rate_hz: float = math.inf  # answers per second (a pull query: the view's rate)
+    paths: tuple[tuple[str, ...], ...] = ()  # the edges of each of its paths (fusion: several)
+
+    def max_extrapolation_s(self, edges: dict[str, EdgeLayout]) -> float:
+        """How far past its sensors' data an answer may be: the smallest limit of the
+        filters on its paths (their ``max_extrapolation_ns``)."""
+        limits = [edges[n].max_extrapolation_s for n in self.path_edges if n in edges]
+        return min(limits, default=math.inf)
 
 
 @dataclass
 class ViewLayout:
-    """Everything the view process needs to know of the network (picklable)."""
+    """Everything the view process needs to know of the network (picklable).
+
+    ``root`` is the anchor frame the scene is drawn in (:func:`default_anchor` unless the
+    user chose one)."""
 
     frames: list[str]
     root: str
     edges: list[EdgeLayout]
     queries: list[QueryLayout]
     n_slots: int
+
+
+def default_anchor(frames: list[str], edges: list[EdgeLayout], near: str | None = None) -> str:
+    """The frame a scene is drawn in by default: the room, not a moving body.
+
+    The first of: a frame named like the room (:data:`WORLD_NAMES`, any case), a root of the
+    SRG (a frame that is the source of an edge and the target of none), the first frame;
+    among those, one connected to ``near`` (the first query's source) when there is one.
+    """
+    linked = {near} if near else set()
+    grow = bool(linked)
+    while grow:
+        grow = False
+        for e in edges:
+            if (e.source in linked) != (e.target in linked):
+                linked |= {e.source, e.target}
+                grow = True
+    reach = [f for f in frames if not linked or f in linked] or list(frames)
+    lower = {f.lower(): f for f in reach}
+    for name in WORLD_NAMES:
+        if name in lower:
+            return lower[name]
+    targets = {e.target for e in edges}
+    roots = [f for f in reach if f not in targets and any(e.source == f for e in edges)]
+    return (roots or reach)[0]
 
 
 @dataclass

@@ -9,7 +9,7 @@ import html
 import math
 from dataclasses import dataclass, field
 
-__all__ = ["COLOURS", "EdgeStatus", "classify", "render_panel"]
+__all__ = ["COLOURS", "PULL_REFUSALS", "EdgeStatus", "classify", "render_panel", "split_counts"]
 
 #: Edge state -> stroke colour. "no path" is a query the planner found no path for.
 COLOURS = {
@@ -20,6 +20,20 @@ COLOURS = {
     "unused": "#9e9e9e",
     "no path": "#b000b0",
 }
+
+
+#: Reasons a filter gives for not answering a pull (the query asked past the sensor's data);
+#: the panel counts them apart from the measurements it rejected.
+PULL_REFUSALS = frozenset(
+    {"stale", "no data yet", "before first measurement", "before history", "no result"}
+)
+
+
+def split_counts(rejections: dict[str, int]) -> tuple[dict[str, int], dict[str, int]]:
+    """``(rejected measurements, refused pulls)`` of an edge's counted reasons."""
+    rejected = {k: v for k, v in rejections.items() if k not in PULL_REFUSALS}
+    pulls = {k: v for k, v in rejections.items() if k in PULL_REFUSALS}
+    return rejected, pulls
 
 
 @dataclass
@@ -36,7 +50,8 @@ class EdgeStatus:
         Measured update rate, median delivery latency (network clock minus sensor stamp) and
         the sensor's known timestamp offset (NaN: not applicable).
     rejections : dict
-        Counted rejections by reason (source and filter).
+        Counted rejections by reason (source and filter), refused pulls
+        (:data:`PULL_REFUSALS`) included: the panel shows the two apart.
     on_path : bool
         Part of the selected query's planned path (drawn highlighted).
     """
@@ -142,16 +157,18 @@ def render_panel(frames: list[str], edges: list[EdgeStatus], width: int = 300) -
     rows = [
         '<table style="font-size:11px;border-collapse:collapse;width:100%">'
         "<tr><th align=left>edge</th><th>state</th><th>rate</th><th>latency</th>"
-        "<th>offset</th><th>rejected</th></tr>"
+        "<th>offset</th><th>rejected</th><th>stale pulls</th></tr>"
     ]
     for e in edges:
-        rej = sum(e.rejections.values())
-        why = html.escape(", ".join(f"{k}: {v}" for k, v in sorted(e.rejections.items())))
+        rejected, pulls = split_counts(e.rejections)
+        why = html.escape(", ".join(f"{k}: {v}" for k, v in sorted(rejected.items())))
+        pull_why = html.escape(", ".join(f"{k}: {v}" for k, v in sorted(pulls.items())))
         rows.append(
             f"<tr><td>{'&#9654; ' if e.on_path else ''}{html.escape(e.name)}</td>"
             f'<td style="color:{COLOURS.get(e.state, "#000")}">{e.state}</td>'
             f"<td>{_fmt(e.rate_hz, 'Hz', 0)}</td><td>{_fmt(e.latency_ms, 'ms')}</td>"
-            f'<td>{_fmt(e.offset_ms, "ms")}</td><td title="{why}">{rej}</td></tr>'
+            f'<td>{_fmt(e.offset_ms, "ms")}</td><td title="{why}">{sum(rejected.values())}</td>'
+            f'<td title="{pull_why}">{sum(pulls.values())}</td></tr>'
         )
     rows.append("</table>")
     legend = " ".join(f'<span style="color:{c}">&#9632; {s}</span>' for s, c in COLOURS.items())

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import socket
 import subprocess
 import sys
@@ -33,7 +34,7 @@ from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Se
 from ..errors import InputError, MissingExtraError, PlanError, ServiceError
 from ..optional import available
 from .board import Board
-from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
+from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout, default_anchor
 from .graph_panel import EdgeStatus
 from .live_process import PRIORITIES
 from .monitor import Tap
@@ -112,6 +113,7 @@ class LiveView:
         self.offset_s = 0.0
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
+        self._reports: queue.Queue = queue.Queue()
         opts = {"host": host, "port": int(port), "rate_hz": self.rate_hz, "priority": priority,
                 "style": style}  # fmt: skip
         if not available("viser"):  # said here, before a process is started for nothing
@@ -179,6 +181,8 @@ class LiveView:
                     msg = self._conn.recv()
                     if msg[0] == "offset":
                         self._move_samplers(float(msg[1]))
+                    elif msg[0] == "report":
+                        self._reports.put(msg[1])
             except (EOFError, OSError):
                 break  # the view process ended
 
@@ -226,6 +230,46 @@ class LiveView:
     def set_magnify(self, magnify: float) -> None:
         """Draw every ellipsoid ``magnify`` times its size (1: true to scale)."""
         self._send(("set", {"magnify": float(magnify)}))
+
+    def set_anchor(self, frame: str) -> None:
+        """Draw the scene in ``frame`` (one of the layout's frames).
+
+        Raises
+        ------
+        InputError
+            If ``frame`` is not a frame of the view.
+        """
+        if frame not in self.layout.frames:
+            raise InputError(f"anchor frame {frame!r} is not one of {self.layout.frames}")
+        self._send(("set", {"anchor": frame}))
+
+    def set_scene(self, **shown: bool) -> None:
+        """Show or hide parts of the scene: ``follow``, ``show_grid``, ``show_path``,
+        ``show_trail``, ``show_labels``, ``show_sensors``."""
+        allowed = {"follow", "show_grid", "show_path", "show_trail", "show_labels",
+                   "show_sensors"}  # fmt: skip
+        unknown = set(shown) - allowed
+        if unknown:
+            raise InputError(f"no scene part {sorted(unknown)}; one of {sorted(allowed)}")
+        self._send(("set", {k: bool(v) for k, v in shown.items()}))
+
+    def scene_report(self, timeout_s: float = 30.0) -> dict:
+        """What the page shows now (:meth:`trackflow.viewer.live_scene.LiveScene.report`):
+        the anchor, every body's colour and time without data, the labels and the camera
+        they were laid out for.
+
+        Raises
+        ------
+        ServiceError
+            If the view process does not answer within ``timeout_s``.
+        """
+        while not self._reports.empty():
+            self._reports.get_nowait()
+        self._send(("report",))
+        try:
+            return self._reports.get(timeout=timeout_s)
+        except queue.Empty:
+            raise ServiceError(f"the view process did not report within {timeout_s} s") from None
 
     def set_offset(self, offset_s: float) -> None:
         """Prediction offset [s]: each query is also drawn this far ahead of its own time."""
@@ -358,6 +402,7 @@ def attach_view(
     errors: dict[str, str] | None = None,
     sensor_info: SensorInfo | None = None,
     priority: str = "low",
+    anchor: str | None = None,
 ) -> LiveView:
     """Attach a browser view to ``network`` (before it runs); returns the :class:`LiveView`.
 
@@ -386,6 +431,15 @@ def attach_view(
         thread, which sleeps between events, preempts it on every wake-up, while the view still
         gets its frames on a machine busy with other work; ``idle`` draws only with CPU time
         nothing else wants (Linux ``SCHED_IDLE``: fewer frames on a busy machine).
+    anchor : str, optional
+        The frame the scene is drawn in (the page's "anchor" control changes it); default
+        the room (:func:`trackflow.viewer.edges.default_anchor`): a frame named like it,
+        else a root of the SRG - not the query's source, which may be a moving body.
+
+    Raises
+    ------
+    InputError
+        A bad rate, priority or anchor frame.
     """
     if not 1.0 <= rate_hz <= 120.0:
         raise InputError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
@@ -410,12 +464,15 @@ def attach_view(
             behind = kf if kf is not None else src
             slot = None if behind is None else wiring.tap(behind, f"view:{edge.name}", kf)
             watched[edge.name] = [c for c in (src, kf) if c is not None]
+            limit = getattr(kf, "max_extrapolation_ns", None)
             edges.append(
                 EdgeLayout(edge.name, edge.source, edge.target, False, slot,
                            rate_hz=float(edge.rate_hz),
-                           offset_ms=float(edge.stamp_offset_s) * 1e3)
+                           offset_ms=float(edge.stamp_offset_s) * 1e3,
+                           max_extrapolation_s=math.inf if limit is None else limit * 1e-9)
             )  # fmt: skip
-        root = next(iter(setup.queries.values())).source if setup.queries else frames[0]
+        near = next(iter(setup.queries.values())).source if setup.queries else None
+        root = default_anchor(frames, edges, near)
     else:
         frames, root = ["world", *sources], "world"
         for name, src in sources.items():
@@ -427,7 +484,8 @@ def attach_view(
     queries: list[QueryLayout] = []
     for qname, (plan, prefix) in (plans or {}).items():
         q = plan.query
-        path_edges = tuple(s.edge.name for p in plan.paths for s in p.steps)
+        paths = tuple(tuple(s.edge.name for s in p.steps) for p in plan.paths)
+        path_edges = tuple(n for p in paths for n in p)
         out, own = _query_ends(network, plan, prefix)
         base = int(round(q.time_offset_s * 1e9))
         if own is None:  # a pull query: the view samples it at the view rate
@@ -437,11 +495,19 @@ def attach_view(
         # prediction ghost is pulled by the same tap, only while an offset is set
         ahead_slot = wiring.tap(None, None)
         now_slot = wiring.tap(own, f"view:{qname}:now:tap", ahead=(out, ahead_slot))
-        queries.append(QueryLayout(qname, q.source, q.target, path_edges, now_slot, ahead_slot))
+        rate = float(q.rate_hz) if q.mode == "push" and q.rate_hz else float(rate_hz)
+        queries.append(
+            QueryLayout(qname, q.source, q.target, path_edges, now_slot, ahead_slot,
+                        rate_hz=rate, paths=paths)
+        )  # fmt: skip
     for qname, msg in (errors or {}).items():
         q = setup.queries[qname] if setup is not None else None
         if q is not None:
             queries.append(QueryLayout(qname, q.source, q.target, error=msg))
+    if anchor is not None:
+        if anchor not in frames:
+            raise InputError(f"anchor frame {anchor!r} is not a frame of the setup {frames}")
+        root = anchor
     board, taps = wiring.build()
     layout = ViewLayout(frames, root, edges, queries, board.n_slots)
     query_taps = [taps[f"view:{q.name}:now:tap"] for q in queries if q.now_slot is not None]

@@ -20,10 +20,14 @@ from ..errors import InputError
 from ..evaluation import KalmanPredictor, default_gap, default_predictor
 from ..io import PoseStream
 from ..math import Pose, UncertainPose
+from .camera import body_glyph_points
+from .decor import add_floor_grid, grid_spec
+from .labels import LabelLayer, LabelSpec
+from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
 from .server import SECONDS_AXIS, ViewServer
 
-__all__ = ["RecordingTrack", "RecordingView", "auto_magnify"]
+__all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
 
 
 @dataclass
@@ -92,15 +96,48 @@ class RecordingTrack:
         return pos, ori
 
 
-def auto_magnify(track: RecordingTrack, extent: float, sigma: float = 1.0) -> float:
-    """A power of ten making the median position ellipsoid about 3 % of the scene ``extent``."""
-    pos_mm, _ = track.sigmas()
+def auto_magnify(
+    track: RecordingTrack, extent: float, sigma: float = 1.0, axes_length: float | None = None
+) -> float:
+    """A power of ten (at least 1) for the filter's ellipsoids.
+
+    Without ``axes_length``: the one making the median position ellipsoid about 3 % of the
+    scene ``extent``. With it: the largest keeping the median position ellipsoid and the median
+    orientation disc (the axis tip's displacement, ``axes_length`` times the angle) within a
+    quarter of the axes length, so that the body's glyph stays readable at the camera's
+    distance."""
+    pos_mm, ori_deg = track.sigmas()
     r = max(float(np.nanmedian(pos_mm)) * 1e-3 * sigma, 1e-9)
-    return float(10.0 ** max(0, round(np.log10(0.03 * extent / r))))
+    if axes_length is None:
+        return float(10.0 ** max(0, round(np.log10(0.03 * extent / r))))
+    tip = axes_length * np.radians(float(np.nanmedian(ori_deg))) * sigma
+    return float(10.0 ** max(0, np.floor(np.log10(0.25 * axes_length / max(r, tip, 1e-9)))))
+
+
+def auto_ghost_magnify(
+    track: RecordingTrack, offset_s: float, axes_length: float, sigma: float = 1.0
+) -> float:
+    """The prediction ghost's own magnification: the largest power of ten (at least 1) that
+    keeps its median position ellipsoid within a quarter of the axes length.
+
+    A prediction's error is centimetres where the filter's is a fraction of a millimetre, so
+    the filter's magnification would blow the ghost up over the whole view."""
+    if offset_s <= 0:
+        return 1.0
+    c = track.predicted(offset_s).covariance[:, :3, :3]
+    r = np.sqrt(np.clip(np.linalg.eigvalsh(c)[:, -1], 0.0, None))
+    r_med = max(float(np.nanmedian(r)) * sigma, 1e-9)
+    return float(10.0 ** max(0, np.floor(np.log10(0.25 * axes_length / r_med))))
 
 
 class RecordingView:
     """A viser page showing one recording with a timeline.
+
+    The scene: the floor grid with its scale, the whole path as a faint line, the body with its
+    error glyphs and 2 s trail, the frame's axes, labels laid out without overlaps and a
+    legend. The default camera frames the body at the shown time (its glyph covers about a
+    fifth of the page); with ``follow`` on (the default) the camera moves along with the body
+    while it plays or is scrubbed.
 
     Parameters
     ----------
@@ -108,35 +145,50 @@ class RecordingView:
     host, port : str, int
         Where the page is served (``127.0.0.1`` by default; ``port=0`` picks a free one).
     style : Style, optional
-        Drawing options; by default the ellipsoids are magnified (:func:`auto_magnify`).
+        Drawing options; by default the ellipsoids are magnified (:func:`auto_magnify`) and
+        the ghost on its own scale (:func:`auto_ghost_magnify`).
+    server : ViewServer, optional
+        Show the view on this server (cleared first; ``host`` and ``port`` are not used):
+        its open pages keep their cameras until :meth:`frame_body` moves them.
+        :meth:`close` clears it again and leaves it running.
     """
 
-    def __init__(self, track: RecordingTrack, host="127.0.0.1", port=8080, style=None):
+    def __init__(self, track: RecordingTrack, host="127.0.0.1", port=8080, style=None, server=None):
         self.track = track
         s = track.stream
-        self.view = ViewServer(host, port, title=f"trackflow: {s.source} -> {s.target}")
+        self._own_server = server is None
+        if server is None:
+            server = ViewServer(host, port, title=f"trackflow: {s.source} -> {s.target}")
+        else:
+            server.clear()
+        self.view = server
         pos = np.asarray(s.position, float)
         lo, hi = np.nanmin(pos, axis=0), np.nanmax(pos, axis=0)
         extent = float(np.max(hi - lo))
+        self.auto_ghost = style is None
         self.style = style or Style(axes_length=max(extent * 0.08, 0.02))
         if style is None:
-            self.style.magnify = auto_magnify(track, extent)
-        self.view.look_at(0.5 * (lo + hi), extent)
+            self.style.magnify = auto_magnify(track, extent, axes_length=self.style.axes_length)
         scene = self.view.scene
-        frame_node(scene, f"/{s.source}", self.style.axes_length * 1.5, s.source)
-        self.body = PoseDrawing(scene, f"/{s.source}/{s.target}", PALETTE[0], self.style, s.target)
+        self.grid_spec = grid_spec(lo, hi)
+        self.grid = add_floor_grid(scene, "/grid", self.grid_spec)
+        frame_node(scene, f"/{s.source}", self.style.axes_length * 1.5)
+        self.body = PoseDrawing(scene, f"/{s.source}/{s.target}", PALETTE[0], self.style)
+        self.body.set_path(track.filtered.position)
         self.measured = scene.add_icosphere(
-            f"/{s.source}/{s.target}_measured", radius=self.style.axes_length * 0.08,
-            color=(60, 60, 60),
+            f"/{s.source}/{s.target}_measured", radius=self.style.axes_length * 0.02,
+            color=(60, 60, 60), opacity=0.6,
         )  # fmt: skip
         self.truth_ahead = scene.add_icosphere(
-            f"/{s.source}/{s.target}_recorded_ahead", radius=self.style.axes_length * 0.08,
+            f"/{s.source}/{s.target}_recorded_ahead", radius=self.style.axes_length * 0.03,
             color=(0, 0, 0), visible=False,
         )  # fmt: skip
+        self.labels = LabelLayer(scene, "/labels")
         self._lock = threading.RLock()
         self._echo = False  # set while the view itself moves the slider
         self.t_s = 0.0
         self.offset_s = 0.0
+        self._look_offset: np.ndarray | None = None  # where the camera looks, from the body
         self._playing = threading.Event()
         self._stop = threading.Event()
         self._build_controls()
@@ -163,19 +215,36 @@ class RecordingView:
                 "prediction [ms]", min=0.0, max=500.0, step=5.0, initial_value=0.0
             )
             self.magnify = gui.add_number("magnify", self.style.magnify, min=1.0, step=1.0)
+            self.ghost_magnify = gui.add_number(
+                "ghost magnify", self.style.ghost_magnify, min=1.0, step=1.0
+            )
             self.show_ori = gui.add_checkbox("orientation error", self.style.show_orientation)
+        with gui.add_folder("Scene"):
+            self.follow = gui.add_checkbox("follow body", True)
+            self.show_grid = gui.add_checkbox("grid", True)
+            self.show_path = gui.add_checkbox("path", self.style.show_path)
+            self.show_trail = gui.add_checkbox("trail", self.style.show_trail)
+            self.show_labels = gui.add_checkbox("labels", True)
+            reframe = gui.add_button("frame the body")
+        with gui.add_folder("Legend"):
+            self.legend = gui.add_markdown("")
         self.slider.on_update(
             lambda _: None if self._echo else self.show(self.slider.value, from_slider=True)
         )
         self.play.on_update(
             lambda _: self._playing.set() if self.play.value else self._playing.clear()
         )
-        self.sigma.on_update(lambda _: self._restyle())
-        self.magnify.on_update(lambda _: self._restyle())
-        self.show_ori.on_update(lambda _: self._restyle())
+        for control in (self.sigma, self.magnify, self.show_ori, self.show_path,
+                        self.show_trail, self.show_labels):  # fmt: skip
+            control.on_update(lambda _: self._restyle())
+        self.ghost_magnify.on_update(lambda _: None if self._echo else self._ghost_set())
+        self.show_grid.on_update(lambda _: setattr(self.grid, "visible", self.show_grid.value))
+        self.follow.on_update(lambda _: self._refollow())
+        reframe.on_click(lambda _: self.frame_body(move_browsers=True))
         self.offset.on_update(
             lambda _: None if self._echo else self.set_offset(self.offset.value * 1e-3)
         )
+        self.view.on_camera(self._relabel)
         pos_mm, ori_deg = tr.sigmas()
         self._plots(pos_mm, ori_deg)
 
@@ -200,23 +269,105 @@ class RecordingView:
         self.style.sigma = float(self.sigma.value)
         self.style.magnify = float(self.magnify.value)
         self.style.show_orientation = bool(self.show_ori.value)
+        self.style.show_path = bool(self.show_path.value)
+        self.style.show_trail = bool(self.show_trail.value)
+        self.labels.shown = bool(self.show_labels.value)
+        if self.auto_ghost:
+            self._auto_ghost()
         self.show(self.t_s)
+
+    def _auto_ghost(self) -> None:
+        st = self.style
+        st.ghost_magnify = auto_ghost_magnify(self.track, self.offset_s, st.axes_length, st.sigma)
+        self._set_control(self.ghost_magnify, st.ghost_magnify)
+
+    def _ghost_set(self) -> None:
+        """The user chose the ghost's magnification: it is no longer chosen automatically."""
+        self.auto_ghost = False
+        self.style.ghost_magnify = float(self.ghost_magnify.value)
+        self.show(self.t_s)
+
+    def _set_control(self, handle, value) -> None:
+        if handle.value != value:
+            self._echo = True
+            try:
+                handle.value = value
+            finally:
+                self._echo = False
 
     # -- state -----------------------------------------------------------------------------------
     def set_offset(self, offset_s: float) -> None:
         """Set the prediction offset [s] (0 hides the predicted pose)."""
         self.offset_s = max(0.0, float(offset_s))
         if abs(self.offset.value - self.offset_s * 1e3) > 1e-6:
-            self._echo = True
-            try:
-                self.offset.value = self.offset_s * 1e3
-            finally:
-                self._echo = False
+            self._set_control(self.offset, self.offset_s * 1e3)
+        if self.auto_ghost:
+            self._auto_ghost()
         self.show(self.t_s)
 
     def set_sigma(self, sigma: float) -> None:
         self.sigma.value = str(int(sigma))
         self._restyle()
+
+    def set_scene(self, **shown: bool) -> None:
+        """Show or hide parts of the scene: ``grid``, ``path``, ``trail``, ``labels``,
+        ``follow`` (the controls of the "Scene" folder)."""
+        handles = {"grid": self.show_grid, "path": self.show_path, "trail": self.show_trail,
+                   "labels": self.show_labels, "follow": self.follow}  # fmt: skip
+        for name, value in shown.items():
+            if name not in handles:
+                raise InputError(f"no scene part {name!r}; one of {sorted(handles)}")
+            handles[name].value = bool(value)
+        self.grid.visible = bool(self.show_grid.value)
+        self._restyle()
+
+    def body_points(self) -> np.ndarray:
+        """The points bounding the body's glyph at the shown time (4, 3): its position and
+        axis tips (what the default camera frames)."""
+        pose = self.track.filtered[self.track.index(self.t_s)]
+        return body_glyph_points(pose.position, pose.quaternion, self.style.axes_length)
+
+    def frame_body(self, move_browsers: bool = False) -> None:
+        """Aim the initial camera at the body (its glyph covers about a fifth of the page);
+        ``move_browsers`` moves the cameras of open pages there too."""
+        pts = self.body_points()
+        self._look_offset = self.view.frame(pts, centre=pts[0]) - pts[0]
+        if move_browsers:
+            self.view.reset_cameras()
+        self._relabel()
+
+    def _refollow(self) -> None:
+        """Following again: from where the pages look now, relative to the body."""
+        if self.follow.value:
+            self._look_offset = self.view.looked_at() - self.body_points()[0]
+
+    def _aim(self) -> None:
+        """The camera with the body: framed afresh while no page has its own camera yet,
+        else (following) moved along with the body."""
+        p = self.body_points()[0]
+        if self._look_offset is None or not self.view.has_browser_camera:
+            if self.follow.value or self._look_offset is None:
+                self.frame_body()
+            return
+        if self.follow.value:
+            self.view.follow(p + self._look_offset)
+
+    def _relabel(self) -> None:
+        with self._lock:
+            s, tr = self.track.stream, self.track
+            k = tr.index(self.t_s)
+            p = np.asarray(tr.filtered.position[k], float)
+            cam = self.view.camera()
+            specs = [
+                LabelSpec("body", s.target, p, "body"),
+                LabelSpec("frame", f"frame {s.source}", np.zeros(3), "frame"),
+            ]
+            # the grid's scale on the floor in the lower left of the page, where it shows
+            floor = cam.on_plane(0.2 * cam.width, 0.85 * cam.height, self.grid_spec.center[2])
+            if floor is not None and self.show_grid.value:
+                mark = self.grid_spec.mark(floor)
+                specs.append(LabelSpec("scale", self.grid_spec.text, mark, "note"))
+            self.labels.update(specs, cam)
 
     def show(self, t_s: float, from_slider: bool = False) -> None:
         """Draw the recording at time ``t_s`` [s] (relative to its first sample)."""
@@ -232,16 +383,21 @@ class RecordingView:
                 j = tr.index(tr.t[k] + self.offset_s)
                 self.truth_ahead.position = np.asarray(tr.stream.position[j], float)
             self.truth_ahead.visible = pred is not None
+            self._aim()
+            self._relabel()
             if not from_slider:
-                self._echo = True
-                try:
-                    self.slider.value = round(self.t_s, 2)
-                finally:
-                    self._echo = False
+                self._set_control(self.slider, round(self.t_s, 2))
+            self.legend.content = recording_legend(
+                tr.stream.target, tr.filtered[k], st, pred, self.offset_s, self.grid_spec
+            )
             self.view.set_status(
                 f"**t = {self.t_s:.3f} s** / {tr.duration:.1f} s - sample {k} - "
                 f"{st.sigma:g} sigma, ellipsoids x{st.magnify:g}"
-                + (f" - predicted +{self.offset_s * 1e3:.0f} ms" if pred is not None else "")
+                + (
+                    f" - predicted +{self.offset_s * 1e3:.0f} ms (ghost x{st.ghost_magnify:g})"
+                    if pred is not None
+                    else ""
+                )
             )
 
     def _play_loop(self) -> None:
@@ -259,4 +415,7 @@ class RecordingView:
     def close(self) -> None:
         self._stop.set()
         self._player.join(timeout=2.0)
-        self.view.close()
+        if self._own_server:
+            self.view.close()
+        else:
+            self.view.clear()

@@ -1,11 +1,13 @@
 """Drawing uncertain poses into a viser scene: axes, error ellipsoids, trail and prediction.
 
 A :class:`PoseDrawing` owns the scene nodes of one relationship ``T_a_b`` drawn under the node
-of frame a: the pose as axes with a small body marker, its position error ellipsoid, the three
-axis ellipsoids of its orientation error (thesis 8.2.2.1), a trail fading into the background
-and, when a prediction offset is set, a second (ghost) pose with its own ellipsoid at the
-predicted time. Positions are metres in frame a; rotations are handed to viser as
-``(w, x, y, z)`` (the conversion lives in :mod:`trackflow.viewer.glyphs`).
+of frame a: the pose as axes with a small wireframe body marker (it never hides the position
+error ellipsoid inside it), its position error ellipsoid, the three axis ellipsoids of its
+orientation error (thesis 8.2.2.1), a trail fading into the background, the whole path as a
+faint line and, when a prediction offset is set, a second (ghost) pose with its own ellipsoid
+at the predicted time, magnified on its own scale (:attr:`Style.ghost_magnify`). Positions
+are metres in frame a; rotations are handed to viser as ``(w, x, y, z)`` (the conversion
+lives in :mod:`trackflow.viewer.glyphs`).
 """
 
 from __future__ import annotations
@@ -15,9 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..math import UncertainPose
+from .decor import faint, path_segments
 from .glyphs import Ellipsoid, orientation_glyphs, position_glyph, to_wxyz
 
-__all__ = ["PALETTE", "PoseDrawing", "Style", "frame_node"]
+__all__ = ["GREY", "PALETTE", "PoseDrawing", "Style", "frame_node"]
 
 #: Body colours (RGB 0-255), chosen away from the pure red/green/blue of axes.
 PALETTE = (
@@ -31,6 +34,13 @@ PALETTE = (
     (90, 90, 90),  # grey
 )
 _AXIS_COLOURS = ((220, 40, 40), (40, 180, 40), (40, 80, 230))
+#: Colour of a body whose data stopped (a stale or down sensor, an unanswered query).
+GREY = (150, 150, 150)
+#: Radius of the wireframe body marker and length of the ghost's axes [axes lengths].
+MARKER_RADIUS = 0.1
+GHOST_AXES = 0.6
+#: Width of the fading trail on screen [px].
+TRAIL_PX = 3.0
 
 
 @dataclass
@@ -44,6 +54,9 @@ class Style:
     magnify : float
         Ellipsoid semi-axes are drawn ``magnify`` times their size (sub-millimetre errors are
         invisible at room scale); 1 draws them true to scale. The page says which.
+    ghost_magnify : float
+        The same for the prediction ghost's ellipsoid, on its own scale: a prediction's error
+        is centimetres where the filter's is a fraction of a millimetre.
     axes_length : float
         Length of a pose's axes and of the axis-ellipsoid lever [m].
     opacity : float or None
@@ -52,22 +65,25 @@ class Style:
         Draw the axis ellipsoids.
     trail_s : float
         Length of the fading trail [s].
+    show_trail, show_path : bool
+        Draw the fading trail; the whole path as a faint line.
     """
 
     sigma: float = 1.0
     magnify: float = 1.0
+    ghost_magnify: float = 1.0
     axes_length: float = 0.1
     opacity: float | None = 0.45
     show_orientation: bool = True
     trail_s: float = 2.0
+    show_trail: bool = True
+    show_path: bool = True
 
 
-def frame_node(scene, path: str, axes_length: float = 0.15, label: str | None = None):
-    """A frame of the SRG as axes (and its name) at scene path ``path``."""
-    node = scene.add_frame(path, axes_length=axes_length, axes_radius=axes_length * 0.04)
-    if label:
-        scene.add_label(f"{path}/label", label, position=(0.0, 0.0, -0.03))
-    return node
+def frame_node(scene, path: str, axes_length: float = 0.15):
+    """A frame of the SRG as axes at scene path ``path`` (its label is laid out with the
+    others: :mod:`trackflow.viewer.labels`)."""
+    return scene.add_frame(path, axes_length=axes_length, axes_radius=axes_length * 0.04)
 
 
 def _scaled(e: Ellipsoid, magnify: float) -> tuple[float, float, float]:
@@ -89,17 +105,16 @@ class PoseDrawing:
         Shared drawing options (read on every :meth:`update`).
     """
 
-    def __init__(self, scene, path: str, color, style: Style, label: str | None = None):
+    def __init__(self, scene, path: str, color, style: Style):
         self.scene, self.path, self.color, self.style = scene, path, tuple(color), style
         L = style.axes_length
         self.axes = scene.add_frame(
-            f"{path}/pose", axes_length=L, axes_radius=L * 0.05, origin_radius=L * 0.12
+            f"{path}/pose", axes_length=L, axes_radius=L * 0.03, origin_radius=L * 0.005
         )
         self.marker = scene.add_icosphere(
-            f"{path}/pose/marker", radius=L * 0.25, color=self.color, subdivisions=2
-        )
-        if label:
-            scene.add_label(f"{path}/pose/label", label, position=(0.0, 0.0, L * 0.4))
+            f"{path}/pose/marker", radius=L * MARKER_RADIUS, color=self.color,
+            subdivisions=0, wireframe=True,
+        )  # fmt: skip
         self.ellipsoid = scene.add_icosphere(
             f"{path}/position_error", radius=1.0, color=self.color, opacity=style.opacity,
             subdivisions=3, visible=False,
@@ -116,13 +131,15 @@ class PoseDrawing:
             for k, c in enumerate(_AXIS_COLOURS)
         ]
         self.ghost = scene.add_frame(
-            f"{path}/predicted", axes_length=L * 0.8, axes_radius=L * 0.025, visible=False
-        )
+            f"{path}/predicted", axes_length=L * GHOST_AXES, axes_radius=L * 0.02,
+            origin_radius=L * 0.005, visible=False,
+        )  # fmt: skip
         self.ghost_ellipsoid = scene.add_icosphere(
             f"{path}/predicted_error", radius=1.0, color=self.color, opacity=0.2,
             wireframe=True, subdivisions=2, visible=False,
         )  # fmt: skip
         self.trail = None
+        self.path_line = None
         self._pos: Ellipsoid | None = None
         self._tips: tuple[Ellipsoid, ...] | None = None
 
@@ -131,7 +148,22 @@ class PoseDrawing:
         for h in (self.axes, self.ellipsoid, *self.tips, self.ghost, self.ghost_ellipsoid):
             h.visible = visible
         if self.trail is not None:
-            self.trail.visible = visible
+            self.trail.visible = visible and self.style.show_trail
+        if self.path_line is not None:
+            self.path_line.visible = visible and self.style.show_path
+
+    def set_path(self, points: np.ndarray) -> None:
+        """Draw the whole path (positions in frame a, (N, 3), NaN rows break it) as a faint
+        line in the body's colour."""
+        seg = path_segments(points).astype(np.float32)
+        if len(seg) == 0:
+            return
+        if self.path_line is not None:
+            self.path_line.remove()
+        self.path_line = self.scene.add_line_segments(
+            f"{self.path}/path", seg, faint(self.color, 0.7), thickness=1.5,
+            thickness_units="screen", visible=self.style.show_path,
+        )  # fmt: skip
 
     def update(
         self,
@@ -162,10 +194,14 @@ class PoseDrawing:
             self.ghost.wxyz = to_wxyz(predicted.quaternion)
             g = position_glyph(predicted, st.sigma)
             self.ghost_ellipsoid.position, self.ghost_ellipsoid.wxyz = g.center, g.wxyz
-            self.ghost_ellipsoid.scale = _scaled(g, st.magnify)
+            self.ghost_ellipsoid.scale = _scaled(g, st.ghost_magnify)
         self.ghost.visible = self.ghost_ellipsoid.visible = predicted is not None
         if trail is not None and len(trail) >= 2:
             self._draw_trail(np.asarray(trail, float))
+        if self.trail is not None:
+            self.trail.visible = st.show_trail
+        if self.path_line is not None:
+            self.path_line.visible = st.show_path
 
     def _draw_trail(self, pts: np.ndarray) -> None:
         seg = np.stack([pts[:-1], pts[1:]], axis=1)  # (N-1, 2, 3)
@@ -175,7 +211,7 @@ class PoseDrawing:
         cols = np.stack([rgb[:-1], rgb[1:]], axis=1).astype(np.uint8)
         if self.trail is None:
             self.trail = self.scene.add_line_segments(
-                f"{self.path}/trail", seg, cols, thickness=self.style.axes_length * 0.05
+                f"{self.path}/trail", seg, cols, thickness=TRAIL_PX, thickness_units="screen"
             )
         else:
             self.trail.points, self.trail.colors = seg, cols

@@ -3,16 +3,24 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 
 import numpy as np
 
 from ..optional import require
+from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
 __all__ = ["SECONDS_AXIS", "ViewServer"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
 SECONDS_AXIS = {"x": {"time": False}}
+
+
+def _is_three_default(camera) -> bool:
+    """Whether a page's reported camera is the client's default, looking at the origin (our
+    initial cameras look elsewhere): the page has not applied the initial camera yet."""
+    return bool(np.all(np.abs(np.asarray(camera.look_at, float)) < 1e-9))
 
 
 def _refuse_share(*_args, **_kwargs) -> None:
@@ -42,7 +50,52 @@ class ViewServer:
         self.server.request_share_url = _refuse_share
         self.gui.configure_theme(control_width="large", show_share_button=False)
         self.scene.set_up_direction("+z")
+        # a longer lens than three.js's 75 degrees: a body framed close is not distorted
+        self.server.initial_camera.fov = float(FRAMING_FOV)
         self.status = self.gui.add_markdown("starting", order=-100)
+        self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
+        self._camera_hooks: list = []
+        self.server.on_client_connect(self._watch_camera)
+        self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
+
+    def clear(self) -> None:
+        """Remove every scene node, control and camera hook (the status line stays): the
+        server can show another view to the pages already open, which keep their WebGL
+        context (a new page costs software WebGL its shaders again)."""
+        self.scene.reset()
+        self.gui.reset()
+        self.status = self.gui.add_markdown("starting", order=-100)
+        self._camera_hooks.clear()
+
+    def _watch_camera(self, client) -> None:
+        def seen(camera, cid=client.client_id) -> None:
+            # A page reports its camera as it starts, possibly before it applied the initial
+            # camera: the client's default then, looking at the origin. Not followed (moving
+            # it would move that default), nor laid out for, until it is another.
+            if cid not in self._cameras and _is_three_default(camera):
+                return
+            self._cameras[cid] = Camera.from_client(camera)
+            for hook in list(self._camera_hooks):
+                hook()
+
+        client.camera.on_update(seen)
+
+    @property
+    def has_browser_camera(self) -> bool:
+        """Whether a connected page has reported its camera."""
+        return bool(self._cameras)
+
+    def on_camera(self, hook) -> None:
+        """Call ``hook()`` whenever a page reports a moved camera (labels are laid out anew)."""
+        self._camera_hooks.append(hook)
+
+    def reset_cameras(self) -> None:
+        """Move the camera of every connected page to the initial camera."""
+        ic = self.server.initial_camera
+        for cid, client in self.server.get_clients().items():
+            if cid in self._cameras:
+                client.camera.position = np.asarray(ic.position, float)
+                client.camera.look_at = np.asarray(ic.look_at, float)
 
     @property
     def url(self) -> str:
@@ -67,9 +120,62 @@ class ViewServer:
         # the control panel covers the right of the page: aim right of the centre so the
         # scene sits in the free left part
         target = c + 0.3 * e * right
-        self.server.initial_camera.position = tuple(target + 1.5 * e * back)
+        # 1.5 extents away at three.js's 75 degrees; the same view through the longer lens
+        dist = 1.5 * e * np.tan(0.5 * DEFAULT_FOV) / np.tan(0.5 * FRAMING_FOV)
+        self.server.initial_camera.position = tuple(target + dist * back)
         self.server.initial_camera.look_at = tuple(target)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def frame(self, points, coverage: float = 0.14, centre=None) -> np.ndarray:
+        """Aim the initial camera (of pages opened from now on) at ``centre`` (default: the
+        middle of ``points`` (N, 3)) so that the points' bounding box covers ``coverage`` of
+        the page (:func:`camera.frame_points`); returns the point it looks at (3,)."""
+        position, look_at = frame_points(points, coverage, fov=FRAMING_FOV, centre=centre)
+        self.server.initial_camera.position = tuple(position)
+        self.server.initial_camera.look_at = tuple(look_at)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        return look_at
+
+    def camera(self) -> Camera:
+        """The camera of the first browser that reported one, else the initial camera (on
+        the default canvas)."""
+        for cam in list(self._cameras.values()):
+            return cam
+        ic = self.server.initial_camera
+        return Camera.looking_at(ic.position, ic.look_at, fov=float(ic.fov))
+
+    def looked_at(self) -> np.ndarray:
+        """The point the first browser with a camera looks at, else the initial camera's."""
+        clients = self.server.get_clients()
+        for cid in list(self._cameras):
+            if cid in clients:
+                return np.asarray(clients[cid].camera.look_at, float)
+        return np.asarray(self.server.initial_camera.look_at, float)
+
+    def follow(self, look_at) -> None:
+        """Move every connected browser's camera (and the initial camera) so that it looks at
+        ``look_at`` (3,), keeping its direction and distance (the user may orbit and zoom
+        while it follows): a followed body stays where it is on the page.
+
+        Each camera is moved from where its page last reported it, to the absolute target,
+        so a report that crossed the previous move on the wire costs nothing."""
+        target = np.asarray(look_at, float)
+        if not np.all(np.isfinite(target)):
+            return
+        for cid, client in self.server.get_clients().items():
+            cam = self._cameras.get(cid)
+            if cam is None:  # not reported yet: the handle has no state
+                continue
+            d = target - np.asarray(client.camera.look_at, float)
+            if np.linalg.norm(d) > 1e-6:
+                client.camera.position = np.asarray(client.camera.position, float) + d
+                # where it is now (labels are laid out for it before the page reports back)
+                self._cameras[cid] = dataclasses.replace(cam, position=cam.position + d)
+        ic = self.server.initial_camera
+        d = target - np.asarray(ic.look_at, float)
+        if np.linalg.norm(d) > 1e-6:
+            ic.position = tuple(np.asarray(ic.position, float) + d)
+            ic.look_at = tuple(target)
 
     def close(self) -> None:
         with contextlib.redirect_stdout(io.StringIO()):
