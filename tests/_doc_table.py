@@ -514,6 +514,10 @@ EXEMPT = {
     "trackflow view ../shared/data/ar_table/table_01.txt --posetool # PoseTool page": (
         f"{_VIEW}; tests/viewer/test_views.py::test_posetool_recomputes_when_a_slider_moves"
     ),
+    "trackflow view examples/fusion_setup.yaml --anchor A # draw the scene in frame A": (
+        f"{_VIEW}; tests/viewer/test_scene_live.py::"
+        "test_the_scene_is_drawn_in_the_room_and_the_anchor_can_change"
+    ),
     "trackflow view demo_realm/tracker.yaml demo_realm/camera.yaml demo_realm/app.yaml": (
         f"{_VIEW}; tests/viewer/test_views.py::test_a_realms_agent_files_are_viewed_as_one_setup"
     ),

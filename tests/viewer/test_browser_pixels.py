@@ -139,9 +139,11 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
             browser.settle(page, 700)  # the panel redraws at 5 Hz
             box = panel_box(page)
             states = {s.name: s.state for s in live.edge_statuses()}
+            # the panel's drawing may lag under load: wait (bounded) for its green arrows
+            # first, then for the red one
             if until_s < 1.0:
-                img = browser.capture(page)
-            else:  # the panel's redraw may lag under load: wait (bounded) for the red arrow
+                img = browser.capture_until(page, lambda im, b=box: _green(im, b) > 150)
+            else:
                 img = browser.capture_until(page, lambda im, b=box: _red(im, b) > 150)
             shots.append((img, states, box))
         (img0, st0, box0), (img1, st1, box1) = shots
