@@ -50,6 +50,7 @@ from trackflow.filters.derivative.update_kernels import (
     residual_size,
     selection_of,
     selection_rows,
+    update,  # noqa: F401 (no longer called here; kernels().update serves the streaming filter)
     update_dense,
     update_into,
     update_scratch,
