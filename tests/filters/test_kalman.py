@@ -350,6 +350,36 @@ def test_run_filter_equals_streaming(rng):
     np.testing.assert_allclose(res.predictions[0.0].position, res.filtered.position)
 
 
+@pytest.mark.parametrize("formulation", ["error_state", "additive"])
+def test_run_filter_predictions_are_predict_pose_bit_for_bit(rng, formulation):
+    """The offline loop predicts each horizon with :func:`predict_pose`'s operations (inline,
+    on its own scratch arrays): the same bits as that kernel from the same states."""
+    from trackflow.filters.derivative.offline import _prepared, _run_segments
+    from trackflow.filters.derivative.streaming import kernels
+    from trackflow.math import frozen
+
+    model = MotionModel(2, 1, noise=(0, 0, 3.0, 0, 2.0))
+    n = 60
+    t = np.cumsum(rng.uniform(0.005, 0.015, n))
+    q = Rotation.from_rotvec(np.outer(t, [0.3, 1.0, 0.2])).as_quat()
+    p = np.stack([np.sin(t), np.cos(t), t], axis=1) + rng.normal(0, 1e-3, (n, 3))
+    C = np.broadcast_to(np.diag([1e-6] * 3 + [1e-5] * 3), (n, 6, 6)).copy()
+    h = (0.02, 0.05)
+    kf, _, hs, _, rows = _prepared(t, UncertainPose._trusted(p, q, C), model, h, None,
+                                   0.999, formulation, 50.0, 10)  # fmt: skip
+    out = _run_segments(kf, rows, hs, True, None, states=True)
+    pred_t, pred_q, pred_c, status, xs, ps = out[3], out[4], out[5], out[7], out[8], out[9]
+    assert np.all(status != 3)  # every row updated: each prediction starts at its row's state
+    n_dp, n_do, add, kind, sp, so = kf.kernel_settings.params
+    for i in range(n):
+        for j, hv in enumerate(h):
+            x, pp = frozen(xs[i]), frozen(ps[i])
+            pos, quat, cov = kernels().predict_pose(x, pp, hv, n_dp, n_do, add, kind, sp, so)
+            np.testing.assert_array_equal(pred_t[j, i], pos)
+            np.testing.assert_array_equal(pred_q[j, i], quat)
+            np.testing.assert_array_equal(pred_c[j, i], cov)
+
+
 def test_run_filter_sorts_out_of_order_rows(rng):
     model = MotionModel(1, 1)
     n = 50

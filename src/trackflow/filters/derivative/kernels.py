@@ -50,7 +50,7 @@ from trackflow.filters.derivative.update_kernels import (
     residual_size,
     selection_of,
     selection_rows,
-    update,
+    update,  # noqa: F401 (no longer called here; kernels().update serves the streaming filter)
     update_dense,
     update_into,
     update_scratch,
@@ -567,6 +567,10 @@ def run(
     r = np.empty((mr, mr))
     xs = np.empty(nx)
     ps = np.empty((nc, nc))
+    zq = np.empty(4)  # the measured quaternion, writeable (meas_cov's one argument type)
+    pout = np.empty(POSE_OUT)  # predict_pose_with's output and scratch (error state)
+    tsc = np.empty((6, nc))
+    sel = np.empty(6, np.int64)
     initialized = False
     t_state = 0.0
     gated_run = 0
@@ -590,8 +594,10 @@ def run(
             status[i] = RESET if initialized else INITIALIZED
             x[:] = x0
             p[:, :] = p0
+            for k in range(4):
+                zq[k] = zo[k]
             initialize(
-                x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+                x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zq, lp, lo, additive)
             )
             t_state = times[i]
             initialized = True
@@ -604,15 +610,17 @@ def run(
             if selection_rows(h, idx):
                 st, v = update_into(x, p, y, rr, idx, gate, n_dp, n_do, additive, wmax, uws)
             else:
-                st, v = update(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax)
+                st, v = update_dense(x, p, y, h, rr, gate, n_dp, n_do, additive, wmax, uws)
             t_state = times[i]
             status[i] = st
             nis[i] = v
             if st == DIVERGED:
                 x[:] = x0
                 p[:, :] = p0
+                for k in range(4):
+                    zq[k] = zo[k]
                 initialize(
-                    x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zo, lp, lo, additive)
+                    x, p, n_dp, n_do, additive, lp, lo, zp, zo, meas_cov(r, zq, lp, lo, additive)
                 )
             gated_run = next_gated_run(st, gated_run)
         if status[i] != INVALID:
@@ -636,11 +644,25 @@ def run(
                     pred_c[hz, i] = out_c[i]
                 continue
             dt = times[i] - t_state + horizons[hz]
-            if covariance:
-                t, q, c = predict_pose(x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o)
+            if covariance and additive:  # predict_pose_into, with run's scratch arrays
+                xs[:] = x
+                ps[:, :] = p
+                predict_into(xs, ps, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pws)
+                t, q, c = pose_of(xs, ps, n_dp, n_do, additive)
                 pred_t[hz, i] = t
                 pred_q[hz, i] = q
                 pred_c[hz, i] = c
+            elif covariance:
+                predict_pose_with(
+                    x, p, dt, n_dp, n_do, additive, kind, sig_p, sig_o, pout, pws, tsc, sel
+                )
+                for k in range(3):
+                    pred_t[hz, i, k] = pout[k]
+                for k in range(4):
+                    pred_q[hz, i, k] = pout[3 + k]
+                for a in range(6):
+                    for b in range(6):
+                        pred_c[hz, i, a, b] = pout[7 + 6 * a + b]
             else:
                 mean_transition_into(x, dt, n_dp, n_do, xs, pws[0], pws[1], pws[2])
                 pose_mean_into(xs, n_dp, n_do, additive, pred_t[hz, i], pred_q[hz, i])
