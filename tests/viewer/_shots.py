@@ -32,6 +32,24 @@ def panel_box(page) -> tuple[int, int, int, int]:
     return int(x), int(y), int(np.ceil(x + w)), int(np.ceil(y + h))
 
 
+def capture_panel_until(browser, page, accept) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """The first screenshot for which ``accept(image, box)`` holds, and the panel's box then.
+
+    The box is read again with every screenshot: the panel grows as its content arrives,
+    and under load a box read before the first drawing misses what is drawn later. Bounded
+    like :meth:`Browser.capture_until`; then the last screenshot and its box are returned.
+    """
+    box = panel_box(page)
+
+    def ok(img: np.ndarray) -> bool:
+        nonlocal box
+        box = panel_box(page)
+        return accept(img, box)
+
+    img = browser.capture_until(page, ok)
+    return img, box
+
+
 def outside(shape, box) -> np.ndarray:
     """Mask (H, W) of the pixels outside ``box`` (the 3D scene the panel does not cover)."""
     m = np.ones(shape[:2], bool)

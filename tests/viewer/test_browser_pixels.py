@@ -17,7 +17,7 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
-from _shots import panel_box
+from _shots import capture_panel_until
 
 from trackflow.dataflow import Network, SimulatedSensor, parse_setup
 from trackflow.io import PoseStream
@@ -114,6 +114,14 @@ def _green(img: np.ndarray, box) -> int:
     return int(_mask(_in_panel(img, box), (26, 158, 58)).sum())
 
 
+def _green_shown(img: np.ndarray, box) -> bool:
+    return _green(img, box) > 150
+
+
+def _red_shown(img: np.ndarray, box) -> bool:
+    return _red(img, box) > 150
+
+
 def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
     setup = parse_setup(SETUP)
     rng = np.random.default_rng(0)
@@ -137,14 +145,12 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
             else:
                 browser.wait_text(page, text)
             browser.settle(page, 700)  # the panel redraws at 5 Hz
-            box = panel_box(page)
             states = {s.name: s.state for s in live.edge_statuses()}
             # the panel's drawing may lag under load: wait (bounded) for its green arrows
             # first, then for the red one
-            if until_s < 1.0:
-                img = browser.capture_until(page, lambda im, b=box: _green(im, b) > 150)
-            else:
-                img = browser.capture_until(page, lambda im, b=box: _red(im, b) > 150)
+            img, box = capture_panel_until(
+                browser, page, _green_shown if until_s < 1.0 else _red_shown
+            )
             shots.append((img, states, box))
         (img0, st0, box0), (img1, st1, box1) = shots
         assert st0["art"] == "live" and st1["art"] == "stale" and st1["cam"] == "live"
@@ -152,7 +158,7 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
         green1, red1 = _green(img1, box1), _red(img1, box1)
         assert COLOURS["stale"] == "#d62728" and COLOURS["live"] == "#1a9e3a"
         assert red0 < 0.2 * red1, (red0, red1)  # the red arrow appeared
-        assert red1 > 150, red1
+        assert red1 > 150, (red1, box1)
         assert green1 < green0 - 100, (green0, green1)  # and replaced a green one
     finally:
         live.close()

@@ -25,7 +25,7 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
-from _shots import changed, doc_shot, outside, panel_box
+from _shots import capture_panel_until, changed, doc_shot, outside, panel_box
 
 from trackers._lines import read_lines, wait_line  # tests/trackers
 from trackflow.viewer import COLOURS, Browser, find_chromium
@@ -96,6 +96,17 @@ def _colour(img: np.ndarray, hex_rgb: str, tol: int = 40) -> int:
     return int(np.all(np.abs(img.astype(int) - rgb) <= tol, axis=-1).sum())
 
 
+def _in_panel(img: np.ndarray, box, state: str) -> int:
+    """Pixels of the edge colour of ``state`` inside the panel's ``box``."""
+    x0, y0, x1, y1 = box
+    return _colour(img[max(y0, 0) : max(y1, 0), max(x0, 0) : max(x1, 0)], COLOURS[state])
+
+
+def _in_scene(img: np.ndarray, box) -> int:
+    """Pixels of the body's colour in the scene (outside the panel's ``box``)."""
+    return int((_magenta(img) & outside(img.shape, box)).sum())
+
+
 def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tmp_path):
     try:
         find_chromium()
@@ -127,11 +138,10 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             # the camera follows it (software WebGL on a loaded machine draws the body's
             # updates later than the camera's, so where it is on the page is not asserted);
             # how soon depends on the machine's load (bounded, not timed)
-            # the panel's box; the 3D scene is the rest of the page (the readable scene of
-            # issue 29 frames the body left of the middle and draws the room around it, so
-            # axes, grid and paths show on the right of the page too, below the panel)
-            box = panel_box(page)
-            scene = outside((H, W), box)
+            # the 3D scene is the page outside the panel's box (the readable scene of issue 29
+            # frames the body left of the middle and draws the room around it, so axes, grid
+            # and paths show on the right of the page too, below the panel); the box is read
+            # with every screenshot, as the panel grows while its content arrives
             first, passed = None, 0
             end = time.monotonic() + 60
             while passed <= 3000:
@@ -140,6 +150,7 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
                     f"only {passed} px of the scene changed in 60 s"
                 )  # fmt: skip
                 img = browser.capture(page, tmp_path / "live.png")
+                scene = outside((H, W), panel_box(page))
                 if (_magenta(img) & scene).sum() > 20:
                     if first is None:
                         first = img
@@ -148,40 +159,32 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
                 page.wait_for_timeout(500)
             # the edge drawn live (green) while the tracker sends: on a loaded machine a late
             # redraw can show it late for a moment, so wait for it (bounded)
-            x0, y0, x1, y1 = box
-            panel = (slice(max(y0, 0), y1), slice(max(x0, 0), x1))
-            live = browser.capture_until(
+            live, box0 = capture_panel_until(
+                browser,
                 page,
-                lambda im: (
-                    _colour(im[panel], COLOURS["live"]) > 150 and (_magenta(im) & scene).sum() > 20
-                ),
+                lambda im, b: _in_panel(im, b, "live") > 150 and _in_scene(im, b) > 20,
             )
-            magenta0 = int((_magenta(live) & scene).sum())
+            magenta0 = _in_scene(live, box0)
             sender.kill()  # the tracker dies
             sender.wait(timeout=30)
             # stale after 250 ms; the panel redraws at 5 Hz, later under load: wait (bounded)
-            stale = browser.capture_until(
-                page, lambda im: _colour(im[panel], COLOURS["stale"]) > 150
+            stale, box1 = capture_panel_until(
+                browser, page, lambda im, b: _in_panel(im, b, "stale") > 150
             )
             # the sensor's body turns grey: its colour goes from the scene ...
-            grey = browser.capture_until(
-                page, lambda im: (_magenta(im) & scene).sum() < 0.2 * magenta0
+            grey, box2 = capture_panel_until(
+                browser, page, lambda im, b: _in_scene(im, b) < 0.2 * magenta0
             )
             doc_shot(grey, "live_run_killed")
             # ... and the legend says after how long without data it did (network time)
             browser.wait_text(page, "tool (sensor): grey")
             legend = page.inner_text("body")
-        green0, red0 = (
-            _colour(live[panel], COLOURS["live"]),
-            _colour(live[panel], COLOURS["stale"]),
-        )
-        green1, red1 = (
-            _colour(stale[panel], COLOURS["live"]),
-            _colour(stale[panel], COLOURS["stale"]),
-        )
-        assert red1 > 150 and red0 < 0.2 * red1, (red0, red1)  # the edge turned red ...
+        green0, red0 = _in_panel(live, box0, "live"), _in_panel(live, box0, "stale")
+        green1, red1 = _in_panel(stale, box1, "live"), _in_panel(stale, box1, "stale")
+        # the edge turned red ...
+        assert red1 > 150 and red0 < 0.2 * red1, (red0, red1, box0, box1)
         assert green1 < green0 - 100, (green0, green1)  # ... from green
-        magenta1 = int((_magenta(grey) & scene).sum())
+        magenta1 = _in_scene(grey, box2)
         assert magenta0 > 20 and magenta1 < 0.2 * magenta0, (magenta0, magenta1)
         after = re.search(
             r"tool \(sensor\): grey, no data for [\d.]+ s, grey after ([\d.]+) s", legend

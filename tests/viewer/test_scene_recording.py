@@ -148,11 +148,16 @@ def test_the_floor_grid_is_drawn_with_its_scale(browser, page, server):
         without = _shot(browser, page, view, "grid hidden")
         scene = outside(with_grid.shape, panel_box(page))
         diff = changed(with_grid, without, tol=12) & scene
-        # the grid's lines are grey on the white background: what disappears is grey
+        # the grid's lines are grey on the white background: what disappears is without
+        # colour. Its brightness is not asked: the antialiased edges of the faint lines are
+        # nearly white, and how many there are depends on the renderer (a CI run had 41 %).
         px = with_grid[diff].astype(int)
-        grey = (np.ptp(px, axis=1) < 25) & (px.min(axis=1) > 110) & (px.max(axis=1) < 240)
+        grey = np.ptp(px, axis=1) < 25
         assert diff.sum() > 3000, f"hiding the grid changed only {diff.sum()} px"
-        assert grey.mean() > 0.7, f"only {grey.mean():.0%} of the grid's pixels are grey"
+        coloured = px[~grey].mean(axis=0).round() if (~grey).any() else None
+        assert grey.mean() > 0.7, (
+            f"only {grey.mean():.0%} of the grid's pixels are grey; the others average {coloured}"
+        )
         # lines across the scene, not a speck: the changed pixels span a good part of it
         assert bbox_fraction(diff) > 0.1, bbox_fraction(diff)
         assert view.grid_spec.text == "grid 5 cm cells, 50 cm lines"  # 0.8 m wide data
