@@ -44,6 +44,7 @@ SAME_LAYER: set[tuple[str, str]] = {
     ("timesync", "errors"),
     ("scheduler", "errors"),
     ("ros2", "dataflow"),  # the ROS 2 topics build on the setup's specs of them
+    ("trackers", "calibration"),  # a live run's online offsets use the offline estimator
 }
 
 

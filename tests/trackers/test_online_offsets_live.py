@@ -4,7 +4,8 @@ same body, both 5 ms late, the VRPN input told 20 ms (VRPN carries no latency: i
 clock mapping subtracts the ``latency_ms`` it is given, so its poses come out 15 ms early).
 The running estimate of their relative delay finds the 15 ms, with a sigma, beside the two
 senders' own start skew (each replays the recording from when it starts; their truth files
-say by how much)."""
+say by how much). With ``online_offsets: {apply: true}`` the run corrects the VRPN tracker's
+times by what it finds, and its recording replays to the bit."""
 
 from __future__ import annotations
 
@@ -31,20 +32,21 @@ sensors:
      input: {{vrpn: {{device: "Tracker0@127.0.0.1:{vp}", latency_ms: 20}}, stale_ms: 300}}}}
 queries:
   - {{name: q, source: W, target: B, mode: push, rate_hz: 50}}
-"""
+{extra}"""
 
 
-def test_the_run_estimates_a_wrongly_declared_latency_while_running(room1, tmp_path):
+def _run_pair(room1, tmp_path, extra: str, *args, seconds: float = 8.0) -> tuple[dict, float]:
+    """``trackflow run`` of the two trackers (``extra``: more of the setup file, ``args``:
+    more options) until both senders have sent ``seconds`` and gone stale; its summary,
+    and the relative delay its online estimate should find [ms]."""
     nn, vp = _free_port(), _free_port(socket.SOCK_STREAM)
     setup = tmp_path / "live.yaml"
-    setup.write_text(SETUP.format(nn=nn, vp=vp))
-    # the two senders start streaming when each process is up: on a loaded machine half a
-    # second or more apart, hence the wide search
-    run = _trackflow("run", setup, "--online-offsets", "--online-max-offset", 4, "--json")
+    setup.write_text(SETUP.format(nn=nn, vp=vp, extra=extra))
+    run = _trackflow("run", setup, *args, "--json")
     try:
         lines = read_lines(run.stderr)
         wait_line(lines, "listening", 180)
-        common = ("--duration", 8, "--wait", 20, "--start", 20, "--latency-ms", 5)
+        common = ("--duration", seconds, "--wait", 20, "--start", 20, "--latency-ms", 5)
         senders = [
             _trackflow("simulate", "natnet", room1, "--port", nn, "--body", "rig", *common,
                        "--truth", tmp_path / "natnet.tfrec"),
@@ -58,8 +60,6 @@ def test_the_run_estimates_a_wrongly_declared_latency_while_running(room1, tmp_p
         if run.poll() is None:
             run.kill()
             run.communicate()
-    (got,) = out["online_offsets"]
-    assert (got["a"], got["b"]) == ("natnet", "vrpn"), got
     # the host times at which the two senders exposed the same recorded pose
     truth = {k: read_stream(tmp_path / f"{k}.tfrec")[0] for k in ("natnet", "vrpn")}
     row = {tuple(p): t for p, t in zip(truth["natnet"].position.tolist(), truth["natnet"].t_ns)}
@@ -70,6 +70,46 @@ def test_the_run_estimates_a_wrongly_declared_latency_while_running(room1, tmp_p
     # one-way mapping cannot tell from the clock offset (a fraction of a millisecond on
     # loopback, more on a loaded machine)
     expected = 15.0 - skew_ms
-    print(f"online {got}; senders' skew {skew_ms:.2f} ms: expected {expected:.2f} ms")
+    print(f"senders' skew {skew_ms:.2f} ms: expected {expected:.2f} ms")
+    return out, expected
+
+
+def test_the_run_estimates_a_wrongly_declared_latency_while_running(room1, tmp_path):
+    # the two senders start streaming when each process is up: on a loaded machine half a
+    # second or more apart, hence the wide search
+    out, expected = _run_pair(room1, tmp_path, "", "--online-offsets", "--online-max-offset", 4)
+    (got,) = out["online_offsets"]
+    assert (got["a"], got["b"]) == ("natnet", "vrpn"), got
+    print(f"online {got}")
     assert expected - 3.0 < got["offset_ms"] < expected + 3 * got["sigma_ms"] + 0.5, got
     assert 0 < got["sigma_ms"] < 2.0 and got["span_s"] > 6.0, got
+    assert got["applied_ms"] == 0.0 and "online_corrections" not in out
+
+
+def test_the_run_corrects_the_vrpn_times_when_the_setup_opts_in_and_replays_exactly(
+    room1, tmp_path
+):
+    extra = (
+        "online_offsets: {apply: true, reference: natnet, every_s: 2, min_span_s: 3,\n"
+        "                 max_offset_s: 4}\n"
+    )
+    record = tmp_path / "out.tfrec"
+    out, expected = _run_pair(room1, tmp_path, extra, "--record", record, seconds=12.0)
+    corrections = out["online_corrections"]
+    (got,) = out["online_offsets"]
+    print(f"corrections {corrections}; final {got}")
+    # the VRPN connection's times moved by the relative delay, once or a few times
+    assert corrections and all(c["sensors"] == ["vrpn"] for c in corrections), corrections
+    total = corrections[-1]["total_ms"]
+    assert expected - 3.0 < total < expected + 3.0, (total, expected)
+    assert got["applied_ms"] == total
+    # on the corrected times the pair's residual is what is left: near zero
+    assert "offset_ms" in got, (got, corrections)
+    assert abs(got["offset_ms"]) < 3 * got["sigma_ms"] + 1.0, got
+    # the log holds every correction, and the recording replays to the bit (its input
+    # recordings hold the corrected times the run delivered)
+    log = [json.loads(line) for line in (tmp_path / "out.offsets.jsonl").read_text().splitlines()]
+    assert log == corrections
+    rep = json.loads(_finish(_trackflow("run", tmp_path / "live.yaml", "--replay", record,
+                                        "--json"), 90))  # fmt: skip
+    assert rep["identical"] and rep["answers"] == rep["recorded"] > 0, rep

@@ -71,6 +71,12 @@ class OnlineClockOffset:
         """A pose sensor ``b`` delivered."""
         self._rows[1].append((t_ns, tuple(position), tuple(quaternion)))
 
+    def forget(self) -> None:
+        """Drop what both streams hold (their times changed: a correction was applied)."""
+        with self._lock:
+            for rows in self._rows:
+                rows.clear()
+
     def _stream(self, k: int, name: str) -> PoseStream | None:
         with self._lock:
             rows = list(self._rows[k])

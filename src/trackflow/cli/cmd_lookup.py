@@ -29,6 +29,7 @@ def run(args) -> int:
     from ..dataflow import load_setup, lookup
 
     setup = load_setup(args.setup)
+    setup.refuse_online_offsets("trackflow lookup")
     t_ns = None if args.at is None else int(round(args.at * 1e9))
     d = lookup(setup, args.source, args.target, t_ns).as_dict()
     if args.json:

@@ -48,14 +48,15 @@ def register(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="estimate the relative delay of every two sensors of one body while running "
         "(angular speeds over the last 30 s; a status line every 5 s, the summary's "
-        "'online_offsets')",
+        "'online_offsets'); the setup's 'online_offsets:' block sets more and may apply it",
     )
     p.add_argument(
         "--online-max-offset",
         type=float,
-        default=1.0,
+        default=None,
         metavar="S",
-        help="--online-offsets: the largest relative delay searched [s] (default 1)",
+        help="--online-offsets: the largest relative delay searched [s] (default 1; a setup "
+        "with an 'online_offsets:' block sets its max_offset_s there)",
     )
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -82,13 +83,9 @@ def run(args) -> int:
         from .. import optical  # noqa: F401  (registers the 'optical' feed; layer 4 wires it)
 
     views: list = []
-    offsets = None
-    if args.online_offsets:
-        offsets = _OnlineOffsets(setup, max_offset_s=args.online_max_offset, quiet=args.quiet)
+    offsets = _online_spec(args, setup)
 
     def on_network(net, plan, inputs) -> None:
-        if offsets is not None:
-            offsets.attach(net)
         if args.view:
             from ..viewer import attach_view
 
@@ -116,10 +113,9 @@ def run(args) -> int:
                 on_status=None if args.quiet else _status,
                 on_network=on_network,
                 stop=stop,
+                online_offsets=offsets,
             )
     finally:
-        if offsets is not None:
-            offsets.close()
         for view in views:
             view.close()
         if server is not None:
@@ -133,7 +129,8 @@ def run(args) -> int:
         "queries": _queries(setup, res),
         "attributes": res.attributes,
         **({"ros2": res.ros2} if res.ros2 else {}),
-        **({} if offsets is None else {"online_offsets": offsets.final()}),
+        **({} if res.online_offsets is None else {"online_offsets": res.online_offsets}),
+        **({"online_corrections": res.online_corrections} if res.online_corrections else {}),
         "record": None if res.record is None else str(res.record),
     }
     if stopped_by:
@@ -159,52 +156,27 @@ def _queries(setup, res) -> dict:
     return out
 
 
-class _OnlineOffsets:
-    """``--online-offsets``: an :class:`~trackflow.calibration.OnlineClockOffset` per pair
-    of sensors of one body (:func:`~trackflow.calibration.rigid_pairs`), estimated on a
-    thread of its own every :attr:`PERIOD_S` (off the dispatch thread), with a status line."""
+def _online_spec(args, setup):
+    """The online offsets the run makes: the setup's block, or with ``--online-offsets``
+    alone an estimate-only one (``--online-max-offset`` sets its search)."""
+    from ..dataflow import OnlineOffsetSpec
+    from ..errors import ConfigError
 
-    PERIOD_S = 5.0
-
-    def __init__(self, setup, *, max_offset_s: float, quiet: bool):
-        from ..calibration import OnlineClockOffset, rigid_pairs
-
-        self.estimators = [
-            OnlineClockOffset(a, b, max_offset_s=max_offset_s) for a, b in rigid_pairs(setup.graph)
-        ]
-        self.quiet = quiet
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def attach(self, net) -> None:
-        for est in self.estimators:
-            net.components[f"kf_{est.a}"].measured.listeners.append(est.add_a)
-            net.components[f"kf_{est.b}"].measured.listeners.append(est.add_b)
-        self._thread = threading.Thread(target=self._loop, name="online-offsets", daemon=True)
-        self._thread.start()
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.PERIOD_S):
-            for est in self.estimators:
-                r = est.estimate()
-                if not self.quiet:
-                    print(f"online offset {_offset_text(r)}", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-
-    def final(self) -> list[dict]:
-        """The estimate of every pair over the run's last window."""
-        return [est.estimate() for est in self.estimators]
-
-
-def _offset_text(r: dict) -> str:
-    head = f"{r['a']} - {r['b']}: "
-    if "why" in r:
-        return head + r["why"]
-    return head + f"{r['offset_ms']:.1f} +- {r['sigma_ms']:.1f} ms over {r['span_s']:.0f} s"
+    spec = setup.online_offsets
+    if spec is not None:
+        if args.online_max_offset is not None:
+            raise ConfigError(
+                "--online-max-offset: the setup's online_offsets block sets max_offset_s",
+                setup.source,
+                setup.lines.get("online_offsets", 0),
+                "online_offsets",
+            )
+        return spec
+    if not args.online_offsets:
+        if args.online_max_offset is not None:
+            raise ConfigError("--online-max-offset needs --online-offsets")
+        return None
+    return OnlineOffsetSpec(max_offset_s=args.online_max_offset or 1.0)
 
 
 def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):

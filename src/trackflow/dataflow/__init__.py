@@ -36,6 +36,7 @@ from ._inputs import (
 )
 from ._lookup import LookupResult, lookup, rpy_deg
 from ._network import Network
+from ._online_spec import OnlineOffsetSpec
 from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._ros2spec import ROS2_INPUT_TYPES, ROS2_OUTPUT_TYPES, Ros2Link, Ros2Output
@@ -101,6 +102,7 @@ __all__ = [
     "RecordingPlayer",
     "Recorder",
     "Sampler",
+    "OnlineOffsetSpec",
     "Setup",
     "StaticLoops",
     "SimulatedSensor",

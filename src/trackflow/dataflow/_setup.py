@@ -37,6 +37,7 @@ from ..errors import ConfigError, PlanError
 from ..graph import MotionSpec, Query, Requirements, SpatialRelationshipGraph
 from ..math import Pose
 from ..yamlfile import YamlMap, line_of, read_yaml
+from ._online_spec import OnlineOffsetSpec
 from ._planner import Plan, plan_query
 from ._sources import RecordingPlayer
 from ._static_loops import StaticLoops
@@ -59,6 +60,21 @@ class Setup:
     lines: dict = field(default_factory=dict)
     #: push queries whose answers go to a ROS 2 topic: name -> :class:`Ros2Output`
     ros2: dict = field(default_factory=dict)
+    #: the ``online_offsets:`` block (:class:`OnlineOffsetSpec`), ``None`` if absent
+    online_offsets: OnlineOffsetSpec | None = None
+
+    def refuse_online_offsets(self, mode: str) -> None:
+        """Raise :class:`~trackflow.errors.ConfigError` naming the file, line and key if the
+        setup has an ``online_offsets:`` block: ``mode`` (such as "an agent") cannot honour
+        it, only ``trackflow run`` does."""
+        if self.online_offsets is not None:
+            raise ConfigError(
+                f"{mode} does not estimate or apply online offsets (only trackflow run "
+                "does); remove the block",
+                self.source,
+                self.lines.get("online_offsets", 0),
+                "online_offsets",
+            )
 
     def query(self, name: str | None = None) -> Query:
         """The query called ``name`` (the first one if ``None``)."""
@@ -358,7 +374,15 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
     """Build a :class:`Setup` from a parsed YAML document (a mapping)."""
     if not isinstance(doc, dict):
         raise ConfigError(f"{source}: a setup must be a mapping with sensors/statics/queries")
-    unknown = set(doc) - {"frames", "sensors", "statics", "queries", "include", "imus"}
+    unknown = set(doc) - {
+        "frames",
+        "sensors",
+        "statics",
+        "queries",
+        "include",
+        "imus",
+        "online_offsets",
+    }
     if unknown:
         raise _err(source, doc, f"unknown top-level keys {sorted(unknown)}")
     if "include" in doc:
@@ -487,7 +511,21 @@ def parse_setup(doc, source: str = "<setup>", base_dir: Path | None = None) -> S
                 g.check_frame(spec.body)
             except ValueError as exc:
                 raise _err(source, doc, f"IMU {spec.name}: {exc}") from exc
-    return Setup(g, queries, recordings, source, inputs, imus, lines, ros2)
+    online = None
+    if "online_offsets" in doc:
+        lines["online_offsets"] = line_of(doc, "online_offsets")
+        try:
+            online = OnlineOffsetSpec.from_mapping(doc["online_offsets"])
+        except ValueError as exc:
+            raise ConfigError(str(exc), source, lines["online_offsets"]) from exc
+        if online.reference is not None and online.reference not in inputs:
+            raise ConfigError(
+                f"{online.reference!r} is not a sensor with an 'input:' (have {sorted(inputs)})",
+                source,
+                lines["online_offsets"],
+                "online_offsets.reference",
+            )
+    return Setup(g, queries, recordings, source, inputs, imus, lines, ros2, online)
 
 
 def load_setup(path: str | Path) -> Setup:

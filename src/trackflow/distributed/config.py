@@ -198,6 +198,7 @@ def load_agent(path: str | Path) -> AgentConfig:
     if "name" not in a:
         raise config_error(path, a, "missing key 'name'", "agent")
     setup = parse_setup(doc, str(path), path.parent)
+    setup.refuse_online_offsets("an agent")
     try:
         return AgentConfig(
             name=str(a["name"]),

@@ -213,6 +213,10 @@ class LiveInput:
         self.kernel_stamps = False  # arrival times from the kernel (UDP on Linux)
         self._threads: list[threading.Thread] = []
         self._socks: list[socket.socket] = []
+        #: added to every exposure time this input makes [ns]: an online delay correction
+        #: (:mod:`trackflow.trackers.online_offsets`), changed on the receiving thread only
+        self.shift_ns = 0
+        self._shift_request: tuple | None = None
 
     @staticmethod
     def connection_key(spec: InputSpec) -> tuple:
@@ -251,12 +255,36 @@ class LiveInput:
         (a packet-level error on every body), never raised."""
         self.packets += 1
         self.statuses.packet()
+        if self._shift_request is not None:
+            self._take_shift(arrival_ns)
         try:
-            return self._handle(data, arrival_ns)
+            out = self._handle(data, arrival_ns)
         except PacketError as exc:
             for b in self.bodies:
                 b.status.reject(exc.reason)
             return []
+        shift = self.shift_ns
+        if shift and out:
+            if type(out) is SampleBlock:
+                out.t_ns += shift
+            else:
+                out = [(i, s._replace(t_ns=s.t_ns + shift)) for i, s in out]
+        return out
+
+    def request_shift(self, shift_ns: int, on_applied: Callable[[int], None] | None = None):
+        """From any thread: from the next packet on, add ``shift_ns`` [ns] (in all, not in
+        addition to the present shift) to every exposure time this input makes.
+        ``on_applied(arrival_ns)`` is called on the receiving thread before that packet is
+        decoded, so what it does (a log line, forgetting the samples made before) falls
+        between two packets. A second request before the next packet replaces the first."""
+        self._shift_request = (int(shift_ns), on_applied)
+
+    def _take_shift(self, arrival_ns: int) -> None:
+        request, self._shift_request = self._shift_request, None
+        if request is not None:
+            self.shift_ns = request[0]
+            if request[1] is not None:
+                request[1](arrival_ns)
 
     def _handle(self, data: bytes, arrival_ns: int) -> list[tuple[int, Sample]]:
         raise NotImplementedError  # pragma: no cover

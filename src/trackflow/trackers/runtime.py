@@ -39,6 +39,7 @@ from ..dataflow import (
     KalmanFilter,
     Measurement,
     Network,
+    OnlineOffsetSpec,
     PathSwitch,
     Plan,
     RecordingPlayer,
@@ -64,6 +65,7 @@ from .inputs import (
     make_inputs,
     warm_up_inputs,
 )
+from .online_offsets import OnlineOffsets, offsets_log_path
 from .switch_log import SwitchLog, read_switch_log, switch_log_path
 
 #: answers (and their latencies) a live run keeps in memory per query: the newest minute at
@@ -364,6 +366,10 @@ class RunResult:
     attributes: dict[str, dict] = field(default_factory=dict)
     #: queries published as ROS 2 topics (``ros2:``): topic, key expression, messages sent
     ros2: dict[str, dict] = field(default_factory=dict)
+    #: online offsets (the setup's ``online_offsets:``): every pair's last estimate
+    online_offsets: list[dict] | None = None
+    #: ... and every correction applied (``apply: true``), as in ``out.offsets.jsonl``
+    online_corrections: list[dict] | None = None
 
 
 def _push_query(setup: Setup, query: str | None):
@@ -589,6 +595,7 @@ def run_live(
     stop: threading.Event | None = None,
     history_s: float = 1.0,
     on_network: Callable[[Network, Plan, list[LiveInput]], object] | None = None,
+    online_offsets: OnlineOffsetSpec | None = None,
 ) -> RunResult:
     """Run the setup live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
 
@@ -615,6 +622,10 @@ def run_live(
         and the live inputs (their :attr:`LiveInput.bodies` carry each sensor's status) before
         the trackers are listened to: the place to add push consumers, such as a browser view
         (``trackflow run --view``). Each sensor's source is the component named like its edge.
+    online_offsets : OnlineOffsetSpec, optional
+        Estimate (and with ``apply``, correct) the relative delays of the trackers that see
+        one body while running (:mod:`trackflow.trackers.online_offsets`); default: the
+        setup's ``online_offsets:`` block. Corrections go to ``out.offsets.jsonl``.
     """
     if query is None:
         push = [n for n, q in setup.queries.items() if q.mode == "push" and q.rate_hz]
@@ -631,6 +642,7 @@ def run_live(
             callback(m)
 
     log = SwitchLog(None if record is None else switch_log_path(record))
+    offsets = None
     publishers = open_publishers(setup.ros2)  # before any input: a refused link fails here
     try:
         served = _serve_all(
@@ -646,6 +658,12 @@ def run_live(
         inputs = make_inputs({e: (setup.inputs[e], setup.graph.edge(e).covariance) for e in edges})
         if on_network is not None:
             on_network(net, served.plan, inputs)
+        spec = setup.online_offsets if online_offsets is None else online_offsets
+        if spec is not None:
+            offsets = OnlineOffsets(
+                setup, spec, None if record is None else offsets_log_path(record)
+            )
+            offsets.attach(net, inputs)
         writers = _writers(setup, edges, record)
         delivery = LiveSources(sources)
         t_start = host_ns()
@@ -654,7 +672,10 @@ def run_live(
             sched.add(InputSource(inp, delivery, writers))
         main_ticks = _main_ticker(sched, net, served.sink)
         bodies = [b for i in inputs for b in i.bodies]
-        status = _status_printer(on_status, bodies, inputs, served.unplanned, status_period_s, log)
+        events = [log.new_lines] + ([] if offsets is None else [offsets.new_lines])
+        status = _status_printer(
+            on_status, bodies, inputs, served.unplanned, status_period_s, events
+        )
         deadline = None if duration_s is None else t_start + int(duration_s * 1e9)
         interrupted = False
         try:
@@ -662,6 +683,8 @@ def run_live(
         except KeyboardInterrupt:
             interrupted = True
         finally:
+            if offsets is not None:
+                offsets.close()
             net.finish()
             log.close()
             for pair in writers.values():
@@ -683,6 +706,9 @@ def run_live(
             attributes=measured_attributes(net, setup.graph, edges),
         )
         result.ros2 = {name: p.status() for name, p in publishers.items()}
+        if offsets is not None:
+            result.online_offsets = offsets.final()
+            result.online_corrections = list(offsets.events)
         return result
     finally:
         close_publishers(publishers)
@@ -709,11 +735,16 @@ def _main_ticker(sched: Scheduler, net: Network, sink: Component) -> Ticker:
     return next(s for s in sched.sources if isinstance(s, Ticker) and s.name == name)
 
 
-def _status_printer(on_status, bodies, inputs, unplanned, period_s, log):
+def _status_printer(on_status, bodies, inputs, unplanned, period_s, events):
     """The run's idle callback: once the inputs are listening, ``listening: ...`` (and the
     queries not served, with why), then a status line per sensor every ``period_s``, and as
-    soon as they happen a line per path switch of ``log`` (a :class:`SwitchLog`) and per
-    change of a sensor's notes (``head: 6d ids seen: 0, 1``)."""
+    soon as they happen the lines of ``events`` (callables giving the lines since their last
+    call: path switches of a :class:`SwitchLog`, online offsets) and a line per change of a
+    sensor's notes (``head: 6d ids seen: 0, 1``)."""
+
+    def event_lines() -> list[str]:
+        return [line for new_lines in events for line in new_lines()]
+
     state = {"next": None}
     shown = {b.name: b.status.notes for b in bodies}
 
@@ -738,10 +769,10 @@ def _status_printer(on_status, bodies, inputs, unplanned, period_s, log):
             state["next"] = now + int(period_s * 1e9)
         elif now >= state["next"]:
             new_notes()  # the status lines show them
-            on_status([b.status.line(now, b.spec.stale_s) for b in bodies] + log.new_lines())
+            on_status([b.status.line(now, b.spec.stale_s) for b in bodies] + event_lines())
             state["next"] = now + int(period_s * 1e9)
         else:
-            lines = new_notes() + log.new_lines()
+            lines = new_notes() + event_lines()
             if lines:
                 on_status(lines)
 

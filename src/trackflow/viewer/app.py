@@ -117,7 +117,9 @@ def start_setup(path, opts: ViewOptions) -> SetupRun:
     """Start a setup's network with a view (see :class:`SetupRun`): ``path`` is a YAML setup
     file or a :class:`~trackflow.dataflow.Setup` already made (the command line makes one of a
     realm's agent files)."""
-    return SetupRun(path if isinstance(path, Setup) else load_setup(path), opts)
+    setup = path if isinstance(path, Setup) else load_setup(path)
+    setup.refuse_online_offsets("trackflow view")
+    return SetupRun(setup, opts)
 
 
 def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | None:
