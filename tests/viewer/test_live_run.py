@@ -165,6 +165,13 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
                 lambda im, b: _in_panel(im, b, "live") > 150 and _in_scene(im, b) > 20,
             )
             magenta0 = _in_scene(live, box0)
+            # the panel shows what the run measured beside what the setup declares: the
+            # sender runs at the recording's 200 Hz where the setup says 100
+            browser.wait_text(page, "measured / declared")
+            rate = re.search(r"tool\s+([\d.]+) / 100\.0", page.inner_text("body"))
+            assert rate is not None and 190.0 < float(rate.group(1)) < 210.0, page.inner_text(
+                "body"
+            )
             sender.kill()  # the tracker dies
             sender.wait(timeout=30)
             # stale after 250 ms; the panel redraws at 5 Hz, later under load: wait (bounded)

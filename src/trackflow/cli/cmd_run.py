@@ -194,19 +194,21 @@ def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):
 
 def _sensor_info(inputs):
     """What the view's graph panel shows of each live sensor beyond the network: the
-    tracker's counted rejections and its measured clock offset (``viewer.SensorInfo``)."""
+    tracker's counted rejections, its measured clock offset and the online delay correction
+    applied to it (``viewer.SensorInfo``)."""
     import time
 
-    bodies = [b for inp in inputs for b in inp.bodies]
+    bodies = [(inp, b) for inp in inputs for b in inp.bodies]
 
     def info() -> dict[str, dict]:
         now, out = time.time_ns(), {}
-        for b in bodies:
+        for inp, b in bodies:
             try:
                 s = b.status.summary(now, b.spec.stale_s)
             except RuntimeError:  # a counter changed while being read: next time
                 continue
-            out[b.name] = {"rejections": s["rejections"], "offset_ms": s["clock_offset_ms"]}
+            out[b.name] = {"rejections": s["rejections"], "offset_ms": s["clock_offset_ms"],
+                           "correction_ms": inp.shift_ns * 1e-6}  # fmt: skip
         return out
 
     return info

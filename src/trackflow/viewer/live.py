@@ -30,9 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataflow import KalmanFilter, Network, Plan, RecordingPlayer, Sampler, Setup
+from ..dataflow import KalmanFilter, Network, PathSwitch, Plan, RecordingPlayer, Sampler, Setup
 from ..errors import InputError, MissingExtraError, PlanError, ServiceError
 from ..optional import available
+from .attributes_panel import gather
 from .board import Board
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout, default_anchor
 from .graph_panel import EdgeStatus
@@ -49,6 +50,7 @@ SensorInfo = Callable[[], dict[str, dict]]
 
 _FEED_PERIOD_S = 0.1
 _STATS_EVERY = 5  # feeder periods between rejection reports
+_ATTRIBUTES_EVERY = 20  # ... and between measured attributes (each costs a few ms)
 
 
 def _start_process(timeout_s: float):
@@ -99,6 +101,8 @@ class LiveView:
         sensor_info: SensorInfo | None = None,
         priority: str = "low",
         timeout_s: float = 120.0,
+        filters: dict | None = None,
+        switches: dict | None = None,
     ):
         if not 1.0 <= rate_hz <= 120.0:
             raise InputError(f"view rate must be in [1, 120] Hz, got {rate_hz}")
@@ -106,6 +110,8 @@ class LiveView:
         self._sources = taps  # edge name -> components whose rejections the panel shows
         self._query_taps = query_taps  # they pull the prediction ghost
         self.sensor_info = sensor_info
+        self._filters = filters or {}  # sensor -> (its filter, its declared edge)
+        self._switches = switches or {}  # query -> its PathSwitch (failover)
         self.rate_hz = float(rate_hz)
         self.monitor = EdgeMonitor(layout, board)
         self._selected_query = layout.queries[0].name if layout.queries else None
@@ -164,10 +170,22 @@ class LiveView:
                     offsets[name] = float(off)
         return rej, offsets
 
+    def attributes(self) -> dict:
+        """The sensors' measured and declared attributes, their trackers' online delay
+        corrections and the queries' paths and switches
+        (:func:`trackflow.viewer.attributes_panel.gather`)."""
+        corrections = {}
+        if self.sensor_info is not None:
+            for name, info in self.sensor_info().items():
+                if info.get("correction_ms") is not None:
+                    corrections[name] = float(info["correction_ms"])
+        return gather(self._filters, self._switches, corrections)
+
     def _feed(self) -> None:
-        """Every 100 ms the network clock to the board; every 500 ms the rejections to the
-        view (when they changed); the page's prediction slider to the taps when it moves."""
-        clock, last, n = self.network.clock, None, 0
+        """Every 100 ms the network clock to the board; every 500 ms the rejections, every
+        2 s the measured attributes to the view (when they changed); the page's prediction
+        slider to the taps when it moves."""
+        clock, last, last_attrs, n = self.network.clock, None, None, 0
         while not self._stop.is_set():
             self.board.set_clock(clock.now_ns, clock.dispatch_wall_ns)
             if n % _STATS_EVERY == 0:
@@ -175,6 +193,14 @@ class LiveView:
                 if stats != last:
                     last = stats
                     self._send(("stats", *stats))
+            if n % _ATTRIBUTES_EVERY == 0 and (self._filters or self._switches):
+                try:
+                    attrs = self.attributes()
+                except RuntimeError:  # a ring or switch changed while being read: next time
+                    attrs = last_attrs
+                if attrs != last_attrs:
+                    last_attrs = attrs
+                    self._send(("attributes", attrs))
             n += 1
             try:
                 if self._conn.poll(_FEED_PERIOD_S):
@@ -449,6 +475,7 @@ def attach_view(
     sources = _sources(network)
     edges: list[EdgeLayout] = []
     watched: dict[str, list] = {}
+    filters: dict[str, tuple] = {}  # sensor -> (its filter, its edge): measured attributes
     if setup is not None:
         g = setup.graph
         frames = list(g.frames)
@@ -464,6 +491,8 @@ def attach_view(
             behind = kf if kf is not None else src
             slot = None if behind is None else wiring.tap(behind, f"view:{edge.name}", kf)
             watched[edge.name] = [c for c in (src, kf) if c is not None]
+            if kf is not None:
+                filters[edge.name] = (kf, edge)
             limit = getattr(kf, "max_extrapolation_ns", None)
             edges.append(
                 EdgeLayout(edge.name, edge.source, edge.target, False, slot,
@@ -482,8 +511,12 @@ def attach_view(
             watched[name] = [src]
             edges.append(EdgeLayout(name, "world", name, False, slot, rate_hz=rate))
     queries: list[QueryLayout] = []
+    switches: dict[str, PathSwitch] = {}
     for qname, (plan, prefix) in (plans or {}).items():
         q = plan.query
+        for node in plan.nodes:
+            if node.kind == "switch":
+                switches[qname] = _component(network, plan, prefix, node.id)
         paths = tuple(tuple(s.edge.name for s in p.steps) for p in plan.paths)
         path_edges = tuple(n for p in paths for n in p)
         out, own = _query_ends(network, plan, prefix)
@@ -513,5 +546,6 @@ def attach_view(
     query_taps = [taps[f"view:{q.name}:now:tap"] for q in queries if q.now_slot is not None]
     return LiveView(
         network, layout, board, watched, query_taps, host=host, port=port, rate_hz=rate_hz,
-        style=style, sensor_info=sensor_info, priority=priority,
+        style=style, sensor_info=sensor_info, priority=priority, filters=filters,
+        switches=switches,
     )  # fmt: skip

@@ -7,8 +7,10 @@ and rings the taps wrote. Nothing here holds the dataflow process's interpreter 
 dataflow and the view share only memory and a pipe. Messages on the pipe:
 
 * to the view: ``("stats", rejections, offsets_ms)`` (a few times a second, when they
-  changed), ``("set", {name: value})`` (the Python API's controls), ``("report",)`` (what the
-  page shows, :meth:`LiveScene.report`), ``("stop",)``;
+  changed), ``("attributes", dict)`` (measured attributes and the queries' paths, every 2 s
+  when they changed: :mod:`trackflow.viewer.attributes_panel`), ``("set", {name: value})``
+  (the Python API's controls), ``("report",)`` (what the page shows,
+  :meth:`LiveScene.report`), ``("stop",)``;
 * from the view: ``("ready", url)`` or ``("failed", message)`` once, ``("offset", seconds)``
   when the prediction slider moves (the dataflow process moves its prediction samplers),
   ``("report", dict)`` in answer to a report request.
@@ -99,6 +101,8 @@ def main(conn) -> None:
                 break
             if msg[0] == "stats":
                 scene.rejections, scene.offsets_ms = msg[1], msg[2]
+            elif msg[0] == "attributes":
+                scene.attributes = msg[1]
             elif msg[0] == "set":
                 scene.apply(**msg[1])
             elif msg[0] == "report":

@@ -18,6 +18,7 @@ from collections import deque
 
 import numpy as np
 
+from .attributes_panel import render_attributes
 from .batch import HIDDEN, BatchDrawing, BodyFrame
 from .board import Board, BoardPose
 from .camera import body_glyph_points
@@ -65,6 +66,8 @@ class LiveScene:
         self.monitor = EdgeMonitor(layout, board)
         self.rejections: dict[str, dict[str, int]] = {}
         self.offsets_ms: dict[str, float] = {}
+        #: measured attributes and queries' paths from the main process (attributes_panel)
+        self.attributes: dict | None = None
         self.frames_sent = 0
         self.paused = False
         self.show_sensors = True
@@ -572,7 +575,7 @@ class LiveScene:
 
     def _update_panel(self, now_ns: int) -> None:
         st = self.monitor.statuses(now_ns, self.rejections, self.offsets_ms, self.selected_query)
-        html = render_panel(self.layout.frames, st)
+        html = render_panel(self.layout.frames, st) + render_attributes(self.attributes)
         if html != self._panel_html:
             self._panel_html = html
             self.panel.content = html
