@@ -52,7 +52,8 @@ def test_the_panel_shows_measured_beside_declared_and_marks_what_is_far():
         "opti": (SimpleNamespace(measured=_sensor(120.0, 1.0, 2)), g.edge("opti")),
     }
     events = [SwitchEvent(5_000_000_000, 0, 1, "sensor art: no data for 103 ms")]
-    data = gather(filters, {"head_q": _Switch(events)}, {"opti": 15.0})
+    estimate = {"a": "art", "b": "opti", "offset_ms": 0.05, "sigma_ms": 0.01}
+    data = gather(filters, {"head_q": _Switch(events)}, {"opti": 15.0}, {"opti": estimate})
     art, opti = data["attributes"]["art"], data["attributes"]["opti"]
     assert abs(art["measured"]["rate_hz"] - 60.0) < 0.1 and art["far"] == {}
     assert abs(art["measured"]["latency_ms"] - 5.0) < 1e-6
@@ -65,7 +66,8 @@ def test_the_panel_shows_measured_beside_declared_and_marks_what_is_far():
     far_cell = re.search(rf'<td style="color:{FAR_COLOUR}" title="([^"]*)">120.0 / 240.0</td>',
                          rows["opti"])  # fmt: skip
     assert far_cell is not None and "declared" in far_cell.group(1), rows["opti"]
-    assert "+15.0 ms" in rows["opti"] and rows["art"].endswith("<td>-</td>")
+    assert "<td>+15.0 ms; art - opti: +0.05 &plusmn; 0.01 ms</td>" in rows["opti"]
+    assert rows["art"].endswith("<td>-</td>")
     assert "query head_q</b>: path 1" in html and "0 &rarr; 1: sensor art: no data" in html
 
 

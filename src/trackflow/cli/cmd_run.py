@@ -84,6 +84,11 @@ def run(args) -> int:
 
     views: list = []
     offsets = _online_spec(args, setup)
+    if offsets is not None:  # made here so the view can show its estimates
+        from ..trackers.online_offsets import OnlineOffsets, offsets_log_path
+
+        log = None if args.record is None else offsets_log_path(args.record)
+        offsets = OnlineOffsets(setup, offsets, log)
 
     def on_network(net, plan, inputs) -> None:
         if args.view:
@@ -91,7 +96,7 @@ def run(args) -> int:
 
             views.append(
                 attach_view(net, setup, {plan.query.name: (plan, "")}, host=args.view_host,
-                            port=args.view_port, sensor_info=_sensor_info(inputs),
+                            port=args.view_port, sensor_info=_sensor_info(inputs, offsets),
                             anchor=args.view_anchor)
             )  # fmt: skip
             print(f"view: {views[0].url}", file=sys.stderr, flush=True)
@@ -192,23 +197,29 @@ def _stop_on_signals(stop: threading.Event, stopped_by: list[str]):
     return on_stop_signals(handler)
 
 
-def _sensor_info(inputs):
+def _sensor_info(inputs, offsets=None):
     """What the view's graph panel shows of each live sensor beyond the network: the
-    tracker's counted rejections, its measured clock offset and the online delay correction
-    applied to it (``viewer.SensorInfo``)."""
+    tracker's counted rejections, its measured clock offset, and with online offsets
+    (``offsets``) the correction applied to it and its pair's newest estimate
+    (``viewer.SensorInfo``)."""
     import time
 
     bodies = [(inp, b) for inp in inputs for b in inp.bodies]
 
     def info() -> dict[str, dict]:
         now, out = time.time_ns(), {}
-        for inp, b in bodies:
+        for _, b in bodies:
             try:
                 s = b.status.summary(now, b.spec.stale_s)
             except RuntimeError:  # a counter changed while being read: next time
                 continue
-            out[b.name] = {"rejections": s["rejections"], "offset_ms": s["clock_offset_ms"],
-                           "correction_ms": inp.shift_ns * 1e-6}  # fmt: skip
+            out[b.name] = {"rejections": s["rejections"], "offset_ms": s["clock_offset_ms"]}
+        if offsets is not None:
+            latest = offsets.latest()
+            for inp, b in bodies:
+                if b.name in out:
+                    out[b.name]["correction_ms"] = inp.shift_ns * 1e-6
+                    out[b.name]["online"] = latest.get(b.name)
         return out
 
     return info

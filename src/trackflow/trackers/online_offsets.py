@@ -90,6 +90,7 @@ class OnlineOffsets:
         self.events: list[dict] = []
         self._lines: list[str] = []
         self._lock = threading.Lock()  # the lines: made on two threads, taken on a third
+        self._latest: dict[str, dict] = {}  # sensor -> the newest estimate of a pair of it
         self._input_of: dict = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -125,6 +126,9 @@ class OnlineOffsets:
         out = [self._estimate(est) for est in self.estimators]
         with self._lock:
             self._lines += [f"online offset {offset_text(r)}" for r in out]
+            for r in out:
+                if "offset_ms" in r:
+                    self._latest[r["a"]] = self._latest[r["b"]] = r
         if self.spec.apply and self.reference is not None:
             self._apply(out)
         return out
@@ -187,6 +191,12 @@ class OnlineOffsets:
         if self._log is not None:
             self._log.write(json.dumps(event) + "\n")
             self._log.flush()
+
+    def latest(self) -> dict[str, dict]:
+        """Each paired sensor's newest estimate (of one of its pairs): ``{"a", "b",
+        "offset_ms", "sigma_ms", "span_s", "peak", "applied_ms"}`` (for a view)."""
+        with self._lock:
+            return dict(self._latest)
 
     def new_lines(self) -> list[str]:
         """The status lines since the last call (estimates and corrections)."""

@@ -595,7 +595,7 @@ def run_live(
     stop: threading.Event | None = None,
     history_s: float = 1.0,
     on_network: Callable[[Network, Plan, list[LiveInput]], object] | None = None,
-    online_offsets: OnlineOffsetSpec | None = None,
+    online_offsets: OnlineOffsetSpec | OnlineOffsets | None = None,
 ) -> RunResult:
     """Run the setup live until ``duration_s`` passes, ``stop`` is set or Ctrl-C.
 
@@ -622,10 +622,12 @@ def run_live(
         and the live inputs (their :attr:`LiveInput.bodies` carry each sensor's status) before
         the trackers are listened to: the place to add push consumers, such as a browser view
         (``trackflow run --view``). Each sensor's source is the component named like its edge.
-    online_offsets : OnlineOffsetSpec, optional
+    online_offsets : OnlineOffsetSpec or OnlineOffsets, optional
         Estimate (and with ``apply``, correct) the relative delays of the trackers that see
         one body while running (:mod:`trackflow.trackers.online_offsets`); default: the
-        setup's ``online_offsets:`` block. Corrections go to ``out.offsets.jsonl``.
+        setup's ``online_offsets:`` block. Corrections go to ``out.offsets.jsonl``. An
+        :class:`OnlineOffsets` made by the caller (to show its estimates while the run goes
+        on) is attached and closed by the run.
     """
     if query is None:
         push = [n for n, q in setup.queries.items() if q.mode == "push" and q.rate_hz]
@@ -659,10 +661,12 @@ def run_live(
         if on_network is not None:
             on_network(net, served.plan, inputs)
         spec = setup.online_offsets if online_offsets is None else online_offsets
-        if spec is not None:
-            offsets = OnlineOffsets(
-                setup, spec, None if record is None else offsets_log_path(record)
-            )
+        if isinstance(spec, OnlineOffsets):
+            offsets = spec
+        elif spec is not None:
+            log_path = None if record is None else offsets_log_path(record)
+            offsets = OnlineOffsets(setup, spec, log_path)
+        if offsets is not None:
             offsets.attach(net, inputs)
         writers = _writers(setup, edges, record)
         delivery = LiveSources(sources)

@@ -28,7 +28,9 @@ _ROWS = (  # (key, heading, unit, digits)
 )
 
 
-def gather(filters: dict, switches: dict, corrections: dict | None = None) -> dict:
+def gather(
+    filters: dict, switches: dict, corrections: dict | None = None, online: dict | None = None
+) -> dict:
     """The panel's data, plain (it crosses a pipe).
 
     Parameters
@@ -41,11 +43,15 @@ def gather(filters: dict, switches: dict, corrections: dict | None = None) -> di
         paths).
     corrections : dict, optional
         Sensor name -> the online delay correction applied to its tracker [ms].
+    online : dict, optional
+        Sensor name -> the newest online estimate of a pair of it (``a``, ``b``,
+        ``offset_ms``, ``sigma_ms``; ``OnlineOffsets.latest`` of a live run).
     """
     attrs = {}
     for name, (kf, edge) in filters.items():
         s = kf.measured.summary(edge)
         s["correction_ms"] = (corrections or {}).get(name)
+        s["online"] = (online or {}).get(name)
         attrs[name] = s
     paths = {q: sw.summary(last=3) for q, sw in switches.items()}
     return {"attributes": attrs, "switches": paths}
@@ -62,6 +68,18 @@ def _cell(measured, declared, digits: int, far: str | None) -> str:
     return f"<td{style}{title}>{text} / {decl}</td>"
 
 
+def _online(correction_ms, estimate) -> str:
+    """The online delay column: the correction applied, and the pair's newest estimate (on
+    the corrected times: the residual)."""
+    parts = [] if correction_ms is None else [f"{correction_ms:+.1f} ms"]
+    if estimate:
+        parts.append(
+            f"{html.escape(estimate['a'])} - {html.escape(estimate['b'])}: "
+            f"{estimate['offset_ms']:+.2f} &plusmn; {estimate['sigma_ms']:.2f} ms"
+        )
+    return "; ".join(parts) or "-"
+
+
 def render_attributes(data: dict | None) -> str:
     """HTML of :func:`gather`'s data ("" when there is none yet)."""
     if not data:
@@ -73,7 +91,7 @@ def render_attributes(data: dict | None) -> str:
         out.append(
             '<div style="font-size:11px;margin-top:6px"><b>measured / declared</b></div>'
             '<table style="font-size:11px;border-collapse:collapse;width:100%">'
-            f"<tr><th align=left>sensor</th>{head}<th>NIS</th><th>correction</th></tr>"
+            f"<tr><th align=left>sensor</th>{head}<th>NIS</th><th>online delay</th></tr>"
         )
         for name, s in attrs.items():
             m, d, far = s["measured"], s["declared"], s.get("far", {})
@@ -81,11 +99,10 @@ def render_attributes(data: dict | None) -> str:
                 _cell(m.get(k), d.get(k), digits, far.get(k)) for k, _, _, digits in _ROWS
             )
             nis = m.get("nis_mean")
-            corr = s.get("correction_ms")
             out.append(
                 f"<tr><td>{html.escape(name)}</td>{cells}"
                 + _cell(nis, 6.0, 1, far.get("nis_mean"))
-                + f"<td>{'-' if corr is None else f'{corr:+.1f} ms'}</td></tr>"
+                + f"<td>{_online(s.get('correction_ms'), s.get('online'))}</td></tr>"
             )
         out.append("</table>")
     for q, sw in (data.get("switches") or {}).items():

@@ -174,12 +174,14 @@ class LiveView:
         """The sensors' measured and declared attributes, their trackers' online delay
         corrections and the queries' paths and switches
         (:func:`trackflow.viewer.attributes_panel.gather`)."""
-        corrections = {}
+        corrections, online = {}, {}
         if self.sensor_info is not None:
             for name, info in self.sensor_info().items():
                 if info.get("correction_ms") is not None:
                     corrections[name] = float(info["correction_ms"])
-        return gather(self._filters, self._switches, corrections)
+                if info.get("online"):
+                    online[name] = info["online"]
+        return gather(self._filters, self._switches, corrections, online)
 
     def _feed(self) -> None:
         """Every 100 ms the network clock to the board; every 500 ms the rejections, every
