@@ -427,6 +427,9 @@ EXEMPT = {
     "make test # creates .venv, installs trackflow + dev tools, runs ruff and the test suite": (
         "runs this suite"
     ),
+    "trackflow view --realm demo --connect tcp/127.0.0.1:7451 --connect tcp/127.0.0.1:7453": (
+        f"{_VIEW}, beside the running demo realm; tests/distributed/test_realm_view.py"
+    ),
     ".venv/bin/trackflow view examples/demo_setup.yaml # open http://127.0.0.1:8080": (
         f"{_VIEW}; tests/viewer/test_views.py::test_a_setup_runs_live_on_the_wall_clock"
     ),

@@ -40,21 +40,11 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ..distributed.realm_status import realm_status, status_text
-    from ..errors import InputError
+    from ..distributed.realm_status import observer_config, realm_status, status_text
     from ..optional import require
 
     zenoh = require("zenoh", extra="distributed", feature="trackflow status")
-    if args.zenoh_config is not None:
-        conf = zenoh.Config.from_file(str(args.zenoh_config))
-    else:
-        if not args.connect:
-            raise InputError("give --connect ENDPOINT (an agent's) or --zenoh-config FILE")
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("listen/endpoints", "[]")
-        conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-        conf.insert_json5("scouting/multicast/enabled", "false")
+    conf = observer_config(zenoh, args.connect, args.zenoh_config)
     with zenoh.open(conf) as session:
         while True:
             st = realm_status(session, args.realm, args.timeout)

@@ -18,7 +18,7 @@ def register(subparsers) -> argparse.ArgumentParser:
         "timeline. With --snapshot nothing is served for long: one frame is rendered to PNG "
         "through headless Chromium and the command exits.",
     )
-    add_input(p, "target")
+    add_input(p, "target", nargs="?")
     p.add_argument(
         "more",
         nargs="*",
@@ -53,6 +53,28 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="recording: the PoseTool page (hand-tune the Kalman predictor beside the "
         "automatic tuning; --offset-ms sets the starting horizon)",
     )
+    realm = p.add_argument_group("realm (a distributed realm, read-only; no target file)")
+    realm.add_argument(
+        "--realm",
+        default=None,
+        metavar="NAME",
+        help="show the running realm NAME: every agent, its sensors and queries, the union "
+        "graph, the queries' paths, re-plans and switches, and the answers (docs/viewer.md)",
+    )
+    realm.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="--realm: a Zenoh endpoint of an agent (tcp/127.0.0.1:7447; repeatable)",
+    )
+    realm.add_argument(
+        "--zenoh-config",
+        type=Path,
+        default=None,
+        help="--realm: a complete Zenoh configuration (a secure realm: an observer's from "
+        "realm init)",
+    )
     p.add_argument("--width", type=int, default=1280, help="snapshot width [px]")
     p.add_argument("--height", type=int, default=800, help="snapshot height [px]")
     p.set_defaults(func=run)
@@ -63,6 +85,17 @@ def run(args) -> int:
     from ..distributed.realm_setup import is_agent_file
     from ..errors import InputError
     from ..viewer import ViewOptions, is_setup, serve
+
+    if args.realm is not None:
+        if args.target is not None or args.more:
+            raise InputError("--realm views a running realm: give no file")
+        from ._realm_view import view_realm
+
+        return view_realm(args)
+    if args.target is None:
+        raise InputError("give a recording, a setup or agent files, or --realm NAME")
+    if args.connect or args.zenoh_config is not None:
+        raise InputError("--connect and --zenoh-config go with --realm")
 
     opts = ViewOptions(
         host=args.host,

@@ -568,6 +568,7 @@ class Agent:
     @staticmethod
     def _event(reason: str, t_event_ns: int, st: QueryState) -> dict:
         return {
+            "t_ns": time.time_ns(),  # when it happened (host clock), for a realm's view
             "reason": reason,
             "state": st.state,
             "detail": st.reason,

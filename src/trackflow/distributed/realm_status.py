@@ -15,7 +15,34 @@ import json
 
 from .discovery import realm_key
 
-__all__ = ["realm_status", "status_text"]
+__all__ = ["observer_config", "realm_status", "status_text"]
+
+
+def observer_config(zenoh, connect: list[str], zenoh_config=None):
+    """The Zenoh configuration of a read-only observer of a realm: ``zenoh_config`` (a
+    complete file, such as a secure realm's observer configuration from ``trackflow realm
+    init``) or a peer that listens nowhere and connects to the agents' ``connect``
+    endpoints, without multicast scouting.
+
+    Raises
+    ------
+    InputError
+        Neither given.
+    """
+    import json
+
+    from ..errors import InputError
+
+    if zenoh_config is not None:
+        return zenoh.Config.from_file(str(zenoh_config))
+    if not connect:
+        raise InputError("give --connect ENDPOINT (an agent's) or --zenoh-config FILE")
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
 
 
 def realm_status(session, realm: str, timeout_s: float = 2.0) -> dict[str, dict]:
