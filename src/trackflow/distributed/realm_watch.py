@@ -7,8 +7,9 @@ nothing (no token, queryable or publisher: an observer). It keeps, behind one lo
   advertises live (``alive/<agent>/<edge>`` tokens), as Zenoh reports them;
 * each agent's fragment of the graph (its edges, fetched once per join): their union is the
   realm's graph;
-* each agent's status (its ``status/<name>`` queryable, :func:`realm_status`), asked every
-  ``period_s`` on a thread of its own: inputs, measured attributes, queries with their paths,
+* each agent's status (its ``status/<name>`` queryable, asked of every agent at once,
+  :func:`~trackflow.distributed.realm_status.agent_statuses`) every ``period_s`` on a thread
+  of its own: inputs, measured attributes, queries with their paths,
   switches and re-plans;
 * the newest answer of every query (``result/<agent>/<query>``, decoded with
   :func:`trackflow.distributed.wire.decode`; a message that does not decode is a counted
@@ -28,7 +29,7 @@ from collections import deque
 
 from .discovery import realm_key
 from .fragment import parse_fragment
-from .realm_status import realm_status
+from .realm_status import agent_statuses
 from .wire import Rejections, WireError, decode
 
 __all__ = ["RealmWatch"]
@@ -139,11 +140,16 @@ class RealmWatch:
     def poll(self) -> None:
         """Ask every agent's status and the fragments of agents not fetched yet (what the
         thread does every ``period_s``)."""
-        statuses = realm_status(self.session, self.realm, self.timeout_s)
         with self._lock:
-            missing = [a for a in self._alive if a not in self._fragments]
-        for agent in missing:
-            self._fetch_fragment(agent)
+            alive = sorted(self._alive)
+            missing = [a for a in alive if a not in self._fragments]
+        fragments = {  # asked before the statuses are waited for: both at once
+            a: self.session.get(realm_key(self.realm, "fragment", a), timeout=self.timeout_s)
+            for a in missing
+        }
+        statuses = agent_statuses(self.session, self.realm, alive, self.timeout_s)
+        for agent, replies in fragments.items():
+            self._take_fragment(agent, replies)
         new = []
         for agent, st in statuses.items():
             for q, qs in (st.get("queries") or {}).items():
@@ -164,9 +170,8 @@ class RealmWatch:
             for t_ns, text in sorted(new):
                 self._events.append({"t_ns": int(t_ns), "text": text})
 
-    def _fetch_fragment(self, agent: str) -> None:
-        for reply in self.session.get(realm_key(self.realm, "fragment", agent),
-                                      timeout=self.timeout_s):  # fmt: skip
+    def _take_fragment(self, agent: str, replies) -> None:
+        for reply in replies:
             if reply.ok is None:
                 continue
             try:

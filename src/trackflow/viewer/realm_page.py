@@ -121,6 +121,10 @@ class RealmPage:
         room scale).
     """
 
+    #: an answer is drawn at most this often [s] (the page is a monitor: software WebGL on a
+    #: loaded machine falls behind a 60 Hz query, and the panel's text waits behind it)
+    answer_period_s = 0.5
+
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, realm: str = "",
                  magnify: float = 100.0):  # fmt: skip
         self.view = ViewServer(host, port, title=f"trackflow realm {realm}")
@@ -128,6 +132,8 @@ class RealmPage:
         self.panel = self.view.gui.add_html("")
         self._html = ""
         self._drawings: dict[str, PoseDrawing] = {}
+        self._drawn: dict[str, tuple] = {}  # answer -> (its time, when it was drawn)
+        self._status = ""
         self._framed = False
 
     @property
@@ -140,7 +146,12 @@ class RealmPage:
         if text != self._html:
             self._html = text
             self.panel.content = text
+        now = time.monotonic()
         for key, a in sorted((snap.get("answers") or {}).items()):
+            last = self._drawn.get(key)
+            if last is not None and (last[0] == a["t_ns"] or now - last[1] < self.answer_period_s):
+                continue  # nothing new, or drawn recently: each drawing is a dozen messages
+            self._drawn[key] = (a["t_ns"], now)
             d = self._drawings.get(key)
             if d is None:
                 colour = PALETTE[len(self._drawings) % len(PALETTE)]
@@ -155,7 +166,10 @@ class RealmPage:
                 self._framed = True
         agents = snap.get("agents") or {}
         alive = sum(1 for a in agents.values() if a.get("alive"))
-        self.view.set_status(f"realm {snap.get('realm')}: {alive} agent(s) alive")
+        status = f"realm {snap.get('realm')}: {alive} agent(s) alive"
+        if status != self._status:
+            self._status = status
+            self.view.set_status(status)
 
     def close(self) -> None:
         self.view.close()
