@@ -123,14 +123,18 @@ class RealmPage:
 
     #: an answer is drawn at most this often [s] (the page is a monitor: software WebGL on a
     #: loaded machine falls behind a 60 Hz query, and the panel's text waits behind it)
-    answer_period_s = 0.5
+    answer_period_s = 1.0
+    #: the panel's moving figures are sent at most this often [s] (events at once)
+    panel_period_s = 2.0
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, realm: str = "",
                  magnify: float = 100.0):  # fmt: skip
         self.view = ViewServer(host, port, title=f"trackflow realm {realm}")
-        self.style = Style(magnify=float(magnify), axes_length=0.1)
+        self.style = Style(magnify=float(magnify), axes_length=0.1, show_orientation=False)
         self.panel = self.view.gui.add_html("")
         self._html = ""
+        self._change: tuple = ()
+        self._html_at = 0.0
         self._drawings: dict[str, PoseDrawing] = {}
         self._drawn: dict[str, tuple] = {}  # answer -> (its time, when it was drawn)
         self._status = ""
@@ -143,8 +147,17 @@ class RealmPage:
     def show(self, snap: dict) -> None:
         """Draw a snapshot (:meth:`RealmWatch.snapshot`)."""
         text = realm_panel(snap)
-        if text != self._html:
-            self._html = text
+        now = time.monotonic()
+        # a change of the realm (an event, an agent or sensor up or down) goes out at once;
+        # the figures that move all the time (rates, answers published) every few seconds:
+        # each update makes the page lay the whole panel out again
+        alive = sorted(a for a, st in (snap.get("agents") or {}).items() if st.get("alive"))
+        live = [e["live"] for e in snap.get("edges") or ()]
+        change = (len(snap.get("events") or ()), *live, *alive)
+        if text != self._html and (
+            change != self._change or now - self._html_at >= self.panel_period_s
+        ):
+            self._html, self._change, self._html_at = text, change, now
             self.panel.content = text
         now = time.monotonic()
         for key, a in sorted((snap.get("answers") or {}).items()):
