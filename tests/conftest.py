@@ -81,3 +81,31 @@ def browser(request):
     size = (getattr(mod, "W", 1024), getattr(mod, "H", 640))
     with Browser(*size, timeout_s=getattr(mod, "BROWSER_TIMEOUT_S", 90)) as b:
         yield b
+
+
+@pytest.fixture(scope="module")
+def server():
+    """The module's viser server for the views its tests draw in this process (one page
+    keeps its WebGL context across views: ``ViewServer.clear``)."""
+    from trackflow.viewer import ViewServer
+
+    view = ViewServer(port=0)
+    yield view
+    view.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser, server):
+    """The module's one page on ``server``, once it reported its camera (tests move it);
+    bounded by the module's ``BROWSER_TIMEOUT_S`` (default 90 s)."""
+    import time
+
+    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
+    server.set_status("page ready")
+    p = browser.open(server.url, "page ready")
+    end = time.monotonic() + browser.timeout_ms / 1e3
+    while not server.has_browser_camera:
+        assert time.monotonic() < end, "the page did not report its camera"
+        time.sleep(0.1)
+    yield p
+    p.close()

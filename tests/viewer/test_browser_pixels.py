@@ -9,8 +9,6 @@ browser's timeout.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -28,7 +26,6 @@ from trackflow.viewer import (
     RecordingTrack,
     RecordingView,
     Style,
-    ViewServer,
     attach_view,
     edge_motion,
 )
@@ -36,28 +33,6 @@ from trackflow.viewer import (
 pytestmark = pytest.mark.slow
 
 W, H = 900, 600
-
-
-@pytest.fixture(scope="module")
-def server():
-    """The module's viser server for the views drawn in this process."""
-    view = ViewServer(port=0)
-    yield view
-    view.close()
-
-
-@pytest.fixture(scope="module")
-def page(browser, server):
-    """The module's page on ``server``, once it reported its camera (tests move it)."""
-    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
-    server.set_status("page ready")
-    p = browser.open(server.url, "page ready")
-    end = time.monotonic() + 90
-    while not server.has_browser_camera:
-        assert time.monotonic() < end, "the page did not report its camera"
-        time.sleep(0.1)
-    yield p
-    p.close()
 
 
 def _mask(img: np.ndarray, rgb, tol: int = 40) -> np.ndarray:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import time
 
 import numpy as np
 import pytest
@@ -29,7 +28,7 @@ from _shots import bbox_fraction, changed, doc_shot, outside, panel_box
 
 from trackflow.io import PoseStream, read_stream
 from trackflow.math import quat_exp
-from trackflow.viewer import RecordingTrack, RecordingView, ViewServer
+from trackflow.viewer import RecordingTrack, RecordingView
 
 pytestmark = pytest.mark.slow
 
@@ -76,28 +75,6 @@ REPRESENTATIVE = [
     "quest_ur5e/optitrack_unity_example/opti.csv",
 ]
 CHOSEN = RECORDINGS if os.environ.get("TRACKFLOW_ALL_RECORDINGS") else REPRESENTATIVE
-
-
-@pytest.fixture(scope="module")
-def server():
-    """The module's viser server: every test shows its view on it."""
-    view = ViewServer(port=0)
-    yield view
-    view.close()
-
-
-@pytest.fixture(scope="module")
-def page(browser, server):
-    """The module's one page, once it reported its camera (the views move it)."""
-    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
-    server.set_status("page ready")
-    p = browser.open(server.url, "page ready")
-    end = time.monotonic() + BROWSER_TIMEOUT_S
-    while not server.has_browser_camera:
-        assert time.monotonic() < end, "the page did not report its camera"
-        time.sleep(0.1)
-    yield p
-    p.close()
 
 
 _STEP = itertools.count()
