@@ -19,12 +19,24 @@ from ..graph import Edge, SpatialRelationshipGraph
 from ..timesync import RoundTripOffset
 from .fragment import fragment_stale, parse_fragment
 
-__all__ = ["Discovery", "RemoteAgent", "realm_key"]
+__all__ = ["Discovery", "RemoteAgent", "alive_token", "realm_key"]
 
 
 def realm_key(realm: str, *parts: str) -> str:
     """``trackflow/<realm>/<parts...>``: a key of the realm's key space."""
     return "/".join(("trackflow", realm, *parts))
+
+
+def alive_token(sample) -> tuple[str, str, bool] | None:
+    """``(agent, edge, gone)`` of a liveliness sample on ``trackflow/<realm>/alive/<agent>/<edge>``
+    (``gone``: the token was undeclared, or its agent's session ended); ``None`` for another
+    key."""
+    import zenoh
+
+    parts = str(sample.key_expr).split("/")
+    if len(parts) != 5:
+        return None
+    return parts[3], parts[4], sample.kind == zenoh.SampleKind.DELETE
 
 
 @dataclass
@@ -136,17 +148,14 @@ class Discovery:
 
     # -- events ---------------------------------------------------------------------------------
     def _on_liveliness(self, sample) -> None:
-        import zenoh
-
-        parts = str(sample.key_expr).split("/")
-        if len(parts) != 5:
+        token = alive_token(sample)
+        if token is None:
             self.rejections.add("malformed liveliness key")
             return
-        agent, edge = parts[3], parts[4]
+        agent, edge, gone = token
         if agent == self.name:
             return
-        kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
-        self._work.put((kind, agent, edge, time.perf_counter_ns()))
+        self._work.put(("delete" if gone else "put", agent, edge, time.perf_counter_ns()))
 
     def _fetch_fragment(self, agent: str) -> RemoteAgent | None:
         replies = self.session.get(realm_key(self.realm, "fragment", agent), timeout=2.0)

@@ -27,7 +27,7 @@ import threading
 import time
 from collections import deque
 
-from .discovery import realm_key
+from .discovery import alive_token, realm_key
 from .fragment import parse_fragment
 from .realm_status import agent_statuses
 from .wire import Rejections, WireError, decode
@@ -79,14 +79,12 @@ class RealmWatch:
             self._event(f"agent {name} joined")
 
     def _on_edge(self, sample) -> None:
-        import zenoh
-
-        parts = str(sample.key_expr).split("/")
-        if len(parts) != 5:
+        token = alive_token(sample)
+        if token is None:
             self.rejections.add("malformed liveliness key")
             return
-        agent, edge = parts[3], parts[4]
-        if sample.kind == zenoh.SampleKind.DELETE:
+        agent, edge, gone = token
+        if gone:
             with self._lock:
                 if self._live_edges.get(edge) == agent:
                     del self._live_edges[edge]
