@@ -31,6 +31,7 @@ from .legend import BodyLine, live_legend, sigma_sizes
 from .placement import place_frames, to_world
 from .scene import GREY, PALETTE, Style
 from .server import SECONDS_AXIS, ViewServer
+from .time_plots import nis_data, nis_series
 
 __all__ = ["IDLE_RATE_HZ", "LiveScene"]
 
@@ -181,9 +182,13 @@ class LiveScene:
                     ("pos", "position sigma [mm]", "#c0c"),
                     ("ori", "orientation sigma [deg]", "#08c"),
                     ("lat", "latency [ms]", "#d60"),
-                    ("nis", "NIS", "#333"),
                 )
             }
+            self.plots["nis"] = gui.add_uplot(
+                scales=SECONDS_AXIS, data=nis_data(np.zeros(2), np.zeros(2)),
+                series=nis_series(), title="NIS (the band: 95 % of a consistent filter's)",
+                aspect=2.5,
+            )  # fmt: skip
 
     # -- controls --------------------------------------------------------------------------------
     def _offset_moved(self, offset_s: float) -> None:
@@ -614,7 +619,7 @@ class LiveScene:
             self.plots["ori"].data = (s[:, 0], s[:, 2])
         ts = t * 1e-9
         self.plots["lat"].data = (ts, lat * 1e-6)
-        self.plots["nis"].data = (ts, np.nan_to_num(nis))
+        self.plots["nis"].data = nis_data(ts, nis)
 
     def report(self) -> dict:
         """What the page shows, as plain data (tests and tools): the anchor, the labels and

@@ -26,6 +26,7 @@ from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
 from .server import SECONDS_AXIS, ViewServer
+from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
 
@@ -251,19 +252,22 @@ class RecordingView:
     def _plots(self, pos_mm: np.ndarray, ori_deg: np.ndarray) -> None:
         gui, t = self.view.gui, self.track.t
         step = max(1, len(t) // 2000)  # a plot needs no more points than pixels
-        nis = np.nan_to_num(self.track.nis, nan=0.0)
         with gui.add_folder("Time plots", expand_by_default=False):
             for title, y, unit in (
                 ("position sigma (largest axis)", pos_mm, "mm"),
                 ("orientation sigma (largest axis)", ori_deg, "deg"),
-                ("NIS", nis, ""),
             ):
                 gui.add_uplot(
-                scales=SECONDS_AXIS,
+                    scales=SECONDS_AXIS,
                     data=(t[::step], np.asarray(y[::step], float)),
                     series=({"label": "t [s]"}, {"label": f"{title} {unit}", "stroke": "#c0c"}),
                     title=title, aspect=2.0,
                 )  # fmt: skip
+            gui.add_uplot(
+                scales=SECONDS_AXIS, data=nis_data(t[::step], self.track.nis[::step]),
+                series=nis_series("#c0c"), title="NIS (the band: 95 % of a consistent filter's)",
+                aspect=2.0,
+            )  # fmt: skip
 
     def _restyle(self) -> None:
         self.style.sigma = float(self.sigma.value)
