@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -204,5 +205,33 @@ def test_the_prediction_ghost_keeps_to_its_own_scale(browser, page, server, room
         view.set_offset(0.0)
         view.set_sigma(3)
         _doc(browser, page, view, "recording_tumvi_room1")
+    finally:
+        view.close()
+
+
+def test_the_save_buttons_send_the_view_as_png_and_the_track_as_csv(browser, page, server):
+    from io import BytesIO
+
+    from PIL import Image
+
+    track = RecordingTrack.from_stream(_circle())
+    view = _show(browser, page, server, track, 1.0)
+    try:
+        with page.expect_download() as got:
+            page.get_by_role("button", name="save CSV").click()
+        csv = Path(got.value.path()).read_text().splitlines()
+        assert got.value.suggested_filename == "world_body.csv"
+        assert csv[0] == "t_s,x_m,y_m,z_m,qx,qy,qz,qw,sigma_pos_mm,sigma_ori_deg,nis"
+        rows = np.array([[float(v) for v in line.split(",")] for line in csv[1:]])
+        assert rows.shape == (len(track.t), 11)
+        np.testing.assert_allclose(rows[:, 0], track.t, rtol=1e-8, atol=1e-9)
+        np.testing.assert_allclose(rows[:, 1:4], track.filtered.position, rtol=1e-8, atol=1e-12)
+        with page.expect_download() as got:
+            page.get_by_role("button", name="save PNG").click()
+        img = np.asarray(Image.open(BytesIO(Path(got.value.path()).read_bytes())).convert("RGB"))
+        assert got.value.suggested_filename == "world_body.png"
+        assert img.shape == (800, 1280, 3)
+        # the 3D view as the page draws it: the white floor with its grey grid and the body
+        assert np.ptp(img.reshape(-1, 3), axis=0).max() > 100 and (img > 200).all(-1).mean() > 0.3
     finally:
         view.close()

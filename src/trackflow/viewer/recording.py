@@ -22,6 +22,7 @@ from ..io import PoseStream
 from ..math import Pose, UncertainPose
 from .camera import body_glyph_points
 from .decor import add_floor_grid, grid_spec
+from .export import csv_bytes, save_render
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
@@ -88,6 +89,18 @@ class RecordingTrack:
                 self._predictions.clear()
             self._predictions[key] = res.predictions[key]
         return self._predictions[key]
+
+    def csv(self) -> bytes:
+        """The filtered track as CSV: time [s] from the first sample, position [m],
+        quaternion (x, y, z, w), the largest position and orientation sigma [mm, deg] and
+        the NIS (NaN where none was formed), one row per sample."""
+        f = self.filtered
+        pos_mm, ori_deg = self.sigmas()
+        header = ["t_s", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "sigma_pos_mm",
+                  "sigma_ori_deg", "nis"]  # fmt: skip
+        cols = [self.t, *np.asarray(f.position).T, *np.asarray(f.quaternion).T, pos_mm,
+                ori_deg, self.nis]  # fmt: skip
+        return csv_bytes(header, cols)
 
     def sigmas(self) -> tuple[np.ndarray, np.ndarray]:
         """Largest 1-sigma position semi-axis [mm] and orientation sigma [deg] per sample."""
@@ -229,6 +242,17 @@ class RecordingView:
             reframe = gui.add_button("frame the body")
         with gui.add_folder("Legend"):
             self.legend = gui.add_markdown("")
+        with gui.add_folder("Save"):
+            save_png = gui.add_button("save PNG")
+            save_csv = gui.add_button("save CSV")
+        name = f"{self.track.stream.source}_{self.track.stream.target}"
+        save_png.on_click(
+            lambda e: None if e.client is None else save_render(e.client, f"{name}.png")
+        )
+        save_csv.on_click(
+            lambda e: None if e.client is None else e.client.send_file_download(
+                f"{name}.csv", self.track.csv(), save_immediately=True)
+        )  # fmt: skip
         self.slider.on_update(
             lambda _: None if self._echo else self.show(self.slider.value, from_slider=True)
         )
