@@ -411,6 +411,7 @@ SYNOPSES = {
     "[--command-port P] [--truth truth.tfrec] [--outage A:B ...] [--freeze A:B ...] "
     "[--noise-mm 0] [--noise-deg 0] [--change T:latency_ms=30,noise_mm=2 ...]",
     "trackflow view RECORDING --snapshot out.png --at 12.5 [--offset-ms 100] [--sigma 2]",
+    "trackflow view RECORDING --snapshot out.png --camera 0,-3,2.5 --look-at 0,0,1 --no-panel",
 }
 
 _BENCH = "a benchmark that writes the docs' figures"

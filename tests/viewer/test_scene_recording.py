@@ -235,3 +235,35 @@ def test_the_save_buttons_send_the_view_as_png_and_the_track_as_csv(browser, pag
         assert np.ptp(img.reshape(-1, 3), axis=0).max() > 100 and (img > 200).all(-1).mean() > 0.3
     finally:
         view.close()
+
+
+def test_a_placed_camera_stays_put_and_a_snapshot_page_can_hide_its_panel(browser, page, server):
+    import time
+
+    view = _show(browser, page, server, RecordingTrack.from_stream(_circle()), 1.0)
+    try:
+        position, look_at = np.array([0.0, -3.0, 2.5]), np.array([0.0, 0.0, 1.0])
+        view.place_camera(position, look_at, move_browsers=True)
+        end = time.monotonic() + BROWSER_TIMEOUT_S  # the page reports its camera back
+
+        def placed() -> bool:
+            return bool(np.linalg.norm(server.camera().position - position) < 1e-3)
+
+        while not placed():
+            assert time.monotonic() < end, server.camera()
+            time.sleep(0.1)
+        view.show(3.0)  # the body moved on; the camera is not following it
+        browser.wait_text(page, f"t = {view.t_s:.3f} s /")
+        assert placed(), server.camera()
+        np.testing.assert_allclose(server.looked_at(), look_at, atol=1e-3)
+        # a snapshot's page without the panel: the panel's box is gone from the layout
+        other = browser.open(server.url, f"t = {view.t_s:.3f} s /")
+        try:
+            assert panel_box(other)[2] > panel_box(other)[0]
+            browser.hide_panel(other)
+            x0, y0, x1, y1 = panel_box(other)
+            assert x1 == x0 and y1 == y0, (x0, y0, x1, y1)
+        finally:
+            other.close()
+    finally:
+        view.close()

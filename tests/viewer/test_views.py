@@ -182,6 +182,18 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     bad.write_text("sensors:\n  - {name: a, source: A}\n")
     assert main(["view", str(bad), "--snapshot", str(tmp_path / "y.png")]) == 1
     assert "bad.yaml" in capsys.readouterr().err
+    # a camera is a position and an aim, for a recording's view; no panel is for a snapshot
+    assert main(["view", str(rec), "--camera", "0,1,2"]) == 1
+    assert "--camera and --look-at go together" in capsys.readouterr().err
+    assert main(["view", str(rec), "--no-panel"]) == 1
+    assert "--no-panel applies to --snapshot" in capsys.readouterr().err
+    setup = Path(__file__).resolve().parents[2] / "examples" / "demo_setup.yaml"
+    snap = ["--snapshot", str(tmp_path / "z.png"), "--camera", "0,1,2", "--look-at", "0,0,0"]
+    assert main(["view", str(setup), *snap]) == 1
+    assert "--camera applies to a recording's view" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["view", str(rec), "--camera", "0,1", "--look-at", "0,0,0"])
+    assert "expected X,Y,Z, got '0,1'" in capsys.readouterr().err
 
 
 def test_a_setup_runs_live_on_the_wall_clock(tmp_path):

@@ -38,7 +38,7 @@ def view_realm(args) -> int:
                 if args.snapshot is not None:
                     stop.wait(3.0 if args.at is None else float(args.at))  # the realm appears
                     out = snapshot(page.url, args.snapshot, f"realm {args.realm}",
-                                   args.width, args.height)  # fmt: skip
+                                   args.width, args.height, hide_panel=args.no_panel)  # fmt: skip
                     print(f"snapshot written to {out}")
                 else:
                     stop.wait()  # until Ctrl-C

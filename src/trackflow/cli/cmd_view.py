@@ -75,10 +75,33 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="--realm: a complete Zenoh configuration (a secure realm: an observer's from "
         "realm init)",
     )
+    p.add_argument(
+        "--camera",
+        type=_point,
+        default=None,
+        metavar="X,Y,Z",
+        help="recording: place the camera here [m, the recording's source frame] (with "
+        "--look-at; the body is then not followed)",
+    )
+    p.add_argument(
+        "--look-at", type=_point, default=None, metavar="X,Y,Z", help="with --camera: its aim"
+    )
+    p.add_argument("--no-panel", action="store_true", help="snapshot: without the control panel")
     p.add_argument("--width", type=int, default=1280, help="snapshot width [px]")
     p.add_argument("--height", type=int, default=800, help="snapshot height [px]")
     p.set_defaults(func=run)
     return p
+
+
+def _point(text: str) -> tuple[float, float, float]:
+    """``X,Y,Z`` as three floats (argparse reports a bad one with the option's name)."""
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z, got {text!r}")
+    try:
+        return tuple(float(v) for v in parts)  # type: ignore[return-value]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}") from None
 
 
 def run(args) -> int:
@@ -86,6 +109,12 @@ def run(args) -> int:
     from ..errors import InputError
     from ..viewer import ViewOptions, is_setup, serve
 
+    if (args.camera is None) != (args.look_at is None):
+        raise InputError("--camera and --look-at go together")
+    if args.no_panel and args.snapshot is None:
+        raise InputError("--no-panel applies to --snapshot (the served page keeps its panel)")
+    if args.realm is not None and args.camera is not None:
+        raise InputError("--camera applies to a recording's view, not to --realm")
     if args.realm is not None:
         if args.target is not None or args.more:
             raise InputError("--realm views a running realm: give no file")
@@ -109,6 +138,8 @@ def run(args) -> int:
         posetool=args.posetool,
         magnify=args.magnify,
         anchor=args.anchor,
+        camera=None if args.camera is None else (args.camera, args.look_at),
+        no_panel=args.no_panel,
     )
     target = args.target
     files = [args.target, *args.more]

@@ -37,6 +37,10 @@ class ViewOptions:
     tune_fraction: float = 0.5
     anchor: str | None = None
     repeat: bool = True
+    #: a recording's camera: ``(position, look_at)`` [m, its source frame]; None: framed
+    camera: tuple | None = None
+    #: a snapshot without the control panel
+    no_panel: bool = False
 
 
 def is_setup(path: str | Path) -> bool:
@@ -131,6 +135,10 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
     setup = isinstance(target, Setup) or is_setup(target)
     if opts.anchor is not None and not setup:
         raise InputError("--anchor applies to a setup; a recording is drawn in its source frame")
+    if opts.camera is not None and (setup or opts.posetool):
+        raise InputError(
+            "--camera applies to a recording's view (a setup's view frames its bodies)"
+        )
     if setup:
         if snapshot is not None:
             # data just past the snapshot time, so the network thread ends soon after it
@@ -145,7 +153,7 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
                 at = 3.0 if opts.at_s is None else float(opts.at_s)
                 run.wait_network_time(at, timeout_s=at * 3 + 300)  # a first run compiles kernels
                 run.view.paused = True  # hold this frame while the browser loads
-                return take(run.view.url, snapshot, "live", *size)
+                return take(run.view.url, snapshot, "live", *size, hide_panel=opts.no_panel)
             return _block(run.view.url, run)
         finally:
             run.close()
@@ -169,8 +177,11 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
                 f"--at {at} s is outside the recording (0 to {view.track.duration:.3f} s)"
             )
         view.show(at)
+        if opts.camera is not None:  # the user's camera, kept: the body is not followed
+            view.place_camera(*opts.camera)
         if snapshot is not None:
-            return take(view.url, snapshot, f"t = {view.t_s:.3f} s", *size)
+            text = f"t = {view.t_s:.3f} s"
+            return take(view.url, snapshot, text, *size, hide_panel=opts.no_panel)
         return _block(view.url, view)
     finally:
         view.close()
@@ -187,7 +198,7 @@ def _posetool(stream, opts: ViewOptions, snapshot, size) -> Path | None:
         if snapshot is None:
             return _block(page.url, page)
         rev = page.wait_tuned(timeout_s=600.0)
-        return take(page.url, snapshot, f"revision {rev} ", *size)
+        return take(page.url, snapshot, f"revision {rev} ", *size, hide_panel=opts.no_panel)
     finally:
         page.close()
 

@@ -28,6 +28,8 @@ CHROMIUM_FLAGS = (
 )
 # viser warns about software WebGL in a notification; snapshots hide notifications
 _HIDE_NOTIFICATIONS = "[class*='Notifications-root'] { display: none !important; }"
+# the floating control panel of viser (its Mantine papers)
+_HIDE_PANEL = ".mantine-Paper-root { display: none !important; }"
 
 
 def find_chromium() -> Path:
@@ -109,6 +111,11 @@ class Browser:
             self.wait_text(page, wait_text)
         return page
 
+    @staticmethod
+    def hide_panel(page) -> None:
+        """Hide the page's control panel: the 3D view alone (a snapshot without it)."""
+        page.add_style_tag(content=_HIDE_PANEL)
+
     def wait_text(self, page, text: str) -> None:
         """Wait until ``text`` is shown on the page (a view's status line)."""
         page.wait_for_function("t => document.body.innerText.includes(t)", arg=text)
@@ -169,13 +176,18 @@ def snapshot(
     width: int = 1280,
     height: int = 800,
     timeout_s: float = 90.0,
+    hide_panel: bool = False,
 ) -> Path:
     """Render ``url`` in headless Chromium and write a PNG to ``out``; returns the path.
+    ``hide_panel``: without the control panel (once ``wait_text``, which the panel shows,
+    is there).
 
     Starts its own :class:`Browser` (Playwright's sync API: not from inside another
     ``Browser`` context of the same thread)."""
     out = Path(out)
     with Browser(width, height, timeout_s) as b:
         page = b.open(url, wait_text)
+        if hide_panel:
+            b.hide_panel(page)
         b.capture(page, out, stable_s=min(10.0, timeout_s))
     return out

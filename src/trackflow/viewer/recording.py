@@ -364,6 +364,14 @@ class RecordingView:
             self.view.reset_cameras()
         self._relabel()
 
+    def place_camera(self, position, look_at, move_browsers: bool = False) -> None:
+        """The camera at ``position`` looking at ``look_at`` (3,) [m, the recording's source
+        frame]; the body is no longer followed (the camera stays where it was put)."""
+        with self._lock:
+            self.follow.value = False
+            self.view.place_camera(position, look_at, move_browsers)
+            self._look_offset = np.asarray(look_at, float) - self.body_points()[0]
+
     def _refollow(self) -> None:
         """Following again: from where the pages look now, relative to the body."""
         if self.follow.value:

@@ -8,6 +8,7 @@ import io
 
 import numpy as np
 
+from ..errors import InputError
 from ..optional import require
 from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
@@ -125,6 +126,20 @@ class ViewServer:
         self.server.initial_camera.position = tuple(target + dist * back)
         self.server.initial_camera.look_at = tuple(target)
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def place_camera(self, position, look_at, move_browsers: bool = False) -> None:
+        """The initial camera at ``position`` (3,) looking at ``look_at`` (3,) [m, scene
+        frame], z up; with ``move_browsers`` the connected pages' cameras too."""
+        p, t = np.asarray(position, float), np.asarray(look_at, float)
+        if p.shape != (3,) or t.shape != (3,) or not np.all(np.isfinite([*p, *t])):
+            raise InputError(f"a camera needs two finite points, got {position}, {look_at}")
+        if np.linalg.norm(p - t) < 1e-6:
+            raise InputError("the camera's position and the point it looks at are the same")
+        self.server.initial_camera.position = tuple(p)
+        self.server.initial_camera.look_at = tuple(t)
+        self.server.initial_camera.up = (0.0, 0.0, 1.0)
+        if move_browsers:
+            self.reset_cameras()
 
     def frame(self, points, coverage: float = 0.14, centre=None) -> np.ndarray:
         """Aim the initial camera (of pages opened from now on) at ``centre`` (default: the
