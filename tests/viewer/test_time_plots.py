@@ -28,3 +28,28 @@ def test_the_plot_data_has_the_band_beside_the_curve():
     np.testing.assert_array_equal(data[1], [1.0, 0.0, 30.0])  # no update drawn at 0
     assert np.all(data[2] == NIS_BAND[0]) and np.all(data[3] == NIS_BAND[1])
     assert NIS_BAND[0] < NIS_DOF < NIS_BAND[1]
+
+
+def test_the_prediction_error_plot_compares_a_prediction_with_the_recording_later():
+    from trackflow.io import PoseStream
+    from trackflow.math import quat_exp
+    from trackflow.viewer import RecordingTrack
+
+    t = np.arange(0.0, 4.0, 0.01)
+    pos = np.stack([0.4 * np.cos(t), 0.4 * np.sin(t), 1.0 + 0 * t], axis=1)
+    pos += np.random.default_rng(3).normal(0.0, 0.0005, pos.shape)
+    q = quat_exp(np.stack([0 * t, 0 * t, t], axis=1))
+    track = RecordingTrack.from_stream(
+        PoseStream("world", "body", np.round(t * 1e9).astype(np.int64), pos, q)
+    )
+    ts, err, sigma = track.prediction_errors(0.1)
+    assert ts[-1] <= track.t[-1] - 0.1 + 1e-9 and len(ts) == len(err) == len(sigma)
+    pred = track.predicted(0.1)
+    k = 200  # sample k predicted 0.1 s ahead: the recording 10 samples later (0.01 s apart)
+    want = np.linalg.norm(np.asarray(pred.position)[k] - pos[k + 10]) * 1e3
+    assert abs(err[k] - want) < 1e-6 * max(want, 1.0), (err[k], want)
+    cov = np.asarray(pred.covariance)[k, :3, :3]
+    assert abs(sigma[k] - np.sqrt(np.trace(cov)) * 1e3) < 1e-9
+    # an honest filter's predicted RMS error is the size of the errors it makes
+    ratio = np.sqrt(np.mean(err[50:] ** 2)) / np.sqrt(np.mean(sigma[50:] ** 2))
+    assert 0.2 < ratio < 5.0, ratio

@@ -90,6 +90,23 @@ class RecordingTrack:
             self._predictions[key] = res.predictions[key]
         return self._predictions[key]
 
+    def prediction_errors(self, offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Measured against predicted error of the position predicted ``offset_s`` ahead:
+        ``(t, error_mm, sigma_mm)`` at the samples whose target time ``t + offset_s`` lies
+        within the recording, where ``error_mm`` = |predicted - recorded position| (the
+        recording interpolated linearly at the target time) and ``sigma_mm`` the predicted
+        RMS error ``sqrt(trace P_pos)`` (the expected size of that error, measurement noise
+        of the recording aside)."""
+        pred = self.predicted(offset_s)
+        target = self.t + float(offset_s)
+        ok = target <= self.t[-1]
+        p = np.asarray(self.stream.position, float)
+        truth = np.stack([np.interp(target[ok], self.t, p[:, i]) for i in range(3)], axis=1)
+        err = np.linalg.norm(np.asarray(pred.position, float)[ok] - truth, axis=1) * 1e3
+        cov = np.asarray(pred.covariance, float)[ok]
+        sigma = np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2)) * 1e3
+        return self.t[ok], err, sigma
+
     def csv(self) -> bytes:
         """The filtered track as CSV: time [s] from the first sample, position [m],
         quaternion (x, y, z, w), the largest position and orientation sigma [mm, deg] and
@@ -292,6 +309,21 @@ class RecordingView:
                 series=nis_series("#c0c"), title="NIS (the band: 95 % of a consistent filter's)",
                 aspect=2.0,
             )  # fmt: skip
+            self.error_plot = gui.add_uplot(
+                scales=SECONDS_AXIS, data=(np.zeros(2), np.zeros(2), np.zeros(2)),
+                series=({"label": "t [s]"}, {"label": "measured error [mm]", "stroke": "#c0c"},
+                        {"label": "predicted RMS error [mm]", "stroke": "#2a2"}),
+                title="prediction error at the prediction offset (set it above)", aspect=2.0,
+            )  # fmt: skip
+
+    def _update_error_plot(self) -> None:
+        """The error plot for the current offset (empty at 0)."""
+        if self.offset_s <= 0.0:
+            self.error_plot.data = (np.zeros(2), np.zeros(2), np.zeros(2))
+            return
+        t, err, sigma = self.track.prediction_errors(self.offset_s)
+        step = max(1, len(t) // 2000)
+        self.error_plot.data = (t[::step], err[::step], sigma[::step])
 
     def _restyle(self) -> None:
         self.style.sigma = float(self.sigma.value)
@@ -331,6 +363,7 @@ class RecordingView:
             self._set_control(self.offset, self.offset_s * 1e3)
         if self.auto_ghost:
             self._auto_ghost()
+        self._update_error_plot()
         self.show(self.t_s)
 
     def set_sigma(self, sigma: float) -> None:
