@@ -20,7 +20,7 @@ pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install
 from _agents import SRC, AgentProcess, endpoint, free_port, write_agent, write_recording
 
 from trackers._lines import read_lines, wait_line  # tests/trackers
-from viewer._shots import outside, panel_box  # tests/viewer
+from viewer._shots import doc_shot, outside, panel_box  # tests/viewer
 
 pytestmark = pytest.mark.slow
 
@@ -74,6 +74,7 @@ def test_the_realm_view_shows_agents_edges_answers_and_a_replan(tmp_path, browse
             page, lambda im: (_magenta(im) & outside(im.shape, panel_box(page))).sum() > 30
         )
         assert (_magenta(img) & outside(img.shape, panel_box(page))).sum() > 30
+        doc_shot(img, "realm_view")
         agents[0].kill9()
         t_kill = time.monotonic()
         browser.wait_text(page, "agent host_s left")
