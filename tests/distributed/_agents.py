@@ -81,6 +81,29 @@ def write_agent(
     return path
 
 
+def sensor_and_app(tmp_path: Path, realm: str, duration_s: float = 60.0):
+    """The two agent files of a small realm: ``host_s`` plays sensor ``s1`` (W -> X, 100 Hz,
+    a recording of ``duration_s`` from now) and ``host_c`` asks the 50 Hz push query ``q``
+    (W -> X). Returns ``(sensor file, app file, [their endpoints])``."""
+    ps, pc = free_port(), free_port()
+    rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=duration_s,
+                          seed=5)  # fmt: skip
+    sensor = write_agent(
+        tmp_path / "s.yaml", "host_s", realm, start_ns=time.time_ns(),
+        zenoh={"listen": {"endpoints": [endpoint(ps)]}},
+        sensors=[dict(name="s1", source="W", target="X", rate_hz=100, sigma_pos_mm=1.0,
+                      sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
+                      recording=str(rec))],
+    )  # fmt: skip
+    app = write_agent(
+        tmp_path / "c.yaml", "host_c", realm,
+        zenoh={"listen": {"endpoints": [endpoint(pc)]}, "connect": {"endpoints": [endpoint(ps)]}},
+        frames=["W", "X"], queries=[dict(name="q", source="W", target="X", mode="push",
+                                         rate_hz=50)],
+    )  # fmt: skip
+    return sensor, app, [endpoint(ps), endpoint(pc)]
+
+
 class AgentProcess:
     """``trackflow agent FILE`` in its own process; stdout goes to a log file."""
 

@@ -21,6 +21,7 @@ from _agents import (
     endpoint,
     free_port,
     observer,
+    sensor_and_app,
     status,
     wait_for,
     write_agent,
@@ -296,25 +297,11 @@ def test_status_command_shows_every_agent_of_a_realm(tmp_path, procs):
     """``trackflow status --realm`` joins read-only and shows both agents: the sensor's
     host advertising its sensor, the application's query running on it."""
     realm = f"stat{free_port()}"
-    ps, pc = free_port(), free_port()
-    rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=60, seed=5)
-    sensor = write_agent(
-        tmp_path / "s.yaml", "host_s", realm, start_ns=time.time_ns(),
-        zenoh={"listen": {"endpoints": [endpoint(ps)]}},
-        sensors=[dict(name="s1", source="W", target="X", rate_hz=100, sigma_pos_mm=1.0,
-                      sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
-                      recording=str(rec))],
-    )  # fmt: skip
-    app = write_agent(
-        tmp_path / "c.yaml", "host_c", realm,
-        zenoh={"listen": {"endpoints": [endpoint(pc)]}, "connect": {"endpoints": [endpoint(ps)]}},
-        frames=["W", "X"], queries=[dict(name="q", source="W", target="X", mode="push",
-                                         rate_hz=50)],
-    )  # fmt: skip
+    sensor, app, (es, ec) = sensor_and_app(tmp_path, realm)
     for p in (procs(sensor), procs(app)):
         p.wait_ready()
     cmd = [sys.executable, "-m", "trackflow.cli.main", "status", "--realm", realm,
-           "--connect", endpoint(ps), "--connect", endpoint(pc)]  # fmt: skip
+           "--connect", es, "--connect", ec]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(SRC))
 
     def running():

@@ -17,7 +17,7 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
 
-from _agents import SRC, AgentProcess, endpoint, free_port, write_agent, write_recording
+from _agents import SRC, AgentProcess, free_port, sensor_and_app
 
 from trackers._lines import read_lines, wait_line  # tests/trackers
 from viewer._shots import doc_shot, outside, panel_box  # tests/viewer
@@ -36,26 +36,12 @@ def _magenta(img: np.ndarray) -> np.ndarray:
 
 def test_the_realm_view_shows_agents_edges_answers_and_a_replan(tmp_path, browser):
     realm = f"view{free_port()}"
-    ps, pc = free_port(), free_port()
-    rec = write_recording(tmp_path / "s1.tfrec", "W", "X", rate_hz=100, duration_s=90, seed=5)
-    sensor = write_agent(
-        tmp_path / "s.yaml", "host_s", realm, start_ns=time.time_ns(),
-        zenoh={"listen": {"endpoints": [endpoint(ps)]}},
-        sensors=[dict(name="s1", source="W", target="X", rate_hz=100, sigma_pos_mm=1.0,
-                      sigma_ori_deg=0.2, motion={"n_dp": 1, "n_do": 1, "noise": [1.0, 1.0]},
-                      recording=str(rec))],
-    )  # fmt: skip
-    app = write_agent(
-        tmp_path / "c.yaml", "host_c", realm,
-        zenoh={"listen": {"endpoints": [endpoint(pc)]}, "connect": {"endpoints": [endpoint(ps)]}},
-        frames=["W", "X"], queries=[dict(name="q", source="W", target="X", mode="push",
-                                         rate_hz=50)],
-    )  # fmt: skip
+    sensor, app, endpoints = sensor_and_app(tmp_path, realm, duration_s=90)
     agents = [AgentProcess(f, "--duration", "120", log_dir=tmp_path) for f in (sensor, app)]
     env = dict(os.environ, PYTHONPATH=str(SRC))
     view = subprocess.Popen(
         [sys.executable, "-m", "trackflow.cli.main", "view", "--realm", realm, "--port", "0",
-         "--connect", endpoint(ps), "--connect", endpoint(pc)],
+         "--connect", endpoints[0], "--connect", endpoints[1]],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
     try:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 from ..graph import Edge, SpatialRelationshipGraph
 from ..timesync import RoundTripOffset
-from .fragment import fragment_stale, parse_fragment
+from .fragment import first_fragment, fragment_stale
 
 __all__ = ["Discovery", "RemoteAgent", "alive_token", "realm_key"]
 
@@ -159,23 +159,18 @@ class Discovery:
 
     def _fetch_fragment(self, agent: str) -> RemoteAgent | None:
         replies = self.session.get(realm_key(self.realm, "fragment", agent), timeout=2.0)
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            try:
-                _, frames, edges = parse_fragment(reply.ok.payload.to_bytes())
-            except ValueError:
-                self.rejections.add("malformed fragment")
-                continue
-            rem = self.remotes.get(agent) or RemoteAgent(agent)
-            rem.edges = {e.name: e for e in edges}
-            rem.stale_s = fragment_stale(reply.ok.payload.to_bytes())
-            rem.frames = frames
-            with self.lock:
-                self.remotes[agent] = rem
-            self._ping(rem, 5)
-            return rem
-        return None
+        got = first_fragment(replies, self.rejections)
+        if got is None:
+            return None
+        frames, edges, data = got
+        rem = self.remotes.get(agent) or RemoteAgent(agent)
+        rem.edges = {e.name: e for e in edges}
+        rem.stale_s = fragment_stale(data)
+        rem.frames = frames
+        with self.lock:
+            self.remotes[agent] = rem
+        self._ping(rem, 5)
+        return rem
 
     def _ping(self, rem: RemoteAgent, n: int) -> None:
         for _ in range(n):

@@ -23,6 +23,7 @@ __all__ = [
     "FRAGMENT_VERSION",
     "edge_from_dict",
     "edge_to_dict",
+    "first_fragment",
     "fragment_json",
     "fragment_stale",
     "parse_fragment",
@@ -131,6 +132,23 @@ def fragment_stale(data: bytes) -> dict[str, float]:
             if isinstance(name, str):
                 out[name] = float(v)
     return out
+
+
+def first_fragment(replies, rejections) -> tuple[list[str], list[Edge], bytes] | None:
+    """The first fragment among a Zenoh get's ``replies`` that parses: ``(frames, edges,
+    its bytes)``; each one that does not is counted in ``rejections`` ("malformed
+    fragment"). ``None`` if none came."""
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        data = reply.ok.payload.to_bytes()
+        try:
+            _, frames, edges = parse_fragment(data)
+        except ValueError:
+            rejections.add("malformed fragment")
+            continue
+        return frames, edges, data
+    return None
 
 
 def parse_fragment(data: bytes) -> tuple[str, list[str], list[Edge]]:

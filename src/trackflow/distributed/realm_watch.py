@@ -28,7 +28,7 @@ import time
 from collections import deque
 
 from .discovery import alive_token, realm_key
-from .fragment import parse_fragment
+from .fragment import first_fragment
 from .realm_status import agent_statuses
 from .wire import Rejections, WireError, decode
 
@@ -169,17 +169,10 @@ class RealmWatch:
                 self._events.append({"t_ns": int(t_ns), "text": text})
 
     def _take_fragment(self, agent: str, replies) -> None:
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            try:
-                _, frames, edges = parse_fragment(reply.ok.payload.to_bytes())
-            except ValueError:
-                self.rejections.add("malformed fragment")
-                continue
+        got = first_fragment(replies, self.rejections)
+        if got is not None:
             with self._lock:
-                self._fragments[agent] = (list(frames), list(edges))
-            return
+                self._fragments[agent] = (list(got[0]), list(got[1]))
 
     def snapshot(self) -> dict:
         """The realm as plain data: ``{"realm", "agents": {name: status (``"alive"``
