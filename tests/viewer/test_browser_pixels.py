@@ -9,6 +9,8 @@ browser's timeout.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -135,6 +137,20 @@ def test_a_sensor_that_stops_turns_its_edge_from_live_to_stale(browser):
         assert red0 < 0.2 * red1, (red0, red1)  # the red arrow appeared
         assert red1 > 150, (red1, box1)
         assert green1 < green0 - 100, (green0, green1)  # and replaced a green one
+        # the "Save" buttons: the selected edge's updates as CSV, the 3D view as PNG
+        page.get_by_text("Save", exact=True).click()
+        with page.expect_download() as got:
+            page.get_by_role("button", name="save CSV").click()
+        lines = Path(got.value.path()).read_text().splitlines()
+        assert got.value.suggested_filename == "art.csv" and lines[0] == "t_s,latency_ms,nis"
+        rows = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+        # the art tracker's 60 Hz updates of its first second, in order
+        assert 50 <= len(rows) <= 61 and np.all(np.diff(rows[:, 0]) > 0), rows[:3]
+        assert rows[-1, 0] <= 1.0 + 1e-9 and np.isfinite(rows[1:, 2]).all(), rows[-3:]
+        with page.expect_download() as got:
+            page.get_by_role("button", name="save PNG").click()
+        assert got.value.suggested_filename == "trackflow_view.png"
+        assert Path(got.value.path()).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     finally:
         live.close()
 

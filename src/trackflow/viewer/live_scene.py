@@ -24,6 +24,7 @@ from .board import Board, BoardPose
 from .camera import body_glyph_points
 from .decor import add_floor_grid, grid_spec
 from .edges import EdgeLayout, EdgeMonitor, QueryLayout, ViewLayout
+from .export import csv_bytes, save_render
 from .glyphs import to_wxyz
 from .graph_panel import classify, render_panel
 from .labels import LabelLayer, LabelSpec
@@ -154,6 +155,14 @@ class LiveScene:
             self.c_trail = gui.add_checkbox("trail", self.style.show_trail)
             self.c_labels = gui.add_checkbox("labels", True)
             reframe = gui.add_button("frame the body")
+        with gui.add_folder("Save", expand_by_default=False):
+            save_png = gui.add_button("save PNG")
+            save_csv = gui.add_button("save CSV")
+        save_png.on_click(lambda e: None if e.client is None else save_render(e.client))
+        save_csv.on_click(
+            lambda e: None if e.client is None else e.client.send_file_download(
+                f"{self.selected_edge}.csv", self.edge_csv(), save_immediately=True)
+        )  # fmt: skip
         for handle, key, conv in (
             (self.c_query, "selected_query", str), (self.c_anchor, "anchor", str),
             (self.c_sigma, "sigma", float), (self.c_magnify, "magnify", float),
@@ -620,6 +629,16 @@ class LiveScene:
         ts = t * 1e-9
         self.plots["lat"].data = (ts, lat * 1e-6)
         self.plots["nis"].data = nis_data(ts, nis)
+
+    def edge_csv(self) -> bytes:
+        """The selected edge's recent updates as CSV (what its time plots show): the
+        measurement time [s, network clock], the delivery latency [ms] and the NIS (NaN:
+        none formed)."""
+        e = next((e for e in self.layout.edges if e.name == self.selected_edge), None)
+        if e is None or e.slot is None:
+            return csv_bytes(["t_s", "latency_ms", "nis"], [[], [], []])
+        t, lat, nis = self.board.read_ring(e.slot)
+        return csv_bytes(["t_s", "latency_ms", "nis"], [t * 1e-9, lat * 1e-6, nis], digits=15)
 
     def report(self) -> dict:
         """What the page shows, as plain data (tests and tools): the anchor, the labels and
