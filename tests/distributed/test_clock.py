@@ -117,13 +117,21 @@ def test_skewed_host_clock_is_mapped(tmp_path):
                 time.sleep(0.1)
             assert m is not None, c.status()
             time.sleep(1.5)  # let the filter converge on the stream
-            errors, unmapped = [], []
-            for _ in range(20):
+            errors, unmapped, refused = [], [], 0
+            deadline = time.monotonic() + 60
+            while len(errors) < 20 and time.monotonic() < deadline:
+                # 30 ms back: on a loaded host the remote state may not be there yet and
+                # the pull is refused (counted, asked again later); the test is about
+                # where the answers are, not when they come
                 t = c.now_ns() - 30_000_000
                 m = c.get("q", t)
-                errors.append(abs(m.pose.position[0] - truth_x(t)))
-                unmapped.append(abs(truth_x(t + int(skew * 1e6)) - truth_x(t)))
+                if m is None:
+                    refused += 1
+                else:
+                    errors.append(abs(m.pose.position[0] - truth_x(t)))
+                    unmapped.append(abs(truth_x(t + int(skew * 1e6)) - truth_x(t)))
                 time.sleep(0.05)
+            assert len(errors) == 20, (len(errors), refused, c.status())
             offset = c.status()["clocks"]["skewed"]
             assert abs(offset["offset_ms"] + skew) < 5.0  # host - remote (docs/conventions.md)
             assert np.median(errors) < 0.01
