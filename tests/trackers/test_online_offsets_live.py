@@ -10,6 +10,8 @@ times by what it finds, and its recording replays to the bit."""
 from __future__ import annotations
 
 import json
+import re
+import signal
 import socket
 
 import numpy as np
@@ -35,10 +37,13 @@ queries:
 {extra}"""
 
 
-def _run_pair(room1, tmp_path, extra: str, *args, seconds: float = 8.0) -> tuple[dict, float]:
+def _run_pair(
+    room1, tmp_path, extra: str, *args, seconds: float = 8.0, until=None
+) -> tuple[dict, float]:
     """``trackflow run`` of the two trackers (``extra``: more of the setup file, ``args``:
-    more options) until both senders have sent ``seconds`` and gone stale; its summary,
-    and the relative delay its online estimate should find [ms]."""
+    more options) until both senders have sent ``seconds`` (or, with ``until``, until the
+    run prints a line ``until(line)`` takes: then the senders are stopped) and gone stale;
+    its summary, and the relative delay its online estimate should find [ms]."""
     nn, vp = _free_port(), _free_port(socket.SOCK_STREAM)
     setup = tmp_path / "live.yaml"
     setup.write_text(SETUP.format(nn=nn, vp=vp, extra=extra))
@@ -53,8 +58,14 @@ def _run_pair(room1, tmp_path, extra: str, *args, seconds: float = 8.0) -> tuple
             _trackflow("simulate", "vrpn", room1, "--port", vp, *common,
                        "--truth", tmp_path / "vrpn.tfrec"),
         ]  # fmt: skip
+        if until is not None:
+            wait_line(lines, until, seconds + 60)
+            for s in senders:  # stopped, they still write the truth of what they sent
+                s.send_signal(signal.SIGTERM)
+                s.communicate(timeout=60)
         for s in senders:
-            _finish(s, 90)
+            if s.returncode is None:
+                _finish(s, 90)
         out = json.loads(stop_when_stale(run, lines, 2))
     finally:
         if run.poll() is None:
@@ -94,7 +105,16 @@ def test_the_run_corrects_the_vrpn_times_when_the_setup_opts_in_and_replays_exac
         "                 max_offset_s: 4}\n"
     )
     record = tmp_path / "out.tfrec"
-    out, expected = _run_pair(room1, tmp_path, extra, "--record", record, seconds=12.0)
+    # the senders stop once the run has estimated 2 s on the corrected times (when the
+    # correction comes depends on the machine's load; 40 s is the most they send)
+    after = re.compile(r"over (\d+) s \(after a correction")
+
+    def two_s_after(line: str) -> bool:
+        return any(int(m) >= 2 for m in after.findall(line))
+
+    out, expected = _run_pair(
+        room1, tmp_path, extra, "--record", record, seconds=40.0, until=two_s_after
+    )
     corrections = out["online_corrections"]
     (got,) = out["online_offsets"]
     print(f"corrections {corrections}; final {got}")

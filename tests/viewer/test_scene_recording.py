@@ -25,7 +25,7 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
-from _shots import bbox_fraction, changed, doc_shot, outside, panel_box
+from _shots import bbox_fraction, capture_panel_until, changed, doc_shot, outside, panel_box
 
 from trackflow.io import PoseStream, read_stream
 from trackflow.math import quat_exp
@@ -194,7 +194,15 @@ def test_the_prediction_ghost_keeps_to_its_own_scale(browser, page, server, room
         plain = _shot(browser, page, view, "no prediction")
         view.set_offset(0.1)
         assert view.style.magnify >= 100 and view.style.ghost_magnify == 1.0
-        ghost = _shot(browser, page, view, "predicted +100 ms")
+        _shot(browser, page, view, "predicted +100 ms")
+        # the ghost may be drawn some frames after the status text (a CI run's stable
+        # screenshot was still the plain one): wait for it, then for the scene to settle
+        capture_panel_until(
+            browser,
+            page,
+            lambda img, box: (changed(plain, img) & outside(img.shape, box)).sum() > 200,
+        )
+        ghost = browser.capture(page, stable_s=15.0)
         diff = changed(plain, ghost) & outside(plain.shape, panel_box(page))
         cover = bbox_fraction(diff)
         print(f"the ghost at +100 ms covers {cover:.1%} of the view ({diff.sum()} px)", flush=True)
