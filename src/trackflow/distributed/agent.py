@@ -194,6 +194,7 @@ class Agent:
         self.error: BaseException | None = None
         self.net = Network(self._clock)
         self.session = None
+        self._event_pub = None  # re-plan events, as they happen (event/<agent>; start())
         self.security = "not started"  # how its Zenoh links are protected (start())
         #: push queries published as ROS 2 topics (``ros2:``; trackflow.ros2.AnswerPublisher)
         self.ros2: dict = {}
@@ -263,6 +264,7 @@ class Agent:
             for e in self.setup.graph.edges
         ]
         self._tokens.append(s.liveliness().declare_token(realm_key(r, "agent", self.name)))
+        self._event_pub = s.declare_publisher(realm_key(r, "event", self.name))
         self._results = {
             n: s.declare_publisher(realm_key(r, "result", self.name, n))  # unique per agent
             for n, q in self.setup.queries.items()
@@ -482,55 +484,74 @@ class Agent:
         """Plan every query on the current union graph; rebuild the dataflow if a plan
         changed. Remote sensors are subscribed when a plan first uses them (a sensor no
         query uses never crosses the network) and stay subscribed, so a later switch back
-        finds their replicas current."""
+        finds their replicas current. Each query's new plan is an event in its status and,
+        as it happens, a message on ``event/<agent>`` (:meth:`_announce`)."""
+        announce: list[tuple[str, dict]] = []
         with self._lock:
-            graph = self.union_graph()
-            changed, plans, used, pushed, new_events = False, {}, set(), set(), []
-            for name, q in self.setup.queries.items():
-                st = self.queries[name]
-                try:
-                    plan = self._plan(q, graph)
-                except ValueError as exc:
-                    if st.state != "no path" or st.reason != str(exc):
-                        st.state, st.reason, st.paths = "no path", str(exc), []
-                        st.fallbacks = []
-                        st.sink = st.sampler = None
-                        changed = True
-                        st.events.append(self._event(reason, t_event_ns, st))
-                    continue
-                plans[name] = plan
-                used |= plan.sensors  # a fallback's sensors too: its replicas stay warm
-                if q.mode == "push":
-                    pushed |= plan.sensors
-                    # thinned ticks wait for the preferred path's inputs only
-                    preferred = {s for p in plan.paths for s in p.sensors}
-                    st.inputs = frozenset(preferred - self._own)
-                paths = [str(p) for p in plan.paths]
-                fallbacks = [str(p) for p in plan.fallbacks]
-                if st.state == "running" and (paths, fallbacks) == (st.paths, st.fallbacks):
-                    continue  # a new fallback (another tracker of the body) rebuilds too
-                st.state, st.reason, st.paths = "running", "", paths
-                st.fallbacks = fallbacks
-                new_events.append(self._event(reason, t_event_ns, st))
-                st.events.append(new_events[-1])
-                changed = True
-            if not changed:
-                return
-            self._wire_remote(graph, plans, used, pushed)
-            net = self._rebuild_base()
-            for name, plan in plans.items():
-                st = self.queries[name]
-                st.generation += 1
-                callback = self._result_callback(name) if plan.query.mode == "push" else None
-                _, st.sink = plan.build(
-                    self._sources,
-                    network=net,
-                    prefix=f"{name}_g{st.generation}_",
-                    callback=callback,
-                )
-                st.sampler = net.components.get(f"{name}_g{st.generation}_sampler")
-            for event in new_events:  # the time the new plans took effect
-                event["replan_ms"] = (time.perf_counter_ns() - t_event_ns) * 1e-6
+            self._replan_locked(reason, t_event_ns, announce)
+        self._announce(announce)
+
+    def _replan_locked(self, reason: str, t_event_ns: int, announce: list) -> None:
+        """:meth:`_replan` under the lock; the events made go to ``announce``."""
+        graph = self.union_graph()
+        changed, plans, used, pushed, new_events = False, {}, set(), set(), []
+        for name, q in self.setup.queries.items():
+            st = self.queries[name]
+            try:
+                plan = self._plan(q, graph)
+            except ValueError as exc:
+                if st.state != "no path" or st.reason != str(exc):
+                    st.state, st.reason, st.paths = "no path", str(exc), []
+                    st.fallbacks = []
+                    st.sink = st.sampler = None
+                    changed = True
+                    st.events.append(self._event(reason, t_event_ns, st))
+                    announce.append((name, st.events[-1]))
+                continue
+            plans[name] = plan
+            used |= plan.sensors  # a fallback's sensors too: its replicas stay warm
+            if q.mode == "push":
+                pushed |= plan.sensors
+                # thinned ticks wait for the preferred path's inputs only
+                preferred = {s for p in plan.paths for s in p.sensors}
+                st.inputs = frozenset(preferred - self._own)
+            paths = [str(p) for p in plan.paths]
+            fallbacks = [str(p) for p in plan.fallbacks]
+            if st.state == "running" and (paths, fallbacks) == (st.paths, st.fallbacks):
+                continue  # a new fallback (another tracker of the body) rebuilds too
+            st.state, st.reason, st.paths = "running", "", paths
+            st.fallbacks = fallbacks
+            new_events.append(self._event(reason, t_event_ns, st))
+            st.events.append(new_events[-1])
+            announce.append((name, new_events[-1]))
+            changed = True
+        if not changed:
+            return
+        self._wire_remote(graph, plans, used, pushed)
+        net = self._rebuild_base()
+        for name, plan in plans.items():
+            st = self.queries[name]
+            st.generation += 1
+            callback = self._result_callback(name) if plan.query.mode == "push" else None
+            _, st.sink = plan.build(
+                self._sources,
+                network=net,
+                prefix=f"{name}_g{st.generation}_",
+                callback=callback,
+            )
+            st.sampler = net.components.get(f"{name}_g{st.generation}_sampler")
+        for event in new_events:  # the time the new plans took effect
+            event["replan_ms"] = (time.perf_counter_ns() - t_event_ns) * 1e-6
+
+    def _announce(self, events: list[tuple[str, dict]]) -> None:
+        """Publish re-plan events ``(query, event)`` on ``event/<agent>`` (JSON: the event of
+        the status with ``"query"`` added), so a realm's watcher shows them at once instead
+        of at its next status poll."""
+        pub = self._event_pub
+        if pub is None:
+            return
+        for name, event in events:
+            pub.put(json.dumps({"query": name, **event}).encode())
 
     def _plan(self, q, graph):
         """The setup's planner on the union graph; an IMU of this agent on a body that only

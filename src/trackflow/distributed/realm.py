@@ -9,7 +9,8 @@ agent a complete Zenoh configuration:
   without such a certificate cannot join.
 * **Access control by identity.** Every agent's Zenoh runtime lets each peer (known by its
   certificate's common name) publish only the states of its own sensors (``edge/<edge>``,
-  ``thin/<edge>/...``) and its own results (``result/<agent>/...``), declare only its own
+  ``thin/<edge>/...``), its own results (``result/<agent>/...``) and re-plan events
+  (``event/<agent>``), declare only its own
   liveliness tokens (``alive/<agent>/...``, ``agent/<agent>``, its demands) and answer only
   its own queryables (its fragment, clock and status, ``get/`` of its sensors, ``query/`` of
   its queries). Everyone in the realm may subscribe and ask. An observer identity
@@ -115,7 +116,7 @@ def realm_acl(realm: str, members: list[Member], observers: list[str] = ()) -> d
     policies = [{"rules": ["egress", "read"], "subjects": everyone}]
     for m in members:
         own = [f"{r}/edge/{e}" for e in m.edges] + [f"{r}/thin/{e}/**" for e in m.edges]
-        own.append(f"{r}/result/{m.name}/**")
+        own += [f"{r}/result/{m.name}/**", f"{r}/event/{m.name}"]
         answers = [f"{r}/{k}/{m.name}" for k in ("fragment", "clock", "status")]
         answers += [f"{r}/get/{e}" for e in m.edges] + [f"{r}/query/{q}" for q in m.queries]
         tokens = [f"{r}/alive/{m.name}/**", f"{r}/agent/{m.name}", f"{r}/demand/*/{m.name}/**"]

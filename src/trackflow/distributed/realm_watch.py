@@ -16,6 +16,9 @@ nothing (no token, queryable or publisher: an observer). It keeps, behind one lo
   rejection);
 * the realm's events in order, each with its host time: an agent that joins or leaves, a
   sensor that goes up or down, a query re-planned or switched (with the agent's reason).
+  Re-plans arrive as they happen (each agent publishes them on ``event/<agent>``); the
+  status poll finds the same events again (taken once) and those of an agent whose message
+  was lost.
 
 :meth:`RealmWatch.snapshot` gives all of it as plain data (:mod:`trackflow.viewer.realm_page`
 draws it; nothing here knows the viewer).
@@ -23,6 +26,7 @@ draws it; nothing here knows the viewer).
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections import deque
@@ -115,6 +119,30 @@ class RealmWatch:
         with self._lock:
             self._answers[f"{parts[3]}/{parts[4]}"] = answer
 
+    def _on_replan(self, sample) -> None:
+        """A re-plan event an agent published (``event/<agent>``, JSON)."""
+        agent = str(sample.key_expr).rsplit("/", 1)[-1]
+        try:
+            ev = json.loads(sample.payload.to_bytes())
+            query, t_ns = str(ev["query"]), int(ev["t_ns"])
+        except (ValueError, KeyError, TypeError):
+            self.rejections.add("event: malformed")
+            return
+        self._take_replans([(agent, query, {**ev, "t_ns": t_ns})])
+
+    def _take_replans(self, replans: list[tuple[str, str, dict]]) -> None:
+        """``(agent, query, event)`` re-plans as events, each once (the message and the
+        status poll both bring it)."""
+        new = []
+        with self._lock:
+            for agent, q, ev in replans:
+                key = (agent, q, "replan", ev.get("t_ns"), ev.get("reason"))
+                if ev.get("t_ns") is not None and key not in self._seen:
+                    self._seen.add(key)
+                    new.append({"t_ns": int(ev["t_ns"]), "text": f"{agent}: query {q} "
+                                f"re-planned ({ev.get('reason')}): {ev.get('state')}"})  # fmt: skip
+            self._events.extend(sorted(new, key=lambda e: e["t_ns"]))
+
     # -- the polling thread --------------------------------------------------------------------
     def start(self) -> RealmWatch:
         """Subscribe (with the tokens already declared) and start polling the statuses."""
@@ -124,6 +152,7 @@ class RealmWatch:
             live.declare_subscriber(realm_key(r, "agent", "*"), self._on_agent, history=True),
             live.declare_subscriber(realm_key(r, "alive", "**"), self._on_edge, history=True),
             s.declare_subscriber(realm_key(r, "result", "**"), self._on_result),
+            s.declare_subscriber(realm_key(r, "event", "*"), self._on_replan),
         ]
         self._thread = threading.Thread(target=self._loop, name="realm-watch", daemon=True)
         self._thread.start()
@@ -148,25 +177,21 @@ class RealmWatch:
         statuses = agent_statuses(self.session, self.realm, alive, self.timeout_s)
         for agent, replies in fragments.items():
             self._take_fragment(agent, replies)
-        new = []
-        for agent, st in statuses.items():
-            for q, qs in (st.get("queries") or {}).items():
-                for ev in qs.get("events", []):
-                    key = (agent, q, "replan", ev.get("t_ns"), ev.get("reason"))
-                    if ev.get("t_ns") is not None and key not in self._seen:
-                        self._seen.add(key)
-                        new.append((ev["t_ns"], f"{agent}: query {q} re-planned "
-                                    f"({ev.get('reason')}): {ev.get('state')}"))  # fmt: skip
-                for sw in qs.get("switches", []):
-                    key = (agent, q, "switch", sw.get("t_ns"), sw.get("to"))
-                    if key not in self._seen:
-                        self._seen.add(key)
-                        move = f"{sw.get('from')} -> {sw.get('to')} ({sw.get('reason')})"
-                        new.append((sw.get("t_ns", 0), f"{agent}: query {q} path {move}"))
+        replans, new = [], []
         with self._lock:
             self._statuses = statuses
-            for t_ns, text in sorted(new):
-                self._events.append({"t_ns": int(t_ns), "text": text})
+            for agent, st in statuses.items():
+                for q, qs in (st.get("queries") or {}).items():
+                    replans += [(agent, q, ev) for ev in qs.get("events", [])]
+                    for sw in qs.get("switches", []):
+                        key = (agent, q, "switch", sw.get("t_ns"), sw.get("to"))
+                        if key not in self._seen:
+                            self._seen.add(key)
+                            move = f"{sw.get('from')} -> {sw.get('to')} ({sw.get('reason')})"
+                            new.append({"t_ns": int(sw.get("t_ns", 0)),
+                                        "text": f"{agent}: query {q} path {move}"})  # fmt: skip
+            self._events.extend(sorted(new, key=lambda e: e["t_ns"]))
+        self._take_replans(replans)
 
     def _take_fragment(self, agent: str, replies) -> None:
         got = first_fragment(replies, self.rejections)

@@ -153,7 +153,8 @@ class RealmPage:
         # each update makes the page lay the whole panel out again
         alive = sorted(a for a, st in (snap.get("agents") or {}).items() if st.get("alive"))
         live = [e["live"] for e in snap.get("edges") or ()]
-        change = (len(snap.get("events") or ()), *live, *alive)
+        shown = [(e["t_ns"], e["text"]) for e in list(snap.get("events") or ())[-SHOWN_EVENTS:]]
+        change = (*shown, *live, *alive)  # (the watch keeps a bounded list: not its length)
         if text != self._html and (
             change != self._change or now - self._html_at >= self.panel_period_s
         ):
