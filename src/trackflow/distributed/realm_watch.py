@@ -9,8 +9,8 @@ nothing (no token, queryable or publisher: an observer). It keeps, behind one lo
   realm's graph;
 * each agent's status (its ``status/<name>`` queryable, asked of every agent at once,
   :func:`~trackflow.distributed.realm_status.agent_statuses`) every ``period_s`` on a thread
-  of its own: inputs, measured attributes, queries with their paths,
-  switches and re-plans;
+  of its own, and at once when an agent joins: inputs, measured attributes, queries with
+  their paths, switches and re-plans;
 * the newest answer of every query (``result/<agent>/<query>``, decoded with
   :func:`trackflow.distributed.wire.decode`; a message that does not decode is a counted
   rejection);
@@ -59,6 +59,7 @@ class RealmWatch:
         self._events: deque = deque(maxlen=EVENTS)
         self._seen: set[tuple] = set()  # status events already taken
         self._stop = threading.Event()
+        self._wake = threading.Event()  # an agent joined: poll now (its fragment, status)
         self._thread: threading.Thread | None = None
         self._handles: list = []
 
@@ -81,6 +82,7 @@ class RealmWatch:
             with self._lock:
                 self._alive.add(name)
             self._event(f"agent {name} joined")
+            self._wake.set()
 
     def _on_edge(self, sample) -> None:
         token = alive_token(sample)
@@ -159,10 +161,10 @@ class RealmWatch:
         return self
 
     def _loop(self) -> None:
-        while True:
+        while not self._stop.is_set():
+            self._wake.clear()
             self.poll()
-            if self._stop.wait(self.period_s):
-                return
+            self._wake.wait(self.period_s)  # or at once when an agent joins (or at close)
 
     def poll(self) -> None:
         """Ask every agent's status and the fragments of agents not fetched yet (what the
@@ -232,6 +234,7 @@ class RealmWatch:
     def close(self) -> None:
         """Stop polling and undeclare the subscribers."""
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         for h in self._handles:
