@@ -12,27 +12,44 @@ Needs the ``eclipse-zenoh`` package (``pip install trackflow[distributed]``); im
 this package works without it, opening an agent does not.
 """
 
-from .agent import Agent, QueryState, RemoteSource, remote_get, run_agent
-from .clock import time_error_covariance, twist_between
-from .config import AgentConfig, load_agent, zenoh_config
-from .fragment import (
-    edge_from_dict,
-    edge_to_dict,
-    fragment_json,
-    fragment_stale,
-    parse_fragment,
-)
-from .replica import RemoteFilter, RemoteGet, StatePublisher
-from .wire import (
-    Rejections,
-    StateSample,
-    WireError,
-    WireSample,
-    decode,
-    decode_state,
-    encode,
-    encode_state,
-)
+import importlib
+
+# Imported on first use (PEP 562): a realm's watcher or status command needs the wire and the
+# key space, not the agent's whole runtime (the planner, the filters, the live inputs), and
+# starts seconds sooner without it.
+_WHERE = {
+    **dict.fromkeys(("Agent", "QueryState", "RemoteSource", "remote_get", "run_agent"), "agent"),
+    **dict.fromkeys(("time_error_covariance", "twist_between"), "clock"),
+    **dict.fromkeys(("AgentConfig", "load_agent", "zenoh_config"), "config"),
+    **dict.fromkeys(
+        ("edge_from_dict", "edge_to_dict", "fragment_json", "fragment_stale", "parse_fragment"),
+        "fragment",
+    ),
+    **dict.fromkeys(("RemoteFilter", "RemoteGet", "StatePublisher"), "replica"),
+    **dict.fromkeys(
+        (
+            "Rejections",
+            "StateSample",
+            "WireError",
+            "WireSample",
+            "decode",
+            "decode_state",
+            "encode",
+            "encode_state",
+        ),
+        "wire",
+    ),  # fmt: skip
+}
+
+
+def __getattr__(name: str):
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{where}", __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "Agent",
@@ -62,3 +79,7 @@ __all__ = [
     "twist_between",
     "zenoh_config",
 ]
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
