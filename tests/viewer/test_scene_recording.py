@@ -275,3 +275,42 @@ def test_a_placed_camera_stays_put_and_a_snapshot_page_can_hide_its_panel(browse
             other.close()
     finally:
         view.close()
+
+
+def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
+    """Space, the arrows, ``[`` and ``]`` press the timeline's buttons: the status line's
+    sample number and the view's state follow them (and the arrows leave the camera)."""
+    import time
+
+    track = RecordingTrack.from_stream(_circle())
+    view = _show(browser, page, server, track, 1.0)
+
+    def until(cond, what: str) -> None:
+        end = time.monotonic() + BROWSER_TIMEOUT_S
+        while not cond():
+            assert time.monotonic() < end, what
+            time.sleep(0.05)
+
+    try:
+        browser.wait_text(page, "keys: space play or pause")
+        k = track.index(view.t_s)
+        turn = server.camera().rotation.copy()
+        page.keyboard.press("ArrowRight")
+        browser.wait_text(page, f"sample {k + 1} ")
+        page.keyboard.press("ArrowLeft")
+        page.keyboard.press("ArrowLeft")
+        browser.wait_text(page, f"sample {k - 1} ")
+        # (following the body moves the camera, but does not turn it)
+        assert np.allclose(server.camera().rotation, turn, atol=1e-6), "the camera turned"
+        page.keyboard.press("]")
+        until(lambda: view.speed.value == 2.0, f"speed {view.speed.value} after ]")
+        page.keyboard.press("[")
+        page.keyboard.press("[")
+        until(lambda: view.speed.value == 0.5, f"speed {view.speed.value} after [ [")
+        t0 = view.t_s
+        page.keyboard.press(" ")
+        until(lambda: view.play.value and view.t_s > t0 + 0.05, "space did not play")
+        page.keyboard.press(" ")
+        until(lambda: not view.play.value, "space did not pause")
+    finally:
+        view.close()

@@ -5,7 +5,9 @@ The recording is filtered once by the untuned default Kalman predictor of
 time, the measured pose, the filtered pose with its position and orientation error glyphs, a
 fading trail and - with a prediction offset - the pose predicted that far ahead from the state
 at the chosen time, drawn beside the recording at that later time. A slider scrubs the
-timeline; a play button plays it at a chosen speed.
+timeline; a play button plays it at a chosen speed. Keys: space plays or pauses, the left
+and right arrows step a frame, ``[`` and ``]`` halve and double the speed
+(:mod:`trackflow.viewer.keys`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from ..math import Pose, UncertainPose
 from .camera import body_glyph_points
 from .decor import add_floor_grid, grid_spec
 from .export import csv_bytes, save_render
+from .keys import add_shortcuts
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
@@ -30,6 +33,15 @@ from .server import SECONDS_AXIS, ViewServer
 from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
+
+#: the recording view's keys: key -> (the button it presses, what it does)
+KEYS = {
+    " ": ("play / pause", "play or pause"),
+    "ArrowLeft": ("\u25c0", "a frame back"),
+    "ArrowRight": ("\u25b6", "a frame on"),
+    "[": ("slower", "half speed"),
+    "]": ("faster", "double speed"),
+}
 
 
 @dataclass
@@ -240,6 +252,9 @@ class RecordingView:
             )
             self.play = gui.add_checkbox("play", False)
             self.speed = gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
+            self.transport = gui.add_button_group("frame", ("\u25c0", "play / pause", "\u25b6"))
+            self.pace = gui.add_button_group("pace", ("slower", "faster"))
+            add_shortcuts(gui, KEYS)
         with gui.add_folder("Error display"):
             self.sigma = gui.add_dropdown("sigma", ("1", "2", "3"), initial_value="1")
             self.offset = gui.add_slider(
@@ -276,6 +291,9 @@ class RecordingView:
         self.play.on_update(
             lambda _: self._playing.set() if self.play.value else self._playing.clear()
         )
+        self.transport.on_click(lambda e: self._transport(e.target.value))
+        self.pace.on_click(lambda e: self.set_speed(
+            self.speed.value * (2.0 if e.target.value == "faster" else 0.5)))  # fmt: skip
         for control in (self.sigma, self.magnify, self.show_ori, self.show_path,
                         self.show_trail, self.show_labels):  # fmt: skip
             control.on_update(lambda _: self._restyle())
@@ -437,6 +455,33 @@ class RecordingView:
                 mark = self.grid_spec.mark(floor)
                 specs.append(LabelSpec("scale", self.grid_spec.text, mark, "note"))
             self.labels.update(specs, cam)
+
+    def _transport(self, what: str) -> None:
+        """A button of the ``frame`` group (or its key): a frame back or on (pausing), or
+        play / pause."""
+        if what == "play / pause":
+            self.set_playing(not self._playing.is_set())
+            return
+        self.set_playing(False)
+        self.step(-1 if what == "\u25c0" else 1)
+
+    def set_playing(self, on: bool) -> None:
+        """Play (from the current time, at the speed set) or pause."""
+        self._set_control(self.play, bool(on))
+        if on:
+            self._playing.set()
+        else:
+            self._playing.clear()
+
+    def set_speed(self, speed: float) -> None:
+        """The playing speed (times real time), kept within the speed slider's range."""
+        self._set_control(self.speed, float(np.clip(round(speed, 1), 0.1, 4.0)))
+
+    def step(self, frames: int) -> None:
+        """Move ``frames`` samples on (negative: back) from the current one."""
+        tr = self.track
+        k = int(np.clip(tr.index(self.t_s) + frames, 0, len(tr.t) - 1))
+        self.show(float(tr.t[k]))
 
     def show(self, t_s: float, from_slider: bool = False) -> None:
         """Draw the recording at time ``t_s`` [s] (relative to its first sample)."""
