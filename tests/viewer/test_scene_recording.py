@@ -314,3 +314,38 @@ def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
         until(lambda: not view.play.value, "space did not pause")
     finally:
         view.close()
+
+
+def test_the_time_plots_share_one_cursor(browser, page, server):
+    """Hovering one of the recording's time plots shows the cursor in all of them (uPlot's
+    cursor of every other plot is drawn, not ``u-off``), at the same fraction of its width."""
+    import time
+
+    view = _show(browser, page, server, RecordingTrack.from_stream(_circle()), 1.0)
+    try:
+        page.get_by_text("Time plots", exact=True).click()
+        plots = page.locator(".u-over")
+        plots.first.wait_for()
+        n = plots.count()
+        assert n >= 4, f"{n} time plots"
+        # every plot's vertical cursor line: on (no u-off), at its left offset [px]
+        js = """() => Array.from(document.querySelectorAll('.u-cursor-x')).map(
+            el => [el.classList.contains('u-off'), el.getBoundingClientRect().left,
+                   el.parentElement.getBoundingClientRect().left,
+                   el.parentElement.getBoundingClientRect().width])"""
+        first = plots.nth(0)
+        first.scroll_into_view_if_needed()
+        box = first.bounding_box()
+        # the page may lay the panel out again under a still pointer (the pointer then
+        # leaves the plot): hover again until one reading has every cursor on
+        end = time.monotonic() + BROWSER_TIMEOUT_S
+        while True:
+            first.hover(position={"x": 0.3 * box["width"], "y": 0.5 * box["height"]})
+            got = page.evaluate(js)
+            if all(not off for off, *_ in got) or time.monotonic() > end:
+                break
+        assert len(got) == n and all(not off for off, *_ in got), got
+        at = [(left - x0) / w for _, left, x0, w in got]
+        assert max(at) - min(at) < 0.02 and abs(at[0] - 0.3) < 0.02, at
+    finally:
+        view.close()

@@ -31,7 +31,7 @@ from .labels import LabelLayer, LabelSpec
 from .legend import BodyLine, live_legend, sigma_sizes
 from .placement import place_frames, to_world
 from .scene import GREY, PALETTE, Style
-from .server import SECONDS_AXIS, ViewServer
+from .server import SECONDS_AXIS, ViewServer, linked_cursor
 from .time_plots import nis_data, nis_series
 
 __all__ = ["IDLE_RATE_HZ", "LiveScene"]
@@ -182,6 +182,7 @@ class LiveScene:
             self.plots = {
                 key: gui.add_uplot(
                     scales=SECONDS_AXIS,
+                    cursor=linked_cursor("live"),
                     data=empty,
                     series=({"label": "t [s]"}, {"label": label, "stroke": colour}),
                     title=label,
@@ -194,7 +195,8 @@ class LiveScene:
                 )
             }
             self.plots["nis"] = gui.add_uplot(
-                scales=SECONDS_AXIS, data=nis_data(np.zeros(2), np.zeros(2)),
+                scales=SECONDS_AXIS, cursor=linked_cursor("live"),
+                data=nis_data(np.zeros(2), np.zeros(2)),
                 series=nis_series(), title="NIS (the band: 95 % of a consistent filter's)",
                 aspect=2.5,
             )  # fmt: skip

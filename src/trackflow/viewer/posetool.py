@@ -28,7 +28,7 @@ from ..evaluation import (
 )
 from ..filters import MotionModel
 from ..io import PoseStream
-from .server import SECONDS_AXIS, ViewServer
+from .server import SECONDS_AXIS, ViewServer, linked_cursor
 
 __all__ = ["PoseToolPage", "manual_predictor"]
 
@@ -149,7 +149,7 @@ class PoseToolPage:
         self.tuned_text = gui.add_markdown("automatic tuning: running ...")
         zeros = (np.zeros(2),) * 5
         self.curves = gui.add_uplot(
-                scales=SECONDS_AXIS,
+            scales=SECONDS_AXIS, cursor=linked_cursor("posetool"),
             data=zeros,
             series=(
                 {"label": "t [s]"},
@@ -161,7 +161,7 @@ class PoseToolPage:
             title="x position: predictions made one horizon earlier", aspect=1.6,
         )  # fmt: skip
         self.errors = gui.add_uplot(
-                scales=SECONDS_AXIS,
+            scales=SECONDS_AXIS, cursor=linked_cursor("posetool"),
             data=(np.zeros(2),) * 3,
             series=(
                 {"label": "t [s]"},

@@ -29,7 +29,7 @@ from .keys import add_shortcuts
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
-from .server import SECONDS_AXIS, ViewServer
+from .server import SECONDS_AXIS, ViewServer, linked_cursor
 from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
@@ -311,33 +311,40 @@ class RecordingView:
     def _plots(self, pos_mm: np.ndarray, ori_deg: np.ndarray) -> None:
         gui, t = self.view.gui, self.track.t
         step = max(1, len(t) // 2000)  # a plot needs no more points than pixels
+        linked = linked_cursor("recording")  # one time under the pointer in every plot
         with gui.add_folder("Time plots", expand_by_default=False):
             for title, y, unit in (
                 ("position sigma (largest axis)", pos_mm, "mm"),
                 ("orientation sigma (largest axis)", ori_deg, "deg"),
             ):
                 gui.add_uplot(
-                    scales=SECONDS_AXIS,
+                    scales=SECONDS_AXIS, cursor=linked,
                     data=(t[::step], np.asarray(y[::step], float)),
                     series=({"label": "t [s]"}, {"label": f"{title} {unit}", "stroke": "#c0c"}),
                     title=title, aspect=2.0,
                 )  # fmt: skip
             gui.add_uplot(
-                scales=SECONDS_AXIS, data=nis_data(t[::step], self.track.nis[::step]),
+                scales=SECONDS_AXIS, cursor=linked,
+                data=nis_data(t[::step], self.track.nis[::step]),
                 series=nis_series("#c0c"), title="NIS (the band: 95 % of a consistent filter's)",
                 aspect=2.0,
             )  # fmt: skip
             self.error_plot = gui.add_uplot(
-                scales=SECONDS_AXIS, data=(np.zeros(2), np.zeros(2), np.zeros(2)),
+                scales=SECONDS_AXIS, cursor=linked, data=self._no_errors(),
                 series=({"label": "t [s]"}, {"label": "measured error [mm]", "stroke": "#c0c"},
                         {"label": "predicted RMS error [mm]", "stroke": "#2a2"}),
                 title="prediction error at the prediction offset (set it above)", aspect=2.0,
             )  # fmt: skip
 
+    def _no_errors(self) -> tuple[np.ndarray, ...]:
+        """The error plot's data at offset 0: zeros over the recording's time span (the
+        plots share one cursor by time)."""
+        return (self.track.t[[0, -1]].astype(float), np.zeros(2), np.zeros(2))
+
     def _update_error_plot(self) -> None:
         """The error plot for the current offset (empty at 0)."""
         if self.offset_s <= 0.0:
-            self.error_plot.data = (np.zeros(2), np.zeros(2), np.zeros(2))
+            self.error_plot.data = self._no_errors()
             return
         t, err, sigma = self.track.prediction_errors(self.offset_s)
         step = max(1, len(t) // 2000)

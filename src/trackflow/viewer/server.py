@@ -12,10 +12,16 @@ from ..errors import InputError
 from ..optional import require
 from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
-__all__ = ["SECONDS_AXIS", "ViewServer"]
+__all__ = ["SECONDS_AXIS", "ViewServer", "linked_cursor"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
 SECONDS_AXIS = {"x": {"time": False}}
+
+
+def linked_cursor(key: str) -> dict:
+    """uPlot ``cursor`` options that link the plots given the same ``key``: hovering one
+    shows the cursor, at the same time, in all of them."""
+    return {"sync": {"key": key, "scales": ("x", None)}}
 
 
 def _is_three_default(camera) -> bool:
