@@ -349,3 +349,48 @@ def test_the_time_plots_share_one_cursor(browser, page, server):
         assert max(at) - min(at) < 0.02 and abs(at[0] - 0.3) < 0.02, at
     finally:
         view.close()
+
+
+def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
+    """A click in a time plot moves the view to the time under the pointer (the plot's
+    legend shows it), through the ``go to`` field; a typed time goes there too."""
+    import time
+
+    from playwright.sync_api import Error as PlaywrightError
+
+    track = RecordingTrack.from_stream(_circle())
+    view = _show(browser, page, server, track, 1.0)
+
+    def until(cond, what) -> None:
+        end = time.monotonic() + BROWSER_TIMEOUT_S
+        while not cond():
+            assert time.monotonic() < end, what()
+            time.sleep(0.05)
+
+    try:
+        browser.wait_text(page, "click a time plot")
+        page.get_by_text("Time plots", exact=True).click()
+        plots = page.locator(".u-over")
+        until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
+        plot = plots.nth(2)  # the NIS plot
+        # the folder opens with an animation that mounts its plots again: click once the
+        # plot holds still
+        end = time.monotonic() + BROWSER_TIMEOUT_S
+        while True:
+            try:
+                plot.scroll_into_view_if_needed(timeout=5000)
+                box = plot.bounding_box()
+                plot.click(position={"x": 0.7 * box["width"], "y": 0.5 * box["height"]},
+                           timeout=5000)  # fmt: skip
+                break
+            except PlaywrightError as exc:
+                print("click retried:", str(exc).splitlines()[0], flush=True)
+                assert time.monotonic() < end, "the plot never held still to be clicked"
+        # the x axis spans the recording: 70 % of the width is 70 % of its duration
+        want = 0.7 * float(track.t[-1])
+        until(lambda: abs(view.t_s - want) < 0.05, lambda: f"at {view.t_s} s, not {want}")
+        row = page.locator(".mantine-Flex-root", has=page.locator("label", has_text="go to [s]"))
+        row.locator("input").fill("2.5")
+        until(lambda: abs(view.t_s - 2.5) < 0.011, lambda: f"at {view.t_s} s, not 2.5")
+    finally:
+        view.close()

@@ -7,7 +7,7 @@ fading trail and - with a prediction offset - the pose predicted that far ahead 
 at the chosen time, drawn beside the recording at that later time. A slider scrubs the
 timeline; a play button plays it at a chosen speed. Keys: space plays or pauses, the left
 and right arrows step a frame, ``[`` and ``]`` halve and double the speed
-(:mod:`trackflow.viewer.keys`).
+(:mod:`trackflow.viewer.shortcuts`); a click on a time plot goes to its time.
 """
 
 from __future__ import annotations
@@ -25,15 +25,17 @@ from ..math import Pose, UncertainPose
 from .camera import body_glyph_points
 from .decor import add_floor_grid, grid_spec
 from .export import csv_bytes, save_render
-from .keys import add_shortcuts
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
 from .server import SECONDS_AXIS, ViewServer, linked_cursor
+from .shortcuts import add_shortcuts
 from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
 
+#: the label of the recording view's "go to" field (a click on a time plot types into it)
+SEEK = "go to [s]"
 #: the recording view's keys: key -> (the button it presses, what it does)
 KEYS = {
     " ": ("play / pause", "play or pause"),
@@ -254,7 +256,9 @@ class RecordingView:
             self.speed = gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
             self.transport = gui.add_button_group("frame", ("\u25c0", "play / pause", "\u25b6"))
             self.pace = gui.add_button_group("pace", ("slower", "faster"))
-            add_shortcuts(gui, KEYS)
+            self.go_to = gui.add_text(SEEK, "", hint="a time [s] of the recording; a click on a "
+                                      "time plot puts its time here")  # fmt: skip
+            add_shortcuts(gui, KEYS, seek=SEEK)
         with gui.add_folder("Error display"):
             self.sigma = gui.add_dropdown("sigma", ("1", "2", "3"), initial_value="1")
             self.offset = gui.add_slider(
@@ -292,6 +296,7 @@ class RecordingView:
             lambda _: self._playing.set() if self.play.value else self._playing.clear()
         )
         self.transport.on_click(lambda e: self._transport(e.target.value))
+        self.go_to.on_update(lambda _: None if self._echo else self._go_to(self.go_to.value))
         self.pace.on_click(lambda e: self.set_speed(
             self.speed.value * (2.0 if e.target.value == "faster" else 0.5)))  # fmt: skip
         for control in (self.sigma, self.magnify, self.show_ori, self.show_path,
@@ -462,6 +467,18 @@ class RecordingView:
                 mark = self.grid_spec.mark(floor)
                 specs.append(LabelSpec("scale", self.grid_spec.text, mark, "note"))
             self.labels.update(specs, cam)
+
+    def _go_to(self, text: str) -> None:
+        """The ``go to`` field (typed, or a click on a time plot): show that time."""
+        try:
+            t = float(text)
+        except ValueError:
+            if text.strip():
+                self.view.set_status(f"go to: {text!r} is not a time in seconds")
+            return
+        if np.isfinite(t):
+            self.set_playing(False)
+            self.show(t)
 
     def _transport(self, what: str) -> None:
         """A button of the ``frame`` group (or its key): a frame back or on (pausing), or
