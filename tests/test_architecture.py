@@ -14,6 +14,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "trackflow"
 LAYERS = {
     "errors": 0,
     "optional": 0,
+    "_lazy": 0,
     "math": 0,
     "scheduler": 0,
     "timesync": 0,

@@ -12,7 +12,7 @@ Needs the ``eclipse-zenoh`` package (``pip install trackflow[distributed]``); im
 this package works without it, opening an agent does not.
 """
 
-import importlib
+from .._lazy import lazy_names
 
 # Imported on first use (PEP 562): a realm's watcher or status command needs the wire and the
 # key space, not the agent's whole runtime (the planner, the filters, the live inputs), and
@@ -38,48 +38,10 @@ _WHERE = {
             "encode_state",
         ),
         "wire",
-    ),  # fmt: skip
+    ),
 }
 
 
-def __getattr__(name: str):
-    where = _WHERE.get(name)
-    if where is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{where}", __name__), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
 
-
-__all__ = [
-    "Agent",
-    "AgentConfig",
-    "QueryState",
-    "Rejections",
-    "RemoteFilter",
-    "RemoteGet",
-    "RemoteSource",
-    "StatePublisher",
-    "StateSample",
-    "WireError",
-    "WireSample",
-    "decode",
-    "decode_state",
-    "edge_from_dict",
-    "edge_to_dict",
-    "encode",
-    "encode_state",
-    "fragment_json",
-    "fragment_stale",
-    "load_agent",
-    "parse_fragment",
-    "remote_get",
-    "run_agent",
-    "time_error_covariance",
-    "twist_between",
-    "zenoh_config",
-]
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__all__ = sorted(_WHERE)

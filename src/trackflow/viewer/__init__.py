@@ -15,7 +15,7 @@ system Chromium for snapshots. Names are imported on first use, so the view proc
 what it draws with.
 """
 
-import importlib
+from .._lazy import lazy_names
 
 #: public name -> the module holding it
 _WHERE = {
@@ -41,14 +41,4 @@ _WHERE = {
 __all__ = sorted(_WHERE)
 
 
-def __getattr__(name: str):
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module 'trackflow.viewer' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return __all__
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
