@@ -13,7 +13,8 @@ Per mode: ``failover_gap_ms``, from the exposure of the newest NatNet state the 
 its move to DTrack (the age its switch reports in the reason, ``no data for X ms``; for the
 outage also from the sender's truth, ``gap_from_truth_ms``), ``switch_back_s`` from the
 NatNet tracker's recovery (its first frame after the outage or the restart; SIGCONT) to the
-move back, and the position NEES of the answers on DTrack against the DTrack sender's truth.
+move back (after a freeze: from the first fresh frame after SIGCONT, as in the one-process
+benchmark), and the position NEES of the answers on DTrack against the DTrack sender's truth.
 JSON with ``--json``: ``{"failover_gap_ms": {"outage", "kill", "freeze"},
 "post_switch_nees", "post_switch_nees_p99", "switch_back_s", "hold_s", "modes"}``.
 
@@ -215,8 +216,16 @@ def measure(mode: str, folder: Path) -> dict:
         k = int(np.argmax(np.diff(truth.t_ns)))
         failed_ns = int(truth.t_ns[k])
         recovered_ns = int(truth.t_ns[k + 1]) + 5_000_000  # sent 5 ms after its exposure
-    away = next(e for e in events if e["to"] == 1 and e["t_ns"] > failed_ns)
-    back = next(e for e in events if e["to"] == 0 and e["t_ns"] > away["t_ns"])
+    away = next((e for e in events if e["to"] == 1 and e["t_ns"] > failed_ns), None)
+    back = away and next((e for e in events if e["to"] == 0 and e["t_ns"] > away["t_ns"]), None)
+    if back is None:
+        gaps = [] if mode != "outage" else [
+            (round((int(a) - failed_ns) * 1e-6, 1), round(int(b - a) * 1e-6, 1))
+            for a, b in zip(truth.t_ns[:-1], truth.t_ns[1:]) if b - a > 50_000_000]  # fmt: skip
+        raise RuntimeError(
+            f"{mode}: no move away and back after the failure began; failed_ns {failed_ns}, "
+            f"base_ns {base_ns}, events {events}, gaps over 50 ms (from the failure, ms) {gaps}"
+        )
     age = re.match(r"sensor natnet: no data for (\d+) ms", away["reason"])
     if age is None:
         raise RuntimeError(f"{mode}: moved for another reason: {events}")
@@ -229,6 +238,12 @@ def measure(mode: str, folder: Path) -> dict:
     elif mode == "kill":
         again, _ = read_stream(folder / "nn2_truth.tfrec")
         recovered_ns = int(again.t_ns[0]) + 5_000_000
+    else:  # the first fresh frame after SIGCONT (the continued sender first flushes old ones)
+        truth, _ = read_stream(folder / "nn_truth.tfrec")
+        out["sigcont_to_fresh_ms"] = round(
+            (int(truth.t_ns[np.searchsorted(truth.t_ns, recovered_ns)]) + 5_000_000
+             - recovered_ns) * 1e-6, 1)  # fmt: skip
+        recovered_ns += int(out["sigcont_to_fresh_ms"] * 1e6)
     out["switch_back_s"] = round((back["t_ns"] - recovered_ns) * 1e-9, 3)
     out["back_reason"] = back["reason"]
     dt_truth, _ = read_stream(folder / "dt_truth.tfrec")
