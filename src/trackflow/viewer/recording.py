@@ -297,8 +297,7 @@ class RecordingView:
         )
         self.transport.on_click(lambda e: self._transport(e.target.value))
         self.go_to.on_update(lambda _: None if self._echo else self._go_to(self.go_to.value))
-        self.pace.on_click(lambda e: self.set_speed(
-            self.speed.value * (2.0 if e.target.value == "faster" else 0.5)))  # fmt: skip
+        self.pace.on_click(lambda e: self._pace(2.0 if e.target.value == "faster" else 0.5))
         for control in (self.sigma, self.magnify, self.show_ori, self.show_path,
                         self.show_trail, self.show_labels):  # fmt: skip
             control.on_update(lambda _: self._restyle())
@@ -483,11 +482,12 @@ class RecordingView:
     def _transport(self, what: str) -> None:
         """A button of the ``frame`` group (or its key): a frame back or on (pausing), or
         play / pause."""
-        if what == "play / pause":
-            self.set_playing(not self._playing.is_set())
-            return
-        self.set_playing(False)
-        self.step(-1 if what == "\u25c0" else 1)
+        with self._lock:  # (quick presses run on several threads: each sees the last)
+            if what == "play / pause":
+                self.set_playing(not self._playing.is_set())
+                return
+            self.set_playing(False)
+            self.step(-1 if what == "\u25c0" else 1)
 
     def set_playing(self, on: bool) -> None:
         """Play (from the current time, at the speed set) or pause."""
@@ -501,11 +501,17 @@ class RecordingView:
         """The playing speed (times real time), kept within the speed slider's range."""
         self._set_control(self.speed, float(np.clip(round(speed, 1), 0.1, 4.0)))
 
+    def _pace(self, factor: float) -> None:
+        # (viser runs callbacks on a pool: two quick presses must not read one old speed)
+        with self._lock:
+            self.set_speed(self.speed.value * factor)
+
     def step(self, frames: int) -> None:
         """Move ``frames`` samples on (negative: back) from the current one."""
         tr = self.track
-        k = int(np.clip(tr.index(self.t_s) + frames, 0, len(tr.t) - 1))
-        self.show(float(tr.t[k]))
+        with self._lock:  # read and move at once (quick presses run on several threads)
+            k = int(np.clip(tr.index(self.t_s) + frames, 0, len(tr.t) - 1))
+            self.show(float(tr.t[k]))
 
     def show(self, t_s: float, from_slider: bool = False) -> None:
         """Draw the recording at time ``t_s`` [s] (relative to its first sample)."""

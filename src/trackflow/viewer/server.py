@@ -57,6 +57,10 @@ class ViewServer:
         self.server.request_share_url = _refuse_share
         self.gui.configure_theme(control_width="large", show_share_button=False)
         self.scene.set_up_direction("+z")
+        # no shadows: an error view draws no sun, a shadow on the floor reads as another glyph,
+        # and the three shadow passes per frame cost software WebGL a quarter of its time to
+        # a settled picture
+        self.scene.configure_default_lights(True, cast_shadow=False)
         # a longer lens than three.js's 75 degrees: a body framed close is not distorted
         self.server.initial_camera.fov = float(FRAMING_FOV)
         self.status = self.gui.add_markdown("starting", order=-100)
