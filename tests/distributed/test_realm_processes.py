@@ -48,8 +48,14 @@ def _bytes(sample) -> bytes:
     return sample.payload.to_bytes()
 
 
-def _session(path) -> zenoh.Session:
-    return zenoh.open(zenoh.Config.from_file(str(path)))
+def _session(path, listen: bool = True) -> zenoh.Session:
+    """A session on a configuration ``realm init`` wrote; ``listen=False``: without its
+    listening endpoint (an attacker holding a certificate whose agent does not run: that
+    port was free when the test began and may be a connection's port by now)."""
+    conf = zenoh.Config.from_file(str(path))
+    if not listen:
+        conf.insert_json5("listen/endpoints", "[]")
+    return zenoh.open(conf)
 
 
 @pytest.fixture
@@ -116,7 +122,7 @@ def test_a_realm_made_by_realm_init_cannot_be_spoofed(tmp_path, realm):
         before = len(answers)
 
         # the attacker with b's certificate
-        evil = _session(folder / "b.json5")
+        evil = _session(folder / "b.json5", listen=False)  # it connects to s and c
         sessions.append(evil)
         real = states[-1]
         x = real.x.copy()
