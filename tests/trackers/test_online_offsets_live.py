@@ -59,7 +59,11 @@ def _run_pair(
                        "--truth", tmp_path / "vrpn.tfrec"),
         ]  # fmt: skip
         if until is not None:
-            wait_line(lines, until, seconds + 60)
+            try:
+                wait_line(lines, until, seconds + 60)
+            except AssertionError as exc:  # every online-offset line, not only the last five
+                seen = getattr(until, "seen", "")
+                raise AssertionError(f"{exc}; online offsets: {seen}") from None
             for s in senders:  # stopped, they still write the truth of what they sent
                 s.send_signal(signal.SIGTERM)
                 s.communicate(timeout=60)
@@ -109,8 +113,13 @@ def test_the_run_corrects_the_vrpn_times_when_the_setup_opts_in_and_replays_exac
     # correction comes depends on the machine's load; 40 s is the most they send)
     after = re.compile(r"over (\d+) s \(after a correction")
 
+    seen: list[str] = []  # the run's online-offset lines (for the message if none comes)
+
     def two_s_after(line: str) -> bool:
+        seen.extend(part.strip() for part in line.split(" | ") if "online offset" in part)
         return any(int(m) >= 2 for m in after.findall(line))
+
+    two_s_after.seen = seen  # type: ignore[attr-defined]
 
     out, expected = _run_pair(
         room1, tmp_path, extra, "--record", record, seconds=40.0, until=two_s_after
