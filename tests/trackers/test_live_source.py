@@ -207,3 +207,39 @@ def test_a_packet_layout_taken_again_falls_back_where_anything_changed():
     assert blocks.sources["s0"].stats.rejections == {"timestamp backwards": 1}
     # the lanes were taken (by the layouts the test sends)
     assert ("s0", "s1", "s2", "s3") in blocks._lanes and (0, 1, 2, 3) in blocks.filters._lanes
+
+
+def test_the_backlog_window_is_judged_on_the_trackers_own_times():
+    """A block that arrives more than BACKLOG_NS after it was taken (a stalled tracker's
+    backlog) is dropped and counted on the block path as on the one-by-one path. An online
+    correction that moves a tracker's times 600 ms earlier (it was found that much slower
+    than its stamps) leaves its frames in the window: the window is judged on the time
+    before the correction, so every frame after a large negative correction still arrives."""
+    from trackflow.dataflow import BACKLOG_NS
+
+    (blocks, kf_b, _), (samples, kf_s, _) = _sources(False), _sources(False)
+    rng = np.random.default_rng(7)
+    t0, period, shift = 1_700_000_000_000_000_000, 4_166_667, -600_000_000
+    names = [f"s{i}" for i in range(4)]
+    script = [(t0 + k * period, 3_000_000, 0) for k in range(5)]
+    script.append((t0 + 5 * period, BACKLOG_NS + 1_000_000, 0))  # the backlog: dropped
+    # after the correction: taken 600 ms before the stamps said, arrived 3 ms after the stamps
+    script += [(t0 + k * period + shift, 3_000_000 - shift, shift) for k in range(200, 210)]
+    for t, age, s in script:
+        block = _block(range(4), t, rng)
+        a = t + age
+        ok_b = blocks.deliver_block(names, block, a, shift_ns=s)
+        items = [(n, x._replace(arrival_ns=a + j)) for j, (n, (_, x)) in
+                 enumerate(zip(names, block))]  # fmt: skip
+        ok_s = [p is not None for p in samples.deliver(items, shift_ns=s)]
+        assert ok_b == ok_s == [age + s <= BACKLOG_NS] * 4, (t - t0, age)
+    for name in names:
+        for srcs in (blocks, samples):
+            stats = srcs.sources[name].stats
+            assert stats.rejections == {"older than the backlog window": 1}, name
+            assert stats.events_out == 15
+    for a, b in zip(kf_b, kf_s):
+        assert a.stats.summary() == b.stats.summary()
+        xa, pa = a.filter.state
+        xb, pb = b.filter.state
+        assert xa.tobytes() == xb.tobytes() and pa.tobytes() == pb.tobytes()

@@ -91,7 +91,12 @@ class LiveSource(Component):
     A sample not after the previous one ("timestamp backwards"), older than
     :data:`~trackflow.dataflow.BACKLOG_NS` when it arrived (a stalled tracker's backlog) or
     with an invalid pose or covariance is a counted rejection, as in
-    :class:`trackflow.dataflow.RecordingPlayer`."""
+    :class:`trackflow.dataflow.RecordingPlayer`.
+
+    The backlog window is judged on the tracker's own times: ``shift_ns``, the online delay
+    correction its connection added (:meth:`LiveInput.request_shift`), is taken back out
+    first. A correction says what moment a sample shows, not how late it came: a tracker
+    found 480 ms slower than its stamps still delivers every frame as it did before."""
 
     push_out = True
     kind = "live"
@@ -105,17 +110,18 @@ class LiveSource(Component):
         self._last_t: int | None = None
         self._valid_cov = None  # the last read-only covariance found valid (checked once)
 
-    def deliver(self, s: Sample) -> UncertainPose | None:
+    def deliver(self, s: Sample, shift_ns: int = 0) -> UncertainPose | None:
         """Take a sample (:meth:`accept`) and push its measurement to the consumers."""
-        pose = self.accept(s)
+        pose = self.accept(s, shift_ns)
         if pose is not None:
             self.emit(Measurement(s.t_ns, pose, s.t_ns))
         return pose
 
-    def accept(self, s: Sample) -> UncertainPose | None:
+    def accept(self, s: Sample, shift_ns: int = 0) -> UncertainPose | None:
         """The sample's pose, counted and checked as :meth:`deliver` does, not yet pushed;
-        ``None`` for a counted rejection."""
-        if not self._fresh(s.t_ns, s.arrival_ns):
+        ``None`` for a counted rejection. ``shift_ns``: the online correction in the
+        sample's time [ns] (class docstring)."""
+        if not self._fresh(s.t_ns, s.arrival_ns, shift_ns):
             return None
         if type(s) is CheckedSample:
             pose = UncertainPose._trusted(s.position, s.quaternion, s.covariance)
@@ -130,15 +136,15 @@ class LiveSource(Component):
         self._last_t = s.t_ns
         return pose
 
-    def _fresh(self, t_ns: int, arrival_ns: int) -> bool:
+    def _fresh(self, t_ns: int, arrival_ns: int, shift_ns: int = 0) -> bool:
         """Count a sample in; ``False`` (a counted rejection) if it is not after the last
         accepted one or arrived more than :data:`~trackflow.dataflow.BACKLOG_NS` after it
-        was taken."""
+        was taken (by the tracker's own time, ``t_ns - shift_ns``)."""
         self.stats.events_in += 1
         if self._last_t is not None and t_ns <= self._last_t:
             self.stats.reject("timestamp backwards")
             return False
-        if arrival_ns - t_ns > BACKLOG_NS:
+        if arrival_ns - (t_ns - shift_ns) > BACKLOG_NS:
             self.stats.reject("older than the backlog window")
             return False
         return True
@@ -204,17 +210,18 @@ class LiveSources:
         self.row = {name: r[0] for name, r in self._row.items()}
         self._lanes = Layouts(self._make_lane)  # per list of names of deliver_block
 
-    def deliver(self, items, clock=None) -> list[UncertainPose | None]:
+    def deliver(self, items, clock=None, shift_ns: int = 0) -> list[UncertainPose | None]:
         """Deliver ``(name, sample)`` pairs in order; the accepted poses (``None`` for a
         rejection). ``clock`` (a network's) is set to each sample's arrival before a
-        consumer other than a batched filter sees it, and to the last one's at the end."""
+        consumer other than a batched filter sees it, and to the last one's at the end.
+        ``shift_ns``: the online correction in the samples' times (:class:`LiveSource`)."""
         batch: list[tuple[int, Measurement]] = []
         out: list[UncertainPose | None] = []
         for name, s in items:
             src = self.sources[name]
             row = self._row.get(name)
             if row is not None and src.consumers == row[1]:
-                pose = src.accept(s)
+                pose = src.accept(s, shift_ns)
                 if pose is not None:
                     src.stats.events_out += 1
                     batch.append((row[0], Measurement(s.t_ns, pose, s.t_ns)))
@@ -225,7 +232,7 @@ class LiveSources:
                 if clock is not None:
                     clock.now_ns = s.arrival_ns
                     clock.dispatch_wall_ns = time.perf_counter_ns()
-                pose = src.deliver(s)
+                pose = src.deliver(s, shift_ns)
             out.append(pose)
         if batch:
             self.filters.push(batch)
@@ -234,7 +241,7 @@ class LiveSources:
         return out
 
     def deliver_block(
-        self, names, block: SampleBlock, arrival_ns: int, clock=None, answer=None
+        self, names, block: SampleBlock, arrival_ns: int, clock=None, answer=None, shift_ns=0
     ) -> list:
         """:meth:`deliver` of the samples of a block, sample ``k`` of source ``names[k]``
         dispatched at ``arrival_ns + k``: the same outcome, with the block's arrays going to
@@ -244,16 +251,17 @@ class LiveSources:
         ``answer = (at_ns, deliver)``: the packet's answers, the poses of the sources'
         filters at ``at_ns`` [ns] as :class:`~trackflow.filters.PredictedPoses` in the order
         of ``names``, go to ``deliver`` as soon as the filters are updated, before their
-        bookkeeping (:meth:`KalmanBank.push_block`); every source must feed one filter."""
+        bookkeeping (:meth:`KalmanBank.push_block`); every source must feed one filter.
+        ``shift_ns``: the online correction in the block's time (:class:`LiveSource`)."""
         lane = self._lanes(tuple(names))
-        if lane is not None and self._fresh_lane(lane, block.t_ns):
+        t = block.t_ns
+        if lane is not None and self._fresh_lane(lane, t, arrival_ns - (t - shift_ns)):
             srcs, index = lane
             try:  # the sources' counts after the answer: a sample in and out each
                 self.filters.push_block(
-                    index, block.t_ns, block.position, block.quaternion, block.covariance, answer
+                    index, t, block.position, block.quaternion, block.covariance, answer
                 )
             finally:
-                t = block.t_ns
                 for src, _ in srcs:
                     src._last_t = t
                     stats = src.stats
@@ -262,7 +270,7 @@ class LiveSources:
             if clock is not None:
                 clock.now_ns = arrival_ns + len(names) - 1
             return [True] * len(names)
-        return self._deliver_block(names, block, arrival_ns, clock, answer)
+        return self._deliver_block(names, block, arrival_ns, clock, answer, shift_ns)
 
     def _make_lane(self, key: tuple) -> tuple | None:
         """``(sources and their consumer lists, filter rows)`` of a list of names that feed
@@ -274,17 +282,20 @@ class LiveSources:
         return [(self.sources[n], r[1]) for n, r in zip(key, rows)], [r[0] for r in rows]
 
     @staticmethod
-    def _fresh_lane(lane: tuple, t_ns: int) -> bool:
+    def _fresh_lane(lane: tuple, t_ns: int, age_ns: int) -> bool:
         """Whether every source of ``lane`` still feeds its one filter only and takes a
-        sample at ``t_ns`` (after its last one): then :meth:`deliver_block` counts them
-        after the answer, else the general path counts and rejects one by one."""
+        sample at ``t_ns`` (after its last one) that arrived ``age_ns`` after it was taken
+        (within the backlog window): then :meth:`deliver_block` counts them after the
+        answer, else the general path counts and rejects one by one."""
+        if age_ns > BACKLOG_NS:
+            return False
         for src, consumers in lane[0]:
             last = src._last_t
             if src.consumers != consumers or (last is not None and t_ns <= last):
                 return False
         return True
 
-    def _deliver_block(self, names, block, arrival_ns, clock, answer) -> list:
+    def _deliver_block(self, names, block, arrival_ns, clock, answer, shift_ns) -> list:
         """:meth:`deliver_block` of samples not all fresh or not all feeding one filter."""
         srcs, rows = self.sources, self._row
         index = []
@@ -295,7 +306,7 @@ class LiveSources:
                 if answer is not None and lone:
                     raise InputError(f"{lone[0]}: answers need a source that feeds one filter")
                 items = _dispatched(names, block, arrival_ns)
-                ok = [pose is not None for pose in self.deliver(items, clock)]
+                ok = [pose is not None for pose in self.deliver(items, clock, shift_ns)]
                 if answer is not None:
                     self.filters.answer([rows[n][0] for n in names], answer)
                 return ok
@@ -304,7 +315,7 @@ class LiveSources:
         ok = []
         for name in names:
             src = srcs[name]
-            fresh = src._fresh(t, arrival_ns)
+            fresh = src._fresh(t, arrival_ns, shift_ns)
             if fresh:
                 src._last_t = t
                 src.stats.events_out += 1
@@ -450,8 +461,9 @@ class InputSource:
         """Deliver samples with no tick between them, sample ``k`` at ``a + k`` (one batch),
         and record the accepted ones."""
         clock = self._sched.clock
+        shift = self.input.shift_ns  # changed on this (the receiving) thread only
         if type(samples) is SampleBlock:
-            ok = self.delivery.deliver_block(names, samples, a, clock)
+            ok = self.delivery.deliver_block(names, samples, a, clock, shift_ns=shift)
             for k, (name, good) in enumerate(zip(names, ok)):
                 if good and name in self.writers:
                     self._record(
@@ -460,7 +472,7 @@ class InputSource:
                     )  # fmt: skip
             return
         items = _dispatched(names, samples, a)
-        poses = self.delivery.deliver(items, clock)
+        poses = self.delivery.deliver(items, clock, shift)
         for (name, s), pose in zip(items, poses):
             if pose is not None and name in self.writers:
                 self._record(
