@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -110,12 +111,34 @@ def _doc(browser, page, view, name: str) -> None:
     doc_shot(browser.capture(page, stable_s=15.0), name)
 
 
-def _shot(browser, page, view, text: str) -> np.ndarray:
-    """The page once it shows ``text`` and two screenshots agree (software WebGL lags)."""
+def _status(browser, page, view, text: str) -> None:
+    """Set the status line to ``text`` and wait until the page shows it."""
     text = f"{text} [{next(_STEP)}]"  # never the text of an earlier step on the page
     view.view.set_status(text)
     browser.wait_text(page, text)
+
+
+def _shot(browser, page, view, text: str) -> np.ndarray:
+    """The page once it shows ``text`` and two screenshots agree (software WebGL lags)."""
+    _status(browser, page, view, text)
     return browser.capture(page, stable_s=15.0)
+
+
+def _shortcuts_ready(page) -> None:
+    """Wait until the page's shortcut script runs: it is installed by an image's error
+    event, which may come after the panel's text is shown."""
+    page.wait_for_function(
+        "() => window.__tf && Object.keys(window.__tf.keys).length > 0",
+        timeout=BROWSER_TIMEOUT_S * 1000,
+    )
+
+
+def _until(cond, what) -> None:
+    """Wait (bounded) until ``cond()``; on the timeout fail with ``what()``."""
+    end = time.monotonic() + BROWSER_TIMEOUT_S
+    while not cond():
+        assert time.monotonic() < end, what()
+        time.sleep(0.05)
 
 
 def test_the_floor_grid_is_drawn_with_its_scale(browser, page, server):
@@ -194,7 +217,7 @@ def test_the_prediction_ghost_keeps_to_its_own_scale(browser, page, server, room
         plain = _shot(browser, page, view, "no prediction")
         view.set_offset(0.1)
         assert view.style.magnify >= 100 and view.style.ghost_magnify == 1.0
-        _shot(browser, page, view, "predicted +100 ms")
+        _status(browser, page, view, "predicted +100 ms")
         # the ghost may be drawn some frames after the status text (a CI run's stable
         # screenshot was still the plain one): wait for it, then for the scene to settle
         capture_panel_until(
@@ -203,10 +226,15 @@ def test_the_prediction_ghost_keeps_to_its_own_scale(browser, page, server, room
             lambda img, box: (changed(plain, img) & outside(img.shape, box)).sum() > 200,
         )
         ghost = browser.capture(page, stable_s=15.0)
-        diff = changed(plain, ghost) & outside(plain.shape, panel_box(page))
+        box = panel_box(page)
+        diff = changed(plain, ghost) & outside(plain.shape, box)
         cover = bbox_fraction(diff)
         print(f"the ghost at +100 ms covers {cover:.1%} of the view ({diff.sum()} px)", flush=True)
-        assert diff.sum() > 200, "the ghost is not drawn"
+        assert diff.sum() > 200, (
+            f"the ghost is not drawn: {changed(plain, ghost).sum()} px changed in all, panel "
+            f"{box} of {plain.shape[1]} x {plain.shape[0]}, {int(plain.std())} grey levels of "
+            f"contrast in the plain view (0: nothing drawn), the view's offset {view.offset_s} s"
+        )
         assert cover < 0.30, f"the ghost covers {cover:.1%} of the view"
         view.set_scene(labels=True)
         _doc(browser, page, view, "recording_tumvi_room1_predicted")
@@ -246,20 +274,15 @@ def test_the_save_buttons_send_the_view_as_png_and_the_track_as_csv(browser, pag
 
 
 def test_a_placed_camera_stays_put_and_a_snapshot_page_can_hide_its_panel(browser, page, server):
-    import time
-
     view = _show(browser, page, server, RecordingTrack.from_stream(_circle()), 1.0)
     try:
         position, look_at = np.array([0.0, -3.0, 2.5]), np.array([0.0, 0.0, 1.0])
         view.place_camera(position, look_at, move_browsers=True)
-        end = time.monotonic() + BROWSER_TIMEOUT_S  # the page reports its camera back
 
         def placed() -> bool:
             return bool(np.linalg.norm(server.camera().position - position) < 1e-3)
 
-        while not placed():
-            assert time.monotonic() < end, server.camera()
-            time.sleep(0.1)
+        _until(placed, server.camera)  # the page reports its camera back
         view.show(3.0)  # the body moved on; the camera is not following it
         browser.wait_text(page, f"t = {view.t_s:.3f} s /")
         assert placed(), server.camera()
@@ -280,19 +303,12 @@ def test_a_placed_camera_stays_put_and_a_snapshot_page_can_hide_its_panel(browse
 def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
     """Space, the arrows, ``[`` and ``]`` press the timeline's buttons: the status line's
     sample number and the view's state follow them (and the arrows leave the camera)."""
-    import time
-
     track = RecordingTrack.from_stream(_circle())
     view = _show(browser, page, server, track, 1.0)
 
-    def until(cond, what) -> None:
-        end = time.monotonic() + BROWSER_TIMEOUT_S
-        while not cond():
-            assert time.monotonic() < end, what()
-            time.sleep(0.05)
-
     try:
         browser.wait_text(page, "keys: space play or pause")
+        _shortcuts_ready(page)
         k = track.index(view.t_s)
         turn = server.camera().rotation.copy()
         # one key, then its effect, then the next: the page sends the panel's messages through
@@ -306,16 +322,16 @@ def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
         # (following the body moves the camera, but does not turn it)
         assert np.allclose(server.camera().rotation, turn, atol=1e-6), "the camera turned"
         page.keyboard.press("]")
-        until(lambda: view.speed.value == 2.0, lambda: f"speed {view.speed.value} after ]")
+        _until(lambda: view.speed.value == 2.0, lambda: f"speed {view.speed.value} after ]")
         page.keyboard.press("[")
-        until(lambda: view.speed.value == 1.0, lambda: f"speed {view.speed.value} after [")
+        _until(lambda: view.speed.value == 1.0, lambda: f"speed {view.speed.value} after [")
         page.keyboard.press("[")
-        until(lambda: view.speed.value == 0.5, lambda: f"speed {view.speed.value} after [ [")
+        _until(lambda: view.speed.value == 0.5, lambda: f"speed {view.speed.value} after [ [")
         t0 = view.t_s
         page.keyboard.press(" ")
-        until(lambda: view.play.value and view.t_s > t0 + 0.05, lambda: "space did not play")
+        _until(lambda: view.play.value and view.t_s > t0 + 0.05, lambda: "space did not play")
         page.keyboard.press(" ")
-        until(lambda: not view.play.value, lambda: "space did not pause")
+        _until(lambda: not view.play.value, lambda: "space did not pause")
     finally:
         view.close()
 
@@ -323,8 +339,6 @@ def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
 def test_the_time_plots_share_one_cursor(browser, page, server):
     """Hovering one of the recording's time plots shows the cursor in all of them (uPlot's
     cursor of every other plot is drawn, not ``u-off``), at the same fraction of its width."""
-    import time
-
     view = _show(browser, page, server, RecordingTrack.from_stream(_circle()), 1.0)
     try:
         page.get_by_text("Time plots", exact=True).click()
@@ -358,24 +372,17 @@ def test_the_time_plots_share_one_cursor(browser, page, server):
 def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
     """A click in a time plot moves the view to the time under the pointer (the plot's
     legend shows it), through the ``go to`` field; a typed time goes there too."""
-    import time
-
     from playwright.sync_api import Error as PlaywrightError
 
     track = RecordingTrack.from_stream(_circle())
     view = _show(browser, page, server, track, 1.0)
 
-    def until(cond, what) -> None:
-        end = time.monotonic() + BROWSER_TIMEOUT_S
-        while not cond():
-            assert time.monotonic() < end, what()
-            time.sleep(0.05)
-
     try:
         browser.wait_text(page, "click a time plot")
+        _shortcuts_ready(page)
         page.get_by_text("Time plots", exact=True).click()
         plots = page.locator(".u-over")
-        until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
+        _until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
         plot = plots.nth(2)  # the NIS plot
         # the folder opens with an animation that mounts its plots again: click once the
         # plot holds still
@@ -392,9 +399,9 @@ def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
                 assert time.monotonic() < end, "the plot never held still to be clicked"
         # the x axis spans the recording: 70 % of the width is 70 % of its duration
         want = 0.7 * float(track.t[-1])
-        until(lambda: abs(view.t_s - want) < 0.05, lambda: f"at {view.t_s} s, not {want}")
+        _until(lambda: abs(view.t_s - want) < 0.05, lambda: f"at {view.t_s} s, not {want}")
         row = page.locator(".mantine-Flex-root", has=page.locator("label", has_text="go to [s]"))
         row.locator("input").fill("2.5")
-        until(lambda: abs(view.t_s - 2.5) < 0.011, lambda: f"at {view.t_s} s, not 2.5")
+        _until(lambda: abs(view.t_s - 2.5) < 0.011, lambda: f"at {view.t_s} s, not 2.5")
     finally:
         view.close()

@@ -66,8 +66,11 @@ class ViewServer:
         self.status = self.gui.add_markdown("starting", order=-100)
         self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
         self._camera_hooks: list = []
+        # pages told to take the initial camera before they reported one (their handle has no
+        # state yet): moved at their first report
+        self._reset_due: set[int] = set()
         self.server.on_client_connect(self._watch_camera)
-        self.server.on_client_disconnect(lambda c: self._cameras.pop(c.client_id, None))
+        self.server.on_client_disconnect(self._forget_client)
 
     def clear(self) -> None:
         """Remove every scene node, control and camera hook (the status line stays): the
@@ -78,6 +81,10 @@ class ViewServer:
         self.status = self.gui.add_markdown("starting", order=-100)
         self._camera_hooks.clear()
 
+    def _forget_client(self, client) -> None:
+        self._cameras.pop(client.client_id, None)
+        self._reset_due.discard(client.client_id)
+
     def _watch_camera(self, client) -> None:
         def seen(camera, cid=client.client_id) -> None:
             # A page reports its camera as it starts, possibly before it applied the initial
@@ -85,6 +92,9 @@ class ViewServer:
             # it would move that default), nor laid out for, until it is another.
             if cid not in self._cameras and _is_three_default(camera):
                 return
+            if cid in self._reset_due:
+                self._reset_due.discard(cid)
+                self._move_to_initial(client)
             self._cameras[cid] = Camera.from_client(camera)
             for hook in list(self._camera_hooks):
                 hook()
@@ -102,11 +112,16 @@ class ViewServer:
 
     def reset_cameras(self) -> None:
         """Move the camera of every connected page to the initial camera."""
-        ic = self.server.initial_camera
         for cid, client in self.server.get_clients().items():
+            self._reset_due.add(cid)  # a page with no camera state yet: at its first report
             if cid in self._cameras:
-                client.camera.position = np.asarray(ic.position, float)
-                client.camera.look_at = np.asarray(ic.look_at, float)
+                self._reset_due.discard(cid)
+                self._move_to_initial(client)
+
+    def _move_to_initial(self, client) -> None:
+        ic = self.server.initial_camera
+        client.camera.position = np.asarray(ic.position, float)
+        client.camera.look_at = np.asarray(ic.look_at, float)
 
     @property
     def url(self) -> str:
