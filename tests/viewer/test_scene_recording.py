@@ -405,3 +405,30 @@ def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
         _until(lambda: abs(view.t_s - 2.5) < 0.011, lambda: f"at {view.t_s} s, not 2.5")
     finally:
         view.close()
+
+
+def test_a_line_marks_the_current_time_in_every_time_plot(browser, page, server):
+    """Every time plot spans the recording and draws the view's current time as a line at
+    its fraction of the width; the line follows the view to another time."""
+    track = RecordingTrack.from_stream(_circle())
+    view = _show(browser, page, server, track, 1.0)
+    js = """() => Array.from(document.querySelectorAll('.u-over')).map(o => {
+        const l = o.querySelector('.tf-now');
+        const b = o.getBoundingClientRect();
+        return l ? (l.getBoundingClientRect().left - b.left) / b.width : null; })"""
+    try:
+        _shortcuts_ready(page)
+        page.get_by_text("Time plots", exact=True).click()
+        plots = page.locator(".u-over")
+        _until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
+        for t_s in (1.0, 0.75 * track.duration):
+            view.show(t_s)
+            want = view.t_s / track.duration
+
+            def placed(want=want) -> bool:
+                at = page.evaluate(js)
+                return len(at) >= 4 and all(a is not None and abs(a - want) < 0.01 for a in at)
+
+            _until(placed, lambda w=want: f"lines at {page.evaluate(js)}, wanted {w:.3f}")
+    finally:
+        view.close()

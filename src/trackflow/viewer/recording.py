@@ -28,8 +28,8 @@ from .export import csv_bytes, save_render
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
-from .server import SECONDS_AXIS, ViewServer, linked_cursor
-from .shortcuts import add_shortcuts
+from .server import ViewServer, linked_cursor
+from .shortcuts import add_shortcuts, span_axis
 from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]
@@ -258,7 +258,7 @@ class RecordingView:
             self.pace = gui.add_button_group("pace", ("slower", "faster"))
             self.go_to = gui.add_text(SEEK, "", hint="a time [s] of the recording; a click on a "
                                       "time plot puts its time here")  # fmt: skip
-            add_shortcuts(gui, KEYS, seek=SEEK)
+            add_shortcuts(gui, KEYS, seek=SEEK, now=("time [s]", 0.0, tr.duration))
         with gui.add_folder("Error display"):
             self.sigma = gui.add_dropdown("sigma", ("1", "2", "3"), initial_value="1")
             self.offset = gui.add_slider(
@@ -316,25 +316,26 @@ class RecordingView:
         gui, t = self.view.gui, self.track.t
         step = max(1, len(t) // 2000)  # a plot needs no more points than pixels
         linked = linked_cursor("recording")  # one time under the pointer in every plot
+        span = span_axis(0.0, self.track.duration)  # one time span: the current-time line
         with gui.add_folder("Time plots", expand_by_default=False):
             for title, y, unit in (
                 ("position sigma (largest axis)", pos_mm, "mm"),
                 ("orientation sigma (largest axis)", ori_deg, "deg"),
             ):
                 gui.add_uplot(
-                    scales=SECONDS_AXIS, cursor=linked,
+                    scales=span, cursor=linked,
                     data=(t[::step], np.asarray(y[::step], float)),
                     series=({"label": "t [s]"}, {"label": f"{title} {unit}", "stroke": "#c0c"}),
                     title=title, aspect=2.0,
                 )  # fmt: skip
             gui.add_uplot(
-                scales=SECONDS_AXIS, cursor=linked,
+                scales=span, cursor=linked,
                 data=nis_data(t[::step], self.track.nis[::step]),
                 series=nis_series("#c0c"), title="NIS (the band: 95 % of a consistent filter's)",
                 aspect=2.0,
             )  # fmt: skip
             self.error_plot = gui.add_uplot(
-                scales=SECONDS_AXIS, cursor=linked, data=self._no_errors(),
+                scales=span, cursor=linked, data=self._no_errors(),
                 series=({"label": "t [s]"}, {"label": "measured error [mm]", "stroke": "#c0c"},
                         {"label": "predicted RMS error [mm]", "stroke": "#2a2"}),
                 title="prediction error at the prediction offset (set it above)", aspect=2.0,

@@ -11,7 +11,10 @@ small script that
   (whose arrow keys would turn the camera);
 * on a click in a time plot, reads the time under the pointer from the plot's legend (uPlot
   shows the cursor's x there) and types it into the panel's text field named ``seek``
-  (the view's "go to" field, which moves the view there).
+  (the view's "go to" field, which moves the view there);
+* with ``now``, draws the view's current time as a vertical line in every time plot, five
+  times a second: the time is the value of the panel's time slider, placed on the plots'
+  fixed time span (the view gives its plots that span, :func:`span_axis`).
 
 The script runs from an image that does not load: HTML set into a page runs no
 ``<script>``.
@@ -22,7 +25,7 @@ from __future__ import annotations
 import html
 import json
 
-__all__ = ["add_shortcuts", "shortcuts_html"]
+__all__ = ["add_shortcuts", "shortcuts_html", "span_axis"]
 
 #: what the key listener ignores: keys typed into fields or moving a focused slider
 _FORM = "input,textarea,select,[contenteditable],[role=slider]"
@@ -48,18 +51,43 @@ _SCRIPT = (
     "var input=row&&row.querySelector('input');if(!input)return;"
     "var set=Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set;"
     "set.call(input,String(t));input.dispatchEvent(new Event('input',{bubbles:true}));"
-    "},true);}"
+    "},true);"
+    "setInterval(function(){var now=window.__tf.now;if(!now)return;"
+    "var lab=byText('label',now.slider);var row=lab&&lab.closest('.mantine-Flex-root');"
+    "var th=row&&row.querySelector('[role=slider]');"
+    "var v=th?parseFloat(th.getAttribute('aria-valuenow')):NaN;if(!isFinite(v))return;"
+    "var f=Math.min(Math.max((v-now.span[0])/(now.span[1]-now.span[0]),0),1);"
+    "document.querySelectorAll('.u-over').forEach(function(o){"
+    "var l=o.querySelector('.tf-now');if(!l){l=document.createElement('div');"
+    "l.className='tf-now';l.style.cssText='position:absolute;top:0;bottom:0;width:0;"
+    "border-left:1px solid #e33;pointer-events:none';o.appendChild(l);}"
+    "l.style.left=(100*f)+'%';});},200);}"
     "Object.assign(window.__tf.keys,{keys});window.__tf.seek={seek};"
+    "if({now})window.__tf.now={now};"
 )
 
 
-def shortcuts_html(keys: dict[str, tuple[str, str]], seek: str | None = None) -> str:
+def span_axis(t0_s: float, t1_s: float) -> dict:
+    """uPlot ``scales`` whose x axis (seconds) spans ``[t0_s, t1_s]`` whatever the data: the
+    plots of one view then share one time span (the current-time line and a click map
+    alike in each)."""
+    return {"x": {"time": False, "range": [float(t0_s), max(float(t1_s), float(t0_s) + 1e-3)]}}
+
+
+def shortcuts_html(
+    keys: dict[str, tuple[str, str]], seek: str | None = None, now: tuple | None = None
+) -> str:
     """The panel's HTML: ``keys`` maps a ``KeyboardEvent.key`` value (``" "``,
     ``"ArrowLeft"``, ``"["``) to ``(the text of the button it presses, what it does)``;
     ``seek`` is the label of the text field a click in a time plot types its time into
-    (``None``: clicks do nothing)."""
+    (``None``: clicks do nothing); ``now = (slider label, t0_s, t1_s)`` draws the slider's
+    time as a line in the time plots, which span ``[t0_s, t1_s]`` (``None``: no line)."""
     script = _SCRIPT.replace("{keys}", json.dumps({k: v[0] for k, v in keys.items()}))
     script = script.replace("{seek}", json.dumps(seek))
+    if now is not None:
+        label, t0, t1 = now
+        now = {"slider": label, "span": span_axis(t0, t1)["x"]["range"]}
+    script = script.replace("{now}", json.dumps(now))
     names = {" ": "space", "ArrowLeft": "\u2190", "ArrowRight": "\u2192"}
     text = ", ".join(f"<b>{html.escape(names.get(k, k))}</b> {html.escape(v[1])}"
                      for k, v in keys.items())  # fmt: skip
@@ -69,7 +97,9 @@ def shortcuts_html(keys: dict[str, tuple[str, str]], seek: str | None = None) ->
             f'<div style="font-size:11px">keys: {text}</div>')  # fmt: skip
 
 
-def add_shortcuts(gui, keys: dict[str, tuple[str, str]], seek: str | None = None):
+def add_shortcuts(
+    gui, keys: dict[str, tuple[str, str]], seek: str | None = None, now: tuple | None = None
+):
     """Add the shortcuts line (:func:`shortcuts_html`) to ``gui`` (a viser GUI API, inside
     the folder it belongs to); returns the HTML handle."""
-    return gui.add_html(shortcuts_html(keys, seek))
+    return gui.add_html(shortcuts_html(keys, seek, now))
