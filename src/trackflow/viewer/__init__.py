@@ -5,8 +5,8 @@
   ellipsoid and orientation error (axis ellipsoids), trails, the prediction ghost, the SRG
   panel with edge states and time plots. Drawn by a separate view process from a shared
   memory board the network's taps write.
-* :class:`RecordingView` - a recording on a timeline; :class:`PoseToolPage` - the PoseTool's
-  filter tuning in the browser.
+* :class:`RecordingView` - a recording on a timeline (each browser tab its own:
+  :class:`PerTab`); :class:`PoseToolPage` - the PoseTool's filter tuning in the browser.
 * :func:`snapshot` / :class:`Browser` - headless Chromium renders for reports and tests.
 
 ``trackflow view`` and ``trackflow run --view`` are the command line (``docs/viewer.md``).
@@ -34,7 +34,8 @@ _WHERE = {
     "auto_ghost_magnify": "recording",
     "Camera": "camera", "default_anchor": "edges", "LabelLayer": "labels",
     "PoseDrawing": "scene", "Style": "scene",
-    "ViewServer": "server",
+    "ClientView": "server", "ViewServer": "server",
+    "PerTab": "tabs",
     "edge_motion": "simulate", "setup_sources": "simulate",
 }  # fmt: skip
 

@@ -159,32 +159,49 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
             run.close()
     from ..io import read_stream
     from .recording import RecordingTrack, RecordingView
+    from .server import ViewServer
+    from .tabs import PerTab
 
     stream, report = read_stream(target, format=opts.format, clean=opts.clean)
     if opts.clean:
         print(str(report), file=sys.stderr)
     if opts.posetool:
         return _posetool(stream, opts, snapshot, size)
-    view = RecordingView(RecordingTrack.from_stream(stream), opts.host, opts.port)
-    try:
-        view.set_sigma(opts.sigma)
-        view.set_offset(opts.offset_s)
-        if opts.magnify is not None:
-            view.magnify.value = float(opts.magnify)
-        at = 0.0 if opts.at_s is None else float(opts.at_s)
-        if not 0.0 <= at <= view.track.duration:
-            raise InputError(
-                f"--at {at} s is outside the recording (0 to {view.track.duration:.3f} s)"
-            )
-        view.show(at)
-        if opts.camera is not None:  # the user's camera, kept: the body is not followed
-            view.place_camera(*opts.camera)
-        if snapshot is not None:
+    track = RecordingTrack.from_stream(stream)
+    at = 0.0 if opts.at_s is None else float(opts.at_s)
+    if not 0.0 <= at <= track.duration:
+        raise InputError(f"--at {at} s is outside the recording (0 to {track.duration:.3f} s)")
+
+    def make(server=None) -> RecordingView:
+        """The view the options ask for, on its own server or on one page (``server``)."""
+        view = RecordingView(track, opts.host, opts.port, server=server)
+        try:
+            view.set_sigma(opts.sigma)
+            view.set_offset(opts.offset_s)
+            if opts.magnify is not None:
+                view.magnify.value = float(opts.magnify)
+            view.show(at)
+            if opts.camera is not None:  # the user's camera, kept: the body is not followed
+                view.place_camera(*opts.camera)
+        except BaseException:
+            view.close()
+            raise
+        return view
+
+    if snapshot is not None:  # one page: the snapshot's
+        view = make()
+        try:
             text = f"t = {view.t_s:.3f} s"
             return take(view.url, snapshot, text, *size, hide_panel=opts.no_panel)
-        return _block(view.url, view)
+        finally:
+            view.close()
+    # every tab its own time, error display and camera
+    title = f"trackflow: {stream.source} -> {stream.target}"
+    tabs = PerTab(ViewServer(opts.host, opts.port, title=title), make)
+    try:
+        return _block(tabs.url, tabs)
     finally:
-        view.close()
+        tabs.close()
 
 
 def _posetool(stream, opts: ViewOptions, snapshot, size) -> Path | None:

@@ -1,4 +1,12 @@
-"""The viser server every view runs on: loopback by default, Z up, one status line."""
+"""The viser server every view runs on (loopback by default, Z up, one status line), and one
+page's own view on it.
+
+A view draws on a :class:`ViewServer` (every open page shows the same: one panel, one
+scene) or on a :class:`ClientView` (one page's own panel, scene and camera: each browser tab
+its own state). Both keep the pages' cameras the same way (:class:`Pages`): a home camera
+(what a page is moved to when the view frames its content) and the camera each page last
+reported.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +20,7 @@ from ..errors import InputError
 from ..optional import require
 from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
-__all__ = ["SECONDS_AXIS", "ViewServer", "linked_cursor"]
+__all__ = ["SECONDS_AXIS", "ClientView", "Pages", "ViewServer", "linked_cursor"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
 SECONDS_AXIS = {"x": {"time": False}}
@@ -35,8 +43,161 @@ def _refuse_share(*_args, **_kwargs) -> None:
     return None
 
 
-class ViewServer:
-    """A viser server bound to ``host:port`` (``port=0``: a free port) with a status line.
+class Pages:
+    """The cameras of a view's pages: its home camera (``_home``: ``position``, ``look_at``,
+    ``up``, ``fov``; viser's initial camera for a whole server) and the camera each page
+    last reported. Subclasses give ``_home`` and :meth:`_pages`, and call
+    :meth:`_watch_camera` for every page they show."""
+
+    _home: object
+
+    def _init_pages(self) -> None:
+        self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
+        self._camera_hooks: list = []
+        # pages told to take the home camera before they reported one (their handle has no
+        # state yet): moved at their first report
+        self._reset_due: set[int] = set()
+
+    def _pages(self) -> dict:
+        """``{client id: client handle}`` of the pages this view moves."""
+        raise NotImplementedError  # pragma: no cover
+
+    def _forget_client(self, client) -> None:
+        self._cameras.pop(client.client_id, None)
+        self._reset_due.discard(client.client_id)
+
+    def _watch_camera(self, client) -> None:
+        def seen(camera, cid=client.client_id) -> None:
+            # A page reports its camera as it starts, possibly before it applied the initial
+            # camera: the client's default then, looking at the origin. Not followed (moving
+            # it would move that default), nor laid out for, until it is another.
+            if cid not in self._cameras and _is_three_default(camera):
+                return
+            if cid in self._reset_due:
+                self._reset_due.discard(cid)
+                self._move_home(client)
+            self._cameras[cid] = Camera.from_client(camera)
+            for hook in list(self._camera_hooks):
+                hook()
+
+        client.camera.on_update(seen)
+
+    @property
+    def has_browser_camera(self) -> bool:
+        """Whether a connected page has reported its camera."""
+        return bool(self._cameras)
+
+    def on_camera(self, hook) -> None:
+        """Call ``hook()`` whenever a page reports a moved camera (labels are laid out anew)."""
+        self._camera_hooks.append(hook)
+
+    def reset_cameras(self) -> None:
+        """Move the camera of every connected page to the home camera."""
+        for cid, client in self._pages().items():
+            self._reset_due.add(cid)  # a page with no camera state yet: at its first report
+            if self._can_move(cid, client):
+                self._reset_due.discard(cid)
+                self._move_home(client)
+
+    def _can_move(self, cid: int, client) -> bool:
+        """Whether a page's camera can be moved now (it reported one)."""
+        return cid in self._cameras
+
+    def _move_home(self, client) -> None:
+        home = self._home
+        client.camera.position = np.asarray(home.position, float)
+        client.camera.look_at = np.asarray(home.look_at, float)
+
+    def _set_home(self, position, look_at) -> None:
+        self._home.position = tuple(float(x) for x in position)
+        self._home.look_at = tuple(float(x) for x in look_at)
+        self._home.up = (0.0, 0.0, 1.0)
+        self._home_moved()
+
+    def _home_moved(self) -> None:
+        """The home camera moved (a whole server's pages opened later take it)."""
+
+    def look_at(self, center, extent: float) -> None:
+        """Place the home camera so a box of size ``extent`` [m] around ``center`` fits."""
+        c = np.asarray(center, float)
+        e = max(float(extent), 0.05)
+        back = np.array([1.0, -1.2, 0.8])
+        back /= np.linalg.norm(back)
+        right = np.cross(-back, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        # the control panel covers the right of the page: aim right of the centre so the
+        # scene sits in the free left part
+        target = c + 0.3 * e * right
+        # 1.5 extents away at three.js's 75 degrees; the same view through the longer lens
+        dist = 1.5 * e * np.tan(0.5 * DEFAULT_FOV) / np.tan(0.5 * FRAMING_FOV)
+        self._set_home(target + dist * back, target)
+
+    def place_camera(self, position, look_at, move_browsers: bool = False) -> None:
+        """The home camera at ``position`` (3,) looking at ``look_at`` (3,) [m, scene
+        frame], z up; with ``move_browsers`` the connected pages' cameras too."""
+        p, t = np.asarray(position, float), np.asarray(look_at, float)
+        if p.shape != (3,) or t.shape != (3,) or not np.all(np.isfinite([*p, *t])):
+            raise InputError(f"a camera needs two finite points, got {position}, {look_at}")
+        if np.linalg.norm(p - t) < 1e-6:
+            raise InputError("the camera's position and the point it looks at are the same")
+        self._set_home(p, t)
+        if move_browsers:
+            self.reset_cameras()
+
+    def frame(self, points, coverage: float = 0.14, centre=None) -> np.ndarray:
+        """Aim the home camera at ``centre`` (default: the middle of ``points`` (N, 3)) so
+        that the points' bounding box covers ``coverage`` of the page
+        (:func:`camera.frame_points`); returns the point it looks at (3,)."""
+        position, look_at = frame_points(points, coverage, fov=FRAMING_FOV, centre=centre)
+        self._set_home(position, look_at)
+        return look_at
+
+    def camera(self) -> Camera:
+        """The camera of the first page that reported one, else the home camera (on the
+        default canvas)."""
+        for cam in list(self._cameras.values()):
+            return cam
+        home = self._home
+        return Camera.looking_at(home.position, home.look_at, fov=float(home.fov))
+
+    def looked_at(self) -> np.ndarray:
+        """The point the first page with a camera looks at, else the home camera's."""
+        clients = self._pages()
+        for cid in list(self._cameras):
+            if cid in clients:
+                return np.asarray(clients[cid].camera.look_at, float)
+        return np.asarray(self._home.look_at, float)
+
+    def follow(self, look_at) -> None:
+        """Move every connected page's camera (and the home camera) so that it looks at
+        ``look_at`` (3,), keeping its direction and distance (the user may orbit and zoom
+        while it follows): a followed body stays where it is on the page.
+
+        Each camera is moved from where its page last reported it, to the absolute target,
+        so a report that crossed the previous move on the wire costs nothing."""
+        target = np.asarray(look_at, float)
+        if not np.all(np.isfinite(target)):
+            return
+        for cid, client in self._pages().items():
+            cam = self._cameras.get(cid)
+            if cam is None:  # not reported yet: the handle has no state
+                continue
+            d = target - np.asarray(client.camera.look_at, float)
+            if np.linalg.norm(d) > 1e-6:
+                client.camera.position = np.asarray(client.camera.position, float) + d
+                # where it is now (labels are laid out for it before the page reports back)
+                self._cameras[cid] = dataclasses.replace(cam, position=cam.position + d)
+        home = self._home
+        d = target - np.asarray(home.look_at, float)
+        if np.linalg.norm(d) > 1e-6:
+            home.position = tuple(np.asarray(home.position, float) + d)
+            home.look_at = tuple(target)
+
+
+class ViewServer(Pages):
+    """A viser server bound to ``host:port`` (``port=0``: a free port) with a status line;
+    every page shows the same panel and scene, and its home camera is viser's initial
+    camera (what a page opened later starts with).
 
     viser serves only its own client page (its bundled ``index.html``) and the websocket of
     that page; nothing else is reachable. The default host is ``127.0.0.1``: pass
@@ -63,14 +224,14 @@ class ViewServer:
         self.scene.configure_default_lights(True, cast_shadow=False)
         # a longer lens than three.js's 75 degrees: a body framed close is not distorted
         self.server.initial_camera.fov = float(FRAMING_FOV)
+        self._home = self.server.initial_camera
         self.status = self.gui.add_markdown("starting", order=-100)
-        self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
-        self._camera_hooks: list = []
-        # pages told to take the initial camera before they reported one (their handle has no
-        # state yet): moved at their first report
-        self._reset_due: set[int] = set()
+        self._init_pages()
         self.server.on_client_connect(self._watch_camera)
         self.server.on_client_disconnect(self._forget_client)
+
+    def _pages(self) -> dict:
+        return self.server.get_clients()
 
     def clear(self) -> None:
         """Remove every scene node, control and camera hook (the status line stays): the
@@ -80,48 +241,6 @@ class ViewServer:
         self.gui.reset()
         self.status = self.gui.add_markdown("starting", order=-100)
         self._camera_hooks.clear()
-
-    def _forget_client(self, client) -> None:
-        self._cameras.pop(client.client_id, None)
-        self._reset_due.discard(client.client_id)
-
-    def _watch_camera(self, client) -> None:
-        def seen(camera, cid=client.client_id) -> None:
-            # A page reports its camera as it starts, possibly before it applied the initial
-            # camera: the client's default then, looking at the origin. Not followed (moving
-            # it would move that default), nor laid out for, until it is another.
-            if cid not in self._cameras and _is_three_default(camera):
-                return
-            if cid in self._reset_due:
-                self._reset_due.discard(cid)
-                self._move_to_initial(client)
-            self._cameras[cid] = Camera.from_client(camera)
-            for hook in list(self._camera_hooks):
-                hook()
-
-        client.camera.on_update(seen)
-
-    @property
-    def has_browser_camera(self) -> bool:
-        """Whether a connected page has reported its camera."""
-        return bool(self._cameras)
-
-    def on_camera(self, hook) -> None:
-        """Call ``hook()`` whenever a page reports a moved camera (labels are laid out anew)."""
-        self._camera_hooks.append(hook)
-
-    def reset_cameras(self) -> None:
-        """Move the camera of every connected page to the initial camera."""
-        for cid, client in self.server.get_clients().items():
-            self._reset_due.add(cid)  # a page with no camera state yet: at its first report
-            if cid in self._cameras:
-                self._reset_due.discard(cid)
-                self._move_to_initial(client)
-
-    def _move_to_initial(self, client) -> None:
-        ic = self.server.initial_camera
-        client.camera.position = np.asarray(ic.position, float)
-        client.camera.look_at = np.asarray(ic.look_at, float)
 
     @property
     def url(self) -> str:
@@ -135,88 +254,75 @@ class ViewServer:
         """Replace the status line (tests and snapshots wait for its text)."""
         self.status.content = text
 
-    def look_at(self, center, extent: float) -> None:
-        """Place the initial camera so a box of size ``extent`` [m] around ``center`` fits."""
-        c = np.asarray(center, float)
-        e = max(float(extent), 0.05)
-        back = np.array([1.0, -1.2, 0.8])
-        back /= np.linalg.norm(back)
-        right = np.cross(-back, [0.0, 0.0, 1.0])
-        right /= np.linalg.norm(right)
-        # the control panel covers the right of the page: aim right of the centre so the
-        # scene sits in the free left part
-        target = c + 0.3 * e * right
-        # 1.5 extents away at three.js's 75 degrees; the same view through the longer lens
-        dist = 1.5 * e * np.tan(0.5 * DEFAULT_FOV) / np.tan(0.5 * FRAMING_FOV)
-        self.server.initial_camera.position = tuple(target + dist * back)
-        self.server.initial_camera.look_at = tuple(target)
-        self.server.initial_camera.up = (0.0, 0.0, 1.0)
-
-    def place_camera(self, position, look_at, move_browsers: bool = False) -> None:
-        """The initial camera at ``position`` (3,) looking at ``look_at`` (3,) [m, scene
-        frame], z up; with ``move_browsers`` the connected pages' cameras too."""
-        p, t = np.asarray(position, float), np.asarray(look_at, float)
-        if p.shape != (3,) or t.shape != (3,) or not np.all(np.isfinite([*p, *t])):
-            raise InputError(f"a camera needs two finite points, got {position}, {look_at}")
-        if np.linalg.norm(p - t) < 1e-6:
-            raise InputError("the camera's position and the point it looks at are the same")
-        self.server.initial_camera.position = tuple(p)
-        self.server.initial_camera.look_at = tuple(t)
-        self.server.initial_camera.up = (0.0, 0.0, 1.0)
-        if move_browsers:
-            self.reset_cameras()
-
-    def frame(self, points, coverage: float = 0.14, centre=None) -> np.ndarray:
-        """Aim the initial camera (of pages opened from now on) at ``centre`` (default: the
-        middle of ``points`` (N, 3)) so that the points' bounding box covers ``coverage`` of
-        the page (:func:`camera.frame_points`); returns the point it looks at (3,)."""
-        position, look_at = frame_points(points, coverage, fov=FRAMING_FOV, centre=centre)
-        self.server.initial_camera.position = tuple(position)
-        self.server.initial_camera.look_at = tuple(look_at)
-        self.server.initial_camera.up = (0.0, 0.0, 1.0)
-        return look_at
-
-    def camera(self) -> Camera:
-        """The camera of the first browser that reported one, else the initial camera (on
-        the default canvas)."""
-        for cam in list(self._cameras.values()):
-            return cam
-        ic = self.server.initial_camera
-        return Camera.looking_at(ic.position, ic.look_at, fov=float(ic.fov))
-
-    def looked_at(self) -> np.ndarray:
-        """The point the first browser with a camera looks at, else the initial camera's."""
-        clients = self.server.get_clients()
-        for cid in list(self._cameras):
-            if cid in clients:
-                return np.asarray(clients[cid].camera.look_at, float)
-        return np.asarray(self.server.initial_camera.look_at, float)
-
-    def follow(self, look_at) -> None:
-        """Move every connected browser's camera (and the initial camera) so that it looks at
-        ``look_at`` (3,), keeping its direction and distance (the user may orbit and zoom
-        while it follows): a followed body stays where it is on the page.
-
-        Each camera is moved from where its page last reported it, to the absolute target,
-        so a report that crossed the previous move on the wire costs nothing."""
-        target = np.asarray(look_at, float)
-        if not np.all(np.isfinite(target)):
-            return
-        for cid, client in self.server.get_clients().items():
-            cam = self._cameras.get(cid)
-            if cam is None:  # not reported yet: the handle has no state
-                continue
-            d = target - np.asarray(client.camera.look_at, float)
-            if np.linalg.norm(d) > 1e-6:
-                client.camera.position = np.asarray(client.camera.position, float) + d
-                # where it is now (labels are laid out for it before the page reports back)
-                self._cameras[cid] = dataclasses.replace(cam, position=cam.position + d)
-        ic = self.server.initial_camera
-        d = target - np.asarray(ic.look_at, float)
-        if np.linalg.norm(d) > 1e-6:
-            ic.position = tuple(np.asarray(ic.position, float) + d)
-            ic.look_at = tuple(target)
-
     def close(self) -> None:
         with contextlib.redirect_stdout(io.StringIO()):
             self.server.stop()
+
+
+@dataclasses.dataclass
+class _Home:
+    """A page's own home camera (as viser's initial camera holds a server's)."""
+
+    position: tuple
+    look_at: tuple
+    up: tuple
+    fov: float
+
+
+class ClientView(Pages):
+    """One page's own view on a :class:`ViewServer` ``host``: the page's own panel (with its
+    status line), scene and camera, so that each browser tab keeps its own state. What the
+    server shows to every page stays; :meth:`close` removes only this page's part.
+
+    Parameters
+    ----------
+    host : ViewServer
+    client : viser.ClientHandle
+        The page (from ``host.server.on_client_connect``).
+    """
+
+    def __init__(self, host: ViewServer, client):
+        self.host, self.client = host, client
+        self.scene, self.gui = client.scene, client.gui
+        ic = host.server.initial_camera
+        up = (0.0, 0.0, 1.0) if ic.up is None else tuple(ic.up)  # None: the scene's up
+        self._home = _Home(tuple(ic.position), tuple(ic.look_at), up, float(ic.fov))
+        self.status = self.gui.add_markdown("starting", order=-100)
+        self._init_pages()
+        cam = client.camera
+        if cam.update_timestamp > 0.0 and not _is_three_default(cam):  # reported before
+            self._cameras[client.client_id] = Camera.from_client(cam)
+        self._watch_camera(client)
+
+    def _pages(self) -> dict:
+        return {self.client.client_id: self.client}
+
+    def _can_move(self, cid: int, client) -> bool:
+        return client.camera.update_timestamp > 0.0  # viser holds the page's camera
+
+    def _home_moved(self) -> None:
+        # the page is open already: it goes there now (or at its first report)
+        self.reset_cameras()
+
+    def clear(self) -> None:
+        """Remove this page's scene nodes, controls and camera hooks (the status stays; a
+        page that has gone has nothing to remove)."""
+        if self.client.client_id not in self.host.server.get_clients():
+            self._camera_hooks.clear()
+            return
+        self.scene.reset()
+        self.gui.reset()
+        self.status = self.gui.add_markdown("starting", order=-100)
+        self._camera_hooks.clear()
+
+    @property
+    def url(self) -> str:
+        return self.host.url
+
+    def set_status(self, text: str) -> None:
+        """Replace this page's status line."""
+        self.status.content = text
+
+    def close(self) -> None:
+        """Remove this page's part (the server runs on)."""
+        self.clear()
