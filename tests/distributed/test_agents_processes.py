@@ -218,15 +218,22 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
 
         def same_states():
             # both answers must come from the same newest state, whose origin d maps by its
-            # offset estimate (so a's origin minus d's is that estimate, < 1 ms); a state
-            # that reaches a or d between the requests changes an answer: asked again
-            t = time.time_ns() - 50_000_000
-            at_d = remote_get(session, realm, "query/qd", t)
-            offset = remote_get(session, realm, "get/s1", t).origin_ns - at_d.origin_ns
-            if abs(offset) >= 1_000_000:
+            # offset estimate (so a's origin minus d's is that estimate, < 1 ms), predicted
+            # forward from it: at a time before that state a answers from its history and d
+            # back from the state (a loaded run parted them by 0.8 mm so). A state that
+            # reaches a or d between the requests changes an answer: asked again
+            try:
+                t = time.time_ns() - 50_000_000
+                newest = remote_get(session, realm, "query/qd", t).origin_ns
+                t = max(t, newest + 1_000_000)
+                at_d = remote_get(session, realm, "query/qd", t)
+                offset = remote_get(session, realm, "get/s1", t).origin_ns - at_d.origin_ns
+                if abs(offset) >= 1_000_000 or at_d.exposure_ns < at_d.origin_ns:
+                    return None
+                at_a = remote_get(session, realm, "get/s1", t + offset)
+                again = remote_get(session, realm, "query/qd", t)
+            except ValueError:  # refused (too far ahead of the newest state): asked again
                 return None
-            at_a = remote_get(session, realm, "get/s1", t + offset)
-            again = remote_get(session, realm, "query/qd", t)
             same = at_a.origin_ns - offset == at_d.origin_ns == again.origin_ns
             return (at_d, at_a) if same else None
 
