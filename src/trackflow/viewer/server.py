@@ -62,6 +62,20 @@ class Pages:
         """``{client id: client handle}`` of the pages this view moves."""
         raise NotImplementedError  # pragma: no cover
 
+    def _add_status(self) -> None:
+        self.status = self.gui.add_markdown("starting", order=-100)
+
+    def _clear_view(self) -> None:
+        """Remove the view's scene nodes, controls and camera hooks; a new status line."""
+        self.scene.reset()
+        self.gui.reset()
+        self._add_status()
+        self._camera_hooks.clear()
+
+    def set_status(self, text: str) -> None:
+        """Replace the status line (tests and snapshots wait for its text)."""
+        self.status.content = text
+
     def _forget_client(self, client) -> None:
         self._cameras.pop(client.client_id, None)
         self._reset_due.discard(client.client_id)
@@ -225,7 +239,7 @@ class ViewServer(Pages):
         # a longer lens than three.js's 75 degrees: a body framed close is not distorted
         self.server.initial_camera.fov = float(FRAMING_FOV)
         self._home = self.server.initial_camera
-        self.status = self.gui.add_markdown("starting", order=-100)
+        self._add_status()
         self._init_pages()
         self.server.on_client_connect(self._watch_camera)
         self.server.on_client_disconnect(self._forget_client)
@@ -237,10 +251,7 @@ class ViewServer(Pages):
         """Remove every scene node, control and camera hook (the status line stays): the
         server can show another view to the pages already open, which keep their WebGL
         context (a new page costs software WebGL its shaders again)."""
-        self.scene.reset()
-        self.gui.reset()
-        self.status = self.gui.add_markdown("starting", order=-100)
-        self._camera_hooks.clear()
+        self._clear_view()
 
     @property
     def url(self) -> str:
@@ -249,10 +260,6 @@ class ViewServer(Pages):
         return (
             f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}/"
         )
-
-    def set_status(self, text: str) -> None:
-        """Replace the status line (tests and snapshots wait for its text)."""
-        self.status.content = text
 
     def close(self) -> None:
         with contextlib.redirect_stdout(io.StringIO()):
@@ -287,7 +294,7 @@ class ClientView(Pages):
         ic = host.server.initial_camera
         up = (0.0, 0.0, 1.0) if ic.up is None else tuple(ic.up)  # None: the scene's up
         self._home = _Home(tuple(ic.position), tuple(ic.look_at), up, float(ic.fov))
-        self.status = self.gui.add_markdown("starting", order=-100)
+        self._add_status()
         self._init_pages()
         cam = client.camera
         if cam.update_timestamp > 0.0 and not _is_three_default(cam):  # reported before
@@ -310,18 +317,11 @@ class ClientView(Pages):
         if self.client.client_id not in self.host.server.get_clients():
             self._camera_hooks.clear()
             return
-        self.scene.reset()
-        self.gui.reset()
-        self.status = self.gui.add_markdown("starting", order=-100)
-        self._camera_hooks.clear()
+        self._clear_view()
 
     @property
     def url(self) -> str:
         return self.host.url
-
-    def set_status(self, text: str) -> None:
-        """Replace this page's status line."""
-        self.status.content = text
 
     def close(self) -> None:
         """Remove this page's part (the server runs on)."""
