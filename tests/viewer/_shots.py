@@ -5,6 +5,7 @@ assert on into ``docs/viewer/`` (``make doc-shots``); otherwise nothing is writt
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -87,3 +88,20 @@ def doc_shot(img: np.ndarray, name: str) -> None:
 
     DOCS.mkdir(parents=True, exist_ok=True)
     Image.fromarray(img).save(DOCS / f"{name}.png")
+
+
+def wait_until(cond, what, within_s: float) -> None:
+    """Wait (bounded by ``within_s``) until ``cond()``; on the timeout fail with ``what()``."""
+    end = time.monotonic() + within_s
+    while not cond():
+        assert time.monotonic() < end, what()
+        time.sleep(0.05)
+
+
+def shortcuts_ready(page, within_s: float) -> None:
+    """Wait until the page's shortcut script runs (``viewer/shortcuts.py``): it is installed
+    by an image's error event, which may come after the panel's text is shown."""
+    page.wait_for_function(
+        "() => window.__tf && Object.keys(window.__tf.keys).length > 0",
+        timeout=within_s * 1000,
+    )

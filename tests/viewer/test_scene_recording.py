@@ -26,7 +26,16 @@ import pytest
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
 
-from _shots import bbox_fraction, capture_panel_until, changed, doc_shot, outside, panel_box
+from _shots import (
+    bbox_fraction,
+    capture_panel_until,
+    changed,
+    doc_shot,
+    outside,
+    panel_box,
+    shortcuts_ready,
+    wait_until,
+)
 
 from trackflow.io import PoseStream, read_stream
 from trackflow.math import quat_exp
@@ -124,21 +133,8 @@ def _shot(browser, page, view, text: str) -> np.ndarray:
     return browser.capture(page, stable_s=15.0)
 
 
-def _shortcuts_ready(page) -> None:
-    """Wait until the page's shortcut script runs: it is installed by an image's error
-    event, which may come after the panel's text is shown."""
-    page.wait_for_function(
-        "() => window.__tf && Object.keys(window.__tf.keys).length > 0",
-        timeout=BROWSER_TIMEOUT_S * 1000,
-    )
-
-
 def _until(cond, what) -> None:
-    """Wait (bounded) until ``cond()``; on the timeout fail with ``what()``."""
-    end = time.monotonic() + BROWSER_TIMEOUT_S
-    while not cond():
-        assert time.monotonic() < end, what()
-        time.sleep(0.05)
+    wait_until(cond, what, BROWSER_TIMEOUT_S)
 
 
 def test_the_floor_grid_is_drawn_with_its_scale(browser, page, server):
@@ -308,7 +304,7 @@ def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
 
     try:
         browser.wait_text(page, "keys: space play or pause")
-        _shortcuts_ready(page)
+        shortcuts_ready(page, BROWSER_TIMEOUT_S)
         k = track.index(view.t_s)
         turn = server.camera().rotation.copy()
         # one key, then its effect, then the next: the page sends the panel's messages through
@@ -379,7 +375,7 @@ def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
 
     try:
         browser.wait_text(page, "click a time plot")
-        _shortcuts_ready(page)
+        shortcuts_ready(page, BROWSER_TIMEOUT_S)
         page.get_by_text("Time plots", exact=True).click()
         plots = page.locator(".u-over")
         _until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
@@ -417,7 +413,7 @@ def test_a_line_marks_the_current_time_in_every_time_plot(browser, page, server)
         const b = o.getBoundingClientRect();
         return l ? (l.getBoundingClientRect().left - b.left) / b.width : null; })"""
     try:
-        _shortcuts_ready(page)
+        shortcuts_ready(page, BROWSER_TIMEOUT_S)
         page.get_by_text("Time plots", exact=True).click()
         plots = page.locator(".u-over")
         _until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")

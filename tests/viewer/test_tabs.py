@@ -3,13 +3,13 @@ key pressed in one moves that page's time only, and a page's view goes with the 
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
 pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
 pytest.importorskip("playwright", reason="the viewer extra (playwright) is not installed")
+
+from _shots import shortcuts_ready, wait_until
 
 from trackflow.io import PoseStream
 from trackflow.math import quat_exp
@@ -31,10 +31,7 @@ def _circle(duration_s=4.0, rate=50.0) -> PoseStream:
 
 
 def _until(cond, what) -> None:
-    end = time.monotonic() + BROWSER_TIMEOUT_S
-    while not cond():
-        assert time.monotonic() < end, what()
-        time.sleep(0.05)
+    wait_until(cond, what, BROWSER_TIMEOUT_S)
 
 
 def test_each_tab_keeps_its_own_time_and_its_view_goes_with_it(browser):
@@ -51,10 +48,7 @@ def test_each_tab_keeps_its_own_time_and_its_view_goes_with_it(browser):
         b = browser.open(tabs.url, "t = 1.000 s /")
         _until(lambda: len(tabs.views) == 2, lambda: f"{len(tabs.views)} views for 2 pages")
         k = track.index(1.0)
-        a.wait_for_function(
-            "() => window.__tf && Object.keys(window.__tf.keys).length > 0",
-            timeout=BROWSER_TIMEOUT_S * 1000,
-        )
+        shortcuts_ready(a, BROWSER_TIMEOUT_S)
         a.keyboard.press("ArrowRight")
         browser.wait_text(a, f"sample {k + 1} ")
         # the other page's view did not move: its own time, shown on its own status line

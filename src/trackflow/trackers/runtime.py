@@ -241,7 +241,7 @@ class LiveSources:
         return out
 
     def deliver_block(
-        self, names, block: SampleBlock, arrival_ns: int, clock=None, answer=None, shift_ns=0
+        self, names, block: SampleBlock, arrival_ns: int, clock=None, answer=None, shift_ns: int = 0
     ) -> list:
         """:meth:`deliver` of the samples of a block, sample ``k`` of source ``names[k]``
         dispatched at ``arrival_ns + k``: the same outcome, with the block's arrays going to

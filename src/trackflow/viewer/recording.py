@@ -28,8 +28,8 @@ from .export import csv_bytes, save_render
 from .labels import LabelLayer, LabelSpec
 from .legend import recording_legend
 from .scene import PALETTE, PoseDrawing, Style, frame_node
-from .server import ViewServer, linked_cursor
-from .shortcuts import add_shortcuts, span_axis
+from .server import ViewServer, linked_cursor, span_axis
+from .shortcuts import add_shortcuts
 from .time_plots import nis_data, nis_series
 
 __all__ = ["RecordingTrack", "RecordingView", "auto_ghost_magnify", "auto_magnify"]

@@ -20,10 +20,16 @@ from ..errors import InputError
 from ..optional import require
 from .camera import DEFAULT_FOV, FRAMING_FOV, Camera, frame_points
 
-__all__ = ["SECONDS_AXIS", "ClientView", "Pages", "ViewServer", "linked_cursor"]
+__all__ = ["SECONDS_AXIS", "ClientView", "Pages", "ViewServer", "linked_cursor", "span_axis"]
 
 #: uPlot ``scales`` for plots over seconds of a run (uPlot reads x as Unix time by default).
 SECONDS_AXIS = {"x": {"time": False}}
+
+
+def span_axis(t0_s: float, t1_s: float) -> dict:
+    """:data:`SECONDS_AXIS` spanning ``[t0_s, t1_s]`` whatever the data: the plots of one
+    view then share one time span (a current-time line and a click map alike in each)."""
+    return {"x": {**SECONDS_AXIS["x"], "range": [float(t0_s), max(float(t1_s), t0_s + 1e-3)]}}
 
 
 def linked_cursor(key: str) -> dict:

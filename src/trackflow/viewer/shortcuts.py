@@ -14,7 +14,8 @@ small script that
   (the view's "go to" field, which moves the view there);
 * with ``now``, draws the view's current time as a vertical line in every time plot, five
   times a second: the time is the value of the panel's time slider, placed on the plots'
-  fixed time span (the view gives its plots that span, :func:`span_axis`).
+  fixed time span (the view gives its plots that span,
+  :func:`~trackflow.viewer.server.span_axis`).
 
 The script runs from an image that does not load: HTML set into a page runs no
 ``<script>``.
@@ -25,7 +26,9 @@ from __future__ import annotations
 import html
 import json
 
-__all__ = ["add_shortcuts", "shortcuts_html", "span_axis"]
+from .server import span_axis
+
+__all__ = ["add_shortcuts", "shortcuts_html"]
 
 #: what the key listener ignores: keys typed into fields or moving a focused slider
 _FORM = "input,textarea,select,[contenteditable],[role=slider]"
@@ -63,15 +66,8 @@ _SCRIPT = (
     "border-left:1px solid #e33;pointer-events:none';o.appendChild(l);}"
     "l.style.left=(100*f)+'%';});},200);}"
     "Object.assign(window.__tf.keys,{keys});window.__tf.seek={seek};"
-    "if({now})window.__tf.now={now};"
+    "window.__tf.now={now};"
 )
-
-
-def span_axis(t0_s: float, t1_s: float) -> dict:
-    """uPlot ``scales`` whose x axis (seconds) spans ``[t0_s, t1_s]`` whatever the data: the
-    plots of one view then share one time span (the current-time line and a click map
-    alike in each)."""
-    return {"x": {"time": False, "range": [float(t0_s), max(float(t1_s), float(t0_s) + 1e-3)]}}
 
 
 def shortcuts_html(
