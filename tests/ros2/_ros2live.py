@@ -89,6 +89,19 @@ class Router:
             time.sleep(0.05)
         raise AssertionError(f"no token with {part!r}; have {sorted(self.live_tokens())}")
 
+    def publisher(self, keyexpr: str, timeout: float = 60.0):
+        """A publisher on ``keyexpr`` once a subscriber has matched it (a subscriber's
+        declaration reaches the router a moment after it is made; a message put before then
+        reaches nobody, as with any ROS 2 topic)."""
+        pub = self.session.declare_publisher(keyexpr)
+        deadline = time.monotonic() + timeout
+        while not pub.matching_status.matching:
+            if time.monotonic() > deadline:
+                pub.undeclare()
+                raise AssertionError(f"no subscriber matched {keyexpr!r} in {timeout} s")
+            time.sleep(0.02)
+        return pub
+
     def close(self) -> None:
         for s in self._subs:
             s.undeclare()

@@ -49,7 +49,7 @@ def _feed(router: Router, n: int, sent: list, bad: dict) -> None:
     """``n`` PoseWithCovarianceStamped on /mocap/head at 100 Hz with rmw_zenoh attachments;
     every 25th message garbage, every 25th (+8) a foreign attachment, every 25th (+16) of
     another frame."""
-    pub = router.session.declare_publisher(key(0, "/mocap/head", PWC))
+    pub = router.publisher(key(0, "/mocap/head", PWC))
     gid = bytes(range(16))
     for i in range(1, n + 1):
         now = time.time_ns()

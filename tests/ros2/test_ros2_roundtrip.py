@@ -86,8 +86,7 @@ def test_trackflow_to_trackflow_through_ros2(tmp_path, router):
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         router.wait_token("/MS/%/%/trackflow_a/%mocap%head/")
-        pub = router.session.declare_publisher(key(0, "/mocap/head",
-                                                   "geometry_msgs/msg/PoseStamped"))  # fmt: skip
+        pub = router.publisher(key(0, "/mocap/head", "geometry_msgs/msg/PoseStamped"))
         for i in range(1, 301):
             t = i * 0.01
             p = (0.2 * np.sin(t), 0.1 * np.cos(t), 1.0 + 0.05 * t)
