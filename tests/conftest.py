@@ -100,7 +100,7 @@ def page(browser, server):
     bounded by the module's ``BROWSER_TIMEOUT_S`` (default 90 s)."""
     import time
 
-    server.look_at((1.0, 0.0, 0.5), 1.0)  # not the client's default: its reports count
+    server.look_at((1.0, 0.0, 0.5), 1.0)
     server.set_status("page ready")
     p = browser.open(server.url, "page ready")
     end = time.monotonic() + browser.timeout_ms / 1e3

@@ -235,3 +235,25 @@ def test_scrubbing_a_recording_moves_the_body(browser, page, server):
         assert moved > 40.0, f"the body moved only {moved:.1f} px"
     finally:
         view.close()
+
+
+def test_a_page_that_took_part_of_the_initial_camera_starts_at_the_home_camera(browser, server):
+    # A page takes the initial camera once, at the first of its messages: on a loaded machine
+    # it took the position without the point to look at, and looked at the origin, away from
+    # the scene, for good. Here a URL parameter makes a page look at the origin the same way;
+    # its first report moves it to the home camera, which looks at the magenta ball.
+    server.clear()
+    home = np.array([2.5, 2.0, 0.4])
+    server.place_camera(home + [1.5, -1.5, 1.0], home)
+    server.scene.add_icosphere("/ball", radius=0.15, color=(230, 0, 230), position=tuple(home))
+    server.set_status("ball placed")
+    page = browser.open(server.url + "?initialCameraLookAt=0,0,0", "ball placed")
+    try:
+        browser.hide_panel(page)
+        # the ball at the middle of the page (where the camera looks), bounded wait
+        img = browser.capture_until(page, lambda im: _magenta(im).sum() > 300)
+        c = _centroid(_magenta(img))
+        assert np.linalg.norm(c - [W / 2, H / 2]) < 60, (c, int(_magenta(img).sum()))
+    finally:
+        page.close()
+        server.clear()

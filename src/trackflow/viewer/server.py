@@ -38,12 +38,6 @@ def linked_cursor(key: str) -> dict:
     return {"sync": {"key": key, "scales": ("x", None)}}
 
 
-def _is_three_default(camera) -> bool:
-    """Whether a page's reported camera is the client's default, looking at the origin (our
-    initial cameras look elsewhere): the page has not applied the initial camera yet."""
-    return bool(np.all(np.abs(np.asarray(camera.look_at, float)) < 1e-9))
-
-
 def _refuse_share(*_args, **_kwargs) -> None:
     """Stands in for ``ViserServer.request_share_url``: sharing is never started."""
     return None
@@ -60,9 +54,6 @@ class Pages:
     def _init_pages(self) -> None:
         self._cameras: dict[int, Camera] = {}  # client id -> the camera it last reported
         self._camera_hooks: list = []
-        # pages told to take the home camera before they reported one (their handle has no
-        # state yet): moved at their first report
-        self._reset_due: set[int] = set()
 
     def _pages(self) -> dict:
         """``{client id: client handle}`` of the pages this view moves."""
@@ -84,17 +75,15 @@ class Pages:
 
     def _forget_client(self, client) -> None:
         self._cameras.pop(client.client_id, None)
-        self._reset_due.discard(client.client_id)
 
     def _watch_camera(self, client) -> None:
         def seen(camera, cid=client.client_id) -> None:
             # A page reports its camera as it starts, possibly before it applied the initial
-            # camera: the client's default then, looking at the origin. Not followed (moving
-            # it would move that default), nor laid out for, until it is another.
-            if cid not in self._cameras and _is_three_default(camera):
-                return
-            if cid in self._reset_due:
-                self._reset_due.discard(cid)
+            # camera (the client's default, looking at the origin), or having applied only
+            # part of it (the client takes the initial camera once, at the first of its
+            # messages: its position with the default point to look at). Its first report
+            # moves it to the home camera explicitly, so every page starts there.
+            if cid not in self._cameras:
                 self._move_home(client)
             self._cameras[cid] = Camera.from_client(camera)
             for hook in list(self._camera_hooks):
@@ -112,11 +101,10 @@ class Pages:
         self._camera_hooks.append(hook)
 
     def reset_cameras(self) -> None:
-        """Move the camera of every connected page to the home camera."""
+        """Move the camera of every connected page to the home camera (a page that has not
+        reported its camera yet goes there at its first report)."""
         for cid, client in self._pages().items():
-            self._reset_due.add(cid)  # a page with no camera state yet: at its first report
             if self._can_move(cid, client):
-                self._reset_due.discard(cid)
                 self._move_home(client)
 
     def _can_move(self, cid: int, client) -> bool:
@@ -125,6 +113,7 @@ class Pages:
 
     def _move_home(self, client) -> None:
         home = self._home
+        client.camera.fov = float(home.fov)
         client.camera.position = np.asarray(home.position, float)
         client.camera.look_at = np.asarray(home.look_at, float)
 
@@ -303,7 +292,8 @@ class ClientView(Pages):
         self._add_status()
         self._init_pages()
         cam = client.camera
-        if cam.update_timestamp > 0.0 and not _is_three_default(cam):  # reported before
+        if cam.update_timestamp > 0.0:  # reported before: to this view's home now
+            self._move_home(client)
             self._cameras[client.client_id] = Camera.from_client(cam)
         self._watch_camera(client)
 
