@@ -19,7 +19,7 @@ from trackflow.evaluation import evaluate_predictors
 from trackflow.io import PoseStream, write_stream
 from trackflow.math import quat_exp
 from trackflow.viewer import ViewServer, attach_view, setup_sources
-from trackflow.viewer.posetool import PoseToolPage, manual_predictor
+from trackflow.viewer.posetool import PoseTool, PoseToolPage, manual_predictor
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -145,29 +145,27 @@ def test_manual_predictor_layout():
 
 @pytest.mark.slow
 def test_posetool_recomputes_when_a_slider_moves():
-    page = PoseToolPage(_stream(), port=0, tune_fraction=0.5)
+    tool = PoseTool(_stream(), tune_fraction=0.5)
+    server = ViewServer(port=0)
+    page = PoseToolPage(tool, server)
     try:
-        rev = page.wait_tuned(timeout_s=600)
+        page.wait_tuned(timeout_s=600)
         before = page.last_rows
         assert set(before) == {"Kalman (hand)", "Kalman (tuned)", "linear", "none"}
         page.log_pos.value = -2.0
-        deadline = time.monotonic() + 120
-        while page.revision == rev and time.monotonic() < deadline:
-            time.sleep(0.05)
-        while page._dirty.is_set() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.5)
+        page.wait_settled(timeout_s=120)
         after = page.last_rows
         assert after["Kalman (hand)"] != before["Kalman (hand)"]
         # the page shows exactly what the library computes for the slider setting
-        pred = manual_predictor(page.base, 2, 1, -2.0, float(page.log_ori.value))
-        rep = evaluate_predictors(page.recording, pred, (0.1,), scored_from=page.split)
+        pred = manual_predictor(tool.base, 2, 1, -2.0, float(page.log_ori.value))
+        rep = evaluate_predictors(tool.recording, pred, (0.1,), scored_from=tool.split)
         assert after["Kalman (hand)"] == rep.stats["kalman"][100]
         # baselines and the tuning's choice do not depend on the hand setting
         assert after["linear"] == before["linear"]
         assert after["Kalman (tuned)"] == before["Kalman (tuned)"]
     finally:
         page.close()
+        server.close()
 
 
 def test_cli_errors_are_clear(tmp_path, capsys):
@@ -243,7 +241,6 @@ def test_the_idle_priority_puts_the_view_process_in_the_idle_class():
     import os
     import subprocess
     import sys
-    import time
 
     code = (
         "from trackflow.viewer.live_process import lower_priority; import time; "

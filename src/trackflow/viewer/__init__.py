@@ -6,7 +6,8 @@
   panel with edge states and time plots. Drawn by a separate view process from a shared
   memory board the network's taps write.
 * :class:`RecordingView` - a recording on a timeline (each browser tab its own:
-  :class:`PerTab`); :class:`PoseToolPage` - the PoseTool's filter tuning in the browser.
+  :class:`PerTab`); :class:`PoseToolPage` - the PoseTool's filter tuning in the browser (on a
+  :class:`PoseTool`, the recording and its tuning).
 * :func:`snapshot` / :class:`Browser` - headless Chromium renders for reports and tests.
 
 ``trackflow view`` and ``trackflow run --view`` are the command line (``docs/viewer.md``).
@@ -36,6 +37,7 @@ _WHERE = {
     "PoseDrawing": "scene", "Style": "scene",
     "ClientView": "server", "ViewServer": "server",
     "PerTab": "tabs",
+    "PoseTool": "posetool", "PoseToolPage": "posetool",
     "edge_motion": "simulate", "setup_sources": "simulate",
 }  # fmt: skip
 

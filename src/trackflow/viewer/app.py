@@ -206,18 +206,32 @@ def serve(target, opts: ViewOptions, snapshot=None, size=(1280, 800)) -> Path | 
 
 def _posetool(stream, opts: ViewOptions, snapshot, size) -> Path | None:
     from .browser import snapshot as take
-    from .posetool import PoseToolPage
+    from .posetool import PoseTool, PoseToolPage
+    from .server import ViewServer
+    from .tabs import PerTab
 
-    page = PoseToolPage(stream, opts.host, opts.port, tune_fraction=opts.tune_fraction)
-    try:
+    tool = PoseTool(stream, tune_fraction=opts.tune_fraction)
+
+    def make(view) -> PoseToolPage:
+        page = PoseToolPage(tool, view)
         if opts.offset_s > 0:
             page.horizon.value = opts.offset_s * 1e3
-        if snapshot is None:
-            return _block(page.url, page)
+        return page
+
+    server = ViewServer(opts.host, opts.port, title=tool.title)
+    if snapshot is None:  # every tab its own controls and computation
+        tabs = PerTab(server, make, note="each tab has its own settings")
+        try:
+            return _block(tabs.url, tabs)
+        finally:
+            tabs.close()
+    page = make(server)
+    try:
         rev = page.wait_tuned(timeout_s=600.0)
         return take(page.url, snapshot, f"revision {rev} ", *size, hide_panel=opts.no_panel)
     finally:
         page.close()
+        server.close()
 
 
 def _block(url: str, what) -> None:
