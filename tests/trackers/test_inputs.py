@@ -267,11 +267,14 @@ queries:
         load_setup(p)
 
 
-def test_a_restarted_tracker_is_an_event_not_a_loss():
+@pytest.mark.parametrize("before", [500_000, 4_590])
+def test_a_restarted_tracker_is_an_event_not_a_loss(before):
     """The counter jumps back and the next frame follows the jump: a restart, confirmed by
-    that next frame (the jump's own frame is refused, as one bogus counter would be)."""
+    that next frame (the jump's own frame is refused, as one bogus counter would be). Also a
+    tracker restarted after fewer frames than a jump ahead needs (4,590 at 100 Hz: 46 s; it
+    was refused as "reordered" until its counter passed the old one)."""
     inp = _dtrack()
-    for k, fr in enumerate([500_000, 500_001, 3, 4, 5]):
+    for k, fr in enumerate([before, before + 1, 3, 4, 5]):
         inp.handle(_dt_packet(fr, (1000 + k, 0, 100)), 10**12 + k * 10**9)
     st = inp.status
     assert st.dropouts == 0 and st.connection == {"frame counter restarted": 1}

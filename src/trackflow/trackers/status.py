@@ -158,15 +158,21 @@ class SensorStatus:
         return sum(self.rejections.values())
 
     def frame(self, number: int) -> bool:
-        """Account for a frame counter; False (a counted rejection) if it is not new, or if
-        it jumps by more than :data:`RESTART_FRAMES` either way and is not yet confirmed. A
+        """Account for a frame counter; False (a counted rejection) if it repeats one of the
+        last :data:`CONFIRM_FRAMES`, or if it goes back further or jumps ahead by more than
+        :data:`RESTART_FRAMES` and is not yet confirmed. A
         jump is a restarted tracker (an event, not a loss) once the next frame follows it
         (within :data:`CONFIRM_FRAMES`); one bogus counter between real frames is rejected
         and changes nothing."""
         self._own()
         last = self._last_frame
         if last is not None:
-            if last - RESTART_FRAMES < number <= last:
+            # a counter a little behind the last is a reordered or duplicated frame; one
+            # further back (a tracker restarted after fewer than RESTART_FRAMES frames counts
+            # from 1 again) is a jump like any other: a restart once the next frame follows
+            # it. A late copy never gets here: the inputs refuse a send stamp not after the
+            # newest before they look at the counter (LiveInput._new_stamp).
+            if last - CONFIRM_FRAMES < number <= last:
                 self.reject("reordered or duplicate frame")
                 return False
             if number <= last or number - last > RESTART_FRAMES:
