@@ -137,3 +137,28 @@ def test_compile_on_the_numpy_backend_says_why_nothing_compiles(capsys):
         assert main(["compile"]) == 0
     err = capsys.readouterr().err
     assert "nothing to compile: the numpy backend was selected" in err and "plain NumPy" in err
+
+
+def test_an_agent_without_zenoh_names_the_distributed_extra(tmp_path, monkeypatch, capsys):
+    from trackflow.demo.realm import write_demo_realm
+
+    from trackflow.demo.realm import AGENT_FILES
+
+    files = write_demo_realm(tmp_path / "realm", seconds=5.0)
+    for name in list(sys.modules):
+        if name == "zenoh" or name.startswith("zenoh."):
+            monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "zenoh", None)  # makes `import zenoh` fail
+    assert main(["agent", str(files[AGENT_FILES[0]]), "--duration", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trackflow: error:") and "Traceback" not in err
+    assert "trackflow[distributed]" in err, err
+
+
+def test_the_all_extra_holds_every_optional_part():
+    import tomllib
+
+    meta = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]
+    extras = meta["optional-dependencies"]
+    parts = set().union(*(set(extras[k]) for k in extras if k not in {"all", "dev", "bench"}))
+    assert parts and parts <= set(extras["all"]), parts - set(extras["all"])
