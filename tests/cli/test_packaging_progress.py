@@ -140,9 +140,7 @@ def test_compile_on_the_numpy_backend_says_why_nothing_compiles(capsys):
 
 
 def test_an_agent_without_zenoh_names_the_distributed_extra(tmp_path, monkeypatch, capsys):
-    from trackflow.demo.realm import write_demo_realm
-
-    from trackflow.demo.realm import AGENT_FILES
+    from trackflow.demo.realm import AGENT_FILES, write_demo_realm
 
     files = write_demo_realm(tmp_path / "realm", seconds=5.0)
     for name in list(sys.modules):
