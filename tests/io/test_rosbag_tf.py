@@ -138,6 +138,37 @@ def test_answers_go_to_tf_from_the_command_line(tmp_path, capsys):
     assert "--msgtype" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("msgtype", ["PoseWithCovarianceStamped", "TFMessage"])
+def test_a_run_recording_converts_to_an_mcap_bag_rosbags_reads_whole(tmp_path, msgtype):
+    """The answers file of ``trackflow run --record`` (written by its RecordingWriter, with
+    covariances) through ``trackflow convert ... out.mcap``: rosbags reads every message,
+    with the covariance in ROS's convention (a /tf message has none)."""
+    from trackflow.io import RecordingWriter
+
+    s = random_stream(np.random.default_rng(8), 40, covariance=True, source="room", target="tool")
+    rec = tmp_path / "answers.tfrec"
+    w = RecordingWriter(rec, "room", "tool", covariance=True)
+    w.append(s)
+    w.close()
+    out = tmp_path / "answers.mcap"
+    assert main(["convert", str(rec), str(out), "--msgtype", msgtype, "--quiet"]) == 0
+    msgs = _messages(tmp_path / "answers")
+    assert _storage_id(tmp_path / "answers") == "mcap" and len(msgs) == len(s.t_ns)
+    cov_ros = cov_to_ros(s.covariance, s.quaternion).reshape(-1, 36)
+    for k, (_, _, t_bag, m) in enumerate(msgs):
+        assert t_bag == s.t_ns[k]
+        if msgtype == "TFMessage":
+            ts = m.transforms[0]
+            assert (ts.header.frame_id, ts.child_frame_id) == ("room", "tool")
+            p, q = ts.transform.translation, ts.transform.rotation
+        else:
+            assert m.header.frame_id == "room"
+            p, q = m.pose.pose.position, m.pose.pose.orientation
+            assert np.array_equal(m.pose.covariance, cov_ros[k])
+        assert [p.x, p.y, p.z] == s.position[k].tolist()
+        assert [q.x, q.y, q.z, q.w] == s.quaternion[k].tolist()
+
+
 # -- a /tf bag built from a real recording ----------------------------------------------------
 
 T_BASE_CAM = Pose([0.12, -0.03, 0.25], quat_exp(np.array([0.3, -0.2, 1.1])))
