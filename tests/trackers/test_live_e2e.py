@@ -288,11 +288,15 @@ def test_dtrack_command_channel_starts_the_stream(room1):
         got = []
         inp.start(lambda i, data, a: got.extend(i.handle(data, a)))
         report = json.loads(_finish(sender, 60))
-        time.sleep(0.2)
+        # the last datagrams are read by the input's thread in its own time (bounded wait)
+        deadline = time.monotonic() + 20
+        while inp.status.packets < report["sent"] and time.monotonic() < deadline:
+            time.sleep(0.05)
     finally:
         inp.stop()
         if sender.poll() is None:
             sender.kill()
+    assert inp.status.rejections == {}, inp.status.rejections
     assert report["sent"] > 0 and len(got) == report["sent"]
     assert "command refused" not in inp.status.connection
 

@@ -17,7 +17,21 @@ from ._sources import NO_ORIGIN
 __all__ = ["CallbackSink", "PullSink", "Recorder"]
 
 
-class CallbackSink(Component):
+class _Kept:
+    """A sink that may keep only its newest latencies (and results) in memory: ``keep`` set
+    (a live run or an agent running for hours) before :meth:`Component.reset`; the counts
+    stay whole."""
+
+    #: how many of the newest results and latencies stay in memory (None: all); set before
+    #: ``reset``
+    keep: int | None = None
+
+    def _kept(self):
+        """A new store of results or latencies: a list, or the newest ``keep`` only."""
+        return [] if self.keep is None else deque(maxlen=self.keep)
+
+
+class CallbackSink(_Kept, Component):
     """Calls ``callback(measurement)`` for every pushed result.
 
     Statistics: delivery latency = network clock at delivery - origin sensor timestamp;
@@ -29,9 +43,6 @@ class CallbackSink(Component):
 
     push_in = 1
     kind = "callback"
-    #: how many of the newest results and latencies stay in memory (None: all); set before
-    #: :meth:`reset`
-    keep: int | None = None
 
     def __init__(self, name: str, callback: Callable[[Measurement], None] | None = None):
         super().__init__(name)
@@ -43,10 +54,6 @@ class CallbackSink(Component):
         self.wall_latencies_ns = self._kept()
         if self.keep is not None:
             self.stats.latencies_ns = self._kept()
-
-    def _kept(self):
-        """A new store of results or latencies: a list, or the newest ``keep`` only."""
-        return [] if self.keep is None else deque(maxlen=self.keep)
 
     def push(self, m: Measurement, port: int = 0) -> None:
         self.stats.events_in += 1
@@ -155,11 +162,17 @@ class Recorder(CallbackSink):
         )
 
 
-class PullSink(Component):
-    """The application's pull interface: ``get(t_ns)`` evaluates the network at ``t_ns``."""
+class PullSink(_Kept, Component):
+    """The application's pull interface: ``get(t_ns)`` evaluates the network at ``t_ns``.
+    With ``keep`` set, only the newest ``keep`` latencies stay in memory."""
 
     pull_in = 1
     kind = "pull sink"
+
+    def reset(self) -> None:
+        super().reset()
+        if self.keep is not None:
+            self.stats.latencies_ns = self._kept()
 
     def get(self, t_ns: int) -> Measurement | None:
         """The relationship at ``t_ns`` [ns] or ``None`` when it cannot be computed."""

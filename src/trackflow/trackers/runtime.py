@@ -42,6 +42,7 @@ from ..dataflow import (
     OnlineOffsetSpec,
     PathSwitch,
     Plan,
+    PullSink,
     RecordingPlayer,
     Sampler,
     Scheduler,
@@ -664,7 +665,7 @@ def run_live(
         )
         net = served.net
         for c in net.components.values():  # answers go to the file and callbacks: memory stays
-            if isinstance(c, CallbackSink):
+            if isinstance(c, (CallbackSink, PullSink)):
                 c.keep = LIVE_KEEP
         net.reset()
         warm_up(net)

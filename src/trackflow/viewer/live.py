@@ -351,8 +351,10 @@ class LiveView:
             try:
                 self.process.wait(timeout=5.0)
             except subprocess.TimeoutExpired:
+                # SIGKILL cannot be refused, but a process of low priority on a busy machine
+                # may wait seconds to be scheduled and die
                 self.process.kill()
-                self.process.wait(timeout=5.0)
+                self.process.wait(timeout=120.0)
 
 
 class _ClosedBoard:
