@@ -14,7 +14,7 @@ pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install
 from _agents import endpoint, free_port, observer, wait_for
 
 from trackflow.cli.main import main
-from trackflow.dataflow import parse_setup
+from trackflow.dataflow import LONG_RUN_KEEP, parse_setup
 from trackflow.distributed import Agent, AgentConfig
 from trackflow.math import Pose, UncertainPose
 
@@ -195,13 +195,11 @@ def test_a_fed_state_is_made_at_its_dispatch_time_and_thinned_streams_have_no_la
             session.close()
 
 
-def test_a_push_query_keeps_only_its_newest_answers_and_latencies(monkeypatch):
+def test_a_push_query_keeps_only_its_newest_answers_and_latencies():
     """A push query's answers leave on the network: its sink keeps only the newest
-    ``KEPT_ANSWERS`` answers and latencies (a list per answer grew an agent at 100 Hz by
-    0.4 MB a minute, issue 32), while the counts stay whole."""
-    from trackflow.distributed import agent as agent_module
-
-    monkeypatch.setattr(agent_module, "KEPT_ANSWERS", 20, raising=False)
+    ``LONG_RUN_KEEP`` answers and latencies (a list per answer grew an agent at 100 Hz by
+    0.4 MB a minute, issue 32), while the counts stay whole. (How a bounded sink drops its
+    oldest entries is tests/dataflow/test_sinks_keep.py.)"""
     realm, port = f"ka{free_port()}", free_port()
     cfg = AgentConfig(
         "a",
@@ -220,6 +218,6 @@ def test_a_push_query_keeps_only_its_newest_answers_and_latencies(monkeypatch):
         wait_for(lambda: st.published >= 60, 10)
         sink = st.sink
         assert sink.stats.events_in >= 60
-        assert 0 < len(sink.stats.latencies_ns) <= 20
-        assert 0 < len(sink.wall_latencies_ns) <= 20
-        assert len(sink.events) <= 20
+        stores = (sink.stats.latencies_ns, sink.wall_latencies_ns, sink.events)
+        assert [getattr(x, "maxlen", None) for x in stores] == [LONG_RUN_KEEP] * 3
+        assert 0 < len(sink.stats.latencies_ns) <= sink.stats.events_in

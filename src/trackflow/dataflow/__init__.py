@@ -41,7 +41,7 @@ from ._planner import Plan, PlanNode, plan_query
 from ._processing import Inference, Inversion, KalmanFilter, LatestValue, Sampler
 from ._ros2spec import ROS2_INPUT_TYPES, ROS2_OUTPUT_TYPES, Ros2Link, Ros2Output
 from ._setup import Setup, load_setup, parse_setup
-from ._sinks import CallbackSink, PullSink, Recorder
+from ._sinks import LONG_RUN_KEEP, CallbackSink, PullSink, Recorder, keep_newest
 from ._sources import (
     BACKLOG_NS,
     NO_ORIGIN,
@@ -74,6 +74,8 @@ __all__ = [
     "stop_signals",
     "warm_up",
     "CallbackSink",
+    "LONG_RUN_KEEP",
+    "keep_newest",
     "Component",
     "ComponentStats",
     "ImuPlayer",

@@ -14,7 +14,12 @@ from ._component import Component
 from ._events import Measurement
 from ._sources import NO_ORIGIN
 
-__all__ = ["CallbackSink", "PullSink", "Recorder"]
+__all__ = ["LONG_RUN_KEEP", "CallbackSink", "PullSink", "Recorder", "keep_newest"]
+
+#: results and latencies an answer sink of a long run keeps in memory (the newest minute at
+#: 100 Hz): the answers themselves leave on the network, to a recording or to callbacks, so a
+#: live run or an agent running for hours stays flat
+LONG_RUN_KEEP = 6_000
 
 
 class _Kept:
@@ -26,9 +31,22 @@ class _Kept:
     #: ``reset``
     keep: int | None = None
 
+    def reset(self) -> None:
+        super().reset()
+        if self.keep is not None:
+            self.stats.latencies_ns = self._kept()
+
     def _kept(self):
         """A new store of results or latencies: a list, or the newest ``keep`` only."""
         return [] if self.keep is None else deque(maxlen=self.keep)
+
+
+def keep_newest(components, keep: int = LONG_RUN_KEEP) -> None:
+    """Bound the stores of every answer sink among ``components`` to the newest ``keep``
+    results and latencies (a long run); takes effect at the sinks' next ``reset``."""
+    for c in components:
+        if isinstance(c, _Kept):
+            c.keep = keep
 
 
 class CallbackSink(_Kept, Component):
@@ -52,8 +70,6 @@ class CallbackSink(_Kept, Component):
     def reset(self) -> None:
         super().reset()
         self.wall_latencies_ns = self._kept()
-        if self.keep is not None:
-            self.stats.latencies_ns = self._kept()
 
     def push(self, m: Measurement, port: int = 0) -> None:
         self.stats.events_in += 1
@@ -168,11 +184,6 @@ class PullSink(_Kept, Component):
 
     pull_in = 1
     kind = "pull sink"
-
-    def reset(self) -> None:
-        super().reset()
-        if self.keep is not None:
-            self.stats.latencies_ns = self._kept()
 
     def get(self, t_ns: int) -> Measurement | None:
         """The relationship at ``t_ns`` [ns] or ``None`` when it cannot be computed."""

@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 
 from ..dataflow import (
     KEPT_EVENTS,
-    CallbackSink,
     Component,
     KalmanFilter,
     Measurement,
@@ -53,6 +52,7 @@ from ..dataflow import (
     Ticker,
     TimedSource,
     WallTime,
+    keep_newest,
     warm_up,
 )
 from ..dataflow._component import _Clock
@@ -76,9 +76,6 @@ __all__ = ["Agent", "QueryState", "RemoteSource", "remote_get", "run_agent"]
 
 _REDECLARE_NS = 50_000  # a thinned input's demand follows the clock offset to within 50 us
 _FOREVER_NS = 2**62  # (progress of a recording played to its end)
-#: a query's answers and latencies its sink keeps in memory (the newest minute at 100 Hz; the
-#: answers themselves leave on the network): an agent running for hours stays flat
-KEPT_ANSWERS = 6_000
 
 
 @dataclass
@@ -544,9 +541,8 @@ class Agent:
                 callback=callback,
             )
             st.sampler = net.components.get(f"{name}_g{st.generation}_sampler")
-            if isinstance(st.sink, (CallbackSink, PullSink)):  # bounded stores (keep)
-                st.sink.keep = KEPT_ANSWERS
-                st.sink.reset()  # (a fresh sink: its stores become deques of that length)
+            keep_newest([st.sink])  # an agent runs for hours: bounded answer stores
+            st.sink.reset()  # (a fresh sink: its stores become deques of that length)
         for event in new_events:  # the time the new plans took effect
             event["replan_ms"] = (time.perf_counter_ns() - t_event_ns) * 1e-6
 

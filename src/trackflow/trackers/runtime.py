@@ -33,7 +33,6 @@ import numpy as np
 from ..dataflow import (
     BACKLOG_NS,
     SAMPLE,
-    CallbackSink,
     Component,
     KalmanBank,
     KalmanFilter,
@@ -42,7 +41,6 @@ from ..dataflow import (
     OnlineOffsetSpec,
     PathSwitch,
     Plan,
-    PullSink,
     RecordingPlayer,
     Sampler,
     Scheduler,
@@ -50,6 +48,7 @@ from ..dataflow import (
     Ticker,
     WallTime,
     collect_due,
+    keep_newest,
     warm_up,
 )
 from ..errors import InputError
@@ -68,10 +67,6 @@ from .inputs import (
 )
 from .online_offsets import OnlineOffsets, offsets_log_path
 from .switch_log import SwitchLog, read_switch_log, switch_log_path
-
-#: answers (and their latencies) a live run keeps in memory per query: the newest minute at
-#: 60 Hz; all of them go to the recording and the callbacks
-LIVE_KEEP = 3_600
 
 __all__ = [
     "LiveSource",
@@ -664,9 +659,7 @@ def run_live(
             setup, main, sources, on_answer, record, history_s, vrpn_out, log, publishers
         )
         net = served.net
-        for c in net.components.values():  # answers go to the file and callbacks: memory stays
-            if isinstance(c, (CallbackSink, PullSink)):
-                c.keep = LIVE_KEEP
+        keep_newest(net.components.values())  # answers go to the file and callbacks
         net.reset()
         warm_up(net)
         warm_up_inputs()

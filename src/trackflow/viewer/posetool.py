@@ -217,16 +217,11 @@ class PoseToolPage:
     def _build(self) -> None:
         gui, m, tool = self.view.gui, self.tool.base.model, self.tool
         self.table = gui.add_html("")
-        self.errors = gui.add_uplot(
-            scales=SECONDS_AXIS, cursor=linked_cursor("posetool"),
-            data=(np.zeros(2),) * 3,
-            series=(
-                {"label": "t [s]"},
-                {"label": "hand error [mm]", "stroke": "#c0c"},
-                {"label": "tuned error [mm]", "stroke": "#d60"},
-            ),
-            title="position prediction error", aspect=2.4,
-        )  # fmt: skip
+        self.errors = self._time_plot(
+            "position prediction error",
+            {"label": "hand error [mm]", "stroke": "#c0c"},
+            {"label": "tuned error [mm]", "stroke": "#d60"},
+        )
         with gui.add_folder("Motion model"):
             self.n_dp = gui.add_dropdown("position derivatives", ("1", "2", "3"), initial_value="2")
             self.n_do = gui.add_dropdown("orientation derivatives", ("1", "2"), initial_value="1")
@@ -251,18 +246,22 @@ class PoseToolPage:
                           self.start, self.axis)  # fmt: skip
         for c in self._controls:
             c.on_update(lambda _: self.changed())
-        self.residuals = gui.add_uplot(
-            scales=SECONDS_AXIS, cursor=linked_cursor("posetool"),
-            data=(np.zeros(2),) * 4,
-            series=(
-                {"label": "t [s]"},
-                {"label": "filtered [mm]", "stroke": "#08c"},
-                {"label": "predicted (hand) [mm]", "stroke": "#c0c"},
-                {"label": "predicted (tuned) [mm]", "stroke": "#d60"},
-            ),
-            title=_residual_title("x"), aspect=2.4,
-        )  # fmt: skip
+        self.residuals = self._time_plot(
+            _residual_title("x"),
+            {"label": "filtered [mm]", "stroke": "#08c"},
+            {"label": "predicted (hand) [mm]", "stroke": "#c0c"},
+            {"label": "predicted (tuned) [mm]", "stroke": "#d60"},
+        )
         self.tuned_text = gui.add_markdown(tool.tuning_text)
+
+    def _time_plot(self, title: str, *series: dict):
+        """A plot over the recording's time [s] (cursor linked with the page's other plots)
+        with one line per ``series`` (uPlot series options)."""
+        return self.view.gui.add_uplot(
+            scales=SECONDS_AXIS, cursor=linked_cursor("posetool"),
+            data=(np.zeros(2),) * (1 + len(series)),
+            series=({"label": "t [s]"}, *series), title=title, aspect=2.4,
+        )  # fmt: skip
 
     def _draw_scene(self) -> None:
         """The floor grid, the whole path as a faint line, the camera on the path."""
