@@ -28,6 +28,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -265,26 +266,35 @@ def make_workspace(root: Path, data_dir: Path | None = None) -> Path:
     return repo
 
 
-def run_command(cmd: DocCommand, repo: Path, timeout: float = 300.0) -> Ran:
-    """Run one documented command as written with ``bash -c`` in the workspace ``repo``."""
+def _environment(repo: Path) -> dict[str, str]:
+    """The environment a documented command runs in: the trackflow under test first on the
+    path, the workspace's ``bin`` on ``PATH``, no display for plots."""
     import trackflow
 
-    root = repo.parent
     env = dict(os.environ)
     src = str(Path(trackflow.__file__).resolve().parents[1])  # the trackflow under test
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [src, env.get("PYTHONPATH")]))
-    env["PATH"] = os.pathsep.join([str(root / "bin"), env.get("PATH", "")])
+    env["PATH"] = os.pathsep.join([str(repo.parent / "bin"), env.get("PATH", "")])
     env["MPLBACKEND"] = "Agg"
-    proc = subprocess.Popen(
+    return env
+
+
+def _start(cmd: DocCommand, repo: Path) -> subprocess.Popen:
+    return subprocess.Popen(
         ["bash", "-c", cmd.text],
         cwd=repo,
-        env=env,
+        env=_environment(repo),
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group: a timeout ends all of it
     )
+
+
+def run_command(cmd: DocCommand, repo: Path, timeout: float = 300.0) -> Ran:
+    """Run one documented command as written with ``bash -c`` in the workspace ``repo``."""
+    proc = _start(cmd, repo)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired as timed_out:
@@ -294,3 +304,72 @@ def run_command(cmd: DocCommand, repo: Path, timeout: float = 300.0) -> Ran:
             f"{cmd.where}: still running after {timeout:.0f} s: {cmd.text}\n{err[-2000:]}"
         ) from timed_out
     return Ran(cmd, proc.returncode, out, err, repo)
+
+
+@dataclass
+class Served(Ran):
+    """A command that serves until interrupted: what it printed up to and after Ctrl-C, the
+    page it served (``url``, and the HTML it answered) and how it ended."""
+
+    url: str = ""
+    page: str = ""
+
+
+_URL = re.compile(r"http://127\.0\.0\.1:\d+/")
+
+
+def serve_command(cmd: DocCommand, repo: Path, timeout: float = 180.0) -> Served:
+    """Run a documented command that serves a page until interrupted, as a user does: start it
+    as written, wait (bounded) until it prints its page's address, fetch the page, then press
+    Ctrl-C (SIGINT to its whole process group, as a terminal sends it) and wait (bounded) for
+    it to end. Raises AssertionError when it prints no address or does not end."""
+    import queue
+    import threading
+    import urllib.request
+
+    proc = _start(cmd, repo)
+    lines: queue.Queue = queue.Queue()
+    kept = {"stdout": [], "stderr": []}
+
+    def read(stream, name) -> None:
+        for line in stream:
+            kept[name].append(line)
+            lines.put(line)
+        lines.put(None)
+
+    readers = [threading.Thread(target=read, args=(getattr(proc, n), n), daemon=True)
+               for n in kept]  # fmt: skip
+    for r in readers:
+        r.start()
+    url, ended, deadline = None, 0, time.monotonic() + timeout
+    try:
+        while url is None and ended < 2:
+            try:
+                line = lines.get(timeout=max(deadline - time.monotonic(), 0.0))
+            except queue.Empty:
+                raise AssertionError(
+                    f"{cmd.where}: no page address after {timeout:.0f} s: {cmd.text}\n"
+                    + "".join(kept["stderr"])[-2000:]
+                ) from None
+            if line is None:
+                ended += 1
+            elif m := _URL.search(line):
+                url = m.group(0)
+        page = ""
+        if url is not None:
+            with urllib.request.urlopen(url, timeout=30) as answer:
+                page = answer.read().decode("utf-8", "replace")
+            os.killpg(proc.pid, signal.SIGINT)
+        rc = proc.wait(timeout=60)
+    except subprocess.TimeoutExpired as still_running:
+        raise AssertionError(f"{cmd.where}: still running 60 s after Ctrl-C: {cmd.text}") from (
+            still_running
+        )
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for r in readers:
+            r.join(timeout=10)
+    out, err = "".join(kept["stdout"]), "".join(kept["stderr"])
+    return Served(cmd, rc, out, err, repo, url or "", page)

@@ -4,7 +4,8 @@ commands that run.
 
 Every documented command is in exactly one table: RUN (run as written, then checked: against
 the output the doc quotes after it, and/or by its check here, which compares with the figures
-the docs state), SYNOPSES (a usage line with placeholders: every option and choice it names is
+the docs state), SERVED (a page served until Ctrl-C: started as written, its page fetched,
+then interrupted), SYNOPSES (a usage line with placeholders: every option and choice it names is
 in the command's --help), EXEMPT (cannot run in a test, with the reason and the test that
 covers it).
 """
@@ -22,12 +23,14 @@ import yaml
 
 import _doc_inputs as inputs
 from _doc_commands import (
+    DocCommand,
     Ran,
     assert_as_documented,
     doc_states,
     documented_commands,
     half_ulp,
     quoted_output_mismatch,
+    run_command,
 )
 from conftest import REPO_ROOT, shared_data_dir
 
@@ -415,7 +418,6 @@ SYNOPSES = {
 }
 
 _BENCH = "a benchmark that writes the docs' figures"
-_VIEW = "serves the page on 127.0.0.1:8080 until interrupted (no --duration)"
 _ROS2 = "the ROS 2 side: needs a ROS 2 installation, which this machine does not have"
 
 #: Documented commands no test runs as written, each with the reason (and the test that
@@ -427,12 +429,6 @@ EXEMPT = {
     ),
     "make test # creates .venv, installs trackflow + dev tools, runs ruff and the test suite": (
         "runs this suite"
-    ),
-    "trackflow view --realm demo --connect tcp/127.0.0.1:7451 --connect tcp/127.0.0.1:7453": (
-        f"{_VIEW}, beside the running demo realm; tests/distributed/test_realm_view.py"
-    ),
-    ".venv/bin/trackflow view examples/demo_setup.yaml # open http://127.0.0.1:8080": (
-        f"{_VIEW}; tests/viewer/test_views.py::test_a_setup_runs_live_on_the_wall_clock"
     ),
     "PYTHONPATH=src .venv/bin/python -m pytest -q tests/calibration -p no:xdist # ~2 min loaded": (
         "runs tests of this suite"
@@ -506,24 +502,42 @@ EXEMPT = {
         "against a stand-in router"
     ),
     "ros2 topic echo /trackflow/head # on the ROS 2 side": _ROS2,
-    "trackflow run examples/live_demo.yaml --view # live trackers, in the browser": (
-        f"{_VIEW}, and needs the live demo's simulated trackers; tests/viewer/test_live_run.py"
+}
+
+
+def _demo_realm_files(repo: Path) -> None:
+    """The demo realm's agent files, written by the command docs/distributed.md gives."""
+    r = run_command(DocCommand("prepare", 0, "trackflow demo --realm demo_realm"), repo)
+    assert r.returncode == 0, r.describe()
+
+
+@dataclass(frozen=True)
+class Serve:
+    """A documented command that serves a page until interrupted: inputs made first; it is
+    started as written, its page fetched, then stopped with Ctrl-C (``serve_command``)."""
+
+    prepare: Callable[[Path], None] | None = None
+
+
+#: Commands that serve a page until Ctrl-C: run as written (``serve_command``); each must print
+#: its page's address, serve viser's page there and end on Ctrl-C without a traceback.
+SERVED: dict[str, Serve] = {
+    # README.md: the live network of the demo setup
+    ".venv/bin/trackflow view examples/demo_setup.yaml # open http://127.0.0.1:8080": Serve(),
+    # docs/viewer.md: the realm's page (read-only; with no agent running it shows none)
+    "trackflow view --realm demo --connect tcp/127.0.0.1:7451 --connect tcp/127.0.0.1:7453": (
+        Serve()
     ),
-    "trackflow view examples/demo_setup.yaml # live: the setup's network runs": (
-        f"{_VIEW}; tests/viewer/test_views.py::test_a_setup_runs_live_on_the_wall_clock"
-    ),
+    # docs/viewer.md (the live demo's inputs wait for their trackers)
+    "trackflow run examples/live_demo.yaml --view # live trackers, in the browser": Serve(),
+    "trackflow view examples/demo_setup.yaml # live: the setup's network runs": Serve(),
     "trackflow view ../shared/data/tumvi/dataset-room1_512_16.txt # a recording, timeline": (
-        f"{_VIEW}; tests/viewer/test_cli_snapshot.py renders a recording's view"
+        Serve()
     ),
-    "trackflow view ../shared/data/ar_table/table_01.txt --posetool # PoseTool page": (
-        f"{_VIEW}; tests/viewer/test_views.py::test_posetool_recomputes_when_a_slider_moves"
-    ),
-    "trackflow view examples/fusion_setup.yaml --anchor A # draw the scene in frame A": (
-        f"{_VIEW}; tests/viewer/test_scene_live.py::"
-        "test_the_scene_is_drawn_in_the_room_and_the_anchor_can_change"
-    ),
-    "trackflow view demo_realm/tracker.yaml demo_realm/camera.yaml demo_realm/app.yaml": (
-        f"{_VIEW}; tests/viewer/test_views.py::test_a_realms_agent_files_are_viewed_as_one_setup"
+    "trackflow view ../shared/data/ar_table/table_01.txt --posetool # PoseTool page": Serve(),
+    "trackflow view examples/fusion_setup.yaml --anchor A # draw the scene in frame A": Serve(),
+    "trackflow view demo_realm/tracker.yaml demo_realm/camera.yaml demo_realm/app.yaml": Serve(
+        _demo_realm_files
     ),
 }
 
@@ -531,8 +545,6 @@ EXEMPT = {
 def run_page(doc: str, repo: Path) -> None:
     """Every RUN command of the page, in the page's order, in the workspace ``repo``: exit 0 (1
     where the doc quotes an error), the output the doc quotes, and the command's check."""
-    from _doc_commands import run_command
-
     done: set[str] = set()
     for cmd in documented_commands():
         if cmd.doc != doc or cmd.key not in RUN or cmd.key in done:

@@ -2,11 +2,13 @@
 docs/*.md runs as written and shows what the docs say it shows.
 
 Which lines are commands is one rule (tests/_doc_commands.py). Every documented command is in
-exactly one of three tables (tests/_doc_table.py): RUN (run as written, then checked), SYNOPSES
-(usage lines: their options must be in --help), EXEMPT (with the reason and the covering
-test). A command in none of them fails test_every_documented_command_is_run_or_exempted, so a
-new command in the docs cannot go untested by accident; an entry no doc has any more fails it
-too. The pages of README_PAGES run here, the others in tests/test_doc_pages.py.
+exactly one of four tables (tests/_doc_table.py): RUN (run as written, then checked), SERVED
+(pages served until Ctrl-C: started as written, the page fetched, then interrupted;
+tests/test_doc_serving.py), SYNOPSES (usage lines: their options must be in --help), EXEMPT
+(with the reason and the covering test). A command in none of them fails
+test_every_documented_command_is_run_or_exempted, so a new command in the docs cannot go
+untested by accident; an entry no doc has any more fails it too. The pages of README_PAGES run
+here, the others in tests/test_doc_pages.py.
 """
 
 from __future__ import annotations
@@ -25,7 +27,16 @@ from _doc_commands import (
     quoted_output_mismatch,
     run_command,
 )
-from _doc_table import EXEMPT, README_PAGES, RUN, SYNOPSES, pages, ratio_matches, run_page
+from _doc_table import (
+    EXEMPT,
+    README_PAGES,
+    RUN,
+    SERVED,
+    SYNOPSES,
+    pages,
+    ratio_matches,
+    run_page,
+)
 from conftest import REPO_ROOT
 
 
@@ -41,6 +52,10 @@ def test_readme_example_runs_and_propagates_lever_arm_error():
     assert x.shape == (3,) and c_x.shape == (3, 3)
 
 
+#: every documented command is in exactly one of these
+TABLES = (("RUN", RUN), ("SERVED", SERVED), ("SYNOPSES", SYNOPSES), ("EXEMPT", EXEMPT))
+
+
 # -- the tests -----------------------------------------------------------------------------------
 
 
@@ -48,15 +63,11 @@ def test_every_documented_command_is_run_or_exempted():
     commands = documented_commands()
     keys = {c.key for c in commands}
     for c in commands:
-        tables = [
-            name
-            for name, t in (("RUN", RUN), ("SYNOPSES", SYNOPSES), ("EXEMPT", EXEMPT))
-            if c.key in t
-        ]
+        tables = [name for name, t in TABLES if c.key in t]
         assert len(tables) == 1, f"{c.where}: {c.key!r} is in {tables or 'no table'}"
         if c.key in RUN:
             assert c.expected or RUN[c.key].check, f"{c.where}: run, but nothing checks it"
-    for table in (RUN, SYNOPSES, EXEMPT):
+    for _, table in TABLES:
         stale = set(table) - keys
         assert not stale, f"no doc has these commands any more: {sorted(stale)}"
 

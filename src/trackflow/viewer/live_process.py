@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 import threading
 
@@ -60,6 +61,9 @@ def main(conn) -> None:
 
     ``options``: ``host``, ``port``, ``rate_hz``, ``style`` (:class:`Style`), ``priority``
     (:func:`lower_priority`)."""
+    # the dataflow process owns the stop: a terminal's Ctrl-C reaches the whole process group,
+    # and the view must not die of it mid-frame (a traceback) before the pipe tells it to stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     send_lock = threading.Lock()
 
     def send(msg) -> None:
