@@ -1,11 +1,12 @@
 """What tests/test_readme.py and tests/test_doc_pages.py do with each documented command
-(tests/_doc_commands.py finds them): the tables RUN, SYNOPSES and EXEMPT, and the checks of the
-commands that run.
+(tests/_doc_commands.py finds them): the tables RUN, SERVED, SCRIPTS, SYNOPSES and EXEMPT, and
+the checks of the commands that run.
 
 Every documented command is in exactly one table: RUN (run as written, then checked: against
 the output the doc quotes after it, and/or by its check here, which compares with the figures
 the docs state), SERVED (a page served until Ctrl-C: started as written, its page fetched,
-then interrupted), SYNOPSES (a usage line with placeholders: every option and choice it names is
+then interrupted), SCRIPTS (consecutive commands that work only together: one script),
+SYNOPSES (a usage line with placeholders: every option and choice it names is
 in the command's --help), EXEMPT (cannot run in a test, with the reason and the test that
 covers it).
 """
@@ -257,8 +258,8 @@ def check_lists_demo_realm_and_prints_the_docs_commands(r: Ran) -> None:
     assert {p.name for p in (r.cwd / "demo_realm").iterdir()} == names
     cmds = documented_commands()
     k = next(i for i, c in enumerate(cmds) if c.key == r.command.key)
-    rest = [c.key for c in cmds[k + 1 : k + 5]]
-    assert rest[0].startswith("start=") and rest[-1].endswith("--status status.json")
+    rest = [c.key for c in cmds[k + 1 : k + 6]]
+    assert list(rest) == list(SCRIPTS["the demo realm"].keys)
     printed = [" ".join(ln.split()) for ln in r.stdout.splitlines()]
     for line in rest:
         assert line in printed, (line, printed)
@@ -440,17 +441,6 @@ EXEMPT = {
         "remakes every figure of docs/calibration and its summary.json: minutes (its part "
         "bench/calibration.py alone takes 53 s of CPU); tests/calibration/"
     ),
-    "start=$(( $(date +%s%N) + 5000000000 )) # recording time 0 on the agents' clock": (
-        "starts the three agents below"
-    ),
-    "trackflow agent demo_realm/tracker.yaml --start-ns $start &": (
-        "with the app agent: a 60 s run (--duration 60); tests/distributed/test_demo_realm.py "
-        "starts the same three agents with --duration 15 and checks the query's answers"
-    ),
-    "trackflow agent demo_realm/camera.yaml --start-ns $start &": "as the tracker agent",
-    "trackflow agent demo_realm/app.yaml --duration 60 --status status.json": (
-        "as the tracker agent"
-    ),
     "ros2 bag info out # or: trackflow info out.mcap, out/ or out/out.mcap": (
         f"{_ROS2}; tests/io/test_rosbag_tf.py reads the bags back with rosbags"
     ),
@@ -538,6 +528,42 @@ SERVED: dict[str, Serve] = {
     "trackflow view examples/fusion_setup.yaml --anchor A # draw the scene in frame A": Serve(),
     "trackflow view demo_realm/tracker.yaml demo_realm/camera.yaml demo_realm/app.yaml": Serve(
         _demo_realm_files
+    ),
+}
+
+
+def check_the_demo_realm_answered(r: Ran) -> None:
+    """The application agent ended by itself (its --duration) with the query answered over the
+    tracker's and the camera's sensors: at least a second's worth of a 60 Hz query."""
+    q = json.loads((r.cwd / "status.json").read_text())["queries"]["sheep"]
+    assert q["state"] == "running", q
+    assert any("art" in p and "artoolkit" in p for p in q["paths"]), q
+    assert q["published"] >= 60, q
+
+
+@dataclass(frozen=True)
+class Script:
+    """Consecutive commands of one block that work only together (a shell variable, background
+    jobs): run as one bash script, as written and in the doc's order, then checked."""
+
+    keys: tuple[str, ...]
+    check: Callable[[Ran], None]
+    prepare: Callable[[Path], None] | None = None
+
+
+#: Run as one script each (tests/test_doc_scripts.py).
+SCRIPTS: dict[str, Script] = {
+    # docs/distributed.md: the three agents of `trackflow demo --realm demo_realm` (RUN above)
+    "the demo realm": Script(
+        (
+            "start=$(( $(date +%s%N) + 5000000000 )) # recording time 0 on the agents' clock",
+            "trackflow agent demo_realm/tracker.yaml --start-ns $start &",
+            "trackflow agent demo_realm/camera.yaml --start-ns $start &",
+            "trackflow agent demo_realm/app.yaml --duration 20 --status status.json",
+            "kill %1 %2 # the tracker and camera agents run until stopped",
+        ),
+        check_the_demo_realm_answered,
+        prepare=_demo_realm_files,
     ),
 }
 

@@ -2,9 +2,10 @@
 docs/*.md runs as written and shows what the docs say it shows.
 
 Which lines are commands is one rule (tests/_doc_commands.py). Every documented command is in
-exactly one of four tables (tests/_doc_table.py): RUN (run as written, then checked), SERVED
+exactly one of five tables (tests/_doc_table.py): RUN (run as written, then checked), SERVED
 (pages served until Ctrl-C: started as written, the page fetched, then interrupted;
-tests/test_doc_serving.py), SYNOPSES (usage lines: their options must be in --help), EXEMPT
+tests/test_doc_serving.py), SCRIPTS (commands that work only together, run as one script;
+tests/test_doc_scripts.py), SYNOPSES (usage lines: their options must be in --help), EXEMPT
 (with the reason and the covering test). A command in none of them fails
 test_every_documented_command_is_run_or_exempted, so a new command in the docs cannot go
 untested by accident; an entry no doc has any more fails it too. The pages of README_PAGES run
@@ -31,6 +32,7 @@ from _doc_table import (
     EXEMPT,
     README_PAGES,
     RUN,
+    SCRIPTS,
     SERVED,
     SYNOPSES,
     pages,
@@ -53,7 +55,13 @@ def test_readme_example_runs_and_propagates_lever_arm_error():
 
 
 #: every documented command is in exactly one of these
-TABLES = (("RUN", RUN), ("SERVED", SERVED), ("SYNOPSES", SYNOPSES), ("EXEMPT", EXEMPT))
+TABLES = (
+    ("RUN", RUN),
+    ("SERVED", SERVED),
+    ("SCRIPTS", {key for script in SCRIPTS.values() for key in script.keys}),
+    ("SYNOPSES", SYNOPSES),
+    ("EXEMPT", EXEMPT),
+)
 
 
 # -- the tests -----------------------------------------------------------------------------------

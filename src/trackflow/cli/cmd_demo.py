@@ -52,7 +52,8 @@ def _write_realm(args) -> int:
     print("  start=$(( $(date +%s%N) + 5000000000 ))  # recording time 0 on the agents' clock")
     print(f"  trackflow agent {d}/tracker.yaml --start-ns $start &")
     print(f"  trackflow agent {d}/camera.yaml --start-ns $start &")
-    print(f"  trackflow agent {d}/app.yaml --duration 60 --status status.json")
+    print(f"  trackflow agent {d}/app.yaml --duration 20 --status status.json")
+    print("  kill %1 %2  # the tracker and camera agents run until stopped")
     return 0
 
 
