@@ -64,6 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _procs import rss_and_cpu
 from adaptive_agents import SENSOR, _agent_file, _endpoint, _port, _proc
 from trackflow.distributed.wire import decode
 from trackflow.trackers import vrpn
@@ -97,14 +98,7 @@ class Managed:
 
     def sample(self) -> tuple[float, float] | None:
         """RSS [MB] and CPU time [s] so far, from /proc (None if gone)."""
-        try:
-            status = Path(f"/proc/{self.popen.pid}/status").read_text()
-            stat = Path(f"/proc/{self.popen.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            return None
-        rss = next(int(ln.split()[1]) for ln in status.splitlines() if ln.startswith("VmRSS"))
-        ticks = os.sysconf("SC_CLK_TCK")
-        return rss / 1024, (int(stat[11]) + int(stat[12])) / ticks
+        return rss_and_cpu(self.popen.pid)
 
     def ready(self) -> bool:
         """Back after a (re)start: an agent has logged ``"ready"``, a simulated tracker has
