@@ -12,6 +12,7 @@ import pytest
 from _io_helpers import random_stream
 from scipy.spatial.transform import Rotation, Slerp
 
+from _rosbag_read import bag_messages
 from trackflow.cli.main import main
 from trackflow.errors import FormatError
 from trackflow.io import FrameLookupError, PoseStream, read_stream, write_stream
@@ -20,18 +21,6 @@ from trackflow.math import Pose, cov_to_ros, quat_angle, quat_exp
 pytest.importorskip("rosbags")
 
 STORAGES = {"mcap": ".mcap", "sqlite3": ".db3"}
-
-
-def _messages(bag):
-    """Every message of a bag as (topic, msgtype, bag time, message), read by rosbags alone."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-        return [
-            (c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype))
-            for c, t, raw in reader.messages()
-        ]
 
 
 def _storage_id(bag) -> str:
@@ -53,7 +42,7 @@ def test_every_message_and_covariance_round_trips_in_both_storages(tmp_path, rng
     assert sorted(p.name for p in bag.iterdir()) == sorted(["metadata.yaml", given.name])
     assert _storage_id(bag) == storage
 
-    msgs = _messages(bag)
+    msgs = bag_messages(bag)
     assert len(msgs) == 25
     cov_ros = cov_to_ros(s.covariance, s.quaternion).reshape(-1, 36)
     for k, (topic, _, t_bag, m) in enumerate(msgs):
@@ -127,7 +116,7 @@ def test_answers_go_to_tf_from_the_command_line(tmp_path, capsys):
     write_stream(src, s)
     out = tmp_path / "answers.mcap"
     assert main(["convert", str(src), str(out), "--msgtype", "TFMessage", "--quiet"]) == 0
-    ((topic, msgtype, _, m), *_) = _messages(tmp_path / "answers")
+    ((topic, msgtype, _, m), *_) = bag_messages(tmp_path / "answers")
     assert (topic, msgtype) == ("/tf", "tf2_msgs/msg/TFMessage")
     assert (m.transforms[0].header.frame_id, m.transforms[0].child_frame_id) == ("world", "head")
     assert main(["info", str(out)]) == 1  # a /tf bag needs the pair, and says so as flags
@@ -152,7 +141,7 @@ def test_a_run_recording_converts_to_an_mcap_bag_rosbags_reads_whole(tmp_path, m
     w.close()
     out = tmp_path / "answers.mcap"
     assert main(["convert", str(rec), str(out), "--msgtype", msgtype, "--quiet"]) == 0
-    msgs = _messages(tmp_path / "answers")
+    msgs = bag_messages(tmp_path / "answers")
     assert _storage_id(tmp_path / "answers") == "mcap" and len(msgs) == len(s.t_ns)
     cov_ros = cov_to_ros(s.covariance, s.quaternion).reshape(-1, 36)
     for k, (_, _, t_bag, m) in enumerate(msgs):
