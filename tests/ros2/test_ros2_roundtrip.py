@@ -26,11 +26,11 @@ pytest.importorskip("rosbags", reason="rosbags is not installed (pip install .[r
 
 from _ros2live import attachment, key, pose_message
 
-from _rosbag_read import bag_messages
+from _rosbag_read import assert_bag_holds, bag_messages
 from trackflow.cli.main import main
 from trackflow.dataflow import parse_setup
 from trackflow.io import read_stream
-from trackflow.math import cov_to_ros, quat_exp
+from trackflow.math import quat_exp
 from trackflow.trackers import run_live
 
 pytestmark = pytest.mark.slow
@@ -135,21 +135,7 @@ def _answers_read_back_from_mcap_bags(answers, record) -> None:
     """The run's recorded answers through ``trackflow convert ... .mcap``: rosbags reads every
     message, on /tf (frames, stamps, pose) and as PoseWithCovarianceStamped (with the
     covariance in ROS's convention)."""
-    cov_ros = cov_to_ros(answers.covariance, answers.quaternion).reshape(-1, 36)
     for msgtype in ("TFMessage", "PoseWithCovarianceStamped"):
         out = record.parent / f"answers_{msgtype}.mcap"
         assert main(["convert", str(record), str(out), "--msgtype", msgtype, "--quiet"]) == 0
-        msgs = bag_messages(out.with_suffix(""))
-        assert len(msgs) == len(answers.t_ns)
-        for k, (_, _, t_bag, m) in enumerate(msgs):
-            assert t_bag == answers.t_ns[k]
-            if msgtype == "TFMessage":
-                (tf,) = m.transforms
-                assert (tf.header.frame_id, tf.child_frame_id) == ("room", "head")
-                p, q = tf.transform.translation, tf.transform.rotation
-            else:
-                assert m.header.frame_id == "room"
-                p, q = m.pose.pose.position, m.pose.pose.orientation
-                assert np.array_equal(m.pose.covariance, cov_ros[k])
-            assert [p.x, p.y, p.z] == answers.position[k].tolist()
-            assert [q.x, q.y, q.z, q.w] == answers.quaternion[k].tolist()
+        assert_bag_holds(bag_messages(out.with_suffix("")), answers, msgtype)
