@@ -251,6 +251,49 @@ def check_filter_tuning_first(r: Ran) -> None:
     _check_filter_summary(r, "tuned.tfrec")
 
 
+def _inertial_table(recording: str) -> dict[str, list[str]]:
+    """docs/inertial.md's rows of one recording (none, kalman, kalman_imu) as printed:
+    position and orientation RMS 50 ms ahead, then 10 ms ahead."""
+    fig = r"\**([\d.]+)\**(?: \([\d.]+x\))?"
+    row = r" \| ".join([fig] * 4)
+    stated = doc_states(
+        "docs/inertial.md",
+        rf"\| {re.escape(recording)} \| none \(hold\) \| {row} \| "
+        rf"\| \| kalman[^|]* \| {row} \| \| \| kalman_imu \| {row} \|",
+    )
+    return {"none": stated[:4], "kalman": stated[4:8], "kalman_imu": stated[8:]}
+
+
+def _scored_origins(recording: str) -> int:
+    """The origins scored 50 ms ahead that docs/inertial.md states for a recording."""
+    return int("".join(doc_states("docs/inertial.md", rf"{recording} (\d+) (\d+)")))
+
+
+def check_evaluate_imu_broad_fast_rotation(r: Ran) -> None:
+    """The table of docs/inertial.md for BROAD fast rotation at 60 Hz, anytime origins: the
+    three predictors' RMS 50 and 10 ms ahead (both printed rounded: equal within both
+    roundings), and the origins scored."""
+    pos = _evaluate_table(r.stdout, "position error (mm)")
+    ori = _evaluate_table(r.stdout, "orientation error (deg)")
+    for name, stated in _inertial_table("BROAD fast rotation (60 Hz), anytime").items():
+        printed = [pos[name][2], ori[name][2], pos[name][0], ori[name][0]]
+        for s, p in zip(stated, printed, strict=True):
+            slack = (half_ulp(s) + half_ulp(p)) * (1 + 1e-9)
+            assert abs(float(s) - float(p)) <= slack, (name, stated, printed)
+    assert f"50 ms: {_scored_origins('Scored origins at 50 ms: BROAD')}," in r.stdout
+
+
+def check_evaluate_imu_euroc(r: Ran) -> None:
+    """The table of docs/inertial.md for EuRoC V1_01 at 20 Hz, anytime origins, from the JSON:
+    the three predictors' RMS 50 and 10 ms ahead, and the origins scored."""
+    predictors = _json(r)["predictors"]
+    for name, stated in _inertial_table("EuRoC V1_01 (20 Hz), anytime").items():
+        p50, p10 = predictors[name]["50"], predictors[name]["10"]
+        got = [p50["pos_rms_mm"], p50["ori_rms_deg"], p10["pos_rms_mm"], p10["ori_rms_deg"]]
+        assert_as_documented(stated, got, f"EuRoC {name}")
+    assert predictors["kalman_imu"]["50"]["n"] == _scored_origins(r"\(poses\); EuRoC")
+
+
 def check_lists_demo_realm_and_prints_the_docs_commands(r: Ran) -> None:
     """The files the agents need, and the start commands exactly as docs/distributed.md's
     block goes on (so the doc's commands are the ones the demo prints)."""
@@ -401,6 +444,15 @@ RUN: dict[str, Run] = {
     "trackflow run examples/optical_live.yaml --replay out/optical.tfrec # bit for bit": Run(
         check_replay_bit_for_bit
     ),
+    # docs/inertial.md
+    "trackflow evaluate ../shared/data/broad/06_undisturbed_fast_rotation_A.mat --imu "
+    "../shared/data/broad/06_undisturbed_fast_rotation_A.mat --pose-rate 60 --origins anytime": (
+        Run(check_evaluate_imu_broad_fast_rotation)
+    ),
+    "trackflow evaluate ../shared/data/euroc/V1_01_easy_groundtruth_200hz.txt --imu "
+    "../shared/data/euroc/V1_01_easy_imu0.csv --pose-rate 20 --origins anytime --json": Run(
+        check_evaluate_imu_euroc
+    ),
 }
 
 #: Usage lines with placeholders (SETUP.yaml, RECORDING, [optional] parts, {choices}): every
@@ -443,15 +495,6 @@ EXEMPT = {
     ),
     "ros2 bag info out # or: trackflow info out.mcap, out/ or out/out.mcap": (
         f"{_ROS2}; tests/io/test_rosbag_tf.py reads the bags back with rosbags"
-    ),
-    "trackflow evaluate ../shared/data/broad/06_undisturbed_fast_rotation_A.mat --imu "
-    "../shared/data/broad/06_undisturbed_fast_rotation_A.mat --pose-rate 60 --origins anytime": (
-        "over 55 s of CPU (stopped after 2 min 11 s at load 6); "
-        "tests/evaluation/test_inertial_evaluation.py"
-    ),
-    "trackflow evaluate ../shared/data/euroc/V1_01_easy_groundtruth_200hz.txt --imu "
-    "../shared/data/euroc/V1_01_easy_imu0.csv --pose-rate 20 --origins anytime --json": (
-        "over 41 s of CPU; tests/evaluation/test_inertial_evaluation.py"
     ),
     ".venv/bin/pip install -e '.[bench]' # imufusion and vqf (bench extra only)": (
         "installs packages"
