@@ -83,6 +83,15 @@ def _blocks(text: str):
         i = j + 1
 
 
+def block_before(cmd: DocCommand, tag: str) -> str:
+    """The body of the last ``tag`` block (``yaml``, ...) of ``cmd``'s doc before ``cmd``: the
+    file a command's text refers to."""
+    text = (REPO_ROOT / cmd.doc).read_text()
+    bodies = [body for t, first, body in _blocks(text) if t == tag and first < cmd.line]
+    assert bodies, f"{cmd.where}: no {tag} block before it"
+    return "\n".join(bodies[-1]) + "\n"
+
+
 def _is_comment_or_blank(line: str) -> bool:
     return not line.strip() or line.lstrip().startswith("#")
 
@@ -308,9 +317,11 @@ def run_command(cmd: DocCommand, repo: Path, timeout: float = 300.0) -> Ran:
 
 @dataclass
 class Served(Ran):
-    """A command that serves until interrupted: what it printed up to and after Ctrl-C, the
-    page it served (``url``, and the HTML it answered) and how it ended."""
+    """A command that serves until interrupted: what it printed up to and after Ctrl-C, whether
+    it became ready, the page it served (``url``, and the HTML it answered) and how it
+    ended."""
 
+    ready: bool = False
     url: str = ""
     page: str = ""
 
@@ -318,11 +329,14 @@ class Served(Ran):
 _URL = re.compile(r"http://127\.0\.0\.1:\d+/")
 
 
-def serve_command(cmd: DocCommand, repo: Path, timeout: float = 180.0) -> Served:
-    """Run a documented command that serves a page until interrupted, as a user does: start it
-    as written, wait (bounded) until it prints its page's address, fetch the page, then press
-    Ctrl-C (SIGINT to its whole process group, as a terminal sends it) and wait (bounded) for
-    it to end. Raises AssertionError when it prints no address or does not end."""
+def serve_command(
+    cmd: DocCommand, repo: Path, ready: str | None = None, timeout: float = 180.0
+) -> Served:
+    """Run a documented command that serves until interrupted, as a user does: start it as
+    written, wait (bounded) until it prints its page's address (or, with ``ready``, a line
+    matching that regular expression), fetch the page (if it printed one), then press Ctrl-C
+    (SIGINT to its whole process group, as a terminal sends it) and wait (bounded) for it to
+    end. Raises AssertionError when it prints neither or does not end."""
     import queue
     import threading
     import urllib.request
@@ -341,24 +355,27 @@ def serve_command(cmd: DocCommand, repo: Path, timeout: float = 180.0) -> Served
                for n in kept]  # fmt: skip
     for r in readers:
         r.start()
-    url, ended, deadline = None, 0, time.monotonic() + timeout
+    wanted = _URL if ready is None else re.compile(ready)
+    url, seen, ended, deadline = None, False, 0, time.monotonic() + timeout
     try:
-        while url is None and ended < 2:
+        while not seen and ended < 2:
             try:
                 line = lines.get(timeout=max(deadline - time.monotonic(), 0.0))
             except queue.Empty:
                 raise AssertionError(
-                    f"{cmd.where}: no page address after {timeout:.0f} s: {cmd.text}\n"
+                    f"{cmd.where}: not ready after {timeout:.0f} s: {cmd.text}\n"
                     + "".join(kept["stderr"])[-2000:]
                 ) from None
             if line is None:
                 ended += 1
-            elif m := _URL.search(line):
-                url = m.group(0)
+            elif wanted.search(line):
+                seen = True
+                url = m.group(0) if (m := _URL.search(line)) else None
         page = ""
         if url is not None:
             with urllib.request.urlopen(url, timeout=30) as answer:
                 page = answer.read().decode("utf-8", "replace")
+        if seen:
             os.killpg(proc.pid, signal.SIGINT)
         rc = proc.wait(timeout=60)
     except subprocess.TimeoutExpired as still_running:
@@ -372,4 +389,4 @@ def serve_command(cmd: DocCommand, repo: Path, timeout: float = 180.0) -> Served
         for r in readers:
             r.join(timeout=10)
     out, err = "".join(kept["stdout"]), "".join(kept["stderr"])
-    return Served(cmd, rc, out, err, repo, url or "", page)
+    return Served(cmd, rc, out, err, repo, seen, url or "", page)

@@ -13,13 +13,17 @@ covers it).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
+import socket
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 import _doc_inputs as inputs
@@ -27,6 +31,7 @@ from _doc_commands import (
     DocCommand,
     Ran,
     assert_as_documented,
+    block_before,
     doc_states,
     documented_commands,
     half_ulp,
@@ -529,11 +534,6 @@ EXEMPT = {
     "export RMW_IMPLEMENTATION=rmw_zenoh_cpp": _ROS2,
     "ros2 run rmw_zenoh_cpp rmw_zenohd # the Zenoh router, listening on tcp/[::]:7447": _ROS2,
     "ros2 run my_mocap_driver driver # publishes /mocap/head (geometry_msgs/PoseStamped)": _ROS2,
-    "trackflow run setup.yaml": (
-        "needs the ROS 2 router on tcp/127.0.0.1:7447 and runs until interrupted; "
-        "tests/ros2/test_ros2_live.py::test_run_reads_and_publishes_ros2_topics runs this setup "
-        "against a stand-in router"
-    ),
     "ros2 topic echo /trackflow/head # on the ROS 2 side": _ROS2,
 }
 
@@ -544,17 +544,47 @@ def _demo_realm_files(repo: Path) -> None:
     assert r.returncode == 0, r.describe()
 
 
+@contextlib.contextmanager
+def _ros2_router(cmd: DocCommand, repo: Path):
+    """The setup file the command names (the doc's yaml block before it) and a Zenoh router
+    standing in for ``rmw_zenohd`` where trackflow looks for it by default,
+    tcp/127.0.0.1:7447 (skipped when another process holds that port)."""
+    pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (.[distributed])")
+    pytest.importorskip("rosbags", reason="rosbags is not installed (.[ros])")
+    with socket.socket() as probe:
+        try:
+            probe.bind(("127.0.0.1", 7447))
+        except OSError:
+            pytest.skip("tcp/127.0.0.1:7447, where the documented command connects, is taken")
+    sys.path.insert(0, str(REPO_ROOT / "tests" / "ros2"))  # (when run without the ROS 2 tests)
+    from _ros2live import Router
+
+    (repo / "setup.yaml").write_text(block_before(cmd, "yaml"))
+    router = Router(7447)
+    try:
+        yield
+    finally:
+        router.close()
+
+
 @dataclass(frozen=True)
 class Serve:
-    """A documented command that serves a page until interrupted: inputs made first; it is
-    started as written, its page fetched, then stopped with Ctrl-C (``serve_command``)."""
+    """A documented command that serves until interrupted: inputs made first (``prepare``), a
+    context around it (``around``: what it talks to); it is started as written, its page
+    fetched (or, with ``ready``, a line matching that expression awaited), then stopped with
+    Ctrl-C (``serve_command``)."""
 
     prepare: Callable[[Path], None] | None = None
+    ready: str | None = None
+    around: Callable[[DocCommand, Path], contextlib.AbstractContextManager] | None = None
 
 
-#: Commands that serve a page until Ctrl-C: run as written (``serve_command``); each must print
-#: its page's address, serve viser's page there and end on Ctrl-C without a traceback.
+#: Commands that serve until Ctrl-C: run as written (``serve_command``); each must print its
+#: page's address and serve viser's page there (or print its ``ready`` line), and end on
+#: Ctrl-C without a traceback.
 SERVED: dict[str, Serve] = {
+    # docs/ros2.md: the setup above it, reading and publishing ROS 2 topics through the router
+    "trackflow run setup.yaml": Serve(ready=r"\bhead\b", around=_ros2_router),
     # README.md: the live network of the demo setup
     ".venv/bin/trackflow view examples/demo_setup.yaml # open http://127.0.0.1:8080": Serve(),
     # docs/viewer.md: the realm's page (read-only; with no agent running it shows none)

@@ -36,11 +36,11 @@ def key(domain: int, topic: str, msgtype: str) -> str:
 
 
 class Router:
-    """A Zenoh router on ``tcp/127.0.0.1:<free port>`` (no multicast) that records every
-    sample of ``watch`` key expressions and every ROS 2 graph token."""
+    """A Zenoh router on ``tcp/127.0.0.1:<port>`` (a free one by default; no multicast) that
+    records every sample of ``watch`` key expressions and every ROS 2 graph token."""
 
-    def __init__(self):
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+    def __init__(self, port: int | None = None):
+        self.endpoint = f"tcp/127.0.0.1:{port or free_port()}"
         c = zenoh.Config()
         c.insert_json5("mode", '"router"')
         c.insert_json5("listen/endpoints", json.dumps([self.endpoint]))
