@@ -288,6 +288,13 @@ def _environment(repo: Path) -> dict[str, str]:
     return env
 
 
+def _as_from_a_terminal() -> None:
+    """In the command's process before it starts: Ctrl-C's signal as a terminal leaves it. A
+    job started in the background of a script (CI, ``make test &``) inherits SIGINT ignored,
+    and an ignored signal stays ignored across exec: Ctrl-C would never reach the command."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(cmd: DocCommand, repo: Path) -> subprocess.Popen:
     return subprocess.Popen(
         ["bash", "-c", cmd.text],
@@ -298,6 +305,7 @@ def _start(cmd: DocCommand, repo: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group: a timeout ends all of it
+        preexec_fn=_as_from_a_terminal,
     )
 
 
