@@ -82,22 +82,14 @@ class Pages:
             # camera (the client's default, looking at the origin), or having applied only
             # part of it (the client takes the initial camera once, at the first of its
             # messages: its position with the default point to look at). Its first report
-            # moves it to the home camera explicitly, so every page starts there; so does a
-            # later report of that default point (a page that took the initial camera after
-            # its first report), which no orbit of a user's lands on exactly.
-            if cid not in self._cameras or self._took_default_look_at(camera):
+            # moves it to the home camera explicitly, so every page starts there.
+            if cid not in self._cameras:
                 self._move_home(client)
             self._cameras[cid] = Camera.from_client(camera)
             for hook in list(self._camera_hooks):
                 hook()
 
         client.camera.on_update(seen)
-
-    def _took_default_look_at(self, camera) -> bool:
-        """A page looking exactly at the origin, the client's default point, while the home
-        camera does not."""
-        at, home = np.asarray(camera.look_at, float), np.asarray(self._home.look_at, float)
-        return bool(np.all(np.abs(at) < 1e-9) and np.any(np.abs(home) > 1e-6))
 
     @property
     def has_browser_camera(self) -> bool:
