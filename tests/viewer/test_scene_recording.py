@@ -332,6 +332,29 @@ def test_the_keys_step_play_and_pace_the_timeline(browser, page, server):
         view.close()
 
 
+def _at_fraction(plot, act, fx: float, fy: float) -> None:
+    """Call ``act`` (a locator's ``click`` or ``hover``) at a fraction of ``plot``'s box.
+
+    The time plots' folder opens with an animation that mounts its plots again, so the
+    plot can vanish between reading its box and acting on it: retry until it holds still.
+    """
+    from playwright.sync_api import Error as PlaywrightError
+
+    end = time.monotonic() + BROWSER_TIMEOUT_S
+    while True:
+        try:
+            plot.scroll_into_view_if_needed(timeout=5000)
+            box = plot.bounding_box()  # None while the plot is unmounted
+            if box is not None:
+                act(position={"x": fx * box["width"], "y": fy * box["height"]}, timeout=5000)
+                return
+            print("retried: the plot was unmounted", flush=True)
+        except PlaywrightError as exc:
+            print("retried:", str(exc).splitlines()[0], flush=True)
+        assert time.monotonic() < end, "the plot never held still"
+        time.sleep(0.1)
+
+
 def test_the_time_plots_share_one_cursor(browser, page, server):
     """Hovering one of the recording's time plots shows the cursor in all of them (uPlot's
     cursor of every other plot is drawn, not ``u-off``), at the same fraction of its width."""
@@ -348,13 +371,11 @@ def test_the_time_plots_share_one_cursor(browser, page, server):
                    el.parentElement.getBoundingClientRect().left,
                    el.parentElement.getBoundingClientRect().width])"""
         first = plots.nth(0)
-        first.scroll_into_view_if_needed()
-        box = first.bounding_box()
         # the page may lay the panel out again under a still pointer (the pointer then
         # leaves the plot): hover again until one reading has every cursor on
         end = time.monotonic() + BROWSER_TIMEOUT_S
         while True:
-            first.hover(position={"x": 0.3 * box["width"], "y": 0.5 * box["height"]})
+            _at_fraction(first, first.hover, 0.3, 0.5)
             got = page.evaluate(js)
             if all(not off for off, *_ in got) or time.monotonic() > end:
                 break
@@ -368,8 +389,6 @@ def test_the_time_plots_share_one_cursor(browser, page, server):
 def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
     """A click in a time plot moves the view to the time under the pointer (the plot's
     legend shows it), through the ``go to`` field; a typed time goes there too."""
-    from playwright.sync_api import Error as PlaywrightError
-
     track = RecordingTrack.from_stream(_circle())
     view = _show(browser, page, server, track, 1.0)
 
@@ -380,19 +399,7 @@ def test_a_click_on_a_time_plot_goes_to_its_time(browser, page, server):
         plots = page.locator(".u-over")
         _until(lambda: plots.count() >= 4, lambda: f"{plots.count()} plots")
         plot = plots.nth(2)  # the NIS plot
-        # the folder opens with an animation that mounts its plots again: click once the
-        # plot holds still
-        end = time.monotonic() + BROWSER_TIMEOUT_S
-        while True:
-            try:
-                plot.scroll_into_view_if_needed(timeout=5000)
-                box = plot.bounding_box()
-                plot.click(position={"x": 0.7 * box["width"], "y": 0.5 * box["height"]},
-                           timeout=5000)  # fmt: skip
-                break
-            except PlaywrightError as exc:
-                print("click retried:", str(exc).splitlines()[0], flush=True)
-                assert time.monotonic() < end, "the plot never held still to be clicked"
+        _at_fraction(plot, plot.click, 0.7, 0.5)
         # the x axis spans the recording: 70 % of the width is 70 % of its duration
         want = 0.7 * float(track.t[-1])
         _until(lambda: abs(view.t_s - want) < 0.05, lambda: f"at {view.t_s} s, not {want}")
