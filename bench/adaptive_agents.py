@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from _failover_modes import print_table, run_modes, summary
+from _procs import stop
 from trackflow.distributed.wire import decode
 from trackflow.io import read_stream
 
@@ -210,13 +211,7 @@ def measure(mode: str, folder: Path) -> dict:
         if session is not None:
             session.close()
         for p in (*senders, *agents.values()):
-            if p.poll() is None:
-                p.send_signal(signal.SIGCONT)
-                p.terminate()
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop(p)
     events = [e for e in q["switches"] if e["t_ns"] > base_ns]
     if mode == "outage":  # the newest frame before the outage, and the first after it
         truth, _ = read_stream(folder / "nn_truth.tfrec")

@@ -45,6 +45,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from _procs import stop
+
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 sys.path.insert(0, str(SRC))
@@ -88,16 +90,6 @@ def wait_ready(p: subprocess.Popen, timeout_s: float = 90) -> None:
         if p.poll() is not None or time.monotonic() > deadline:
             raise RuntimeError(f"agent failed:\n{p.log.read_text()}")
         time.sleep(0.1)
-
-
-def stop(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        p.terminate()
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=10)
 
 
 def observer(connect: list[str]):

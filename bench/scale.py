@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -40,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from _procs import rss_and_cpu
+from _procs import rss_and_cpu, stop
 from adaptive_agents import _endpoint, _port, _proc
 from trackflow.io import PoseStream, write_stream
 from trackflow.math import quat_exp
@@ -114,13 +113,7 @@ class Agent:
         raise RuntimeError(f"agent {self.name}: no status file")
 
     def stop(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.terminate()
-            try:
-                self.popen.wait(20)
-            except subprocess.TimeoutExpired:
-                self.popen.kill()
-                self.popen.wait(20)
+        stop(self.popen, 20)
 
 
 def _wait(cond, timeout_s: float, what: str) -> None:

@@ -64,7 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _procs import rss_and_cpu
+from _procs import rss_and_cpu, stop
 from adaptive_agents import SENSOR, _agent_file, _endpoint, _port, _proc
 from trackflow.distributed.wire import decode
 from trackflow.trackers import vrpn
@@ -115,14 +115,8 @@ class Managed:
             return False
 
     def stop(self) -> None:
-        if self.popen is not None and self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGCONT)
-            self.popen.terminate()
-            try:
-                self.popen.wait(10)
-            except subprocess.TimeoutExpired:
-                self.popen.kill()
-                self.popen.wait(10)
+        if self.popen is not None:
+            stop(self.popen)
 
 
 @dataclass
