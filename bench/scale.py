@@ -189,8 +189,8 @@ def run(n_agents: int, m_sensors: int, rate_hz: float, query_hz: float, settle_s
             for a in agents:
                 a.stop()
     published = [_rates(b, a, lambda s: s["published_states"]) for b, a in zip(before, after)]
-    received = [_rates(b, a, lambda s: s["received_messages"] - s["received_heartbeats"])
-                for b, a in zip(before, after)]  # fmt: skip
+    received = [_rates(b, a, lambda s: s["received_states"]) for b, a in zip(before, after)]
+    messages = [_rates(b, a, lambda s: s["published_messages"]) for b, a in zip(before, after)]
     query_rates = {
         q: _rates(before[0], after[0], lambda s, q=q: s["queries"][q]["published"])
         for q in sorted(after[0][1]["queries"])
@@ -212,6 +212,7 @@ def run(n_agents: int, m_sensors: int, rate_hz: float, query_hz: float, settle_s
             "app_rss_mb": round(usage[0][0], 1),
             "app_cpu_share": round((usage[0][1] - cpu0[0]) / dt, 3),
             "published_per_s": [round(x, 1) for x in published],
+            "published_messages_per_s": [round(x, 1) for x in messages],
             "received_per_s": [round(x, 1) for x in received],
             "query_rates_hz": {q: round(r, 2) for q, r in query_rates.items()},
             "missed_ticks": after[0][1]["missed_ticks"],

@@ -253,6 +253,11 @@ class Scheduler:
         self.late = 0  # events stamped at or before an already dispatched one
         self.error: BaseException | None = None
         self.stopped = threading.Event()
+        #: called (holding the lock) each time the events due so far have been dispatched:
+        #: before the scheduling thread waits, after each :meth:`arrival` block and once a
+        #: virtual run leaves a time behind; a component that gathers what a round made (an
+        #: agent's batch of filter states) sends it from here
+        self.drained: list[Callable[[], None]] = []
 
     # -- sources ---------------------------------------------------------------------------------
     def add(self, source: EventSource) -> EventSource:
@@ -316,6 +321,7 @@ class Scheduler:
                 yield arr
                 if not arr.used:
                     self._last = max(self._last, a)
+                self._drained()
             except BaseException as exc:  # raised by the scheduling thread, which stops
                 self.error = exc
                 self.stopped.set()
@@ -342,6 +348,10 @@ class Scheduler:
         t, _, _, source, _, delay = self._heap[0]
         now = self.time.now_ns()
         return t + delay <= now or (isinstance(source, TimedSource) and source.early(t, now))
+
+    def _drained(self) -> None:
+        for fn in self.drained:
+            fn()
 
     def _set_now(self, t: int) -> None:
         self.clock.now_ns = t
@@ -407,11 +417,16 @@ class Scheduler:
             raise err
 
     def _run_virtual(self, until_ns, stop) -> None:
-        while not stop.is_set():
-            t = self._head_time()
-            if t is None or (until_ns is not None and t > until_ns):
-                break
-            self._fire_head()
+        try:
+            while not stop.is_set():
+                t = self._head_time()
+                if t is None or (until_ns is not None and t > until_ns):
+                    break
+                if t > self.clock.now_ns:
+                    self._drained()  # the previous time's events are all dispatched
+                self._fire_head()
+        finally:
+            self._drained()
 
     def _run_wall(self, until_ns, stop, on_idle, idle_s, calm) -> None:
         wall, heap = self.time, self._heap
@@ -430,6 +445,7 @@ class Scheduler:
                     continue
                 if until_ns is not None and now >= until_ns:
                     break
+                self._drained()
                 wait = idle_s
                 if heap and (until_ns is None or heap[0][0] <= until_ns):
                     wait = min(wait, wall.seconds_until(heap[0][0] + heap[0][5]))

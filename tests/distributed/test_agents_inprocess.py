@@ -159,7 +159,7 @@ def test_a_fed_state_is_made_at_its_dispatch_time_and_thinned_streams_have_no_la
     ticks the agent completes at the scheduler's time, never gets a state stamped before a
     tick it already completed (a late state: a second message for that tick)."""
     from trackflow.distributed.thinning import Grid, demand_key
-    from trackflow.distributed.wire import decode_state
+    from trackflow.distributed.wire import decode_batch, decode_state
 
     realm, port = f"fd{free_port()}", free_port()
     cfg = AgentConfig(
@@ -173,7 +173,8 @@ def test_a_fed_state_is_made_at_its_dispatch_time_and_thinned_streams_have_no_la
         try:
             states, thin = [], []
             session.declare_subscriber(
-                f"trackflow/{realm}/edge/s1", lambda s: states.append(s.payload.to_bytes())
+                f"trackflow/{realm}/states/s",
+                lambda s: states.extend(st for _, st in decode_batch(s.payload.to_bytes())),
             )
             session.declare_subscriber(
                 f"trackflow/{realm}/thin/s1/obs", lambda s: thin.append(s.payload.to_bytes())

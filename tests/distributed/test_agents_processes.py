@@ -161,15 +161,15 @@ def test_peers_replan_after_kill9_rejoin_garbage_and_late_joiner(tmp_path, procs
         replica = status(session, realm, "c")["replicas"]["s1"]
         assert replica["states"] > 20 and "another motion model" not in replica["rejections"]
 
-        # garbage, unknown versions and poses where filter states belong are counted,
-        # nothing else happens
+        # garbage, unknown versions and poses where batches of filter states belong (a's) are
+        # counted, nothing else happens
         pose = encode(
             UncertainPose(Pose.identity(), np.eye(6) * 1e-6), seq=1, exposure_ns=0, host_ns=0
         )
         for _ in range(5):
-            session.put(f"trackflow/{realm}/edge/s1", b"garbage")
-            session.put(f"trackflow/{realm}/edge/s1", pose[:2] + struct.pack("<B", 9) + pose[3:])
-            session.put(f"trackflow/{realm}/edge/s1", pose)
+            session.put(f"trackflow/{realm}/states/a", b"garbage")
+            session.put(f"trackflow/{realm}/states/a", pose[:2] + struct.pack("<B", 9) + pose[3:])
+            session.put(f"trackflow/{realm}/states/a", pose)
 
         def counted():
             rej = (status(session, realm, "c") or {}).get("rejections", {})

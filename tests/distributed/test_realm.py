@@ -50,7 +50,7 @@ def test_the_access_rules_give_each_identity_its_own_keys():
     assert acl["enabled"] and acl["default_permission"] == "deny"
     rules = {r["id"]: r for r in acl["rules"]}
     assert rules["publish_a"]["key_exprs"] == [
-        "trackflow/lab/edge/art", "trackflow/lab/thin/art/**", "trackflow/lab/result/a/**",
+        "trackflow/lab/states/a", "trackflow/lab/thin/art/**", "trackflow/lab/result/a/**",
         "trackflow/lab/event/a",
     ]  # fmt: skip
     assert rules["publish_a"]["flows"] == ["ingress"]

@@ -30,7 +30,13 @@ pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install
 import zenoh
 from _agents import SRC, AgentProcess, free_port, status, wait_for, write_agent, write_recording
 
-from trackflow.distributed.wire import decode, decode_state, encode_state
+from trackflow.distributed.wire import (
+    decode,
+    decode_batch,
+    decode_state,
+    encode_batch,
+    encode_state,
+)
 from trackflow.filters import FilterSnapshot
 
 pytestmark = pytest.mark.slow
@@ -117,7 +123,8 @@ def test_a_realm_made_by_realm_init_cannot_be_spoofed(tmp_path, realm):
         answers, states = [], []
         r = f"trackflow/{name}"
         obs.declare_subscriber(f"{r}/result/*/q", lambda s: answers.append(decode(_bytes(s))))
-        obs.declare_subscriber(f"{r}/edge/s1", lambda s: states.append(decode_state(_bytes(s))))
+        obs.declare_subscriber(f"{r}/states/s", lambda s: states.extend(
+            decode_state(st) for e, st in decode_batch(_bytes(s)) if e == "s1"))  # fmt: skip
         wait_for(lambda: len(answers) >= 50 and states, 60)
         before = len(answers)
 
@@ -127,7 +134,8 @@ def test_a_realm_made_by_realm_init_cannot_be_spoofed(tmp_path, realm):
         real = states[-1]
         x = real.x.copy()
         x[:3] = 5.0
-        pub = evil.declare_publisher(f"trackflow/{name}/edge/s1")
+        # s1's states as agent s's batches, and as b's (c takes s1 from s alone)
+        pubs = [evil.declare_publisher(f"trackflow/{name}/states/{a}") for a in ("s", "b")]
         token = evil.liveliness().declare_token(f"trackflow/{name}/alive/evil/s1")
         frag = evil.declare_queryable(f"trackflow/{name}/fragment/evil", lambda q: None)
         fake_result = evil.declare_publisher(f"trackflow/{name}/result/c/q")
@@ -135,9 +143,11 @@ def test_a_realm_made_by_realm_init_cannot_be_spoofed(tmp_path, realm):
             now = time.time_ns()
             p = real.p if k % 3 else np.diag(np.full(real.p.shape[0], 1e300))
             stamp = now + (3_600_000_000_000 if k % 5 == 0 else 0)
-            pub.put(encode_state(FilterSnapshot(stamp * 1e-9, x, p, False), seq=real.seq + 1 + k,
-                                 stamp_ns=stamp, host_ns=now, origin_ns=now, n_dp=real.n_dp,
-                                 n_do=real.n_do))  # fmt: skip
+            fake = encode_state(FilterSnapshot(stamp * 1e-9, x, p, False), seq=real.seq + 1 + k,
+                                stamp_ns=stamp, host_ns=now, origin_ns=now, n_dp=real.n_dp,
+                                n_do=real.n_do)  # fmt: skip
+            for pub in pubs:
+                pub.put(encode_batch([("s1", fake)]))
             fake_result.put(b"\0" * 40)
             time.sleep(0.01)
         time.sleep(1.0)

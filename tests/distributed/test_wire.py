@@ -127,7 +127,7 @@ def _rejection(data) -> str:
 def test_rejection_reasons_are_counted():
     r = Rejections()
     bad = {
-        "unknown version": GOLDEN_COV[:2] + b"\x03" + GOLDEN_COV[3:],
+        "unknown version": GOLDEN_COV[:2] + b"\x04" + GOLDEN_COV[3:],
         "wrong kind": GOLDEN_COV[:2] + b"\x02" + GOLDEN_COV[3:],  # a filter state
         "bad magic": b"XX" + GOLDEN_COV[2:],
         "truncated": GOLDEN_COV[:100],

@@ -5,7 +5,8 @@ Key space (``<realm>`` and names: letters, digits, ``_``, ``-``)::
     trackflow/<realm>/alive/<agent>/<edge>   liveliness token per edge the agent provides
     trackflow/<realm>/fragment/<agent>       queryable: the agent's SRG fragment (JSON)
     trackflow/<realm>/clock/<agent>          queryable: the agent's clock reading (int64 ns)
-    trackflow/<realm>/edge/<edge>            pub/sub: a sensor filter's states (docs/wire.md, v2)
+    trackflow/<realm>/states/<agent>         pub/sub: the agent's sensor filters' states, one
+                                             message per dispatch round (docs/wire.md, v3)
     trackflow/<realm>/demand/<edge>/<consumer>/<period_ns>/<phase_ns>
                                              liveliness token: a consumer's tick grid (thin)
     trackflow/<realm>/thin/<edge>/<consumer> pub/sub: the states that grid needs (thinning.py)
@@ -68,7 +69,7 @@ from .config import AgentConfig, security, zenoh_config
 from .discovery import Discovery, realm_key
 from .fragment import fragment_json
 from .remote_inputs import RemoteInputs, RemoteSource, remote_get
-from .replica import RemoteFilter, StatePublisher
+from .replica import RemoteFilter, StateBatch, StatePublisher
 from .replica import warm_up as warm_up_replicas
 from .thinning import ThinStreams, parse_demand
 
@@ -171,6 +172,7 @@ class Agent:
         self.sched = Scheduler(self._clock, WallTime(self.now_ns))
         self._lock = self.sched.lock
         self._publishers: dict[str, StatePublisher] = {}
+        self._states: StateBatch | None = None  # the own sensors' states, a round at a time
         self._own: set[str] = set()
         self.queries = {n: QueryState(n) for n in self.setup.queries}
         self._ticks: dict[str, _QueryTicks] = {}
@@ -338,12 +340,7 @@ class Agent:
             kf = self._filters[edge.name] = self._make_filter(edge)
             self._own.add(edge.name)
             pub = self._publishers[edge.name] = StatePublisher(
-                f"publish_{edge.name}",
-                kf,
-                # express: each state leaves at once, not batched with later ones
-                self.session.declare_publisher(
-                    realm_key(self.realm, "edge", edge.name), express=True
-                ),
+                f"publish_{edge.name}", kf, self._batch().slot(edge.name)
             )
             pub.tap = lambda h_ns, buf, name=edge.name: self._offer_thin(name, h_ns, buf)
         for name in self.setup.imus:  # IMUs aid the plans' filters of their bodies
@@ -361,6 +358,18 @@ class Agent:
             delivery = LiveSources(live)
             for inp in make_inputs(specs):
                 self._inputs.append(self.sched.add(InputSource(inp, delivery, {})))
+
+    def _batch(self) -> StateBatch:
+        """The own sensors' states leave as one message per dispatch round (made at the
+        first own sensor)."""
+        if self._states is None:
+            # express: a round's message leaves at once, not held back for later ones
+            pub = self.session.declare_publisher(
+                realm_key(self.realm, "states", self.name), express=True
+            )
+            self._states = StateBatch(pub)
+            self.sched.drained.append(self._states.flush)
+        return self._states
 
     def _shifted(self, player: RecordingPlayer) -> RecordingPlayer:
         """The player with its recording time 0 at ``start_ns`` on the agent's clock."""
@@ -393,7 +402,7 @@ class Agent:
                 continue
             net.connect(src, kf, mode="push")
             pub = self._publishers.get(name)
-            if pub is not None:  # states leave before local inference (see StatePublisher)
+            if pub is not None:  # states taken before local inference (see StatePublisher)
                 pub.consumers = []
                 net.add(pub)
                 net.connect(kf, pub, mode="push", port=0)
@@ -715,9 +724,11 @@ class Agent:
                 "tick_wait_ms": _percentiles(waits),
                 "thin_arrival_ms": _percentiles(rem.thin_arrivals),
                 "published_states": sum(p.seq for p in self._publishers.values()),
+                "published_messages": 0 if self._states is None else self._states.messages,
                 "received_messages": rem.received[0],
                 "received_bytes": rem.received[1],
                 "received_heartbeats": rem.received[2],
+                "received_states": rem.received[3],
                 "late_events": rem.late_events,
                 "missed_ticks": sum(t.missed for t in ticks),
                 "skipped_samples": sum(r.skipped for r in self._recordings),

@@ -8,7 +8,7 @@ agent a complete Zenoh configuration:
   of the realm's CA, and a connecting agent checks the name of the host it reaches. A process
   without such a certificate cannot join.
 * **Access control by identity.** Every agent's Zenoh runtime lets each peer (known by its
-  certificate's common name) publish only the states of its own sensors (``edge/<edge>``,
+  certificate's common name) publish only the states of its own sensors (``states/<agent>``,
   ``thin/<edge>/...``), its own results (``result/<agent>/...``) and re-plan events
   (``event/<agent>``), declare only its own
   liveliness tokens (``alive/<agent>/...``, ``agent/<agent>``, its demands) and answer only
@@ -115,7 +115,7 @@ def realm_acl(realm: str, members: list[Member], observers: list[str] = ()) -> d
     everyone = [s["id"] for s in subjects]
     policies = [{"rules": ["egress", "read"], "subjects": everyone}]
     for m in members:
-        own = [f"{r}/edge/{e}" for e in m.edges] + [f"{r}/thin/{e}/**" for e in m.edges]
+        own = [f"{r}/states/{m.name}"] + [f"{r}/thin/{e}/**" for e in m.edges]
         own += [f"{r}/result/{m.name}/**", f"{r}/event/{m.name}"]
         answers = [f"{r}/{k}/{m.name}" for k in ("fragment", "clock", "status")]
         answers += [f"{r}/get/{e}" for e in m.edges] + [f"{r}/query/{q}" for q in m.queries]

@@ -3,7 +3,8 @@
 A plan that uses another agent's sensor gets a replica of that sensor's filter
 (:class:`~trackflow.distributed.replica.RemoteFilter`), fed by one of three ways:
 
-* the full stream ``edge/<edge>`` (every state the filter makes),
+* the full stream: every state the filter makes, in its agent's batches on
+  ``states/<agent>`` (one subscription per agent, whatever number of its sensors is used),
 * a thinned stream ``thin/<edge>/<consumer>`` (``thin: true``: only the states the
   consumer's tick grid needs, declared with demand tokens; thinning.py), or
 * per request (``pull_via: get``: a node asking ``get/<edge>?t=`` when a pull query needs it).
@@ -72,11 +73,13 @@ class RemoteInputs:
         self.sources: dict[str, Component] = sources
         self.filters: dict[str, Component] = filters
         self.rejections: wire.Rejections = agent.rejections
-        self.subs: dict[str, object] = {}
+        self.subs: dict[str, str] = {}  # remote edge on the full stream -> its agent
+        self.agents: dict[str, object] = {}  # agent -> the subscription to its batches
         self.thin: dict[str, ThinInput] = {}  # remote edge -> its thinned subscription
         self.covered: dict[str, int] = {}  # thin, full stream: edge -> covered up to [ns]
         self.sequences = Sequences()
-        self.received = [0, 0, 0]  # messages, bytes, heartbeats of remote sensors' streams
+        # messages, bytes, heartbeats of remote sensors' streams; states taken from them
+        self.received = [0, 0, 0, 0]
         self.thin_arrivals: collections.deque = collections.deque(maxlen=4096)
         self.late_events = 0
         self._reorder_ns = int(round(self.cfg.reorder_ms * 1e6))
@@ -96,21 +99,25 @@ class RemoteInputs:
             )
 
     def subscribe(self, edge: Edge) -> None:
-        """A replica of a remote sensor's filter, fed by a subscription to its states (also
-        replacing a per-request node once a push query needs the sensor, or a thinned
-        subscription once a query needs every state)."""
-        if edge.name in self.subs:
-            return
+        """A replica of a remote sensor's filter, fed with its states from its agent's
+        batches (also replacing a per-request node once a push query needs the sensor, or a
+        thinned subscription once a query needs every state). One subscription per agent:
+        the first of its sensors declares it, the others share it."""
+        rem = self.discovery.agent_of(edge.name)
+        if rem is None or self.subs.get(edge.name) == rem.name:
+            return  # (gone since the plan was made: the next re-plan wires it)
         self.replica(edge)
         inp = self.thin.pop(edge.name, None)
         if inp is not None:
             for token in inp.tokens:
                 token.undeclare()
             inp.subscriber.undeclare()
-        self.subs[edge.name] = self.session.declare_subscriber(
-            realm_key(self.agent.realm, "edge", edge.name),
-            lambda sample, name=edge.name: self.on_state(name, sample),
-        )
+        if rem.name not in self.agents:
+            self.agents[rem.name] = self.session.declare_subscriber(
+                realm_key(self.agent.realm, "states", rem.name),
+                lambda sample, name=rem.name: self.on_batch(name, sample),
+            )
+        self.subs[edge.name] = rem.name
 
     def thin_periods(self, plans: dict, own: set[str]) -> dict[str, frozenset]:
         """(``thin: true``) The remote sensors that may be received thinned, with the tick
@@ -248,6 +255,7 @@ class RemoteInputs:
         self.received[0] += 1
         self.received[1] += len(payload) + len(tick)
         self.received[2] += not payload
+        self.received[3] += bool(payload)
         try:
             s = wire.decode_state(payload) if payload else None
         except wire.WireError as exc:
@@ -269,13 +277,31 @@ class RemoteInputs:
                 self._schedule(edge, s, offset, sigma, 0)
             self.sched.wake()
 
-    def on_state(self, edge: str, sample) -> None:
-        """A state of another agent's sensor filter: decoded, its stamps mapped onto this
-        agent's clock, then adopted by the replica at once or (jitter buffer) at its host
-        stamp plus ``reorder_ms``."""
+    def on_batch(self, agent: str, sample) -> None:
+        """A batch of another agent's sensor filters' states: each state of a sensor this
+        agent replicates is taken (:meth:`on_state`); a state of a sensor that another agent
+        provides is counted (``state of another agent's sensor``), the rest are not
+        needed here."""
         payload = sample.payload.to_bytes()
         self.received[0] += 1
         self.received[1] += len(payload)
+        try:
+            entries = wire.decode_batch(payload)
+        except wire.WireError as exc:
+            self.rejections.add(exc.reason)
+            return
+        live = self.discovery.live
+        for edge, state in entries:
+            if self.subs.get(edge) == agent:
+                self.on_state(edge, state)
+            elif live.get(edge, agent) != agent:
+                self.rejections.add("state of another agent's sensor")
+
+    def on_state(self, edge: str, payload: bytes) -> None:
+        """A state of another agent's sensor filter (a version-2 message): decoded, its
+        stamps mapped onto this agent's clock, then adopted by the replica at once or
+        (jitter buffer) at its host stamp plus ``reorder_ms``."""
+        self.received[3] += 1
         try:
             s = wire.decode_state(payload)
         except wire.WireError as exc:

@@ -2,7 +2,9 @@
 other hosts hold a replica fed with its states.
 
 * :class:`StatePublisher` (on the sensor's agent) publishes the sensor filter's state after
-  every measurement that changed it (``docs/wire.md``, version 2).
+  every measurement that changed it (``docs/wire.md``, version 2); the agent's
+  :class:`StateBatch` sends the states of one dispatch round (a tracker's frame) as one
+  message (version 3).
 * :class:`RemoteFilter` (on a consumer's agent) is the plan's filter node of that sensor. It
   runs no Kalman update: it adopts the published states
   (:meth:`trackflow.filters.PoseKalmanFilter.adopt`), so its ``pull(t)`` - prediction ahead
@@ -26,9 +28,60 @@ from . import wire
 from .clock import time_error_covariance, twist_between
 from .innovations import InnovationCheck
 
-__all__ = ["RemoteFilter", "RemoteGet", "StatePublisher", "warm_up"]
+__all__ = ["RemoteFilter", "RemoteGet", "StateBatch", "StatePublisher", "warm_up"]
 
 _TWIST_STEP_NS = 1_000_000  # the velocity for the clock's time error: over the last 1 ms
+
+
+class StateBatch:
+    """The filter states an agent's sensors made in one dispatch round, sent as one message.
+
+    Each sensor's :class:`StatePublisher` puts its encoded states into its slot
+    (:meth:`slot`); :meth:`flush` sends what the round gathered as one batch message
+    (``docs/wire.md``, version 3) on ``trackflow/<realm>/states/<agent>``. The agent calls
+    it whenever its scheduler has dispatched every event due
+    (:attr:`trackflow.dataflow.Scheduler.drained`): the bodies of one tracker frame, or the
+    recordings' samples of one instant, leave together, at most :data:`wire.MAX_BATCH` per
+    message. Consumers subscribe once per agent, not once per sensor.
+
+    Parameters
+    ----------
+    publisher
+        A Zenoh publisher (``put(bytes)``) on ``trackflow/<realm>/states/<agent>``.
+    """
+
+    def __init__(self, publisher):
+        self.publisher = publisher
+        self.messages = 0  # batch messages sent
+        self._entries: list[tuple[str, bytes]] = []
+
+    def slot(self, edge: str) -> _Slot:
+        """What a :class:`StatePublisher` of sensor ``edge`` puts its states into."""
+        return _Slot(self, edge)
+
+    def add(self, edge: str, state: bytes) -> None:
+        self._entries.append((edge, state))
+        if len(self._entries) >= wire.MAX_BATCH:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send the states gathered since the last flush (nothing if there are none)."""
+        if self._entries:
+            entries, self._entries = self._entries, []
+            self.publisher.put(wire.encode_batch(entries))
+            self.messages += 1
+
+
+class _Slot:
+    """One sensor's way into a :class:`StateBatch` (``put(state)``, as a publisher)."""
+
+    __slots__ = ("batch", "edge")
+
+    def __init__(self, batch: StateBatch, edge: str):
+        self.batch, self.edge = batch, edge
+
+    def put(self, state: bytes) -> None:
+        self.batch.add(self.edge, state)
 
 
 class StatePublisher(Component):
@@ -41,10 +94,11 @@ class StatePublisher(Component):
         The sensor's filter component (its filter must offer ``snapshot()``, as
         :class:`trackflow.filters.PoseKalmanFilter` does).
     publisher
-        A Zenoh publisher (``put(bytes)``) on ``trackflow/<realm>/edge/<edge>``.
+        Where each encoded state goes (``put(bytes)``): the sensor's slot in its agent's
+        :class:`StateBatch`.
 
     Connect ``kf -> publisher`` (push port 0) before any other consumer of the filter: an
-    accepted measurement's state then leaves before local inference runs. Connect the
+    accepted measurement's state is then encoded before local inference runs. Connect the
     sensor's source to the publisher as well (port 1), after its connection to ``kf``: a
     gated measurement leaves a predicted state in the filter's history, which is published
     from there, so the replicas hold the filter's exact history and answer past queries to

@@ -44,9 +44,24 @@ consumer's copy of the filter adopts, :class:`trackflow.filters.FilterSnapshot`)
                  quaternion (x, y, z, w) and its derivatives (3 each, body frame b)
     ..     8 k   covariance upper triangle row by row, k = nc (nc + 1) / 2
 
-With n_dp = n_do = 1 (constant velocity) a state is 48 + 104 + 624 = 776 bytes. No pickle, no
-self-describing framing: the key expression names the edge. Every decoding problem raises
-:class:`WireError` with a short ``reason`` that receivers count (:class:`Rejections`).
+With n_dp = n_do = 1 (constant velocity) a state is 48 + 104 + 624 = 776 bytes.
+
+Version 3 carries the states an agent's sensors made in one dispatch round (one tracker
+frame) as one message, each a version-2 state behind its edge's name::
+
+    offset size  field
+    0      2     magic b"TF"
+    2      1     version (3)
+    3      1     flags, 0
+    4      2     count n, uint16 (1..MAX_BATCH)
+    6      2     reserved, 0
+    8      ..    n entries: name length L (uint8, 1..255), the edge's name (L bytes:
+                 letters, digits, ``_``, ``-``), state length S (uint16), a version-2 state
+                 (S bytes)
+
+No pickle, no self-describing framing beyond that: the key expression names the edge (1, 2)
+or the sending agent (3). Every decoding problem raises :class:`WireError` with a short
+``reason`` that receivers count (:class:`Rejections`).
 """
 
 from __future__ import annotations
@@ -64,7 +79,9 @@ from ..math import Pose, UncertainPose, kernels_for
 from . import kernels as _kernels
 
 __all__ = [
+    "BATCH_VERSION",
     "MAGIC",
+    "MAX_BATCH",
     "STATE_VERSION",
     "VERSION",
     "Rejections",
@@ -72,15 +89,22 @@ __all__ = [
     "WireError",
     "WireSample",
     "decode",
+    "decode_batch",
     "decode_state",
     "encode",
+    "encode_batch",
     "encode_state",
 ]
 
 MAGIC = b"TF"
 VERSION = 1
 STATE_VERSION = 2
-_KNOWN = (VERSION, STATE_VERSION)
+BATCH_VERSION = 3
+#: the most states one batch message carries
+MAX_BATCH = 1024
+_KNOWN = (VERSION, STATE_VERSION, BATCH_VERSION)
+_BATCH_HEAD = struct.Struct("<2sBBHH")
+_NAME_BYTES = frozenset(b"abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-")
 _FLAG_COV = 0x01
 _FLAG_PATH = 0x02
 _PATH = struct.Struct("<H")
@@ -300,6 +324,60 @@ def decode_state(buf) -> StateSample:
     if code:
         raise WireError(_STATE_ERRORS[code])
     return StateSample(seq, stamp, host, origin, n_dp, n_do, _FORMULATIONS[form], x, p, bool(flags))
+
+
+def encode_batch(entries) -> bytes:
+    """One batch message (version 3; module docstring) of ``entries``, ``(edge name,
+    version-2 state message)`` pairs, 1 to :data:`MAX_BATCH` of them."""
+    if not 1 <= len(entries) <= MAX_BATCH:
+        raise InputError(f"a batch holds 1 to {MAX_BATCH} states, not {len(entries)}")
+    parts = [_BATCH_HEAD.pack(MAGIC, BATCH_VERSION, 0, len(entries), 0)]
+    for edge, state in entries:
+        name = edge.encode("ascii")
+        if not 1 <= len(name) <= 255 or not _NAME_BYTES.issuperset(name):
+            raise InputError(f"edge name {edge!r} cannot be sent: 1 to 255 of [A-Za-z0-9_-]")
+        parts += [bytes((len(name),)), name, _PATH.pack(len(state)), state]
+    return b"".join(parts)
+
+
+def decode_batch(buf) -> list[tuple[str, bytes]]:
+    """The ``(edge name, version-2 state message)`` entries of one batch message, the
+    states still encoded (a receiver decodes those it uses with :func:`decode_state`).
+    Raises :class:`WireError` for the whole message (``bad magic``, ``unknown version``,
+    ``wrong kind``, ``unknown flags``, ``empty batch``, ``bad edge name``, ``truncated``,
+    ``wrong length``)."""
+    b = buf if isinstance(buf, bytes) else bytes(buf)
+    _check_version(b, BATCH_VERSION)
+    if len(b) < _BATCH_HEAD.size:
+        raise WireError("truncated", f"{len(b)} of {_BATCH_HEAD.size} header bytes")
+    _, _, flags, count, reserved = _BATCH_HEAD.unpack_from(b)
+    if flags or reserved:
+        raise WireError("unknown flags", f"0x{flags:02x}, reserved {reserved}")
+    if not 1 <= count <= MAX_BATCH:
+        raise WireError("empty batch" if count == 0 else "wrong length", f"{count} states")
+    out = []
+    at = _BATCH_HEAD.size
+    for _ in range(count):
+        if at >= len(b):
+            raise WireError("truncated", f"{len(out)} of {count} states")
+        n = b[at]
+        name = b[at + 1 : at + 1 + n]
+        if n == 0 or len(name) < n:
+            raise WireError("bad edge name" if n == 0 else "truncated", f"state {len(out)}")
+        if not _NAME_BYTES.issuperset(name):
+            raise WireError("bad edge name", repr(name))
+        at += 1 + n
+        if at + _PATH.size > len(b):
+            raise WireError("truncated", f"state {len(out)}")
+        size = _PATH.unpack_from(b, at)[0]
+        at += _PATH.size
+        if at + size > len(b):
+            raise WireError("truncated", f"state {len(out)}: {len(b) - at} of {size} bytes")
+        out.append((name.decode("ascii"), b[at : at + size]))
+        at += size
+    if at != len(b):
+        raise WireError("wrong length", f"{len(b) - at} bytes after {count} states")
+    return out
 
 
 def decode(buf) -> WireSample:
