@@ -62,6 +62,7 @@ _THIRD_DIFF_VAR = 20.0  # variance of a third difference of unit white noise: 1 
 _EVEN = 0.1  # intervals within 10 % of the median count as evenly sampled
 _MIN_QUADS = 16  # evenly sampled runs of four needed for a noise figure
 _BATCHES = 8  # parts of the ring whose spread gives the noise figure's standard error
+_NAN3, _NAN4 = np.full(3, np.nan), np.full(4, np.nan)
 _FIGURES = ("rate_hz", "dropout", "latency_ms", "noise_mm", "noise_mm_sigma", "noise_deg",
             "noise_deg_sigma", "nis_mean")  # fmt: skip
 
@@ -99,14 +100,18 @@ class MeasuredAttributes:
         """The remembered measurements, oldest first: times, dispatch times [ns], NIS, and
         positions (m, 3) and quaternions (m, 4) (NaN where not known)."""
         m = min(self.n, WINDOW)
-        rows = [self._ring[k % WINDOW] for k in range(self.n - m, self.n)]
-        t = np.array([r[0] for r in rows], dtype=np.int64)
-        now = np.array([r[1] for r in rows], dtype=np.int64)
-        nis = np.array([r[2] for r in rows], dtype=float)
-        nan3, nan4 = np.full(3, np.nan), np.full(4, np.nan)
-        pos = np.array([nan3 if r[3] is None else r[3] for r in rows], dtype=float).reshape(-1, 3)
-        quat = np.array([nan4 if r[4] is None else r[4] for r in rows], dtype=float).reshape(-1, 4)
-        return t, now, nis, pos, quat
+        k = self.n % WINDOW
+        rows = self._ring[k:] + self._ring[:k] if m == WINDOW else self._ring[:m]
+        if m == 0:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
+                    np.zeros((0, 3)), np.zeros((0, 4)))  # fmt: skip
+        t, now, nis, pos, quat = zip(*rows)
+        nan3, nan4 = _NAN3, _NAN4
+        pos = np.concatenate([nan3 if p is None else p for p in pos]).reshape(-1, 3)
+        quat = np.concatenate([nan4 if q is None else q for q in quat]).reshape(-1, 4)
+        return (np.array(t, dtype=np.int64), np.array(now, dtype=np.int64),
+                np.array(nis, dtype=float), pos.astype(float, copy=False),
+                quat.astype(float, copy=False))  # fmt: skip
 
     def figures(self) -> dict:
         """The measured figures: ``measurements`` (all delivered), ``rate_hz``,
@@ -195,23 +200,27 @@ def _noise(t: np.ndarray, pos: np.ndarray, quat: np.ndarray, step: float) -> tup
     if len(k) < _MIN_QUADS:
         return None
     d3 = pos[k + 3] - 3 * pos[k + 2] + 3 * pos[k + 1] - pos[k]
-    ref = quat[k + 1]
-    r = [quat_rminus(quat[k + j], ref) for j in range(4)]
+    # the rotation vectors of the four orientations of each run against its second, at once
+    r = quat_rminus(quat[k + np.arange(4)[:, None]], quat[k + 1])  # (4, n, 3)
     r3 = r[3] - 3 * r[2] + 3 * r[1] - r[0]
-    s_pos, e_pos = _sigma_and_error(d3)
-    s_ori, e_ori = _sigma_and_error(r3)
+    sigma, error = _sigma_and_error(np.stack([d3, r3]))
+    s_pos, s_ori, e_pos, e_ori = (float(x) for x in (*sigma, *error))
     return s_pos * 1e3, math.degrees(s_ori), e_pos * 1e3, math.degrees(e_ori)
 
 
-def _sigma_and_error(d3: np.ndarray) -> tuple[float, float]:
-    """The noise sigma from third differences ``d3`` (n, 3), and its standard error by
-    batch means: the spread of the estimates of :data:`_BATCHES` contiguous parts over
+def _sigma_and_error(d3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The noise sigma from third differences ``d3`` (s, n, 3) of ``s`` signals, and its
+    standard error by batch means: the spread of the estimates of :data:`_BATCHES`
+    contiguous parts (the first ``n // _BATCHES`` runs each, in order) over
     ``sqrt(_BATCHES)`` (neighbouring differences share samples, so they are not
-    independent: the batches keep that in)."""
+    independent: the batches keep that in). Both (s,)."""
     scale = _THIRD_DIFF_VAR * _CHI2_1_MEDIAN
-    sigma = math.sqrt(float(np.median(d3 * d3)) / scale)
-    parts = [np.sqrt(np.median(b * b) / scale) for b in np.array_split(d3, _BATCHES)]
-    return sigma, float(np.std(parts, ddof=1)) / math.sqrt(_BATCHES)
+    sq = (d3 * d3).reshape(len(d3), -1)  # (s, 3 n), run by run
+    sigma = np.sqrt(np.median(sq, axis=1) / scale)
+    per = 3 * (d3.shape[1] // _BATCHES)
+    parts = np.sqrt(np.median(sq[:, : per * _BATCHES].reshape(len(d3), _BATCHES, per), axis=2)
+                    / scale)  # fmt: skip
+    return sigma, np.std(parts, axis=1, ddof=1) / math.sqrt(_BATCHES)
 
 
 def _r(x: float) -> float | None:
