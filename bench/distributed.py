@@ -194,7 +194,7 @@ def run_sender(realm: str, listen: str, duration_s: float, thin_consumers: int =
             if thin_consumers:
                 streams = agent.status()["thin_streams"]
                 return all(len(streams.get(e, {})) >= thin_consumers for e in agent.publishers)
-            return all(p.publisher.matching_status.matching for p in agent.publishers.values())
+            return agent.states is not None and agent.states.matched
 
         while time.monotonic() < deadline and not subscribed():
             time.sleep(0.1)

@@ -45,6 +45,47 @@ def test_binds_loopback_and_serves_only_its_page():
         view.close()
 
 
+class _Camera:
+    """What viser keeps of a page's camera, after the page reported it (a stand-in: the
+    race below cannot be timed with a real page)."""
+
+    def __init__(self):
+        self.update_timestamp = 1.0  # reported
+        self.wxyz, self.position, self.look_at = (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 5.0), (0, 0, 0)
+        self.fov, self.image_width, self.image_height = 1.0, 640, 480
+        self.callbacks = []
+
+    def on_update(self, cb):
+        self.callbacks.append(cb)
+
+
+class _Page:
+    client_id = 7
+
+    def __init__(self):
+        self.camera = _Camera()
+
+
+def test_a_page_that_reported_before_it_was_watched_goes_home():
+    """viser runs the connect callbacks on its thread pool after the page's first camera
+    report has passed the camera callbacks: a page watched after its report is moved to the
+    home camera at once, not at a next report that a still camera never sends (a burner
+    run: no ball on the page for 90 s)."""
+    view = ViewServer(port=0)
+    try:
+        view.place_camera((4.0, -1.0, 2.0), (2.5, 2.0, 0.4))
+        page = _Page()
+        view.watch_page(page)
+        assert np.allclose(page.camera.position, (4.0, -1.0, 2.0))
+        assert np.allclose(page.camera.look_at, (2.5, 2.0, 0.4))
+        assert view.has_browser_camera and len(page.camera.callbacks) == 1
+        page.camera.position = (9.0, 9.0, 9.0)  # the user moves it: a report keeps it there
+        page.camera.callbacks[0](page.camera)
+        assert np.allclose(page.camera.position, (9.0, 9.0, 9.0))
+    finally:
+        view.close()
+
+
 SETUP = {
     "frames": ["A", "T"],
     "sensors": [{"name": "art", "source": "A", "target": "T", "rate_hz": 100, "latency_ms": 10,

@@ -697,6 +697,11 @@ class Agent:
 
     # -- status ---------------------------------------------------------------------------------
     @property
+    def states(self) -> StateBatch | None:
+        """Where the own sensors' states leave (``None``: the agent has no sensor)."""
+        return self._states
+
+    @property
     def publishers(self) -> dict[str, StatePublisher]:
         """The state publishers of the own sensors' filters, by sensor."""
         return dict(self._publishers)

@@ -55,6 +55,11 @@ class StateBatch:
         self.messages = 0  # batch messages sent
         self._entries: list[tuple[str, bytes]] = []
 
+    @property
+    def matched(self) -> bool:
+        """Whether a subscriber in the realm takes these states (Zenoh's matching status)."""
+        return bool(self.publisher.matching_status.matching)
+
     def slot(self, edge: str) -> _Slot:
         """What a :class:`StatePublisher` of sensor ``edge`` puts its states into."""
         return _Slot(self, edge)

@@ -47,7 +47,7 @@ class Pages:
     """The cameras of a view's pages: its home camera (``_home``: ``position``, ``look_at``,
     ``up``, ``fov``; viser's initial camera for a whole server) and the camera each page
     last reported. Subclasses give ``_home`` and :meth:`_pages`, and call
-    :meth:`_watch_camera` for every page they show."""
+    :meth:`watch_page` for every page they show."""
 
     _home: object
 
@@ -76,7 +76,10 @@ class Pages:
     def _forget_client(self, client) -> None:
         self._cameras.pop(client.client_id, None)
 
-    def _watch_camera(self, client) -> None:
+    def watch_page(self, client) -> None:
+        """Follow a page's camera (a viser ``ClientHandle``): its first report moves it to
+        the home camera, every report is kept and calls the :meth:`on_camera` hooks."""
+
         def seen(camera, cid=client.client_id) -> None:
             # A page reports its camera as it starts, possibly before it applied the initial
             # camera (the client's default, looking at the origin), or having applied only
@@ -90,6 +93,13 @@ class Pages:
                 hook()
 
         client.camera.on_update(seen)
+        # viser counts a page as connected at its first camera report and hands that report
+        # to the camera callbacks at once, while the connect callbacks (which watch the
+        # page) run later on its thread pool: the first report can pass before ``seen`` is
+        # there, and a page whose camera then stays still would never be moved home. A page
+        # that has reported is seen here (twice at worst, which moves nothing further).
+        if client.camera.update_timestamp > 0.0:
+            seen(client.camera)
 
     @property
     def has_browser_camera(self) -> bool:
@@ -236,7 +246,7 @@ class ViewServer(Pages):
         self._home = self.server.initial_camera
         self._add_status()
         self._init_pages()
-        self.server.on_client_connect(self._watch_camera)
+        self.server.on_client_connect(self.watch_page)
         self.server.on_client_disconnect(self._forget_client)
 
     def _pages(self) -> dict:
@@ -291,11 +301,7 @@ class ClientView(Pages):
         self._home = _Home(tuple(ic.position), tuple(ic.look_at), up, float(ic.fov))
         self._add_status()
         self._init_pages()
-        cam = client.camera
-        if cam.update_timestamp > 0.0:  # reported before: to this view's home now
-            self._move_home(client)
-            self._cameras[client.client_id] = Camera.from_client(cam)
-        self._watch_camera(client)
+        self.watch_page(client)  # a page that reported before goes to this view's home now
 
     def _pages(self) -> dict:
         return {self.client.client_id: self.client}
