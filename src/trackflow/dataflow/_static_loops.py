@@ -34,7 +34,7 @@ class _Link:
     pose: Pose  # T_root_frame
     var_pos: float  # summed position variance along the statics to the root [m^2]
     var_rot: float  # [rad^2]
-    names: tuple[str, ...]  # the statics on the way
+    names: frozenset[str]  # the statics on the way
 
 
 class StaticLoops:
@@ -42,10 +42,12 @@ class StaticLoops:
 
     def __init__(self):
         self._links: dict[str, _Link] = {}
+        self._members: dict[str, list[str]] = {}  # root -> the frames joined to it
 
     def _link(self, frame: str) -> _Link:
         if frame not in self._links:
-            self._links[frame] = _Link(frame, Pose.identity(), 0.0, 0.0, ())
+            self._links[frame] = _Link(frame, Pose.identity(), 0.0, 0.0, frozenset())
+            self._members[frame] = [frame]
         return self._links[frame]
 
     def add(self, name: str, source: str, target: str, pose: Pose, cov) -> str | None:
@@ -62,7 +64,7 @@ class StaticLoops:
             sr = math.sqrt(a.var_rot + b.var_rot + vr)
             tol_p, tol_r = max(5 * sp, MIN_POS), max(5 * sr, MIN_ROT)
             if dp > tol_p or dr > tol_r:
-                others = sorted(set(a.names) ^ set(b.names)) or ["itself"]
+                others = sorted(a.names ^ b.names) or ["itself"]
                 return (
                     f"static {name!r} ({source} -> {target}) contradicts "
                     f"{', '.join(repr(o) for o in others)} by {dp * 1e3:.1f} mm and "
@@ -70,13 +72,22 @@ class StaticLoops:
                     f"{math.degrees(tol_r):.2f} deg: five sigma of their covariances)"
                 )
             return None
-        # join target's tree under source's root: T_rootA_f = T_rootA_src T_src_tgt T_tgt_f
-        to_a = a.pose @ pose @ b.pose.inverse()  # T_rootA_rootB
-        for f, link in list(self._links.items()):
-            if link.root == b.root:
-                self._links[f] = _Link(
-                    a.root, to_a @ link.pose, link.var_pos + a.var_pos + vp + b.var_pos,
-                    link.var_rot + a.var_rot + vr + b.var_rot,
-                    link.names + a.names + b.names + (name,),
-                )  # fmt: skip
+        # the smaller tree joins the other's root (each frame moves O(log n) times):
+        # T_rootK_f = T_rootK_k T_k_m T_m_rootM T_rootM_f, k and m the static's ends in the
+        # kept and the moved tree
+        if len(self._members[a.root]) >= len(self._members[b.root]):
+            keep, move, bridge = a, b, a.pose @ pose @ b.pose.inverse()
+        else:
+            keep, move, bridge = b, a, b.pose @ pose.inverse() @ a.pose.inverse()
+        # the statics from a moved frame to the new root: to m (its way to the old root
+        # without m's), the new static, then k's way
+        via = move.names ^ keep.names ^ {name}
+        moved = self._members.pop(move.root)
+        for f in moved:
+            link = self._links[f]
+            self._links[f] = _Link(
+                keep.root, bridge @ link.pose, link.var_pos + keep.var_pos + vp + move.var_pos,
+                link.var_rot + keep.var_rot + vr + move.var_rot, link.names ^ via,
+            )  # fmt: skip
+        self._members[keep.root] += moved
         return None
