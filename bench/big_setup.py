@@ -61,10 +61,11 @@ def _recording(path: Path, edge, pose: Pose, seconds: float) -> str:
     t = np.arange(0.0, seconds, 1.0 / edge.rate_hz)
     base, q0 = pose.position, pose.quaternion
     pos = base + 0.02 * np.stack([np.sin(0.7 * t), np.cos(0.5 * t), np.sin(0.3 * t)], 1)
-    rot = quat_multiply(q0, quat_exp(0.035 * np.stack([np.sin(0.4 * t), 0 * t, np.cos(0.6 * t)], 1)))
-    write_stream(path, PoseStream(edge.source, edge.target, np.round(t * 1e9).astype(np.int64),
-                                  pos, rot, covariance=np.broadcast_to(edge.covariance,
-                                                                       (len(t), 6, 6)).copy()))  # fmt: skip
+    wobble = 0.035 * np.stack([np.sin(0.4 * t), 0 * t, np.cos(0.6 * t)], 1)
+    rot = quat_multiply(q0, quat_exp(wobble))
+    cov = np.broadcast_to(edge.covariance, (len(t), 6, 6)).copy()
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    write_stream(path, PoseStream(edge.source, edge.target, t_ns, pos, rot, covariance=cov))
     return str(path)
 
 
@@ -82,10 +83,11 @@ def make_setup(folder: Path, seconds: float, seed: int) -> tuple[dict, list[dict
         sp, so = _sigmas(e.covariance)
         pose = world[e.source].inverse() @ world[e.target]
         if e.name in trackers:
+            rec = _recording(folder / f"{e.name}.tfrec", e, pose, seconds)
             sensors.append({"name": e.name, "source": e.source, "target": e.target,
-                            "rate_hz": round(e.rate_hz, 3), "latency_ms": round(e.latency_s * 1e3, 3),
-                            "sigma_pos_mm": sp, "sigma_ori_deg": so, "motion": MOTION,
-                            "recording": _recording(folder / f"{e.name}.tfrec", e, pose, seconds)})  # fmt: skip
+                            "rate_hz": round(e.rate_hz, 3),
+                            "latency_ms": round(e.latency_s * 1e3, 3), "sigma_pos_mm": sp,
+                            "sigma_ori_deg": so, "motion": MOTION, "recording": rec})  # fmt: skip
         else:
             statics.append({"name": e.name, "source": e.source, "target": e.target,
                             "position": pose.position.tolist(),
@@ -111,7 +113,7 @@ def make_setup(folder: Path, seconds: float, seed: int) -> tuple[dict, list[dict
             paths[q.name] = {"edges": len(plan.paths[0].steps), "trackers": sorted(plan.sensors)}
     app = {"frames": [f"F{k}" for k in range(N_FRAMES)], "statics": statics, "queries": queries}
     per = math.ceil(len(sensors) / N_AGENTS)
-    return app, [{"sensors": sensors[k * per:(k + 1) * per]} for k in range(N_AGENTS)], paths
+    return app, [{"sensors": sensors[k * per : (k + 1) * per]} for k in range(N_AGENTS)], paths
 
 
 def run(settle_s: float, window_s: float, seed: int) -> dict:
@@ -150,7 +152,8 @@ def run(settle_s: float, window_s: float, seed: int) -> dict:
                 for k in {owner[e] for e in p["trackers"]}:
                     uses[k] += 1
             victim = int(np.argmax(uses))
-            hit = sorted(q for q, p in paths.items() if any(owner[e] == victim for e in p["trackers"]))
+            hit = sorted(q for q, p in paths.items()
+                         if any(owner[e] == victim for e in p["trackers"]))  # fmt: skip
             kill_ns = time.time_ns()
             _log(f"killing t{victim} (used by {len(hit)} queries)")
             agents[1 + victim].popen.send_signal(signal.SIGKILL)
@@ -188,10 +191,13 @@ def run(settle_s: float, window_s: float, seed: int) -> dict:
             "paths": paths,
             "killed": f"t{victim}",
             "replans": replans,
-            "published_per_s": [round(_rates(b, a, lambda s: s["published_states"]), 1)
-                                for b, a in zip(before[1:], after[1:])],  # fmt: skip
+            "published_per_s": [
+                round(_rates(b, a, lambda s: s["published_states"]), 1)
+                for b, a in zip(before[1:], after[1:])
+            ],  # fmt: skip
             "app_received_states_per_s": round(
-                _rates(before[0], after[0], lambda s: s["received_states"]), 1),
+                _rates(before[0], after[0], lambda s: s["received_states"]), 1
+            ),
             "app_cpu_share": round((cpu1[0] - cpu0[0]) / dt, 3),
             "load_average": [round(x, 2) for x in load],
         },

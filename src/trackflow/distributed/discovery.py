@@ -4,7 +4,9 @@ Discovery follows the liveliness tokens ``trackflow/<realm>/alive/<agent>/<edge>
 token makes the agent fetch the owner's fragment (``fragment/<agent>``) and measure its clock
 (``clock/<agent>``, round trips); a token that disappears takes its edge out of the live set.
 Each change of the live set is handed to ``on_change(reason, t_event_ns)`` (the agent
-re-plans), one at a time, from the discovery thread.
+re-plans), from the discovery thread; the changes that arrive together (the tokens of an
+agent that left or joined) are handed over once, when the burst has been taken in, with
+every reason and the time of the first.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from ..timesync import RoundTripOffset
 from .fragment import first_fragment, fragment_stale
 
 __all__ = ["Discovery", "RemoteAgent", "alive_token", "realm_key"]
+
+_REASONS = 8  # the reasons of one burst of changes named in its re-plan's event
 
 
 def realm_key(realm: str, *parts: str) -> str:
@@ -187,31 +191,41 @@ class Discovery:
 
         A token whose fragment cannot be fetched yet (the agent is still starting, or busy)
         is tried again every 0.5 s for 30 s, then counted as a rejection."""
+        pending: list[tuple[str, int]] = []  # (reason, t_event_ns) not handed over yet
         while True:
             item = self._work.get()
             if item[0] == "stop" or self._stop.is_set():
                 return
             if item[0] == "replan":
-                self.on_change(item[1], item[2])
+                change = item[1], item[2]
             elif item[0] == "delete":
-                self._gone(*item[1:])
+                change = self._gone(*item[1:])
             else:
-                self._appeared(*item[1:])
+                change = self._appeared(*item[1:])
+            if change is not None:
+                pending.append(change)
+            if pending and self._work.empty():  # once after a burst
+                reasons = list(dict.fromkeys(r for r, _ in pending))
+                more = f"; and {len(reasons) - _REASONS} more" if len(reasons) > _REASONS else ""
+                self.on_change("; ".join(reasons[:_REASONS]) + more, min(t for _, t in pending))
+                pending = []
 
-    def _gone(self, agent: str, edge: str, t_event: int) -> None:
+    def _gone(self, agent: str, edge: str, t_event: int) -> tuple[str, int] | None:
+        """The change a deleted token makes (``None``: none)."""
         self._seen.get(agent, set()).discard(edge)
         with self.lock:  # status() reads these from other threads
             gone = self.live.get(edge) == agent
             if gone:
                 del self.live[edge]
-        if gone:
-            self.on_change(f"sensor {edge} of agent {agent} left", t_event)
+        return (f"sensor {edge} of agent {agent} left", t_event) if gone else None
 
-    def _appeared(self, agent: str, edge: str, t_event: int, *attempt) -> None:
+    def _appeared(self, agent: str, edge: str, t_event: int, *attempt) -> tuple[str, int] | None:
+        """The change a new token makes (``None``: none yet: its fragment is fetched again
+        in 0.5 s while its agent starts)."""
         import zenoh
 
         if attempt and edge not in self._seen.get(agent, set()):
-            return  # the token went away while we waited
+            return None  # the token went away while we waited
         self._seen.setdefault(agent, set()).add(edge)
         rem = self.remotes.get(agent)
         if rem is None or edge not in rem.edges:
@@ -226,7 +240,7 @@ class Discovery:
                 else:
                     retry = ("put", agent, edge, t_event, n + 1)
                     threading.Timer(0.5, self._work.put, args=(retry,)).start()
-                return
+                return None
         with self.lock:
             for name in sorted(self._seen[agent] & set(rem.edges)):
                 e = rem.edges[name]
@@ -234,8 +248,7 @@ class Discovery:
                     self.statics[name] = e
                 else:
                     self.live[name] = agent
-        if self._work.empty():  # re-plan once after a burst of appearances
-            self.on_change(f"edge {edge} of agent {agent} appeared", t_event)
+        return f"edge {edge} of agent {agent} appeared", t_event
 
     def _clock_loop(self) -> None:
         import zenoh
