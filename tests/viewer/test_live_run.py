@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import signal
 import socket
@@ -107,7 +108,21 @@ def _in_scene(img: np.ndarray, box) -> int:
     return int((_magenta(img) & outside(img.shape, box)).sum())
 
 
+def _problems(lines: queue.Queue) -> list[str]:
+    """The lines of a run's stderr read so far that tell of an error (a traceback)."""
+    out = []
+    while True:
+        try:
+            line = lines.get_nowait()
+        except queue.Empty:
+            return out[-40:]
+        if out or "Traceback" in line or "Error" in line:
+            out.append(line)
+
+
 def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tmp_path):
+    from playwright.sync_api import Error as PlaywrightError
+
     try:
         find_chromium()
     except FileNotFoundError as exc:
@@ -184,7 +199,13 @@ def test_run_view_draws_the_live_body_and_a_stopped_sender_turns_stale(euroc, tm
             )
             doc_shot(grey, "live_run_killed")
             # ... and the legend says after how long without data it did (network time)
-            browser.wait_text(page, "tool (sensor): grey")
+            try:
+                browser.wait_text(page, "tool (sensor): grey")
+            except PlaywrightError:  # (a burner run: the legend never said so) say what it said
+                text = page.inner_text("body")
+                said = text[text.find("Legend") :][:800]
+                why = ("the legend never said the sensor went grey", said, _problems(err))
+                raise AssertionError(why) from None
             legend = page.inner_text("body")
         green0, red0 = _in_panel(live, box0, "live"), _in_panel(live, box0, "stale")
         green1, red1 = _in_panel(stale, box1, "live"), _in_panel(stale, box1, "stale")
