@@ -16,10 +16,27 @@ from pathlib import Path
 from .errors import ConfigError
 from .optional import require
 
-__all__ = ["DEFAULT_ZENOH", "build_config", "insert_key", "link_security", "security"]
+__all__ = [
+    "DEFAULT_ZENOH",
+    "NO_SHARED_MEMORY",
+    "build_config",
+    "insert_key",
+    "link_security",
+    "security",
+]
+
+#: Zenoh's shared-memory transport, off. trackflow's messages are small (a state batch is a
+#: few kilobytes), where shared memory saves nothing, and it costs: every session creates a
+#: 16 MB segment in ``/dev/shm`` that every local peer it hears from maps, so an agent's memory
+#: grew with the realm (20 agents on one machine: 822 MB each, against 357 MB alone), and a
+#: killed process leaves its segment behind. Part of :data:`DEFAULT_ZENOH` and of the realm's
+#: generated configurations; an agent file may turn it on (``zenoh: {transport:
+#: {shared_memory: {enabled: true}}}``).
+NO_SHARED_MEMORY = {"shared_memory": {"enabled": False}}
 
 #: safe defaults for one machine: a peer listening on loopback (a free port), multicast
-#: scouting off, connection attempts retried every 0.25 s .. 1 s (peers may start in any order)
+#: scouting off, connection attempts retried every 0.25 s .. 1 s (peers may start in any order),
+#: and Zenoh's shared-memory transport off (:data:`NO_SHARED_MEMORY`)
 DEFAULT_ZENOH = {
     "mode": "peer",
     "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
@@ -27,6 +44,7 @@ DEFAULT_ZENOH = {
         "retry": {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
     },
     "scouting": {"multicast": {"enabled": False}},
+    "transport": NO_SHARED_MEMORY,
 }
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import socket
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,10 @@ def test_default_zenoh_config_is_loopback_without_multicast():
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
     assert json.loads(conf.get_json("mode")) == "peer"
+    assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False
+    on = {"transport": {"shared_memory": {"enabled": True}}}
+    conf = zenoh_config(AgentConfig("a", parse_setup({}), zenoh=on))
+    assert json.loads(conf.get_json("transport/shared_memory/enabled")) is True
     with pytest.raises(ValueError, match="zenoh config key 'nonsense'"):
         zenoh_config(AgentConfig("a", parse_setup({}), zenoh={"nonsense": 1}))
     lan = AgentConfig("a", parse_setup({}), zenoh_config=EXAMPLES / "lan.json5")
@@ -39,6 +45,39 @@ def test_default_zenoh_config_is_loopback_without_multicast():
     assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
     assert all(e.startswith("tls/") for e in json.loads(conf.get_json("listen/endpoints")))
     del zenoh
+
+
+def _zenoh_segments() -> set[str]:
+    """Zenoh's shared-memory segments this process has mapped (``/dev/shm/*.zenoh``)."""
+    with open("/proc/self/maps") as f:
+        return {line.split()[-1] for line in f if line.rstrip().endswith(".zenoh")}
+
+
+def test_two_agents_sessions_talk_without_shared_memory_segments():
+    """Two sessions on the default configuration exchange a message and neither maps a
+    shared-memory segment: with Zenoh's default each session made a 16 MB segment that every
+    local peer it heard from mapped, so an agent's memory grew with the realm."""
+    zenoh = pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed")
+    if not Path("/proc/self/maps").exists():
+        pytest.skip("needs /proc/self/maps (Linux)")
+    from trackflow.distributed import zenoh_config
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    listener = AgentConfig("a", parse_setup({}), zenoh={"listen": {"endpoints": [endpoint]}})
+    dialer = AgentConfig("b", parse_setup({}), zenoh={"connect": {"endpoints": [endpoint]}})
+    before, got = _zenoh_segments(), threading.Event()
+    with zenoh.open(zenoh_config(listener)) as a, zenoh.open(zenoh_config(dialer)) as b:
+        sub = a.declare_subscriber("tf/shm/test", lambda sample: got.set())
+        pub = b.declare_publisher("tf/shm/test")
+        for _ in range(100):  # until the link and the subscription are up (bounded)
+            pub.put(bytes(64 * 1024))  # a payload Zenoh would put in shared memory
+            if got.wait(0.1):
+                break
+        assert got.is_set(), "the message never arrived"
+        assert _zenoh_segments() - before == set()
+        sub.undeclare()
 
 
 def test_example_agents_split_the_demo_setup():

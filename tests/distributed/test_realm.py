@@ -93,6 +93,7 @@ def test_realm_init_writes_certificates_and_configs(tmp_path):
     assert a["listen"]["endpoints"] == ["tls/192.168.10.11:7447"]
     assert b["connect"]["endpoints"] == ["tls/192.168.10.11:7447"]  # each link made once
     assert a["transport"]["link"]["tls"]["enable_mtls"] is True
+    assert a["transport"]["shared_memory"] == {"enabled": False}  # (zenohconf.NO_SHARED_MEMORY)
     assert a["access_control"] == b["access_control"]
     kind = link_security(a["listen"]["endpoints"], a["connect"]["endpoints"], True, True)
     assert kind == ("tls+acl", [])

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigError, StateError
+from ..zenohconf import NO_SHARED_MEMORY
 from .config import AgentConfig
 
 __all__ = ["Member", "RealmFiles", "init_realm", "realm_acl", "realm_members"]
@@ -158,7 +159,7 @@ def _zenoh_config(folder: Path, me: str, endpoint: str | None, peers: list[str],
             "retry": {"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2},
         },
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-        "transport": {"link": {"tls": tls}},
+        "transport": {"link": {"tls": tls}, **NO_SHARED_MEMORY},
         "access_control": acl,
     }
 

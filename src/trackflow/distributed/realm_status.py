@@ -42,6 +42,7 @@ def observer_config(zenoh, connect: list[str], zenoh_config=None):
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("transport/shared_memory/enabled", "false")  # (zenohconf.NO_SHARED_MEMORY)
     return conf
 
 
