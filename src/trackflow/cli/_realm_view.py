@@ -18,11 +18,15 @@ def view_realm(args) -> int:
     from ..viewer.realm_page import RealmPage
 
     zenoh = require("zenoh", extra="distributed", feature="trackflow view --realm")
-    conf = observer_config(zenoh, args.connect, args.zenoh_config)
+    conf = observer_config(zenoh, args.connect, args.zenoh_config)  # (a bad one: no page)
     port = 0 if args.snapshot is not None else args.port
     page = RealmPage(args.host, port, args.realm, magnify=args.magnify or 100.0)
+    # the page is served before the realm is joined: a browser loads viser's client (seconds
+    # in software WebGL) while Zenoh connects and the watcher asks the agents
+    print(f"view: {page.url}", file=sys.stderr, flush=True)
     stop = threading.Event()
     try:
+        page.view.set_status(f"joining realm {args.realm} ...")
         with zenoh.open(conf) as session:
             watch = RealmWatch(session, args.realm).start()
 
@@ -33,7 +37,6 @@ def view_realm(args) -> int:
 
             drawer = threading.Thread(target=draw, name="realm-page", daemon=True)
             drawer.start()
-            print(f"view: {page.url}", file=sys.stderr, flush=True)
             try:
                 if args.snapshot is not None:
                     stop.wait(3.0 if args.at is None else float(args.at))  # the realm appears
