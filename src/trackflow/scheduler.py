@@ -254,9 +254,10 @@ class Scheduler:
         self.error: BaseException | None = None
         self.stopped = threading.Event()
         #: called (holding the lock) each time the events due so far have been dispatched:
-        #: before the scheduling thread waits, after each :meth:`arrival` block and once a
-        #: virtual run leaves a time behind; a component that gathers what a round made (an
-        #: agent's batch of filter states) sends it from here
+        #: before the scheduling thread waits, after each :meth:`arrival` block, whenever the
+        #: dispatch moves on to a later time (a virtual run, or a backlog on the wall clock)
+        #: and at the run's end; a component that gathers what a round made (an agent's batch
+        #: of filter states) sends it from here
         self.drained: list[Callable[[], None]] = []
 
     # -- sources ---------------------------------------------------------------------------------
@@ -429,6 +430,13 @@ class Scheduler:
             self._drained()
 
     def _run_wall(self, until_ns, stop, on_idle, idle_s, calm) -> None:
+        try:
+            self._wall_loop(until_ns, stop, on_idle, idle_s, calm)
+        finally:
+            with self.lock:
+                self._drained()
+
+    def _wall_loop(self, until_ns, stop, on_idle, idle_s, calm) -> None:
         wall, heap = self.time, self._heap
         next_idle = 0.0
         while not (stop.is_set() or self.stopped.is_set()):
@@ -441,6 +449,8 @@ class Scheduler:
                 now = wall.now_ns()
                 self._drop_stale()
                 if heap and (until_ns is None or heap[0][0] <= until_ns) and self._released():
+                    if heap[0][0] > self.clock.now_ns:  # (a backlog: as a virtual run does)
+                        self._drained()  # the previous time's events are all dispatched
                     self._fire_head()
                     continue
                 if until_ns is not None and now >= until_ns:

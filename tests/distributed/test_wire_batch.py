@@ -138,6 +138,24 @@ def test_one_dispatch_round_leaves_as_one_message():
         assert [(e, s[-1]) for e, s in decode_batch(msg)] == [(e, ord(e)) for e in "abc"]
 
 
+def test_a_backlog_on_the_wall_clock_leaves_one_message_per_time():
+    """A wall-clock scheduler behind its events (all released at once, so it never waits
+    between them) still sends each time's states when it moves on to the next time, and the
+    last time's at the run's end."""
+    out = _Put()
+    batch = StateBatch(out)
+    sched = Scheduler(_Clock(), WallTime())
+    sched.drained.append(batch.flush)
+    slots = {e: batch.slot(e) for e in ("a", "b", "c")}
+    for t in (10, 20, 30):  # (1970: long released)
+        for e, slot in slots.items():
+            sched.post(t, lambda _t, s=slot, e=e: s.put(STATE[:-1] + bytes([ord(e)])))
+    sched.run(until_ns=30)
+    assert batch.messages == 3 and len(out.messages) == 3
+    for msg in out.messages:
+        assert [(e, s[-1]) for e, s in decode_batch(msg)] == [(e, ord(e)) for e in "abc"]
+
+
 def test_an_arrival_block_sends_what_it_made():
     """States made in a receiving thread's :meth:`Scheduler.arrival` block (a tracker's
     frame dispatched where it arrived) leave at the block's end."""
