@@ -150,15 +150,14 @@ def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
     from trackflow.math import quat_exp
     from trackflow.viewer.board import Board
     from trackflow.viewer.edges import EdgeLayout, QueryLayout, ViewLayout
-    from trackflow.viewer.live_scene import LiveScene
+    from trackflow.viewer.live_loop import LiveTabs
     from trackflow.viewer.scene import GREY
 
     edges = [EdgeLayout("art", "A", "T", False, 0, rate_hz=100.0, max_extrapolation_s=0.5)]
     query = QueryLayout("q", "A", "T", ("art",), now_slot=1, ahead_slot=2, rate_hz=50.0,
                         paths=(("art",),))  # fmt: skip
     board = Board.create(3)
-    scene = LiveScene(ViewLayout(["A", "T"], "A", edges, [query], 3), board, "127.0.0.1", 0,
-                      10.0, None)  # fmt: skip
+    view = LiveTabs(ViewLayout(["A", "T"], "A", edges, [query], 3), board, port=0, rate_hz=10.0)
     q0 = quat_exp(np.array([0.1, 0.2, 0.3]))
     small, huge = np.eye(6) * 1e-6, np.eye(6) * 4.0
     try:
@@ -168,31 +167,28 @@ def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
         board.write_event(1, int(1.2 * sec), 0, 1.0, int(1.2 * sec))
         board.write_pose(1, int(1.2 * sec), [0.1, 0.0, 0.0], q0, small)  # 0.2 s ahead: drawn
         board.set_clock(int(1.2 * sec), 0)
-        scene.render_frame()
-        q_index = [b.name for b in scene.bodies].index("q")
-        assert scene.report()["bodies"][q_index]["grey"] is False
+        view.tick()
+        q_index = [b.name for b in view.state.bodies].index("q")
+        assert view.report()["bodies"][q_index]["grey"] is False
         # 0.4 s on: within the filter's limit, but the sensor is stale (250 ms without data)
         board.write_event(1, int(1.4 * sec), 0, 1.0, int(1.4 * sec))
         board.write_pose(1, int(1.4 * sec), [0.9, 0.0, 0.0], q0, np.eye(6) * 0.04)
         board.set_clock(int(1.4 * sec), 0)
-        scene.render_frame()
-        rep = scene.report()["bodies"][q_index]
+        view.tick()
+        rep = view.report()["bodies"][q_index]
         assert rep["grey"] and rep["extrapolated_s"] == pytest.approx(0.4)
         board.write_event(1, 2 * sec, 0, 1.0, 2 * sec)
         board.write_pose(1, 2 * sec, [5.0, 0.0, 0.0], q0, huge)  # 1 s ahead, ballooned
         board.set_clock(2 * sec, 0)
-        scene.apply(offset_s=0.1)
+        view.apply(offset_s=0.1)
         board.write_pose(2, int(1.3 * sec), [0.2, 0.0, 0.0], q0, small)  # an older ghost
-        scene.render_frame()
-        rep = scene.report()["bodies"][q_index]
+        view.tick()
+        rep = view.report()["bodies"][q_index]
         assert rep["grey"] and rep["colour"] == list(GREY)
         assert rep["extrapolated_s"] == pytest.approx(1.0)
-        poses = {b.name: scene._read(b) for b in scene.bodies}
-        scene._hold_extrapolated(poses, 2 * sec)
-        bodies, _ = scene._collect(scene._place_frames(poses), poses)
-        drawn = bodies[q_index]
+        drawn = view.state.anchored("A").bodies[q_index]  # what every tab draws
         np.testing.assert_allclose(drawn.position, [0.1, 0.0, 0.0])  # the held answer
         assert np.max(drawn.covariance) < 1e-3 and drawn.predicted is None
     finally:
-        scene.close()
+        view.close()
         board.close()
