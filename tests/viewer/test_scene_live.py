@@ -192,3 +192,34 @@ def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
     finally:
         view.close()
         board.close()
+
+
+def test_the_paths_are_kept_once_for_all_tabs_in_each_anchor_drawn_in():
+    """The view's shared state extends each body's path once per tick, with no page open (a
+    tab opened later draws the whole path so far), in every anchor a tab draws in: an
+    anchor's path starts with its first use and is forgotten when no tab draws in it."""
+    from trackflow.viewer.board import Board
+    from trackflow.viewer.edges import EdgeLayout, ViewLayout
+    from trackflow.viewer.live_state import LiveState
+
+    layout = ViewLayout(["A", "T"], "A", [EdgeLayout("art", "A", "T", False, 0)], [], 1)
+    board = Board.create(1)
+    state = LiveState(layout, board, 10.0, axes_length=0.1, auto_scale=False)
+    q0 = np.array([0.0, 0.0, 0.0, 1.0])
+    try:
+        for i in range(5):
+            t = (i + 1) * 100_000_000
+            board.write_event(0, t, 0, 1.0, t)
+            board.write_pose(0, t, [0.1 * i, 0.0, 0.0], q0, np.eye(6) * 1e-6)
+            board.set_clock(t, 0)
+            state.tick({"A"}, now_wall=float(i))
+        np.testing.assert_allclose(state.path("A", "art")[:, 0], [0.0, 0.1, 0.2, 0.3, 0.4])
+        assert len(state.anchored("A").trails[0]) == 5
+        state.tick({"A", "T"}, now_wall=5.0)  # a tab draws in the tool's frame: fresh there
+        assert state.path("T", "art") is None
+        np.testing.assert_allclose(state.anchored("T").bodies[0].position, 0.0, atol=1e-12)
+        assert len(state.path("A", "art")) == 5  # the same pose again: no new point
+        state.tick({"T"}, now_wall=6.0)
+        assert state.path("A", "art") is None  # no tab draws in A any more
+    finally:
+        board.close()

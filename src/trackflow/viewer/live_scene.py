@@ -48,6 +48,11 @@ SETTINGS = (
     "selected_query", "selected_edge", "anchor", "follow", "show_grid", "show_labels",
 )  # fmt: skip
 _STYLE_KEYS = ("sigma", "magnify", "ghost_magnify", "show_path", "show_trail")
+#: How a control's value becomes a setting (the rest are checkboxes: bool).
+_FROM_CONTROL = {
+    "sigma": float, "magnify": float, "ghost_magnify": float, "selected_query": str,
+    "selected_edge": str, "anchor": str,
+}  # fmt: skip
 #: The prediction slider's hint: the offset is the dataflow process's, one for every tab.
 OFFSET_HINT = "shared by every tab: the dataflow process predicts once for all"
 
@@ -63,13 +68,6 @@ def default_settings(layout: ViewLayout, style: Style, anchor: str | None = None
         "anchor": anchor or layout.root,
         "follow": True, "show_grid": True, "show_labels": True,
     }  # fmt: skip
-
-
-#: How a control's value becomes a setting (the rest are checkboxes: bool).
-_FROM_CONTROL = {
-    "sigma": float, "magnify": float, "ghost_magnify": float, "selected_query": str,
-    "selected_edge": str, "anchor": str,
-}  # fmt: skip
 
 
 class LiveScene:
