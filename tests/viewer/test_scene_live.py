@@ -223,3 +223,51 @@ def test_the_paths_are_kept_once_for_all_tabs_in_each_anchor_drawn_in():
         assert state.path("A", "art") is None  # no tab draws in A any more
     finally:
         board.close()
+
+
+class _BrokenTab:
+    """A tab whose drawing raises (what a viser call failing mid-frame would do)."""
+
+    anchor = "A"
+
+    def __init__(self):
+        self.shown: list[str] = []
+
+    def render_frame(self) -> None:
+        raise RuntimeError("the page went away mid-frame")
+
+    def show_error(self, text: str) -> None:
+        self.shown.append(text)
+
+
+def test_a_tab_whose_drawing_fails_says_so_and_the_view_draws_on(capsys, monkeypatch):
+    """An exception while drawing a tab is counted, written to stderr with its traceback the
+    first time (the run's stderr: a view that stops drawing says why), shown on that tab's
+    status line, and the other tabs and the next ticks draw on."""
+    from trackflow.viewer.board import Board
+    from trackflow.viewer.edges import EdgeLayout, ViewLayout
+    from trackflow.viewer.live_loop import LiveTabs
+
+    layout = ViewLayout(["A", "T"], "A", [EdgeLayout("art", "A", "T", False, 0)], [], 1)
+    board = Board.create(1)
+    view = LiveTabs(layout, board, port=0, rate_hz=10.0)
+    broken, drawn = _BrokenTab(), []
+
+    class _Tab(_BrokenTab):
+        def render_frame(self) -> None:
+            drawn.append(view.frames_sent)
+
+    try:
+        monkeypatch.setattr(view, "scenes", lambda: [broken, _Tab()])
+        for _ in range(3):
+            view.tick()
+        err = capsys.readouterr().err
+        assert view.draw_errors == 3 and view.frames_sent == 3 and drawn == [0, 1, 2]
+        assert err.count("trackflow view: drawing a tab failed") == 1  # told once
+        assert "RuntimeError: the page went away mid-frame" in err and "Traceback" in err
+        assert broken.shown == ["RuntimeError: the page went away mid-frame"] * 3
+        monkeypatch.setattr(view, "scenes", list)  # (no tab open: the default report)
+        assert view.report()["draw_errors"] == 3
+    finally:
+        view.close()
+        board.close()

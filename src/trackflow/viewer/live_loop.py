@@ -16,8 +16,10 @@ the oldest open tab's (or, with none open, what a new tab would start from).
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable
 
 from .board import Board
@@ -60,6 +62,10 @@ class LiveTabs:
     ----------
     frames_sent : int
         Draw ticks done (also written to the board's header, with the pages connected).
+    draw_errors : int
+        Exceptions raised while drawing (each kind is written to stderr, with its traceback,
+        the first time, and shown on the status line of the tab it happened in); the other
+        tabs, and the next tick, draw on.
     """
 
     def __init__(
@@ -76,7 +82,8 @@ class LiveTabs:
         self._send = send or (lambda msg: None)
         self._lock = threading.Lock()
         self._defaults = default_settings(layout, self._style, anchor)
-        self.frames_sent = 0
+        self.frames_sent = self.draw_errors = 0
+        self._errors_told: set[tuple[str, str]] = set()
         self.server = ViewServer(host, port, title="trackflow live")
         self.server.look_at((0.3, 0.0, 0.2), 1.2)
         self.tabs = PerTab(self.server, self._open, note=NOTE)
@@ -126,12 +133,13 @@ class LiveTabs:
         """The oldest open tab's :meth:`LiveScene.report`; with none open, what a new tab
         starts from (its anchor, the bodies, the grid of the anchor's scene; no labels)."""
         for scene in self.scenes():
-            return scene.report()
+            return {"draw_errors": self.draw_errors, **scene.report()}
         with self._lock:
             anchor = self._defaults["anchor"]
         seen = self.state.anchored(anchor)
         grid = grid_spec(*scene_box(seen.places, seen.bodies)).text if seen.settled else None
         return {
+            "draw_errors": self.draw_errors,
             "anchor": anchor,
             "browser_camera": False,
             "bodies": self.state.body_reports(),
@@ -147,11 +155,32 @@ class LiveTabs:
         scenes = self.scenes()
         with self._lock:
             anchors = {self._defaults["anchor"]} | {s.anchor for s in scenes}
-        self.state.tick(anchors, time.perf_counter())
+        try:
+            self.state.tick(anchors, time.perf_counter())
+        except Exception as exc:  # reported; the next tick reads the board afresh
+            self._drawing_failed(exc, None)
+            return
         for scene in scenes:
-            scene.render_frame()
+            try:
+                scene.render_frame()
+            except Exception as exc:  # reported; the other tabs draw on
+                self._drawing_failed(exc, scene)
         self.frames_sent += 1
         self.board.frames_sent = self.frames_sent
+
+    def _drawing_failed(self, exc: Exception, scene: LiveScene | None) -> None:
+        """Count a drawing error, tell stderr the first of each kind (with its traceback)
+        and show it on the tab it happened in: a view that stops drawing says so and why."""
+        self.draw_errors += 1
+        where = "reading the board" if scene is None else "drawing a tab"
+        key = (where, f"{type(exc).__name__}: {exc}")
+        if key not in self._errors_told:
+            self._errors_told.add(key)
+            text = "".join(traceback.format_exception(exc))
+            print(f"trackflow view: {where} failed ({key[1]}):\n{text}", file=sys.stderr,
+                  flush=True)  # fmt: skip
+        if scene is not None:
+            scene.show_error(key[1])
 
     def loop(self, stop: threading.Event) -> None:
         """Tick at ``rate_hz`` (``IDLE_RATE_HZ`` while no page is connected) until ``stop``."""

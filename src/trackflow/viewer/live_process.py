@@ -105,15 +105,24 @@ def main(conn) -> None:
                 break
             if msg[0] == "stop":
                 break
-            if msg[0] == "stats":
-                view.state.rejections, view.state.offsets_ms = msg[1], msg[2]
-            elif msg[0] == "attributes":
-                view.state.attributes = msg[1]
-            elif msg[0] == "set":
-                view.apply(**msg[1])
-            elif msg[0] == "report":
-                send(("report", view.report()))
+            try:
+                handle(msg)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:  # a bad message
+                print(f"trackflow view: message {msg[0]!r} refused: {type(exc).__name__}: "
+                      f"{exc}", file=sys.stderr, flush=True)  # fmt: skip
         stop.set()
+
+    def handle(msg) -> None:
+        if msg[0] == "stats":
+            view.state.rejections, view.state.offsets_ms = msg[1], msg[2]
+        elif msg[0] == "attributes":
+            view.state.attributes = msg[1]
+        elif msg[0] == "set":
+            view.apply(**msg[1])
+        elif msg[0] == "report":
+            send(("report", view.report()))
+        else:
+            raise KeyError(f"no view message {msg[0]!r}")
 
     receiver = threading.Thread(target=receive, daemon=True, name="trackflow-view-pipe")
     receiver.start()

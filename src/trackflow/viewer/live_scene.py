@@ -326,6 +326,11 @@ class LiveScene:
             self._update_legend()
         self.view.set_status(self._status())
 
+    def show_error(self, text: str) -> None:
+        """Say on the tab's status line that drawing it failed, and why."""
+        if not self._closed:
+            self.view.set_status(f"**drawing failed:** {text} (details on the run's stderr)")
+
     def _shown(self, per_body: list) -> list:
         """``per_body`` with the sensors' entries None while sensors are hidden."""
         if self.show_sensors:
