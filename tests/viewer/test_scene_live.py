@@ -150,15 +150,14 @@ def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
     from trackflow.math import quat_exp
     from trackflow.viewer.board import Board
     from trackflow.viewer.edges import EdgeLayout, QueryLayout, ViewLayout
-    from trackflow.viewer.live_scene import LiveScene
+    from trackflow.viewer.live_loop import LiveTabs
     from trackflow.viewer.scene import GREY
 
     edges = [EdgeLayout("art", "A", "T", False, 0, rate_hz=100.0, max_extrapolation_s=0.5)]
     query = QueryLayout("q", "A", "T", ("art",), now_slot=1, ahead_slot=2, rate_hz=50.0,
                         paths=(("art",),))  # fmt: skip
     board = Board.create(3)
-    scene = LiveScene(ViewLayout(["A", "T"], "A", edges, [query], 3), board, "127.0.0.1", 0,
-                      10.0, None)  # fmt: skip
+    view = LiveTabs(ViewLayout(["A", "T"], "A", edges, [query], 3), board, port=0, rate_hz=10.0)
     q0 = quat_exp(np.array([0.1, 0.2, 0.3]))
     small, huge = np.eye(6) * 1e-6, np.eye(6) * 4.0
     try:
@@ -168,31 +167,107 @@ def test_an_answer_without_live_data_is_held_grey_and_its_old_ghost_hidden():
         board.write_event(1, int(1.2 * sec), 0, 1.0, int(1.2 * sec))
         board.write_pose(1, int(1.2 * sec), [0.1, 0.0, 0.0], q0, small)  # 0.2 s ahead: drawn
         board.set_clock(int(1.2 * sec), 0)
-        scene.render_frame()
-        q_index = [b.name for b in scene.bodies].index("q")
-        assert scene.report()["bodies"][q_index]["grey"] is False
+        view.tick()
+        q_index = [b.name for b in view.state.bodies].index("q")
+        assert view.report()["bodies"][q_index]["grey"] is False
         # 0.4 s on: within the filter's limit, but the sensor is stale (250 ms without data)
         board.write_event(1, int(1.4 * sec), 0, 1.0, int(1.4 * sec))
         board.write_pose(1, int(1.4 * sec), [0.9, 0.0, 0.0], q0, np.eye(6) * 0.04)
         board.set_clock(int(1.4 * sec), 0)
-        scene.render_frame()
-        rep = scene.report()["bodies"][q_index]
+        view.tick()
+        rep = view.report()["bodies"][q_index]
         assert rep["grey"] and rep["extrapolated_s"] == pytest.approx(0.4)
         board.write_event(1, 2 * sec, 0, 1.0, 2 * sec)
         board.write_pose(1, 2 * sec, [5.0, 0.0, 0.0], q0, huge)  # 1 s ahead, ballooned
         board.set_clock(2 * sec, 0)
-        scene.apply(offset_s=0.1)
+        view.apply(offset_s=0.1)
         board.write_pose(2, int(1.3 * sec), [0.2, 0.0, 0.0], q0, small)  # an older ghost
-        scene.render_frame()
-        rep = scene.report()["bodies"][q_index]
+        view.tick()
+        rep = view.report()["bodies"][q_index]
         assert rep["grey"] and rep["colour"] == list(GREY)
         assert rep["extrapolated_s"] == pytest.approx(1.0)
-        poses = {b.name: scene._read(b) for b in scene.bodies}
-        scene._hold_extrapolated(poses, 2 * sec)
-        bodies, _ = scene._collect(scene._place_frames(poses), poses)
-        drawn = bodies[q_index]
+        drawn = view.state.anchored("A").bodies[q_index]  # what every tab draws
         np.testing.assert_allclose(drawn.position, [0.1, 0.0, 0.0])  # the held answer
         assert np.max(drawn.covariance) < 1e-3 and drawn.predicted is None
     finally:
-        scene.close()
+        view.close()
+        board.close()
+
+
+def test_the_paths_are_kept_once_for_all_tabs_in_each_anchor_drawn_in():
+    """The view's shared state extends each body's path once per tick, with no page open (a
+    tab opened later draws the whole path so far), in every anchor a tab draws in: an
+    anchor's path starts with its first use and is forgotten when no tab draws in it."""
+    from trackflow.viewer.board import Board
+    from trackflow.viewer.edges import EdgeLayout, ViewLayout
+    from trackflow.viewer.live_state import LiveState
+
+    layout = ViewLayout(["A", "T"], "A", [EdgeLayout("art", "A", "T", False, 0)], [], 1)
+    board = Board.create(1)
+    state = LiveState(layout, board, 10.0, axes_length=0.1, auto_scale=False)
+    q0 = np.array([0.0, 0.0, 0.0, 1.0])
+    try:
+        for i in range(5):
+            t = (i + 1) * 100_000_000
+            board.write_event(0, t, 0, 1.0, t)
+            board.write_pose(0, t, [0.1 * i, 0.0, 0.0], q0, np.eye(6) * 1e-6)
+            board.set_clock(t, 0)
+            state.tick({"A"}, now_wall=float(i))
+        np.testing.assert_allclose(state.path("A", "art")[:, 0], [0.0, 0.1, 0.2, 0.3, 0.4])
+        assert len(state.anchored("A").trails[0]) == 5
+        state.tick({"A", "T"}, now_wall=5.0)  # a tab draws in the tool's frame: fresh there
+        assert state.path("T", "art") is None
+        np.testing.assert_allclose(state.anchored("T").bodies[0].position, 0.0, atol=1e-12)
+        assert len(state.path("A", "art")) == 5  # the same pose again: no new point
+        state.tick({"T"}, now_wall=6.0)
+        assert state.path("A", "art") is None  # no tab draws in A any more
+    finally:
+        board.close()
+
+
+class _BrokenTab:
+    """A tab whose drawing raises (what a viser call failing mid-frame would do)."""
+
+    anchor = "A"
+
+    def __init__(self):
+        self.shown: list[str] = []
+
+    def render_frame(self) -> None:
+        raise RuntimeError("the page went away mid-frame")
+
+    def show_error(self, text: str) -> None:
+        self.shown.append(text)
+
+
+def test_a_tab_whose_drawing_fails_says_so_and_the_view_draws_on(capsys, monkeypatch):
+    """An exception while drawing a tab is counted, written to stderr with its traceback the
+    first time (the run's stderr: a view that stops drawing says why), shown on that tab's
+    status line, and the other tabs and the next ticks draw on."""
+    from trackflow.viewer.board import Board
+    from trackflow.viewer.edges import EdgeLayout, ViewLayout
+    from trackflow.viewer.live_loop import LiveTabs
+
+    layout = ViewLayout(["A", "T"], "A", [EdgeLayout("art", "A", "T", False, 0)], [], 1)
+    board = Board.create(1)
+    view = LiveTabs(layout, board, port=0, rate_hz=10.0)
+    broken, drawn = _BrokenTab(), []
+
+    class _Tab(_BrokenTab):
+        def render_frame(self) -> None:
+            drawn.append(view.frames_sent)
+
+    try:
+        monkeypatch.setattr(view, "scenes", lambda: [broken, _Tab()])
+        for _ in range(3):
+            view.tick()
+        err = capsys.readouterr().err
+        assert view.draw_errors == 3 and view.frames_sent == 3 and drawn == [0, 1, 2]
+        assert err.count("trackflow view: drawing a tab failed") == 1  # told once
+        assert "RuntimeError: the page went away mid-frame" in err and "Traceback" in err
+        assert broken.shown == ["RuntimeError: the page went away mid-frame"] * 3
+        monkeypatch.setattr(view, "scenes", list)  # (no tab open: the default report)
+        assert view.report()["draw_errors"] == 3
+    finally:
+        view.close()
         board.close()

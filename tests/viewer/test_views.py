@@ -307,7 +307,7 @@ def test_the_view_process_places_frames_and_bodies_like_pose_algebra():
     from trackflow.math import Pose, UncertainPose
     from trackflow.viewer.board import Board
     from trackflow.viewer.edges import EdgeLayout, QueryLayout, ViewLayout
-    from trackflow.viewer.live_process import LiveScene
+    from trackflow.viewer.live_state import LiveState
 
     rng = np.random.default_rng(7)
 
@@ -326,25 +326,24 @@ def test_the_view_process_places_frames_and_bodies_like_pose_algebra():
     cov = np.diag([1e-4, 4e-4, 9e-4, 1e-3, 2e-3, 3e-3])
     for slot, T in ((0, T_A_T), (1, T_M_C)):
         board.write_pose(slot, 1, T.position, T.quaternion, cov)
-    scene = LiveScene(layout, board, "127.0.0.1", 0, 10.0, None)
+    state = LiveState(layout, board, 10.0)
     try:
-        poses = {b.name: scene._read(b) for b in scene.bodies}
-        places = scene._place_frames(poses)
+        poses = state.read_poses()
+        places = state.place_frames("A", poses)
         T_A_M = T_A_T @ T_T_C @ T_M_C.inverse()
         for frame, want in (("T", T_A_T), ("C", T_A_T @ T_T_C), ("M", T_A_M)):
             q, p = places[frame]
             np.testing.assert_allclose(p, want.position, atol=1e-12)
             got = Pose(p, q)
             assert abs(abs(np.dot(got.quaternion, want.quaternion)) - 1) < 1e-12
-        bodies, _ = scene._collect(places, poses)
-        cam = bodies[[b.name for b in scene.bodies].index("cam")]
+        bodies = state.bodies_in(places, poses)
+        cam = bodies[[b.name for b in state.bodies].index("cam")]
         world = T_A_M @ T_M_C  # the camera's pose drawn at its source frame M
         np.testing.assert_allclose(cam.position, world.position, atol=1e-12)
         r = T_A_M.rotation_matrix  # translation error rotates into the world; rotation stays
         np.testing.assert_allclose(cam.covariance[:3, :3], r @ cov[:3, :3] @ r.T, atol=1e-15)
         np.testing.assert_allclose(cam.covariance[3:, 3:], cov[3:, 3:], atol=1e-15)
     finally:
-        scene.close()
         board.close()
 
 

@@ -11,7 +11,7 @@ page and draws from the board at the view rate. The dataflow thread never waits 
 and never shares an interpreter lock with it: per event it does a few scalar stores, and at
 most at the view rate one filter prediction and a pose record. A feeder thread in the
 dataflow process hands the network clock and the counted rejections over a few times a second
-and applies the page's prediction slider.
+and applies the prediction slider of the pages (one offset for every tab).
 """
 
 from __future__ import annotations
@@ -221,7 +221,7 @@ class LiveView:
             except (BrokenPipeError, OSError):
                 pass  # the view process is gone (close() reports nothing more)
 
-    # -- controls (the Python API) ---------------------------------------------------------------
+    # -- controls (the Python API: every open tab, and the settings of tabs opened later) -------
     @property
     def frames_sent(self) -> int:
         """View frames the view process pushed to its page."""
@@ -238,7 +238,7 @@ class LiveView:
 
     @paused.setter
     def paused(self, value: bool) -> None:
-        """Stop drawing (the dataflow runs on)."""
+        """Stop drawing in every tab (the dataflow runs on; the paths are kept)."""
         self._paused = bool(value)
         self._send(("set", {"paused": self._paused}))
 
@@ -282,9 +282,10 @@ class LiveView:
         self._send(("set", {k: bool(v) for k, v in shown.items()}))
 
     def scene_report(self, timeout_s: float = 30.0) -> dict:
-        """What the page shows now (:meth:`trackflow.viewer.live_scene.LiveScene.report`):
-        the anchor, every body's colour and time without data, the labels and the camera
-        they were laid out for.
+        """What the oldest open tab shows now
+        (:meth:`trackflow.viewer.live_scene.LiveScene.report`): the anchor, every body's
+        colour and time without data, the labels and the camera they were laid out for; with
+        no tab open, what a new tab starts from (no labels, no camera).
 
         Raises
         ------

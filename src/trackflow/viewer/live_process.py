@@ -9,13 +9,15 @@ dataflow and the view share only memory and a pipe. Messages on the pipe:
 * to the view: ``("stats", rejections, offsets_ms)`` (a few times a second, when they
   changed), ``("attributes", dict)`` (measured attributes and the queries' paths, every 2 s
   when they changed: :mod:`trackflow.viewer.attributes_panel`), ``("set", {name: value})``
-  (the Python API's controls), ``("report",)`` (what the page shows,
-  :meth:`LiveScene.report`), ``("stop",)``;
+  (the Python API's controls: every open tab, and the default of tabs opened later),
+  ``("report",)`` (what the oldest open tab shows, :meth:`LiveTabs.report`), ``("stop",)``;
 * from the view: ``("ready", url)`` or ``("failed", message)`` once, ``("offset", seconds)``
-  when the prediction slider moves (the dataflow process moves its prediction samplers),
-  ``("report", dict)`` in answer to a report request.
+  when a tab's prediction slider moves (the dataflow process moves its prediction samplers:
+  one offset for every tab), ``("report", dict)`` in answer to a report request.
 
-The page itself is :class:`trackflow.viewer.live_scene.LiveScene`.
+Each browser tab gets its own page (:class:`trackflow.viewer.live_scene.LiveScene`), drawn by
+:class:`trackflow.viewer.live_loop.LiveTabs` from the state every tab shares
+(:mod:`trackflow.viewer.live_state`).
 """
 
 from __future__ import annotations
@@ -28,9 +30,9 @@ import threading
 
 from ..errors import InputError
 from .board import Board
-from .live_scene import IDLE_RATE_HZ, LiveScene
+from .live_loop import IDLE_RATE_HZ, LiveTabs
 
-__all__ = ["IDLE_RATE_HZ", "PRIORITIES", "LiveScene", "lower_priority", "main"]
+__all__ = ["IDLE_RATE_HZ", "PRIORITIES", "LiveTabs", "lower_priority", "main"]
 
 #: View process priorities: ``low`` is niceness +10, ``idle`` runs only on CPU time no other
 #: process wants (Linux ``SCHED_IDLE``; elsewhere the lowest niceness), ``normal`` as is.
@@ -80,7 +82,7 @@ def main(conn) -> None:
         # a browser that opens a speculative connection and drops it is not an error here
         logging.getLogger("websockets.server").setLevel(logging.CRITICAL)
         board = Board.attach(board_name)
-        scene = LiveScene(
+        view = LiveTabs(
             layout, board, options["host"], options["port"], options["rate_hz"],
             options["style"], send, options.get("anchor"),
         )  # fmt: skip
@@ -103,23 +105,32 @@ def main(conn) -> None:
                 break
             if msg[0] == "stop":
                 break
-            if msg[0] == "stats":
-                scene.rejections, scene.offsets_ms = msg[1], msg[2]
-            elif msg[0] == "attributes":
-                scene.attributes = msg[1]
-            elif msg[0] == "set":
-                scene.apply(**msg[1])
-            elif msg[0] == "report":
-                send(("report", scene.report()))
+            try:
+                handle(msg)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:  # a bad message
+                print(f"trackflow view: message {msg[0]!r} refused: {type(exc).__name__}: "
+                      f"{exc}", file=sys.stderr, flush=True)  # fmt: skip
         stop.set()
+
+    def handle(msg) -> None:
+        if msg[0] == "stats":
+            view.state.rejections, view.state.offsets_ms = msg[1], msg[2]
+        elif msg[0] == "attributes":
+            view.state.attributes = msg[1]
+        elif msg[0] == "set":
+            view.apply(**msg[1])
+        elif msg[0] == "report":
+            send(("report", view.report()))
+        else:
+            raise KeyError(f"no view message {msg[0]!r}")
 
     receiver = threading.Thread(target=receive, daemon=True, name="trackflow-view-pipe")
     receiver.start()
-    send(("ready", scene.url))
+    send(("ready", view.url))
     try:
-        scene.loop(stop)
+        view.loop(stop)
     finally:
-        scene.close()
+        view.close()
         board.close()
 
 

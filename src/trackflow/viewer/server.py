@@ -73,6 +73,11 @@ class Pages:
         """Replace the status line (tests and snapshots wait for its text)."""
         self.status.content = text
 
+    def atomic(self):
+        """A context in which the messages to the pages are applied together (viser's
+        ``atomic``: a frame's nodes move at once)."""
+        raise NotImplementedError  # pragma: no cover
+
     def _forget_client(self, client) -> None:
         self._cameras.pop(client.client_id, None)
 
@@ -252,6 +257,9 @@ class ViewServer(Pages):
     def _pages(self) -> dict:
         return self.server.get_clients()
 
+    def atomic(self):
+        return self.server.atomic()
+
     def clear(self) -> None:
         """Remove every scene node, control and camera hook (the status line stays): the
         server can show another view to the pages already open, which keep their WebGL
@@ -305,6 +313,9 @@ class ClientView(Pages):
 
     def _pages(self) -> dict:
         return {self.client.client_id: self.client}
+
+    def atomic(self):
+        return self.client.atomic()
 
     def _can_move(self, cid: int, client) -> bool:
         return client.camera.update_timestamp > 0.0  # viser holds the page's camera
