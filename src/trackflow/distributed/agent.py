@@ -183,8 +183,9 @@ class Agent:
         self._inputs: list = []  # live trackers of own sensors (trackers.inputs.LiveInput)
         self._grace_ns = int(round(config.thin_grace_ms * 1e6))
         self.discovery = Discovery(
-            self.name, self.realm, self._lock, self.rejections, self._replan, self._clocks_measured
-        )
+            self.name, self.realm, self._lock, self.rejections, self._replan,
+            self._clocks_measured, lambda: self.remote.agents_followed(),
+        )  # fmt: skip
         self.remote = RemoteInputs(self, self.sched, self.discovery, self._sources, self._filters)
         self.thin = ThinStreams(  # (sensor side) consumers' thinned streams of own sensors
             config.realm,

@@ -7,6 +7,13 @@ Each change of the live set is handed to ``on_change(reason, t_event_ns)`` (the 
 re-plans), from the discovery thread; the changes that arrive together (the tokens of an
 agent that left or joined) are handed over once, when the burst has been taken in, with
 every reason and the time of the first.
+
+After the first measurement (five round trips when its fragment comes), an agent's clock is
+checked again only while this agent needs it (``clocks_needed``: the agents whose sensors it
+receives), every :data:`CLOCK_PERIOD_S`, and less often while the offset holds still: the
+period doubles, up to :data:`CLOCK_PERIOD_MAX_S`, after each check that moved the estimate by
+no more than three sigma (or 0.1 ms), and is back at :data:`CLOCK_PERIOD_S` after one that
+did. A realm of N agents no longer makes N x (N - 1) clock checks every 2 s.
 """
 
 from __future__ import annotations
@@ -24,6 +31,13 @@ from .fragment import first_fragment, fragment_stale
 __all__ = ["Discovery", "RemoteAgent", "alive_token", "realm_key"]
 
 _REASONS = 8  # the reasons of one burst of changes named in its re-plan's event
+#: the period of an agent's clock checks [s] (the clock thread's round), and the longest it
+#: backs off to while the offset holds still (the estimate is the best round trip of the
+#: last 32: at 8 s they span four minutes, over which synchronised hosts drift well under a
+#: tenth of a millisecond)
+CLOCK_PERIOD_S = 2.0
+CLOCK_PERIOD_MAX_S = 8.0
+_STILL_NS = 100_000  # a change of the estimate below this [ns] (or three sigma) is "still"
 
 
 def realm_key(realm: str, *parts: str) -> str:
@@ -53,6 +67,23 @@ class RemoteAgent:
     clock: RoundTripOffset = field(default_factory=RoundTripOffset)
     #: its live sensors' liveness windows [s] (the ``stale_ms`` of their inputs)
     stale_s: dict[str, float] = field(default_factory=dict)
+    #: the period of its clock checks [s] and when the next is due (``time.monotonic``)
+    clock_period_s: float = CLOCK_PERIOD_S
+    clock_due_s: float = 0.0
+
+    def clock_checked(self, before_ns: int | None, now_s: float) -> None:
+        """Set the next check's time after one that moved the offset from ``before_ns``:
+        later (twice the period, at most :data:`CLOCK_PERIOD_MAX_S`) if it held still,
+        at :data:`CLOCK_PERIOD_S` if it moved or was not known."""
+        c = self.clock
+        still = (
+            before_ns is not None and c.known
+            and abs(c.offset_ns - before_ns) <= max(_STILL_NS, 3e9 * c.sigma_s)
+        )  # fmt: skip
+        self.clock_period_s = (
+            min(2.0 * self.clock_period_s, CLOCK_PERIOD_MAX_S) if still else CLOCK_PERIOD_S
+        )
+        self.clock_due_s = now_s + self.clock_period_s
 
 
 class Discovery:
@@ -69,15 +100,20 @@ class Discovery:
     on_change : callable
         ``on_change(reason, t_event_ns)``: the live set changed (or a re-plan was asked).
     on_clock : callable
-        Called after every round of clock measurements (every 2 s).
+        Called after every round of clock measurements (every :data:`CLOCK_PERIOD_S`).
+    clocks_needed : callable, optional
+        ``clocks_needed() -> set`` of the agents whose clocks this agent uses (whose sensors
+        it receives); only theirs are checked after the first measurement. Default: every
+        agent with a live sensor.
     """
 
-    def __init__(self, name, realm, lock, rejections, on_change, on_clock):
+    def __init__(self, name, realm, lock, rejections, on_change, on_clock, clocks_needed=None):
         self.name, self.realm = name, realm
         self.lock = lock
         self.rejections = rejections
         self.on_change: Callable[[str, int], None] = on_change
         self.on_clock: Callable[[], None] = on_clock
+        self.clocks_needed: Callable[[], set[str]] | None = clocks_needed
         self.remotes: dict[str, RemoteAgent] = {}
         self.live: dict[str, str] = {}  # live remote measured edge -> agent
         self.statics: dict[str, Edge] = {}  # remote static edges (kept after their agent left)
@@ -85,12 +121,13 @@ class Discovery:
         self._work: queue.Queue = queue.Queue()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self.session = None
+        self.session = None  # (set by start: the Zenoh session and this agent's clock)
+        self.now_ns: Callable[[], int] = time.time_ns
 
     # -- life cycle -----------------------------------------------------------------------------
     def start(self, session, now_ns: Callable[[], int]) -> None:
         """Start the discovery and clock threads and follow the realm's tokens."""
-        self.session, self._now = session, now_ns
+        self.session, self.now_ns = session, now_ns
         for target in (self._worker, self._clock_loop):
             th = threading.Thread(target=target, name=f"{self.name}-{target.__name__}", daemon=True)
             th.start()
@@ -145,7 +182,11 @@ class Discovery:
         """Measured clock offsets of the other agents, ``host - remote``
         (:mod:`trackflow.timesync`), JSON-able."""
         return {
-            n: {"offset_ms": r.clock.offset_ns * 1e-6, "sigma_ms": r.clock.sigma_s * 1e3}
+            n: {
+                "offset_ms": r.clock.offset_ns * 1e-6,
+                "sigma_ms": r.clock.sigma_s * 1e3,
+                "period_s": r.clock_period_s,
+            }
             for n, r in self.remotes.items()
             if r.clock.known
         }
@@ -178,9 +219,9 @@ class Discovery:
 
     def _ping(self, rem: RemoteAgent, n: int) -> None:
         for _ in range(n):
-            t0 = self._now()
+            t0 = self.now_ns()
             replies = list(self.session.get(realm_key(self.realm, "clock", rem.name), timeout=1.0))
-            t1 = self._now()
+            t1 = self.now_ns()
             for reply in replies:
                 if reply.ok is not None and len(reply.ok.payload.to_bytes()) == 8:
                     remote = int.from_bytes(reply.ok.payload.to_bytes(), "little", signed=True)
@@ -251,14 +292,27 @@ class Discovery:
         return f"edge {edge} of agent {agent} appeared", t_event
 
     def _clock_loop(self) -> None:
+        while not self._stop.wait(CLOCK_PERIOD_S):
+            self.check_clocks(time.monotonic())
+            self.on_clock()
+
+    def check_clocks(self, now_s: float) -> int:
+        """One round of the clock thread: check the clocks that are due of the agents this
+        agent needs (module docstring); returns how many were checked."""
         import zenoh
 
-        while not self._stop.wait(2.0):
-            with self.lock:
-                remotes = [r for r in self.remotes.values() if r.name in self.live.values()]
-            for rem in remotes:
-                try:
-                    self._ping(rem, 1)
-                except zenoh.ZError:  # the remote may be gone; next round
-                    continue
-            self.on_clock()
+        needed = None if self.clocks_needed is None else self.clocks_needed()
+        with self.lock:
+            due = [
+                r for r in self.remotes.values()
+                if r.name in self.live.values() and (needed is None or r.name in needed)
+                and now_s >= r.clock_due_s - 0.05 * CLOCK_PERIOD_S  # (the thread's jitter)
+            ]  # fmt: skip
+        for rem in due:
+            before = rem.clock.offset_ns if rem.clock.known else None
+            try:
+                self._ping(rem, 1)
+            except zenoh.ZError:  # the remote may be gone; next round
+                continue
+            rem.clock_checked(before, now_s)
+        return len(due)

@@ -88,6 +88,15 @@ class RemoteInputs:
     def session(self):
         return self.agent.session
 
+    def agents_followed(self) -> set[str]:
+        """The agents whose sensors this agent receives (full or thinned streams): the
+        clocks it maps stamps with (:class:`~trackflow.distributed.discovery.Discovery`
+        checks only theirs)."""
+        with self.sched.lock:
+            names = set(self.subs.values())
+            names |= {a for e in self.thin if (a := self.discovery.live.get(e)) is not None}
+        return names
+
     # -- wiring ---------------------------------------------------------------------------------
     def replica(self, edge: Edge) -> None:
         if not isinstance(self.filters.get(edge.name), RemoteFilter):
