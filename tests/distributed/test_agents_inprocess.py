@@ -225,3 +225,45 @@ def test_a_push_query_keeps_only_its_newest_answers_and_latencies():
         stores = (sink.stats.latencies_ns, sink.wall_latencies_ns, sink.events)
         assert [getattr(x, "maxlen", None) for x in stores] == [LONG_RUN_KEEP] * 3
         assert 0 < len(sink.stats.latencies_ns) <= sink.stats.events_in
+
+
+def _sensor_to(name, target):
+    return {**_sensor(name, 2), "target": target}
+
+
+@pytest.mark.slow
+def test_a_departure_re_plans_only_the_queries_whose_plans_used_the_sensor(monkeypatch):
+    """Sensors that leave cannot better a plan that does not use them: when only departures
+    come, the application plans again only the queries whose paths or fallbacks held one."""
+    realm = f"dp{free_port()}"
+    px, py, pc = free_port(), free_port(), free_port()
+    queries = [dict(name=f"q{t}", source="W", target=t.upper()) for t in "xy"]
+    app = AgentConfig(
+        "app",
+        parse_setup({"frames": ["W", "X", "Y"], "queries": queries}),
+        realm=realm,
+        zenoh={
+            "listen": {"endpoints": [endpoint(pc)]},
+            "connect": {"endpoints": [endpoint(px), endpoint(py)]},
+        },
+    )
+    sensors = {
+        t: AgentConfig(f"a{t}", parse_setup({"sensors": [_sensor_to(f"s{t}", t.upper())]}),
+                       realm=realm, zenoh={"listen": {"endpoints": [endpoint(p)]}})
+        for t, p in (("x", px), ("y", py))
+    }  # fmt: skip
+    with Agent(app) as c, Agent(sensors["x"]):
+        ay = Agent(sensors["y"]).start()
+        try:
+            wait_for(lambda: all(c.queries[q].state == "running" for q in ("qx", "qy")), 30)
+            planned, plan = [], c.setup.plan
+            monkeypatch.setattr(
+                c.setup, "plan", lambda q, **kw: planned.append(q.name) or plan(q, **kw)
+            )
+            events_x = len(c.queries["qx"].events)
+        finally:
+            ay.close()
+        st = wait_for(lambda: c.queries["qy"].state == "no path" and c.queries["qy"], 30)
+        assert st.events[-1]["reason"] == "sensor sy of agent ay left"
+        assert planned == ["qy"]  # qx's plan (sx) kept as it was
+        assert c.queries["qx"].state == "running" and len(c.queries["qx"].events) == events_x

@@ -88,6 +88,7 @@ class QueryState:
     reason: str = ""
     paths: list[str] = field(default_factory=list)
     fallbacks: list[str] = field(default_factory=list)  # failover: the fallback paths
+    plan: object = None  # the current plan (None: waiting, or no path)
     sink: object = None
     sampler: object = None
     generation: int = 0
@@ -491,35 +492,40 @@ class Agent:
         """Own edges, live remote sensors and every static edge learned so far."""
         return self.discovery.union_graph(self.setup.graph)
 
-    def _replan(self, reason: str, t_event_ns: int) -> None:
+    def _replan(self, reason: str, t_event_ns: int, departed: frozenset | None = None) -> None:
         """Plan every query on the current union graph; rebuild the dataflow if a plan
-        changed. Remote sensors are subscribed when a plan first uses them (a sensor no
-        query uses never crosses the network) and stay subscribed, so a later switch back
-        finds their replicas current. Each query's new plan is an event in its status and,
-        as it happens, a message on ``event/<agent>`` (:meth:`_announce`)."""
+        changed. When only sensors left (``departed``), a query whose plan uses none of them
+        (fallbacks included) keeps it unplanned: losing edges cannot better a path, and one
+        without a path cannot gain one. Remote sensors are subscribed when a plan first uses
+        them (a sensor no query uses never crosses the network) and stay subscribed, so a
+        later switch back finds their replicas current. Each query's new plan is an event in
+        its status and, as it happens, a message on ``event/<agent>`` (:meth:`_announce`)."""
         announce: list[tuple[str, dict]] = []
         with self._lock:
-            self._replan_locked(reason, t_event_ns, announce)
+            self._replan_locked(reason, t_event_ns, announce, departed)
         self._announce(announce)
 
-    def _replan_locked(self, reason: str, t_event_ns: int, announce: list) -> None:
+    def _replan_locked(self, reason: str, t_event_ns: int, announce: list, departed) -> None:
         """:meth:`_replan` under the lock; the events made go to ``announce``."""
         graph = self.union_graph()
         changed, plans, used, pushed, new_events = False, {}, set(), set(), []
         for name, q in self.setup.queries.items():
             st = self.queries[name]
+            if departed is not None and st.state == "no path":
+                continue
             try:
-                plan = self._plan(q, graph)
+                keep = departed is not None and st.plan is not None
+                plan = st.plan if keep and not st.plan.sensors & departed else self._plan(q, graph)
             except ValueError as exc:
                 if st.state != "no path" or st.reason != str(exc):
                     st.state, st.reason, st.paths = "no path", str(exc), []
-                    st.fallbacks = []
+                    st.fallbacks, st.plan = [], None
                     st.sink = st.sampler = None
                     changed = True
                     st.events.append(self._event(reason, t_event_ns, st))
                     announce.append((name, st.events[-1]))
                 continue
-            plans[name] = plan
+            plans[name] = st.plan = plan
             used |= plan.sensors  # a fallback's sensors too: its replicas stay warm
             if q.mode == "push":
                 pushed |= plan.sensors

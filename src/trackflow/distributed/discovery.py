@@ -3,10 +3,11 @@
 Discovery follows the liveliness tokens ``trackflow/<realm>/alive/<agent>/<edge>``: a new
 token makes the agent fetch the owner's fragment (``fragment/<agent>``) and measure its clock
 (``clock/<agent>``, round trips); a token that disappears takes its edge out of the live set.
-Each change of the live set is handed to ``on_change(reason, t_event_ns)`` (the agent
-re-plans), from the discovery thread; the changes that arrive together (the tokens of an
-agent that left or joined) are handed over once, when the burst has been taken in, with
-every reason and the time of the first.
+Each change of the live set is handed to ``on_change(reason, t_event_ns, departed)`` (the
+agent re-plans), from the discovery thread; the changes that arrive together (the tokens of
+an agent that left or joined) are handed over once, when the burst has been taken in, with
+every reason and the time of the first. ``departed`` is the set of sensors that left when
+the burst held only departures (a plan that uses none of them cannot change), else ``None``.
 
 After the first measurement (five round trips when its fragment comes), an agent's clock is
 checked again only while this agent needs it (``clocks_needed``: the agents whose sensors it
@@ -98,7 +99,8 @@ class Discovery:
     rejections : wire.Rejections
         Where malformed keys and fragments are counted.
     on_change : callable
-        ``on_change(reason, t_event_ns)``: the live set changed (or a re-plan was asked).
+        ``on_change(reason, t_event_ns, departed)``: the live set changed (or a re-plan was
+        asked); ``departed``: the sensors that left, if nothing else changed, else ``None``.
     on_clock : callable
         Called after every round of clock measurements (every :data:`CLOCK_PERIOD_S`).
     clocks_needed : callable, optional
@@ -232,13 +234,13 @@ class Discovery:
 
         A token whose fragment cannot be fetched yet (the agent is still starting, or busy)
         is tried again every 0.5 s for 30 s, then counted as a rejection."""
-        pending: list[tuple[str, int]] = []  # (reason, t_event_ns) not handed over yet
+        pending: list[tuple] = []  # (reason, t_event_ns, departed sensor) not handed over yet
         while True:
             item = self._work.get()
             if item[0] == "stop" or self._stop.is_set():
                 return
             if item[0] == "replan":
-                change = item[1], item[2]
+                change = item[1], item[2], None
             elif item[0] == "delete":
                 change = self._gone(*item[1:])
             else:
@@ -246,21 +248,24 @@ class Discovery:
             if change is not None:
                 pending.append(change)
             if pending and self._work.empty():  # once after a burst
-                reasons = list(dict.fromkeys(r for r, _ in pending))
+                reasons = list(dict.fromkeys(r for r, _, _ in pending))
                 more = f"; and {len(reasons) - _REASONS} more" if len(reasons) > _REASONS else ""
-                self.on_change("; ".join(reasons[:_REASONS]) + more, min(t for _, t in pending))
+                gone = [e for _, _, e in pending]
+                departed = None if None in gone else frozenset(gone)
+                self.on_change("; ".join(reasons[:_REASONS]) + more,
+                               min(t for _, t, _ in pending), departed)  # fmt: skip
                 pending = []
 
-    def _gone(self, agent: str, edge: str, t_event: int) -> tuple[str, int] | None:
-        """The change a deleted token makes (``None``: none)."""
+    def _gone(self, agent: str, edge: str, t_event: int) -> tuple[str, int, str] | None:
+        """The change a deleted token makes (``None``: none): its reason, time and sensor."""
         self._seen.get(agent, set()).discard(edge)
         with self.lock:  # status() reads these from other threads
             gone = self.live.get(edge) == agent
             if gone:
                 del self.live[edge]
-        return (f"sensor {edge} of agent {agent} left", t_event) if gone else None
+        return (f"sensor {edge} of agent {agent} left", t_event, edge) if gone else None
 
-    def _appeared(self, agent: str, edge: str, t_event: int, *attempt) -> tuple[str, int] | None:
+    def _appeared(self, agent: str, edge: str, t_event: int, *attempt) -> tuple | None:
         """The change a new token makes (``None``: none yet: its fragment is fetched again
         in 0.5 s while its agent starts)."""
         import zenoh
@@ -289,7 +294,7 @@ class Discovery:
                     self.statics[name] = e
                 else:
                     self.live[name] = agent
-        return f"edge {edge} of agent {agent} appeared", t_event
+        return f"edge {edge} of agent {agent} appeared", t_event, None
 
     def _clock_loop(self) -> None:
         while not self._stop.wait(CLOCK_PERIOD_S):
