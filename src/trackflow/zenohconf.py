@@ -28,10 +28,10 @@ __all__ = [
 #: Zenoh's shared-memory transport, off. trackflow's messages are small (a state batch is a
 #: few kilobytes), where shared memory saves nothing, and it costs: every session creates a
 #: 16 MB segment in ``/dev/shm`` that every local peer it hears from maps, so an agent's memory
-#: grew with the realm (20 agents on one machine: 822 MB each, against 357 MB alone), and a
-#: killed process leaves its segment behind. Part of :data:`DEFAULT_ZENOH` and of the realm's
-#: generated configurations; an agent file may turn it on (``zenoh: {transport:
-#: {shared_memory: {enabled: true}}}``).
+#: grew with the realm (20 agents on one machine: 772 MB each with it, 380 MB without, 309 MB
+#: alone), and a killed process's segment stays in ``/dev/shm`` until a later session sweeps
+#: it. Part of :data:`DEFAULT_ZENOH` and of the realm's generated configurations; an agent
+#: file may turn it on (``zenoh: {transport: {shared_memory: {enabled: true}}}``).
 NO_SHARED_MEMORY = {"shared_memory": {"enabled": False}}
 
 #: safe defaults for one machine: a peer listening on loopback (a free port), multicast
