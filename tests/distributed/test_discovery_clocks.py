@@ -8,6 +8,8 @@ import threading
 
 import pytest
 
+pytest.importorskip("zenoh", reason="eclipse-zenoh is not installed (pip install .[distributed])")
+
 from trackflow.distributed.discovery import (
     CLOCK_PERIOD_MAX_S,
     CLOCK_PERIOD_S,
